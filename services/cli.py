@@ -1,0 +1,48 @@
+"""The `nod` command: one entry point that dispatches to each service's or tool's own `main`.
+
+Each subcommand lives in its own module with a `main(argv) -> int`, so `nod decision …` and
+`python -m services.decision …` run the same code, and importing the CLI stays cheap (a
+subcommand's heavy imports happen only when it runs).
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "run": ("services.run", "start a router and every service; run a session"),
+    "decision": ("services.decision.service", "opinion dynamics service (eqs 1, 6, 7)"),
+    "actuation": ("services.actuation.service", "robot arm behaviour service (Algorithm 2)"),
+    "eyes": ("services.eyes.service", "gaze / servo eyes service (Section 5)"),
+    "sim": ("services.sim.service", "synthetic participant publishing hand poses"),
+    "experiment": ("services.experiment.service", "conductor of the 8-trial protocol"),
+    "estop": ("services.safety.estop", "publish (or release) an emergency stop"),
+    "report": ("services.experiment.report", "per-trial results from a session database"),
+    "analyze": ("services.analysis.cli", "numerical analysis and statistics"),
+}
+
+
+def _usage() -> str:
+    lines = ["usage: nod <command> [options]", "", "commands:"]
+    lines += [f"  {name:<11} {help_}" for name, (_, help_) in COMMANDS.items()]
+    lines += ["", "Run `nod <command> --help` for the options of one command."]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Dispatch `nod <command> …` to the command's module."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if not args or args[0] in {"-h", "--help", "help"}:
+        print(_usage())
+        return 0
+    name, rest = args[0], args[1:]
+    if name not in COMMANDS:
+        print(f"nod: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
+        return 2
+    module = importlib.import_module(COMMANDS[name][0])
+    return int(module.main(rest) or 0)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,110 @@
+"""Table geometry shared by every service: the two buzzer boxes and the decision commit line.
+
+Coordinates are normalised image coordinates: x to the right, y down, both in [0, 1] (SPEC §2).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal, TypeAlias
+
+Point: TypeAlias = tuple[float, float]
+Colour: TypeAlias = Literal["red", "blue"]
+COLOURS: tuple[Colour, Colour] = ("red", "blue")
+
+
+def colour_sign(colour: Colour) -> int:
+    """+1 for red, −1 for blue: the sign convention of every opinion (SPEC)."""
+    return 1 if colour == "red" else -1
+
+
+def sign_colour(sign: float) -> Colour | None:
+    """The colour a signed opinion points to, or None for exactly zero."""
+    if sign > 0:
+        return "red"
+    if sign < 0:
+        return "blue"
+    return None
+
+
+@dataclass(frozen=True, slots=True)
+class Box:
+    """An axis-aligned box given by two corners (x1, y1) and (x2, y2), x1 ≤ x2 and y1 ≤ y2.
+
+    The first corner is Algorithm 1's distance anchor (`p_buzzer[c][0]`).
+    """
+
+    x1: float
+    y1: float
+    x2: float
+    y2: float
+
+    def __post_init__(self) -> None:
+        values = (self.x1, self.y1, self.x2, self.y2)
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"box corners must be finite, got {values}")
+        if self.x1 > self.x2 or self.y1 > self.y2:
+            raise ValueError(f"box corners must satisfy x1 <= x2 and y1 <= y2, got {values}")
+
+    @property
+    def corner(self) -> Point:
+        """The first corner (x1, y1)."""
+        return (self.x1, self.y1)
+
+    @property
+    def center(self) -> Point:
+        """The centre of the box."""
+        return ((self.x1 + self.x2) / 2.0, (self.y1 + self.y2) / 2.0)
+
+    def contains(self, p: Point) -> bool:
+        """Whether a point lies inside the box, edges included (Algorithm 2's press test)."""
+        return self.x1 <= p[0] <= self.x2 and self.y1 <= p[1] <= self.y2
+
+
+@dataclass(frozen=True, slots=True)
+class CommitLine:
+    """The decision commit line, as a horizontal image line y = const.
+
+    The hand starts on the participant's side (`start_side` = "below" when the participant stands
+    at the bottom of the image, larger y) and crosses the line on its way to the buzzers.
+    """
+
+    y: float = 0.45
+    start_side: Literal["below", "above"] = "below"
+
+    def crossed(self, p: Point) -> bool:
+        """Whether a hand position lies past the line, on the buzzers' side."""
+        return p[1] < self.y if self.start_side == "below" else p[1] > self.y
+
+
+@dataclass(frozen=True, slots=True)
+class TableLayout:
+    """The two buzzer boxes and the commit line, as seen by the overhead camera."""
+
+    red: Box = field(default_factory=lambda: Box(0.72, 0.12, 0.86, 0.26))
+    blue: Box = field(default_factory=lambda: Box(0.14, 0.12, 0.28, 0.26))
+    commit: CommitLine = field(default_factory=CommitLine)
+
+    def box(self, colour: Colour) -> Box:
+        """The box of one buzzer."""
+        return self.red if colour == "red" else self.blue
+
+    @property
+    def red_on_right(self) -> bool:
+        """Algorithm 1 assumes red toward +x; False means the layout is mirrored (SPEC §2)."""
+        return self.red.center[0] >= self.blue.center[0]
+
+    def pressed(self, points: list[Point] | tuple[Point, ...]) -> Colour | None:
+        """The buzzer whose box holds any of the points (a hand landmark), or None."""
+        for p in points:
+            for colour in COLOURS:
+                if self.box(colour).contains(p):
+                    return colour
+        return None
+
+    def nearest(self, p: Point) -> Colour:
+        """The buzzer whose anchor corner is nearest to p (ties go to red, as Algorithm 2)."""
+        d_red = math.dist(p, self.red.corner)
+        d_blue = math.dist(p, self.blue.corner)
+        return "blue" if d_blue < d_red else "red"
