@@ -1,0 +1,1 @@
+"""nod-hri: a human-robot consensus experiment as Zenoh-distributed services."""

@@ -1,0 +1,1 @@
+"""Actuation service: Algorithm 2 behaviour and arm drivers."""

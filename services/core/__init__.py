@@ -1,0 +1,1 @@
+"""The shared contract: keys, messages, sessions, config, clocks, logging. No domain math."""

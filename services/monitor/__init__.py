@@ -1,0 +1,1 @@
+"""Monitor: a Rerun bridge for every key of a rig."""

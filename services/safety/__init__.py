@@ -1,0 +1,1 @@
+"""Safety: staleness / liveliness / e-stop watchdog shared by actuation and eyes."""

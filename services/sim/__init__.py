@@ -1,0 +1,1 @@
+"""Sim service: a synthetic participant that publishes what vision would."""

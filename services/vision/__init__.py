@@ -1,0 +1,1 @@
+"""Vision service: camera capture, hand trackers and buzzer-box calibration."""

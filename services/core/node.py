@@ -1,0 +1,167 @@
+"""The thin runtime every service shell shares: session, liveliness, typed pub/sub, ticks.
+
+A `Node` owns one Zenoh session and one lock. Every subscriber callback and every periodic tick
+runs under that lock, so a service's logic is single-threaded without a queue hop on the hot path
+(zenoh delivers samples on its own threads). Bad payloads are decoded, counted, logged in one line
+and dropped; the service keeps running.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import zenoh
+
+from services.core import messages as m
+from services.core.clock import Clock, clock_from_args
+from services.core.keys import TOPICS, Keys
+from services.core.session import open_session, zenoh_config
+
+M = TypeVar("M", bound=m.Message)
+log = logging.getLogger(__name__)
+
+
+class TopicPublisher:
+    """Publishes one topic's messages with a running `seq` and the node clock's `t_ns`."""
+
+    def __init__(self, node: Node, topic: str) -> None:
+        self.topic = topic
+        self.key = node.keys.topic(topic)
+        self.cls = TOPICS[topic][0]
+        self._clock = node.clock
+        self._pub = node.session.declare_publisher(self.key)
+        self.seq = 0
+
+    def put(self, t_ns: int | None = None, **fields: Any) -> m.Message:
+        """Build, validate, encode and publish one message; return it."""
+        msg = self.cls(seq=self.seq, t_ns=self._clock.now_ns() if t_ns is None else t_ns, **fields)
+        self.seq += 1
+        self._pub.put(m.encode(msg))
+        return msg
+
+
+class Node:
+    """One service process on the Zenoh fabric."""
+
+    def __init__(self, service: str, args: argparse.Namespace) -> None:
+        self.service = service
+        self.keys = Keys(args.rig)
+        self.clock: Clock = clock_from_args(args)
+        self.session = open_session(zenoh_config(args))
+        self.lock = threading.RLock()
+        self.stop = threading.Event()
+        self.bad: Counter[str] = Counter()
+        self.received: Counter[str] = Counter()
+        self._handles: list[Any] = []
+        self._ticks: list[tuple[float, Callable[[int], None], list[float]]] = []
+        self._token = self.session.liveliness().declare_token(self.keys.alive(service))
+        log.info("%s up on rig %r (clock speed %.3g)", service, self.keys.rig, self.clock.speed)
+
+    # -- pub/sub -------------------------------------------------------------------------------
+
+    def publisher(self, topic: str) -> TopicPublisher:
+        """A publisher for one topic of this rig."""
+        return TopicPublisher(self, topic)
+
+    def subscribe(self, topic: str, handler: Callable[[Any], None]) -> None:
+        """Decode every sample of `topic` strictly and pass good ones to `handler` (locked)."""
+        key = self.keys.topic(topic)
+        cls: type[m.Message] = TOPICS[topic][0]
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                msg = m.decode(cls, sample.payload.to_bytes())
+            except m.MessageError as exc:
+                self._drop(topic, str(exc))
+                return
+            with self.lock:
+                self.received[topic] += 1
+                try:
+                    handler(msg)
+                except Exception:  # a handler bug must not kill zenoh's delivery thread
+                    log.exception("%s: handler for %s failed", self.service, topic)
+
+        self._handles.append(self.session.declare_subscriber(key, on_sample))
+
+    def _drop(self, topic: str, why: str) -> None:
+        self.bad[topic] += 1
+        n = self.bad[topic]
+        if n <= 10 or n % 100 == 0:  # one line each, but never a log flood from a bad peer
+            log.warning("%s: dropped bad message #%d on %s: %s", self.service, n, topic, why)
+
+    def watch_liveliness(self, service: str, on_change: Callable[[bool], None]) -> None:
+        """Call `on_change(alive)` (locked) when `service`'s liveliness token appears or goes."""
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            alive = sample.kind == zenoh.SampleKind.PUT
+            with self.lock:
+                on_change(alive)
+
+        sub = self.session.liveliness().declare_subscriber(
+            self.keys.alive(service), on_sample, history=True
+        )
+        self._handles.append(sub)
+
+    # -- time ----------------------------------------------------------------------------------
+
+    def every(self, period_s: float, fn: Callable[[int], None]) -> None:
+        """Run `fn(now_ns)` (locked) every `period_s` of simulated time from `run()`."""
+        self._ticks.append((period_s, fn, [0.0]))
+
+    def run(self) -> None:
+        """Run ticks until SIGINT/SIGTERM or `stop` is set, then close the session."""
+        install_signal_handlers(self.stop)
+        try:
+            while not self.stop.is_set():
+                now_wall = time.monotonic()
+                next_due = now_wall + 0.5
+                for period, fn, due in self._ticks:
+                    if now_wall >= due[0]:
+                        with self.lock:
+                            try:
+                                fn(self.clock.now_ns())
+                            except Exception:  # keep ticking: one bad tick is not a shutdown
+                                log.exception("%s: tick failed", self.service)
+                        due[0] += self.clock.wall_seconds(period)
+                        if due[0] < now_wall:  # fell behind (or first run): no burst of catch-ups
+                            due[0] = now_wall + self.clock.wall_seconds(period)
+                    next_due = min(next_due, due[0])
+                self.stop.wait(max(0.0, next_due - time.monotonic()))
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        if self.session is None:
+            return
+        if self.bad:
+            log.info("%s: bad messages dropped: %s", self.service, dict(self.bad))
+        for h in self._handles:
+            h.undeclare()
+        self._handles.clear()
+        self._token.undeclare()
+        self.session.close()
+        self.session = None  # type: ignore[assignment]
+
+
+def install_signal_handlers(stop: threading.Event) -> None:
+    """Turn SIGINT and SIGTERM into `stop.set()` (only possible from the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+
+
+def setup_logging(verbose: bool = False) -> None:
+    """One log format for every service: time, level, logger, message — one line each."""
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )

@@ -1,0 +1,109 @@
+"""The wire contract: round trips, and strict rejection of everything a peer could get wrong."""
+
+import math
+
+import msgpack
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from services.core import messages as m
+from services.core.keys import TOPICS, Keys
+
+coord = st.floats(min_value=0.0, max_value=1.0, allow_nan=False)
+point = st.tuples(coord, coord)
+
+
+def _raw(**fields):
+    return msgpack.packb({"v": m.SCHEMA_VERSION, "seq": 1, "t_ns": 5, **fields})
+
+
+@given(st.lists(point, min_size=1, max_size=21), st.integers(0, 2**62), st.integers(0, 2**62))
+def test_hand_pose_round_trip(landmarks, seq, t_ns):
+    cx = sum(p[0] for p in landmarks) / len(landmarks)
+    cy = sum(p[1] for p in landmarks) / len(landmarks)
+    msg = m.HandPose(seq=seq, t_ns=t_ns, detected=True, center=(cx, cy), landmarks=tuple(landmarks))
+    assert m.decode(m.HandPose, m.encode(msg)) == msg
+
+
+@given(st.binary(max_size=200))
+def test_garbage_never_escapes_as_another_exception(payload):
+    for cls in (m.HandPose, m.Scalar, m.TrialEvent, m.Estop, m.GazeMsg):
+        try:
+            m.decode(cls, payload)
+        except m.MessageError:
+            pass
+
+
+@given(
+    st.dictionaries(
+        st.text(max_size=8),
+        st.one_of(
+            st.none(),
+            st.integers(-(2**63), 2**63 - 1),
+            st.floats(),
+            st.text(max_size=5),
+            st.booleans(),
+        ),
+        max_size=6,
+    )
+)
+def test_random_maps_decode_or_fail_cleanly(fields):
+    payload = msgpack.packb({"v": m.SCHEMA_VERSION, **fields})
+    try:
+        msg = m.decode(m.Scalar, payload)
+    except m.MessageError:
+        return
+    assert math.isfinite(msg.value)
+
+
+@pytest.mark.parametrize(
+    ("payload", "fragment"),
+    [
+        (b"\xc1", "not valid msgpack"),
+        (msgpack.packb([1, 2]), "expected a map"),
+        (msgpack.packb({"v": 99, "seq": 1, "t_ns": 1}), "schema version"),
+        (_raw(value=float("nan"), src_seq=1), "finite"),
+        (_raw(value=float("inf"), src_seq=1), "finite"),
+        (_raw(value="3", src_seq=1), "expected a number"),
+        (_raw(value=True, src_seq=1), "expected a number"),
+        (_raw(value=1.0, src_seq=-1), "outside"),
+        (_raw(value=1.0, src_seq=1, extra=2), "unknown field"),
+        (msgpack.packb({"v": m.SCHEMA_VERSION, "t_ns": 5, "value": 1.0}), "missing field 'seq'"),
+    ],
+)
+def test_bad_scalars_are_rejected_with_a_reason(payload, fragment):
+    with pytest.raises(m.MessageError, match=fragment):
+        m.decode(m.Scalar, payload)
+
+
+@pytest.mark.parametrize(
+    ("fields", "fragment"),
+    [
+        ({"detected": True, "center": [0.5, 0.5], "landmarks": []}, "at least one landmark"),
+        ({"detected": False, "center": [0.5, 0.5], "landmarks": []}, "no center"),
+        ({"detected": True, "center": [0.5], "landmarks": [[0.5, 0.5]]}, "expected 2 items"),
+        ({"detected": True, "center": [0.5, 0.5], "landmarks": [[0.5, 9.0]]}, "outside"),
+        ({"detected": True, "center": [0.5, 0.5], "landmarks": [[0.5, 0.5]] * 65}, "exceed"),
+        ({"detected": "yes"}, "true/false"),
+    ],
+)
+def test_bad_hand_poses_are_rejected(fields, fragment):
+    with pytest.raises(m.MessageError, match=fragment):
+        m.decode(m.HandPose, _raw(**fields))
+
+
+def test_literal_fields_are_checked():
+    with pytest.raises(m.MessageError, match="expected one of"):
+        m.decode(m.TrialEvent, _raw(phase="dance"))
+
+
+def test_keys_are_scoped_by_rig_and_map_back_to_types():
+    keys = Keys("labA")
+    for topic, (cls, *_rest) in TOPICS.items():
+        key = keys.topic(topic)
+        assert key == f"nod/labA/{topic}"
+        assert keys.message_type(key) is cls
+    assert keys.message_type("nod/other/vision/hand") is None
+    with pytest.raises(ValueError, match="rig name"):
+        Keys("bad/rig")
