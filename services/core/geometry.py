@@ -104,7 +104,12 @@ class TableLayout:
         return None
 
     def nearest(self, p: Point) -> Colour:
-        """The buzzer whose anchor corner is nearest to p (ties go to red, as Algorithm 2)."""
-        d_red = math.dist(p, self.red.corner)
-        d_blue = math.dist(p, self.blue.corner)
+        """The buzzer whose box centre is nearest to p (ties go to red, as Algorithm 2).
+
+        Deviation: Algorithm 2 measures to each box's first corner, which with both corners on
+        the boxes' left edges biases a robot standing midway toward red; the centre is what
+        "the buzzer nearest to the end effector" means physically and is symmetric.
+        """
+        d_red = math.dist(p, self.red.center)
+        d_blue = math.dist(p, self.blue.center)
         return "blue" if d_blue < d_red else "red"

@@ -50,7 +50,9 @@ class TopicPublisher:
 class Node:
     """One service process on the Zenoh fabric."""
 
-    def __init__(self, service: str, args: argparse.Namespace) -> None:
+    def __init__(
+        self, service: str, args: argparse.Namespace, *, stands_in_for: tuple[str, ...] = ()
+    ) -> None:
         self.service = service
         self.keys = Keys(args.rig)
         self.clock: Clock = clock_from_args(args)
@@ -62,6 +64,12 @@ class Node:
         self._handles: list[Any] = []
         self._ticks: list[tuple[float, Callable[[int], None], list[float]]] = []
         self._token = self.session.liveliness().declare_token(self.keys.alive(service))
+        # A simulator standing in for another service also holds that service's token, so
+        # watchdogs that require e.g. "vision" accept the sim without special cases.
+        self._extra_tokens = [
+            self.session.liveliness().declare_token(self.keys.alive(other))
+            for other in stands_in_for
+        ]
         log.info("%s up on rig %r (clock speed %.3g)", service, self.keys.rig, self.clock.speed)
 
     # -- pub/sub -------------------------------------------------------------------------------
@@ -146,7 +154,8 @@ class Node:
         for h in self._handles:
             h.undeclare()
         self._handles.clear()
-        self._token.undeclare()
+        for token in (self._token, *self._extra_tokens):
+            token.undeclare()
         self.session.close()
         self.session = None  # type: ignore[assignment]
 

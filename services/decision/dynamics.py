@@ -119,9 +119,7 @@ def thresholds(p: PairParams) -> Thresholds:
 
     u_d = u_star_of(lam[0])
     if u_d is None:
-        raise ValueError(
-            "no dissensus threshold: α + γ·λ_min ≤ 0 (choose γ < 0 and a_rh·a_hr > 0)"
-        )
+        raise ValueError("no dissensus threshold: α + γ·λ_min ≤ 0 (choose γ < 0 and a_rh·a_hr > 0)")
     eig_origin = np.linalg.eigvals(jacobian(0.0, 0.0, p)).real
     return Thresholds(
         u=a.u,

@@ -1,0 +1,319 @@
+"""Arm drivers: one small interface, and a kinematic simulated arm.
+
+Following LeRobot's `Robot`: hardware sits behind `connect / is_connected / send / disconnect`
+and a context manager; `send` returns the command actually applied (a driver may refuse or
+change one, e.g. a move while a press is under way, or anything but a stop while faulted).
+Leaving the `with` block holds the arm before disconnecting.
+
+Coordinates are the table's normalised image coordinates (x right, y down, in [0, 1]); time is
+in seconds (float) and always passed in — no driver here reads a clock.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from types import TracebackType
+
+from services.actuation.behaviour import ArmCommand
+from services.core.geometry import Colour, Point, TableLayout
+
+
+class ArmNotConnectedError(RuntimeError):
+    """A command or query reached an arm driver before `connect()` (or after `disconnect()`)."""
+
+
+@dataclass(frozen=True, slots=True)
+class ArmState:
+    """What the arm reports at time t (s)."""
+
+    t: float  # time of the report (s)
+    ee: Point  # end effector in table coordinates
+    moving: bool  # the end effector has non-zero velocity
+    target: Colour | None  # buzzer the arm is heading for or pressing; None when stopping/home
+    pressed: Colour | None  # buzzer the arm has finished pressing in this trial
+    fault: str | None  # why the arm refuses motion, or None when healthy
+
+
+class ArmDriver(ABC):
+    """The interface every arm (simulated or real) implements."""
+
+    @property
+    @abstractmethod
+    def is_connected(self) -> bool:
+        """Whether commands can be sent."""
+
+    @abstractmethod
+    def connect(self) -> None:
+        """Open the connection to the arm (idempotent)."""
+
+    @abstractmethod
+    def disconnect(self) -> None:
+        """Close the connection (idempotent); callers hold the arm first."""
+
+    @abstractmethod
+    def send(self, cmd: ArmCommand) -> ArmCommand:
+        """Apply a command; return the command actually applied."""
+
+    @abstractmethod
+    def home(self) -> ArmCommand:
+        """Drive back to the home pose and clear the trial's press (between trials)."""
+
+    @abstractmethod
+    def state(self, t: float) -> ArmState:
+        """The arm's state at time t (s)."""
+
+    def hold(self) -> ArmCommand:
+        """Safe stop: come to rest (bounded deceleration) and hold that position."""
+        return self.send(ArmCommand.stop("hold"))
+
+    def __enter__(self) -> ArmDriver:
+        self.connect()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        try:
+            if self.is_connected:
+                self.hold()
+        finally:
+            self.disconnect()
+
+
+@dataclass(frozen=True, slots=True)
+class SimArmParams:
+    """Kinematic limits of the simulated arm."""
+
+    # Rest pose: the robot sits across the table from the participant, near the top edge
+    # between the two boxes (normalised image coordinates).
+    home: Point = (0.5, 0.08)
+    # Speed limit of the end effector (normalised units/s); > 0. Never exceeded.
+    max_speed: float = 0.35
+    # Acceleration limit (normalised units/s²); > 0. Also bounds braking: a stop is not instant.
+    max_accel: float = 2.0
+    # Time the buzzer is held down once reached (s); ≥ 0.
+    press_duration_s: float = 0.3
+    # Internal integration step (s); > 0. Smaller = more exact arrival, more work per advance.
+    step_s: float = 0.002
+
+    def __post_init__(self) -> None:
+        if len(self.home) != 2 or not all(math.isfinite(v) for v in self.home):
+            raise ValueError(f"SimArmParams.home must be a finite (x, y), got {self.home!r}")
+        for name in ("max_speed", "max_accel", "step_s"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value <= 0:
+                raise ValueError(f"SimArmParams.{name} must be finite and > 0, got {value}")
+        if not math.isfinite(self.press_duration_s) or self.press_duration_s < 0:
+            raise ValueError(
+                f"SimArmParams.press_duration_s must be finite and >= 0, got "
+                f"{self.press_duration_s}"
+            )
+
+
+_ARRIVED = 1e-6  # distance (normalised) under which the arm snaps onto its goal
+
+
+class SimArm(ArmDriver):
+    """A point end effector with speed and acceleration limits, moving over the table.
+
+    "move" heads for the centre of that colour's box; "press" does the same, then holds the
+    buzzer for `press_duration_s` and reports it pressed. "stop" brakes at `max_accel` (a real
+    arm cannot stop instantly, so neither does this one) and then holds. Commands take effect
+    at the arm's current time: call `advance(t)` (or `state(t)`) first.
+    """
+
+    def __init__(
+        self, layout: TableLayout, params: SimArmParams | None = None, t0: float = 0.0
+    ) -> None:
+        """Place the arm at home, at rest, at time t0 (s); not yet connected."""
+        self.layout = layout
+        self.params = params if params is not None else SimArmParams()
+        if not math.isfinite(t0):
+            raise ValueError(f"t0 must be finite, got {t0!r}")
+        self._t = t0
+        self._connected = False
+        self._pos: Point = self.params.home
+        self._vel: Point = (0.0, 0.0)
+        self._goal: Point | None = None  # None: brake to rest and hold
+        self._target: Colour | None = None
+        self._press: Colour | None = None  # buzzer committed to press
+        self._press_started: float | None = None
+        self._pressed: Colour | None = None
+        self._fault: str | None = None
+        self._applied: ArmCommand = ArmCommand.idle("at home")
+
+    # -- connection ------------------------------------------------------------------------
+    @property
+    def is_connected(self) -> bool:
+        """Whether commands can be sent."""
+        return self._connected
+
+    def connect(self) -> None:
+        """Mark the simulated arm connected."""
+        self._connected = True
+
+    def disconnect(self) -> None:
+        """Mark the simulated arm disconnected; its motion state is kept."""
+        self._connected = False
+
+    # -- read-only state -------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        """The arm's current time (s)."""
+        return self._t
+
+    @property
+    def position(self) -> Point:
+        """The end effector's current position."""
+        return self._pos
+
+    @property
+    def velocity(self) -> Point:
+        """The end effector's current velocity (normalised units/s)."""
+        return self._vel
+
+    @property
+    def speed(self) -> float:
+        """|velocity| (normalised units/s)."""
+        return math.hypot(*self._vel)
+
+    # -- commands --------------------------------------------------------------------------
+    def send(self, cmd: ArmCommand) -> ArmCommand:
+        """Apply a command at the arm's current time; return what was actually applied.
+
+        Refused (the returned command says what happens instead): anything but idle/stop while
+        faulted (→ stop); a move, or a press of the other buzzer, once a press is committed
+        (→ the committed press). A stop always applies and cancels an unfinished press.
+        """
+        self._require_connected()
+        if cmd.action == "idle":
+            return cmd
+        if cmd.action == "stop":
+            self._brake()
+            return self._apply(cmd)
+        if self._fault is not None:
+            self._brake()
+            return self._apply(ArmCommand.stop(f"refused {cmd.action}: fault {self._fault}"))
+        if self._press is not None and cmd.target != self._press:
+            return ArmCommand.press(self._press, f"refused {cmd.action}: press already committed")
+        assert cmd.target is not None  # move and press always carry a target
+        if cmd.action == "press" and self._press is None:
+            self._press = cmd.target
+            self._press_started = None
+        self._goal = self.layout.box(cmd.target).center
+        self._target = cmd.target
+        return self._apply(cmd)
+
+    def home(self) -> ArmCommand:
+        """Drive back to the home pose and clear the trial's press (refused while faulted)."""
+        self._require_connected()
+        if self._fault is not None:
+            self._brake()
+            return self._apply(ArmCommand.stop(f"refused home: fault {self._fault}"))
+        self._press = self._pressed = self._press_started = None
+        self._goal = self.params.home
+        self._target = None
+        return self._apply(ArmCommand.idle("going home"))
+
+    def inject_fault(self, reason: str) -> None:
+        """Simulate a hardware fault: brake, then refuse motion until `clear_fault`."""
+        self._fault = reason
+        self._brake()
+
+    def clear_fault(self) -> None:
+        """Clear a simulated fault; the arm stays at rest until the next command."""
+        self._fault = None
+
+    def state(self, t: float) -> ArmState:
+        """Advance to time t (s) and report."""
+        self._require_connected()
+        self.advance(t)
+        return ArmState(
+            t=self._t,
+            ee=self._pos,
+            moving=self._vel != (0.0, 0.0),
+            target=self._target,
+            pressed=self._pressed,
+            fault=self._fault,
+        )
+
+    # -- kinematics ------------------------------------------------------------------------
+    def advance(self, t: float) -> None:
+        """Integrate the motion up to time t (s), in steps of at most `step_s`."""
+        if not math.isfinite(t):
+            raise ValueError(f"time must be finite, got {t!r}")
+        if t < self._t:
+            raise ValueError(f"time went backwards: {t} < {self._t}; pass monotonic time")
+        span = t - self._t
+        if span == 0:
+            return
+        n = max(1, math.ceil(span / self.params.step_s))
+        dt = span / n
+        for i in range(1, n + 1):
+            self._substep(dt, self._t + span * i / n)
+        self._t = t
+
+    def _substep(self, dt: float, t_end: float) -> None:
+        p = self.params
+        goal = self._goal
+        if goal is None:
+            v_des = (0.0, 0.0)
+        else:
+            dx, dy = goal[0] - self._pos[0], goal[1] - self._pos[1]
+            dist = math.hypot(dx, dy)
+            if dist < _ARRIVED:
+                v_des = (0.0, 0.0)
+            else:
+                # Brake in time to arrive at rest (v² = 2 a d), and never step past the goal.
+                speed = min(p.max_speed, math.sqrt(2.0 * p.max_accel * dist), dist / dt)
+                v_des = (dx / dist * speed, dy / dist * speed)
+        vx, vy = self._vel
+        ax, ay = v_des[0] - vx, v_des[1] - vy
+        dv = math.hypot(ax, ay)
+        dv_max = p.max_accel * dt
+        if dv > dv_max:
+            ax, ay = ax * dv_max / dv, ay * dv_max / dv
+        vx, vy = vx + ax, vy + ay
+        speed = math.hypot(vx, vy)
+        if speed > p.max_speed:  # guard against rounding: the limit is a safety property
+            vx, vy = vx * p.max_speed / speed, vy * p.max_speed / speed
+        if speed < 1e-12:
+            vx = vy = 0.0
+        self._vel = (vx, vy)
+        self._pos = (self._pos[0] + vx * dt, self._pos[1] + vy * dt)
+        if goal is not None:
+            dist = math.dist(self._pos, goal)
+            if dist < _ARRIVED and math.hypot(vx, vy) <= dv_max:
+                self._pos, self._vel = goal, (0.0, 0.0)
+        self._update_press(t_end)
+
+    def _update_press(self, t: float) -> None:
+        if self._press is None or self._pressed is not None or self._goal is None:
+            return
+        if self._pos != self._goal or self._vel != (0.0, 0.0):
+            return
+        if self._press_started is None:
+            self._press_started = t
+        if t - self._press_started >= self.params.press_duration_s - 1e-12:
+            self._pressed = self._press
+
+    # -- internals -------------------------------------------------------------------------
+    def _brake(self) -> None:
+        self._goal = None
+        self._target = None
+        if self._pressed is None:
+            self._press = None  # an unfinished press is cancelled by a stop
+            self._press_started = None
+
+    def _apply(self, cmd: ArmCommand) -> ArmCommand:
+        self._applied = cmd
+        return cmd
+
+    def _require_connected(self) -> None:
+        if not self._connected:
+            raise ArmNotConnectedError("the arm is not connected; call connect() first")

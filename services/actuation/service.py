@@ -1,0 +1,205 @@
+"""`nod actuation`: Algorithm 2 on z_r and hand poses, driving an arm behind a safety gate.
+
+The behaviour state machine decides; the watchdog may veto: while any input is stale, a needed
+service's liveliness is lost, or an e-stop is engaged, the arm holds its position and the state
+key says why. The robot's press is published once per trial on `actuation/press`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+from services.actuation.arm import ArmDriver, SimArm
+from services.actuation.behaviour import ArmCommand, RobotBehaviour
+from services.config import NodConfig, add_config_arg, layout_from_msg, load_service_config
+from services.core import messages as m
+from services.core.clock import add_clock_args
+from services.core.node import Node, setup_logging
+from services.core.session import add_zenoh_args
+from services.safety.watchdog import SafetyParams, Watchdog
+
+log = logging.getLogger("nod.actuation")
+NS = 1e-9
+
+
+class ActuationService:
+    """Wires Algorithm 2, an arm driver and the safety watchdog to the rig's keys."""
+
+    def __init__(self, node: Node, cfg: NodConfig, arm: ArmDriver, safety: SafetyParams) -> None:
+        self.node = node
+        self.layout = cfg.layout
+        self.arm = arm
+        self.behaviour = RobotBehaviour(cfg.layout, cfg.behaviour)
+        self.watchdog = Watchdog(safety, ("z_r", "hand"))
+        self.trial = 0
+        self.human_pressed: str | None = None
+        self.press_published = False
+        self.safe_stop = False
+        self.safety_reason = ""
+        self.last_cmd: ArmCommand | None = None
+        self._t_ns = node.clock.now_ns()  # monotone service time: samples arrive slightly late
+        self.pub_cmd = node.publisher("actuation/cmd")
+        self.pub_state = node.publisher("actuation/state")
+        self.pub_press = node.publisher("actuation/press")
+        node.subscribe("decision/z_r", self.on_z_r)
+        node.subscribe("vision/hand", self.on_hand)
+        node.subscribe("vision/layout", self.on_layout)
+        node.subscribe("experiment/trial", self.on_trial)
+        node.subscribe("safety/estop", self.on_estop)
+        for service in safety.require_alive:
+            node.watch_liveliness(
+                service, lambda alive, s=service: self.watchdog.set_alive(s, alive)
+            )
+        node.every(0.02, self.tick)
+
+    # -- inputs --------------------------------------------------------------------------------
+
+    def on_z_r(self, msg: m.Scalar) -> None:
+        """A new robot opinion: one Algorithm 2 step."""
+        self.watchdog.feed("z_r", msg.t_ns)
+        self._step(msg.t_ns, msg.value)
+
+    def on_hand(self, pose: m.HandPose) -> None:
+        """Watch for the human's press: any landmark inside a buzzer box."""
+        self.watchdog.feed("hand", pose.t_ns)
+        if pose.detected and self.behaviour.t_go is not None and self.human_pressed is None:
+            self.human_pressed = self.layout.pressed(pose.landmarks)
+
+    def on_layout(self, msg: m.Layout) -> None:
+        """Use the geometry vision (or the sim) published (takes effect next trial)."""
+        self.layout = layout_from_msg(msg)
+
+    def on_trial(self, ev: m.TrialEvent) -> None:
+        """Setup: home and reset; go: start Algorithm 2."""
+        if ev.phase == "setup":
+            self.trial = ev.trial
+            self.behaviour = RobotBehaviour(self.layout, self.behaviour.params)
+            self.human_pressed = None
+            self.press_published = False
+            self.arm.state(self._now(ev.t_ns))
+            self._send(self.arm.home(), ev.t_ns)
+        elif ev.phase == "go" and ev.trial == self.trial:
+            self._apply(self.behaviour.start(self._now(ev.t_ns)), ev.t_ns)
+
+    def on_estop(self, msg: m.Estop) -> None:
+        """Engage or release the latched e-stop, and act on it at once."""
+        self.watchdog.estop(msg.engaged, msg.reason or msg.source)
+        log.warning(
+            "e-stop %s by %s: %s",
+            "ENGAGED" if msg.engaged else "released",
+            msg.source or "?",
+            msg.reason,
+        )
+        self.tick(self.node.clock.now_ns())
+
+    # -- control -------------------------------------------------------------------------------
+
+    def _now(self, t_ns: int) -> float:
+        """Monotone time (s) for the state machine and the arm, from message/tick times."""
+        self._t_ns = max(self._t_ns, t_ns)
+        return self._t_ns * NS
+
+    def _step(self, t_ns: int, z_r: float | None) -> None:
+        t = self._now(t_ns)
+        if self.behaviour.phase == "idle":
+            return
+        state = self.arm.state(t)
+        self._apply(self.behaviour.step(t, z_r, self.human_pressed, state.ee), t_ns)
+
+    def _apply(self, cmd: ArmCommand, t_ns: int) -> None:
+        """Send the behaviour's command unless the safety gate holds the arm."""
+        if self.safe_stop:
+            return
+        last = self.last_cmd
+        if last is None or (cmd.action, cmd.direction, cmd.target) != (
+            last.action,
+            last.direction,
+            last.target,
+        ):  # only changes reach the arm; the reason text alone is not a new command
+            self._send(self.arm.send(cmd), t_ns)
+
+    def _send(self, applied: ArmCommand, t_ns: int) -> None:
+        self.last_cmd = applied
+        self.pub_cmd.put(
+            t_ns=t_ns,
+            action=applied.action,
+            direction=applied.direction,
+            target=applied.target,
+            reason=applied.reason[:200],
+        )
+
+    def tick(self, now_ns: int) -> None:
+        """Periodic: safety gate, timers of Algorithm 2, arm state and the robot's press."""
+        status = self.watchdog.check(now_ns)
+        if status.safe_stop and not self.safe_stop:
+            log.warning("SAFE STOP: %s", status.reason)
+            self._send(self.arm.hold(), now_ns)
+        elif not status.safe_stop and self.safe_stop:
+            log.info("safety clear: resuming")
+            self.last_cmd = None  # re-send the behaviour's current command
+        self.safe_stop, self.safety_reason = status.safe_stop, status.reason
+        if not self.safe_stop:
+            self._step(now_ns, None)
+        state = self.arm.state(self._now(now_ns))
+        if state.pressed is not None and not self.press_published and self.behaviour.t_go:
+            self.behaviour.complete()
+            self.press_published = True
+            self.pub_press.put(t_ns=now_ns, colour=state.pressed, trial=self.trial)
+            log.info("trial %d: robot pressed %s", self.trial, state.pressed)
+        self.pub_state.put(
+            t_ns=now_ns,
+            ee=state.ee,
+            phase=self.behaviour.phase,
+            moving=state.moving,
+            target=state.target,
+            safe_stop=self.safe_stop,
+            safety_reason=self.safety_reason[:400],
+            fault=(state.fault or "")[:400],
+        )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `nod actuation`."""
+    p = argparse.ArgumentParser(
+        prog="nod actuation",
+        description="Run Algorithm 2 on z_r and hand poses and drive the arm (default: sim arm).",
+    )
+    add_zenoh_args(p)
+    add_clock_args(p)
+    add_config_arg(p)
+    p.add_argument("--driver", choices=("sim",), default="sim", help="arm driver (default sim)")
+    p.add_argument("--stale-ms", type=float, default=None, help="input staleness bound (ms)")
+    p.add_argument("-v", "--verbose", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the actuation service until SIGINT/SIGTERM."""
+    args = build_parser().parse_args(argv)
+    setup_logging(args.verbose)
+    try:
+        cfg = load_service_config(args.params)
+        safety = cfg.safety
+        if args.stale_ms is not None:
+            safety = SafetyParams(stale_ms=args.stale_ms, require_alive=safety.require_alive)
+        node = Node("actuation", args)
+    except (ValueError, OSError, ConnectionError) as exc:
+        print(f"nod actuation: {exc}", file=sys.stderr)
+        return 2
+    log.info("effective config: %s", json.dumps(cfg.summary("behaviour", "sim_arm", "safety")))
+    arm = SimArm(cfg.layout, cfg.sim_arm, t0=node.clock.now_ns() * NS)
+    arm.connect()
+    ActuationService(node, cfg, arm, safety)
+    try:
+        node.run()
+    finally:
+        arm.hold()
+        arm.disconnect()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

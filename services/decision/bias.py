@@ -1,0 +1,111 @@
+"""Robot bias controller (paper eq 6, Algorithm 1 "Bias Consensus", SPEC §3).
+
+    ḃ_r = σ · z_r · sgn(ẑ_h) + β · max(0, b* − |b_r|)     while z_r · ẑ_h < 0    (eq 6)
+    ḃ_r = 0                                                otherwise (b_r frozen)
+
+with σ = −|σ| for O = red, +|σ| for O = blue and β = −K σ. In dissensus z_r · sgn(ẑ_h) = −|z_r|,
+so both terms push b_r toward O. |b_r| is clamped to b_max. In dissensus-mode trials the
+controller is off and b_r ≡ 0 (the caller does not call it).
+
+Deviation from the paper (decided by the lead): eq 6 uses b* = u_r. When the human heads
+straight for O, ẑ_h is large and tanh(α z_r + γ ẑ_h) saturates at −sgn(O), so
+ż_r ≈ −d_r z_r − u_r sgn(O) + b_r and z_r relaxes to (b_r − u_r sgn(O)) / d_r. The β term stops
+exactly when |b_r| = u_r, i.e. when that equilibrium reaches z_r = 0, and the σ term shrinks
+with z_r: (z_r, b_r) → (0⁻, u_r) asymptotically and z_r never changes sign (numerically
+b_r = 2.23999999 after 20 s with u_r = 2.24). So by default b* = u_r + b_star_margin (0.5),
+which drives b_r past u_r and lets z_r cross to O's sign within about 1.5 s.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.core.geometry import Colour, colour_sign
+from services.decision.dynamics import ArrayLike
+
+
+@dataclass(frozen=True, slots=True)
+class BiasParams:
+    """Parameters of the bias controller (eq 6; |σ| = 0.1 and K = 16 give |β| = 1.6, Sec 4.6)."""
+
+    sigma: float = 0.1  # |σ|, gain of the sign-alignment term (1/s); the sign comes from O
+    K: float = 16.0  # β = −K σ, gain of the threshold-raising term (1/s)
+    b_star: float | None = None  # bias threshold b*; None → u_r + b_star_margin (see module doc)
+    b_star_margin: float = 0.5  # added to u_r when b_star is None; 0 reproduces the paper
+    b_max: float = 6.0  # clamp |b_r| ≤ b_max: in dissensus the σ term never stops on its own
+
+    def __post_init__(self) -> None:
+        for name in ("sigma", "K", "b_star_margin", "b_max"):
+            value = getattr(self, name)
+            if not math.isfinite(value):
+                raise ValueError(f"BiasParams.{name} must be finite, got {value!r}")
+        if self.sigma < 0 or self.K < 0 or self.b_star_margin < 0:
+            raise ValueError(
+                "BiasParams.sigma, K and b_star_margin are magnitudes and must be >= 0, got "
+                f"sigma={self.sigma}, K={self.K}, b_star_margin={self.b_star_margin}"
+            )
+        if self.b_max <= 0:
+            raise ValueError(f"BiasParams.b_max must be > 0, got {self.b_max}")
+        if self.b_star is not None and not (math.isfinite(self.b_star) and self.b_star > 0):
+            raise ValueError(
+                f"BiasParams.b_star must be a finite number > 0 or None, got {self.b_star!r}"
+            )
+
+    def threshold(self, u_r: float) -> float:
+        """The bias threshold b* for a robot with attention u_r (b_star, or u_r + margin)."""
+        return self.b_star if self.b_star is not None else u_r + self.b_star_margin
+
+
+def sigma_for(option: Colour, params: BiasParams | None = None) -> float:
+    """Signed σ of eq 6: −|σ| for O = red, +|σ| for O = blue (SPEC §3)."""
+    p = params if params is not None else BiasParams()
+    return -colour_sign(option) * p.sigma
+
+
+def beta_for(option: Colour, params: BiasParams | None = None) -> float:
+    """β = −K σ of eq 6: +K|σ| for O = red, −K|σ| for O = blue."""
+    p = params if params is not None else BiasParams()
+    return -p.K * sigma_for(option, p)
+
+
+def bias_active(z_r: ArrayLike, z_hat: ArrayLike) -> ArrayLike:
+    """Whether the controller runs: the pair is in dissensus, z_r · ẑ_h < 0 (Algorithm 1)."""
+    return z_r * z_hat < 0
+
+
+def bias_rate_scalar(
+    b_r: float, z_r: float, z_hat: float, sigma: float, beta: float, b_star: float
+) -> float:
+    """Eq 6 on plain floats with signed σ and β precomputed (the decision service's hot path)."""
+    if not z_r * z_hat < 0:
+        return 0.0
+    sgn = 1.0 if z_hat > 0 else -1.0
+    return sigma * z_r * sgn + beta * max(0.0, b_star - abs(b_r))
+
+
+def bias_rate(
+    b_r: ArrayLike,
+    z_r: ArrayLike,
+    z_hat: ArrayLike,
+    option: Colour,
+    params: BiasParams,
+    b_star: float,
+) -> ArrayLike:
+    """ḃ_r of eq 6, zero outside dissensus (z_r · ẑ_h ≥ 0); scalars or broadcasting arrays."""
+    sigma = sigma_for(option, params)
+    beta = -params.K * sigma
+    if not any(isinstance(v, np.ndarray) for v in (b_r, z_r, z_hat)):
+        return bias_rate_scalar(float(b_r), float(z_r), float(z_hat), sigma, beta, b_star)
+    b_r, z_r, z_hat = np.asarray(b_r), np.asarray(z_r), np.asarray(z_hat)
+    rate = sigma * z_r * np.sign(z_hat) + beta * np.maximum(0.0, b_star - np.abs(b_r))
+    return np.where(bias_active(z_r, z_hat), rate, 0.0)
+
+
+def clamp_bias(b_r: ArrayLike, b_max: float) -> ArrayLike:
+    """Clamp the bias to [−b_max, b_max]."""
+    if isinstance(b_r, np.ndarray):
+        return np.clip(b_r, -b_max, b_max)
+    return max(-b_max, min(b_max, b_r))

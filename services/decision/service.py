@@ -1,0 +1,99 @@
+"""`nod decision`: hand poses in, ẑ_h / z_r / b_r out (Algorithm 1 on the fabric).
+
+On every accepted hand pose the model advances eqs 1-2 (and eq 6 in consensus trials) to the
+pose's own timestamp and publishes the three values with `src_seq` = the pose's `seq`, whether or
+not a trial is running. Trial events reset the state and set the mode and option O.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+from services.config import add_config_arg, layout_from_msg, load_service_config
+from services.core import messages as m
+from services.core.clock import add_clock_args
+from services.core.node import Node, setup_logging
+from services.core.session import add_zenoh_args
+from services.decision.model import DecisionModel
+
+log = logging.getLogger("nod.decision")
+
+
+class DecisionService:
+    """Wires a DecisionModel to the rig's keys."""
+
+    def __init__(self, node: Node, model: DecisionModel) -> None:
+        self.node = node
+        self.model = model
+        self.pub_zh = node.publisher("decision/z_h")
+        self.pub_zr = node.publisher("decision/z_r")
+        self.pub_br = node.publisher("decision/b_r")
+        self.out_of_order = 0
+        self._last_seq: int | None = None
+        node.subscribe("vision/hand", self.on_hand)
+        node.subscribe("vision/layout", self.on_layout)
+        node.subscribe("experiment/trial", self.on_trial)
+
+    def on_hand(self, pose: m.HandPose) -> None:
+        """Advance the dynamics to the pose's time and publish ẑ_h, z_r, b_r."""
+        if self.model.t_ns is not None and pose.t_ns <= self.model.t_ns:
+            self.out_of_order += 1  # stale or reordered pose: time never runs backwards
+            if self.out_of_order <= 10 or self.out_of_order % 100 == 0:
+                log.warning("hand pose seq %d is not newer than the last one; ignored", pose.seq)
+            return
+        if self._last_seq is not None and pose.seq > self._last_seq + 1:
+            log.debug("hand poses %d..%d missing", self._last_seq + 1, pose.seq - 1)
+        self._last_seq = pose.seq
+        out = self.model.on_hand(pose.t_ns, pose.landmarks if pose.detected else None)
+        # Publish with the pose's timestamp: the values describe the state at that instant.
+        self.pub_zh.put(t_ns=pose.t_ns, value=out.z_hat, src_seq=pose.seq)
+        self.pub_zr.put(t_ns=pose.t_ns, value=out.z_r, src_seq=pose.seq)
+        self.pub_br.put(t_ns=pose.t_ns, value=out.b_r, src_seq=pose.seq)
+
+    def on_layout(self, msg: m.Layout) -> None:
+        """Use the geometry vision (or the sim) published."""
+        self.model.set_layout(layout_from_msg(msg))
+
+    def on_trial(self, ev: m.TrialEvent) -> None:
+        """Reset at setup and at "go": opinions form from the cue on (Algorithm 1 trigger)."""
+        if ev.phase in ("setup", "go"):
+            option = ev.option if ev.mode == "consensus" else None
+            self.model.reset(ev.mode, option)
+            log.info("trial %d %s: mode=%s O=%s", ev.trial, ev.phase, ev.mode, option)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `nod decision`."""
+    p = argparse.ArgumentParser(
+        prog="nod decision",
+        description="Observe the human opinion (eq 7), integrate the robot opinion (eq 1) and "
+        "its bias (eq 6), publish ẑ_h, z_r and b_r on every hand pose.",
+    )
+    add_zenoh_args(p)
+    add_clock_args(p)
+    add_config_arg(p)
+    p.add_argument("-v", "--verbose", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the decision service until SIGINT/SIGTERM."""
+    args = build_parser().parse_args(argv)
+    setup_logging(args.verbose)
+    try:
+        cfg = load_service_config(args.params)
+        node = Node("decision", args)
+    except (ValueError, OSError, ConnectionError) as exc:
+        print(f"nod decision: {exc}", file=sys.stderr)
+        return 2
+    log.info("effective config: %s", json.dumps(cfg.summary("decision")))
+    DecisionService(node, DecisionModel(cfg.decision, cfg.layout))
+    node.run()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

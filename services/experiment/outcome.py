@@ -1,0 +1,180 @@
+"""Trial outcome from the human's observed path: switches, C/CH/D/DH, rule violations (SPEC §6).
+
+Feed the ẑ_h samples (and hand centres) from "go" to the human's press, in order:
+
+- *switches*: sign changes of ẑ_h, debounced like Algorithm 2. The first non-zero sample sets
+  the initial direction (not a switch); afterwards a new sign counts only after `c_max`
+  consecutive samples of it, and a run interrupted by the current sign starts over. A zero
+  sample (the hand has not moved yet, or stood still) carries no sign: it neither counts toward
+  a run nor breaks one.
+- *outcome*: C (0 switches, same buzzer as the robot), D (0, different), CH (≥ 1, same),
+  DH (≥ 1, different). A human who never pressed (timeout, `human=None`) is "different".
+- *violations* (paper Remark 3): a switch is a violation when it is not the first switch of the
+  trial, or when it began at or after the sample where the hand centre first crossed the commit
+  line. Each offending switch is one violation, even if it breaks both rules; `extra_switches`
+  and `late_switches` keep the two rules apart for analysis. A switch's onset is the first
+  sample of the run that confirmed it: the moment the hand turned, not the moment the debounce
+  caught up. The crossing latches: once past the line, the hand stays "crossed" for the trial.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal, TypeAlias
+
+from services.core.geometry import Colour, CommitLine, Point
+
+Outcome: TypeAlias = Literal["C", "CH", "D", "DH"]
+OUTCOMES: tuple[Outcome, ...] = ("C", "CH", "D", "DH")
+
+
+def classify(switches: int, human: Colour | None, robot: Colour) -> Outcome:
+    """C / CH / D / DH from the number of switches and the two presses."""
+    if switches < 0:
+        raise ValueError(f"switches must be >= 0, got {switches}")
+    same = human is not None and human == robot
+    if switches == 0:
+        return "C" if same else "D"
+    return "CH" if same else "DH"
+
+
+@dataclass(frozen=True, slots=True)
+class TrialOutcome:
+    """Everything the outcome of one trial is made of."""
+
+    outcome: Outcome
+    switches: int  # debounced sign changes of ẑ_h
+    violations: int  # offending switches (see module docstring)
+    first_sign: int  # +1 red, −1 blue, 0 if ẑ_h never left zero
+    crossed_at_index: int | None  # first sample past the commit line, None if never crossed
+    switch_indices: tuple[int, ...]  # onset sample index of each switch
+    extra_switches: int  # switches beyond the first
+    late_switches: int  # switches with onset at or after the crossing
+    human: Colour | None  # buzzer the human pressed, None on timeout
+    robot: Colour  # buzzer the robot pressed
+    samples: int  # samples fed
+
+    @property
+    def same_buzzer(self) -> bool:
+        """Whether human and robot pressed the same buzzer."""
+        return self.human is not None and self.human == self.robot
+
+
+def _sign(x: float) -> int:
+    return (x > 0) - (x < 0)
+
+
+class OutcomeTracker:
+    """Incremental outcome of one trial: `add` each sample, then `result`."""
+
+    def __init__(self, c_max: int = 4, commit_line: CommitLine | None = None) -> None:
+        """Debounce with `c_max` samples; test crossings against `commit_line` (default line)."""
+        if isinstance(c_max, bool) or not isinstance(c_max, int) or c_max < 1:
+            raise ValueError(f"c_max must be an integer >= 1, got {c_max!r}")
+        self.c_max = c_max
+        self.commit_line = commit_line if commit_line is not None else CommitLine()
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new trial."""
+        self._n = 0
+        self._sign = 0
+        self._first_sign = 0
+        self._run = 0  # consecutive samples against the current sign
+        self._run_start = 0
+        self._switch_indices: list[int] = []
+        self._crossed_at: int | None = None
+
+    @property
+    def sign(self) -> int:
+        """The current debounced sign of ẑ_h (0 before the first non-zero sample)."""
+        return self._sign
+
+    @property
+    def switches(self) -> int:
+        """Switches confirmed so far."""
+        return len(self._switch_indices)
+
+    @property
+    def crossed_at_index(self) -> int | None:
+        """Index of the first sample past the commit line, or None."""
+        return self._crossed_at
+
+    @property
+    def samples(self) -> int:
+        """Samples fed so far."""
+        return self._n
+
+    def add(self, z_hat: float, center: Point | None) -> None:
+        """One observation: ẑ_h and the hand centre (None when no hand was detected)."""
+        if not math.isfinite(z_hat):
+            raise ValueError(f"z_hat must be finite, got {z_hat!r}")
+        i = self._n
+        self._n += 1
+        if self._crossed_at is None and center is not None and self.commit_line.crossed(center):
+            self._crossed_at = i
+        s = _sign(z_hat)
+        if s == 0:
+            return
+        if self._sign == 0:
+            self._sign = self._first_sign = s
+            return
+        if s == self._sign:
+            self._run = 0
+            return
+        if self._run == 0:
+            self._run_start = i
+        self._run += 1
+        if self._run >= self.c_max:
+            self._switch_indices.append(self._run_start)
+            self._sign = s
+            self._run = 0
+
+    def result(self, human: Colour | None, robot: Colour) -> TrialOutcome:
+        """The outcome so far, given what the human (None: never pressed) and robot pressed."""
+        late = [
+            self._crossed_at is not None and onset >= self._crossed_at
+            for onset in self._switch_indices
+        ]
+        violations = sum(1 for k, is_late in enumerate(late) if k >= 1 or is_late)
+        switches = len(self._switch_indices)
+        return TrialOutcome(
+            outcome=classify(switches, human, robot),
+            switches=switches,
+            violations=violations,
+            first_sign=self._first_sign,
+            crossed_at_index=self._crossed_at,
+            switch_indices=tuple(self._switch_indices),
+            extra_switches=max(0, switches - 1),
+            late_switches=sum(late),
+            human=human,
+            robot=robot,
+            samples=self._n,
+        )
+
+
+def count_switches(z_hats: Sequence[float], c_max: int = 4) -> int:
+    """Debounced sign changes of a ẑ_h sequence."""
+    tracker = OutcomeTracker(c_max)
+    for z in z_hats:
+        tracker.add(z, None)
+    return tracker.switches
+
+
+def trial_outcome(
+    z_hats: Sequence[float],
+    centers: Sequence[Point | None],
+    human: Colour | None,
+    robot: Colour,
+    c_max: int = 4,
+    commit_line: CommitLine | None = None,
+) -> TrialOutcome:
+    """The outcome of a whole recorded trial (samples from "go" to the human's press)."""
+    if len(z_hats) != len(centers):
+        raise ValueError(f"got {len(z_hats)} ẑ_h samples but {len(centers)} hand centres")
+    tracker = OutcomeTracker(c_max, commit_line)
+    for z, c in zip(z_hats, centers, strict=True):
+        tracker.add(z, c)
+    return tracker.result(human, robot)

@@ -1,0 +1,89 @@
+"""One trial's recording: the human's press, the outcome tracker's inputs and the samples.
+
+Decision outputs are joined to the hand pose that produced them through `src_seq`, so the
+stored samples line up exactly even when messages arrive interleaved.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from services.core import messages as m
+from services.core.geometry import Colour, TableLayout
+from services.experiment.outcome import OutcomeTracker
+from services.experiment.store import Sample
+
+
+@dataclass
+class _Row:
+    t_ns: int
+    detected: bool
+    hand: tuple[float, float] | None
+    values: dict[str, float] = field(default_factory=dict)
+    ee: tuple[float, float] | None = None
+
+
+class TrialRecorder:
+    """Collects what happens between "go" and the end of one trial."""
+
+    def __init__(self, t_go_ns: int, tracker: OutcomeTracker) -> None:
+        self.t_go_ns = t_go_ns
+        self.tracker = tracker
+        self.human: Colour | None = None
+        self.t_press_ns: int | None = None
+        self._rows: dict[int, _Row] = {}
+        self._ee: tuple[float, float] | None = None
+
+    def on_hand(self, pose: m.HandPose, layout: TableLayout) -> None:
+        """Record a pose; the first landmark inside a box is the human's press."""
+        if pose.t_ns < self.t_go_ns:
+            return
+        self._rows.setdefault(pose.seq, _Row(pose.t_ns, pose.detected, pose.center, ee=self._ee))
+        if self.human is None and pose.detected:
+            pressed = layout.pressed(pose.landmarks)
+            if pressed is not None:
+                self.human, self.t_press_ns = pressed, pose.t_ns
+
+    def on_scalar(self, name: str, msg: m.Scalar, pose: m.HandPose | None) -> None:
+        """A decision output for hand pose `msg.src_seq`; ẑ_h feeds the outcome until the press."""
+        if msg.t_ns < self.t_go_ns:
+            return
+        row = self._rows.get(msg.src_seq)
+        if row is None:
+            if pose is None:
+                return  # its pose was never seen (dropped): nothing to join it with
+            row = self._rows.setdefault(msg.src_seq, _Row(pose.t_ns, pose.detected, pose.center))
+        row.values[name] = msg.value
+        if name == "z_h" and (self.t_press_ns is None or msg.t_ns <= self.t_press_ns):
+            self.tracker.add(msg.value, row.hand)
+
+    def on_arm(self, msg: m.ArmStateMsg) -> None:
+        """The latest end-effector position, attached to the following samples."""
+        self._ee = msg.ee
+
+    def samples(self, max_hz: float) -> list[Sample]:
+        """The recorded rows in time order, decimated to at most `max_hz`."""
+        out: list[Sample] = []
+        min_gap = int(1e9 / max_hz) if max_hz > 0 else 0
+        last = None
+        for seq in sorted(self._rows):
+            r = self._rows[seq]
+            if last is not None and r.t_ns - last < min_gap:
+                continue
+            last = r.t_ns
+            hx, hy = r.hand if r.hand else (None, None)
+            ex, ey = r.ee if r.ee else (None, None)
+            out.append(
+                Sample(
+                    r.t_ns,
+                    r.detected,
+                    hx,
+                    hy,
+                    r.values.get("z_h"),
+                    r.values.get("z_r"),
+                    r.values.get("b_r"),
+                    ex,
+                    ey,
+                )
+            )
+        return out

@@ -1,0 +1,316 @@
+"""`nod experiment`: the conductor of one participant's session.
+
+For each trial of the schedule: set the gaze (the eyes play the attention gesture where asked),
+announce the setup (decision and actuation reset), count "1, 2, 3, go", record the streams, end
+at the human's press (or the timeout) once the robot has pressed, classify, score, store the trial
+with its samples in one SQLite transaction, and publish the result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+import uuid
+from collections import OrderedDict
+from collections.abc import Callable
+from pathlib import Path
+
+from services.config import NodConfig, add_config_arg, layout_from_msg, load_service_config
+from services.core import messages as m
+from services.core.clock import add_clock_args
+from services.core.node import Node, install_signal_handlers, setup_logging
+from services.core.session import add_zenoh_args
+from services.experiment.outcome import OutcomeTracker
+from services.experiment.protocol import TrialSpec
+from services.experiment.recorder import TrialRecorder
+from services.experiment.scoring import score_trial
+from services.experiment.store import Store, TrialRecord
+
+log = logging.getLogger("nod.experiment")
+NS = 1e-9
+REQUIRED = ("decision", "actuation", "eyes", "vision")
+SAMPLE_HZ = 60.0  # stored samples are decimated to this rate (a 30 Hz camera passes whole)
+
+
+class Conductor:
+    """Runs the protocol over the fabric; callbacks fill the current trial's recorder."""
+
+    def __init__(
+        self, node: Node, cfg: NodConfig, store: Store, clicks: Callable[[int], int | None]
+    ):
+        self.node = node
+        self.cfg = cfg
+        self.proto = cfg.protocol
+        self.layout = cfg.layout
+        self.store = store
+        self.clicks = clicks
+        self.alive: dict[str, bool] = {}
+        self.recorder: TrialRecorder | None = None
+        self.robot_press: m.PressMsg | None = None
+        self.trial = 0
+        self.gaze_msg: dict[str, object] | None = None
+        self._hands: OrderedDict[int, m.HandPose] = OrderedDict()
+        self.pub_trial = node.publisher("experiment/trial")
+        self.pub_result = node.publisher("experiment/result")
+        self.pub_gaze = node.publisher("eyes/cmd")
+        node.subscribe("vision/hand", self.on_hand)
+        node.subscribe("vision/layout", lambda msg: setattr(self, "layout", layout_from_msg(msg)))
+        node.subscribe("decision/z_h", lambda msg: self._scalar("z_h", msg))
+        node.subscribe("decision/z_r", lambda msg: self._scalar("z_r", msg))
+        node.subscribe("decision/b_r", lambda msg: self._scalar("b_r", msg))
+        node.subscribe("actuation/state", self.on_arm)
+        node.subscribe("actuation/press", self.on_press)
+        for service in REQUIRED:
+            node.watch_liveliness(service, lambda a, s=service: self.alive.__setitem__(s, a))
+
+    # -- callbacks (under the node lock) ---------------------------------------------------
+
+    def on_hand(self, pose: m.HandPose) -> None:
+        """Keep recent poses to join with decision outputs; detect the human's press."""
+        self._hands[pose.seq] = pose
+        while len(self._hands) > 256:
+            self._hands.popitem(last=False)
+        if self.recorder is not None:
+            self.recorder.on_hand(pose, self.layout)
+
+    def _scalar(self, name: str, msg: m.Scalar) -> None:
+        if self.recorder is not None:
+            self.recorder.on_scalar(name, msg, self._hands.get(msg.src_seq))
+
+    def on_arm(self, msg: m.ArmStateMsg) -> None:
+        """The arm's end effector, for the samples."""
+        if self.recorder is not None:
+            self.recorder.on_arm(msg)
+
+    def on_press(self, msg: m.PressMsg) -> None:
+        """The robot pressed a buzzer."""
+        if msg.trial == self.trial:
+            self.robot_press = msg
+
+    # -- the script (main thread) ----------------------------------------------------------
+
+    def wait(self, sim_s: float, until: Callable[[], bool] | None = None) -> bool:
+        """Wait up to sim_s of simulated time (keeping the gaze alive); True if `until` held."""
+        end = self.node.clock.now_ns() + int(sim_s * 1e9)
+        last_keepalive = 0
+        while not self.node.stop.is_set():
+            now = self.node.clock.now_ns()
+            with self.node.lock:
+                if until is not None and until():
+                    return True
+                if self.gaze_msg is not None and now - last_keepalive >= 200_000_000:
+                    self.pub_gaze.put(t_ns=now, **self.gaze_msg)
+                    last_keepalive = now
+            if now >= end:
+                return False
+            self.node.stop.wait(min(0.005, self.node.clock.wall_seconds(0.02)))
+        raise KeyboardInterrupt
+
+    def wait_for_services(self, timeout_s: float) -> None:
+        """Block until every required service's liveliness token is seen (wall clock)."""
+        deadline = time.monotonic() + timeout_s
+        while not all(self.alive.get(s) for s in REQUIRED):
+            if time.monotonic() > deadline or self.node.stop.is_set():
+                missing = [s for s in REQUIRED if not self.alive.get(s)]
+                raise TimeoutError(f"services not alive after {timeout_s:.0f} s: {missing}")
+            time.sleep(0.02)
+
+    def run_session(self, session: str, participant: str, seed: int | None) -> list[TrialRecord]:
+        """Run every trial of the schedule; store and return the records."""
+        started = self.node.clock.now_ns()
+        self.store.begin_session(
+            session, participant, self.node.keys.rig, seed, started, self.cfg.summary()
+        )
+        records: list[TrialRecord] = []
+        status = "aborted"
+        try:
+            for spec in self.proto.trials:
+                records.append(self.run_trial(session, spec))
+            status = "complete"
+        finally:
+            self.store.finish_session(session, self.node.clock.now_ns(), status)
+            self.gaze_msg = None
+            self.pub_trial.put(
+                phase="session_end" if status == "complete" else "abort",
+                trial=self.trial,
+                session=session,
+                text=status,
+            )
+        return records
+
+    def run_trial(self, session: str, spec: TrialSpec) -> TrialRecord:
+        """One trial, from the gaze cue to the stored result."""
+        p = self.proto
+        ev = {"trial": spec.index, "mode": spec.mode, "option": spec.option, "session": session}
+        with self.node.lock:
+            self.trial = spec.index
+            self.robot_press = None
+            self.recorder = None
+            self.gaze_msg = {
+                "yaw": spec.yaw,
+                "pitch": spec.pitch,
+                "level": spec.gaze_level,
+                "gesture": spec.attention_gesture,
+                "trial": spec.index,
+            }
+            self.pub_gaze.put(**self.gaze_msg)
+        self.pub_trial.put(phase="setup", text=spec.gaze_level, **ev)
+        lead = p.gaze_lead_s + (p.gesture.duration_s if spec.attention_gesture else 0.0)
+        self.wait(lead)
+        for word in p.countdown[:-1]:
+            self.pub_trial.put(phase="countdown", text=word, **ev)
+            self.wait(p.countdown_interval_s)
+        with self.node.lock:
+            go = self.pub_trial.put(phase="go", text=p.countdown[-1], **ev)
+            self.recorder = TrialRecorder(
+                go.t_ns, OutcomeTracker(p.switch_c_max, self.layout.commit)
+            )
+        rec = self.recorder
+        human_or_timeout = self.wait(p.trial_timeout_s, lambda: rec.human is not None)
+        # The robot presses after the human (or at the timeout): give the arm time to get there.
+        self.wait(5.0, lambda: self.robot_press is not None)
+        with self.node.lock:
+            self.recorder = None
+            t_end = self.node.clock.now_ns()
+            robot = self.robot_press.colour if self.robot_press else None
+        self.pub_trial.put(phase="end", **ev)
+        reason = "human pressed" if human_or_timeout else "timeout"
+        if robot is None:
+            reason += "; robot did not press"
+        result = rec.tracker.result(rec.human, robot or "red") if robot else None
+        clicks = self.clicks(spec.index)
+        score = score_trial(
+            result is not None and result.same_buzzer,
+            clicks,
+            result.violations if result else 0,
+            p.target_clicks,
+        )
+        record = TrialRecord(
+            trial=spec.index,
+            mode=spec.mode,
+            option=spec.option,
+            gaze_level=spec.gaze_level,
+            yaw=spec.yaw,
+            pitch=spec.pitch,
+            t_go_ns=rec.t_go_ns,
+            t_end_ns=t_end,
+            human=rec.human,
+            robot=robot,
+            outcome=result.outcome if (result and rec.human) else None,
+            switches=result.switches if result else 0,
+            violations=result.violations if result else 0,
+            clicks=clicks,
+            score=score.total,
+            end_reason=reason,
+        )
+        self.store.write_trial(session, record, rec.samples(SAMPLE_HZ))
+        self.pub_result.put(
+            trial=spec.index,
+            mode=spec.mode,
+            option=spec.option,
+            robot=robot,
+            human=rec.human,
+            outcome=record.outcome,
+            switches=record.switches,
+            violations=record.violations,
+            score=record.score,
+            session=session,
+        )
+        self.wait(1.0)  # the participant returns the hand to rest
+        return record
+
+
+def ask_clicks(trial: int) -> int | None:
+    """Prompt the operator for the counter value of a trial (empty → not entered)."""
+    while True:
+        try:
+            raw = input(f"trial {trial}: counter clicks (empty = not entered)? ").strip()
+        except EOFError:
+            return None
+        if not raw:
+            return None
+        if raw.isdigit():
+            return int(raw)
+        print("please enter a non-negative whole number, or nothing")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `nod experiment`."""
+    p = argparse.ArgumentParser(
+        prog="nod experiment",
+        description="Conduct one participant's 8 trials and store them in a SQLite file.",
+    )
+    add_zenoh_args(p)
+    add_clock_args(p)
+    add_config_arg(p)
+    p.add_argument("--db", type=Path, default=Path("nod-sessions.sqlite"), help="session store")
+    p.add_argument("--participant", default="P01", help="participant id stored with the session")
+    p.add_argument("--seed", type=int, default=None, help="seed of the sim participant (stored)")
+    p.add_argument("--session", default=None, help="session id (default: a new UUID)")
+    p.add_argument(
+        "--clicks",
+        default="prompt",
+        help="counter clicks the operator counted: a number for every trial, or 'prompt' (ask "
+        "after each trial), or 'none' (not entered)",
+    )
+    p.add_argument("--wait-services", type=float, default=30.0, help="seconds to wait for peers")
+    p.add_argument("-v", "--verbose", action="store_true")
+    return p
+
+
+def clicks_source(spec: str) -> Callable[[int], int | None]:
+    """The operator's counter values, from the --clicks flag."""
+    if spec == "prompt":
+        return ask_clicks
+    if spec == "none":
+        return lambda _trial: None
+    if spec.isdigit():
+        return lambda _trial: int(spec)
+    raise ValueError(f"--clicks must be a number, 'prompt' or 'none', got {spec!r}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one session; exit 0 when every trial is stored."""
+    args = build_parser().parse_args(argv)
+    setup_logging(args.verbose)
+    try:
+        cfg = load_service_config(args.params)
+        clicks = clicks_source(args.clicks)
+        store = Store(args.db)
+        node = Node("experiment", args)
+    except (ValueError, OSError, ConnectionError) as exc:
+        print(f"nod experiment: {exc}", file=sys.stderr)
+        return 2
+    for session, done in store.interrupted_sessions():
+        log.warning(
+            "session %s was interrupted after %d stored trial(s); its unfinished trial was lost",
+            session,
+            done,
+        )
+    install_signal_handlers(node.stop)
+    conductor = Conductor(node, cfg, store, clicks)
+    session = args.session or uuid.uuid4().hex[:12]
+    try:
+        conductor.wait_for_services(args.wait_services)
+        log.info(
+            "session %s: all services alive; starting %d trials", session, len(cfg.protocol.trials)
+        )
+        conductor.run_session(session, args.participant, args.seed)
+    except TimeoutError as exc:
+        print(f"nod experiment: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        log.warning("session %s interrupted", session)
+        return 130
+    finally:
+        node.close()
+        store.close()
+    log.info("session %s complete: %s", session, json.dumps(str(args.db)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,151 @@
+"""`nod eyes`: gaze commands → per-eye pan/tilt servo targets through a servo driver.
+
+The conductor publishes the trial's gaze on `eyes/cmd` and repeats it as a keepalive; a gaze
+marked `gesture` first plays the attention gesture (trial 4). When the gaze goes stale, a needed
+service's liveliness is lost, or an e-stop is engaged, the eyes go to neutral and say why.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+from services.config import NodConfig, add_config_arg, load_service_config
+from services.core import messages as m
+from services.core.clock import add_clock_args
+from services.core.node import Node, setup_logging
+from services.core.session import add_zenoh_args
+from services.eyes.gaze import GazeCommand, attention_gesture
+from services.eyes.servos import ServoDriver, ServoTargets, SimServoDriver
+from services.safety.watchdog import SafetyParams, Watchdog
+
+log = logging.getLogger("nod.eyes")
+NS = 1e-9
+
+
+class EyesService:
+    """Wires gaze commands, the attention gesture and the watchdog to a servo driver."""
+
+    def __init__(self, node: Node, driver: ServoDriver, safety: SafetyParams) -> None:
+        self.node = node
+        self.driver = driver
+        self.watchdog = Watchdog(safety, ("gaze",))
+        self.gaze = GazeCommand()
+        self.trial = -1
+        self.script: list[tuple[float, GazeCommand]] = []  # the gesture still to play
+        self.applied: ServoTargets = driver.neutral()
+        self.safe_stop = False
+        self.reason = ""
+        self.pub_state = node.publisher("eyes/state")
+        node.subscribe("eyes/cmd", self.on_gaze)
+        node.subscribe("safety/estop", self.on_estop)
+        for service in safety.require_alive:
+            node.watch_liveliness(
+                service, lambda alive, s=service: self.watchdog.set_alive(s, alive)
+            )
+        node.every(0.02, self.tick)
+
+    def on_gaze(self, msg: m.GazeMsg) -> None:
+        """A gaze command (or its keepalive): look there, after the gesture if it asks for one."""
+        self.watchdog.feed("gaze", msg.t_ns)
+        target = GazeCommand(msg.yaw, msg.pitch)
+        if msg.trial != self.trial:  # a new trial's cue, not a keepalive
+            self.trial = msg.trial
+            self.script = attention_gesture(msg.t_ns * NS, settle=target) if msg.gesture else []
+            log.info(
+                "trial %d: gaze %s yaw=%+.2f pitch=%+.2f%s",
+                msg.trial,
+                msg.level,
+                msg.yaw,
+                msg.pitch,
+                " after the attention gesture" if msg.gesture else "",
+            )
+        self.gaze = target
+        self.tick(self.node.clock.now_ns())
+
+    def on_estop(self, msg: m.Estop) -> None:
+        """Engage or release the latched e-stop and act at once."""
+        self.watchdog.estop(msg.engaged, msg.reason or msg.source)
+        self.tick(self.node.clock.now_ns())
+
+    def _current(self, now_s: float) -> GazeCommand:
+        while self.script and len(self.script) > 1 and self.script[1][0] <= now_s:
+            self.script.pop(0)
+        if self.script and self.script[0][0] <= now_s:
+            return self.script[0][1]
+        return self.gaze
+
+    def tick(self, now_ns: int) -> None:
+        """Apply the current gaze (or neutral when unsafe) and publish the state."""
+        status = self.watchdog.check(now_ns)
+        if status.safe_stop != self.safe_stop:
+            (log.warning if status.safe_stop else log.info)(
+                "eyes %s: %s",
+                "NEUTRAL (safe stop)" if status.safe_stop else "resume",
+                status.reason or "inputs fresh",
+            )
+        self.safe_stop, self.reason = status.safe_stop, status.reason
+        cmd = GazeCommand() if self.safe_stop else self._current(now_ns * NS)
+        self.applied = self.driver.look(cmd)
+        if self.applied.clamped:
+            log.debug("clamped servos: %s", ", ".join(self.applied.clamped))
+        self.pub_state.put(
+            t_ns=now_ns,
+            angles_deg=self.applied.angles_deg,
+            pulses_us=self.applied.pulses_us,
+            clamped=self.applied.clamped,
+            safe_stop=self.safe_stop,
+            safety_reason=self.reason[:400],
+        )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `nod eyes`."""
+    p = argparse.ArgumentParser(
+        prog="nod eyes", description="Drive the two servo eyes from gaze commands (Section 5)."
+    )
+    add_zenoh_args(p)
+    add_clock_args(p)
+    add_config_arg(p)
+    p.add_argument("--driver", choices=("sim",), default="sim", help="servo driver (default sim)")
+    p.add_argument("--stale-ms", type=float, default=None, help="gaze staleness bound (ms)")
+    p.add_argument("-v", "--verbose", action="store_true")
+    return p
+
+
+def eyes_safety(cfg: NodConfig, stale_ms: float | None) -> SafetyParams:
+    """The eyes' watchdog: the gaze keepalive, plus the conductor's liveliness."""
+    base = cfg.safety
+    return SafetyParams(
+        stale_ms=base.stale_ms if stale_ms is None else stale_ms,
+        require_alive=(*base.require_alive, "experiment"),
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the eyes service until SIGINT/SIGTERM."""
+    args = build_parser().parse_args(argv)
+    setup_logging(args.verbose)
+    try:
+        cfg = load_service_config(args.params)
+        safety = eyes_safety(cfg, args.stale_ms)
+        node = Node("eyes", args)
+    except (ValueError, OSError, ConnectionError) as exc:
+        print(f"nod eyes: {exc}", file=sys.stderr)
+        return 2
+    log.info("effective config: %s", json.dumps(cfg.summary("eyes", "safety")))
+    driver = SimServoDriver(cfg.eyes)
+    driver.connect()
+    EyesService(node, driver, safety)
+    try:
+        node.run()
+    finally:
+        driver.neutral()
+        driver.disconnect()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

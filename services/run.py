@@ -1,0 +1,254 @@
+"""`nod run --sim`: a Zenoh router plus every service as its own OS process, one session.
+
+The router runs inside this process (any Zenoh client can connect to `--listen` and watch every
+key); decision, actuation, eyes, the sim participant and the experiment conductor are started as
+child processes connected to it, sharing one simulated clock (`--speed`). The conductor's trial
+events drive a progress line and a per-trial table; when it exits, the others are stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from services.core import messages as m
+from services.core.keys import Keys, check_rig
+from services.core.session import DEFAULT_ROUTER, make_config, open_session
+
+log = logging.getLogger("nod.run")
+SERVICES = ("decision", "actuation", "eyes", "sim")
+
+
+class SessionView:
+    """Prints progress and the per-trial table from the conductor's events."""
+
+    def __init__(self, n_trials: int, stream=sys.stdout) -> None:
+        self.n = n_trials
+        self.out = stream
+        self.tty = stream.isatty()
+        self.lock = threading.Lock()
+        self.results: list[m.TrialResult] = []
+        self.finished = threading.Event()
+        self._header_done = False
+
+    def on_trial(self, ev: m.TrialEvent) -> None:
+        """A protocol step: update the progress line."""
+        with self.lock:
+            if ev.phase in ("session_end", "abort"):
+                self.finished.set()
+                return
+            label = {"setup": f"gaze {ev.text}", "countdown": ev.text, "go": "go!"}.get(
+                ev.phase, ev.phase
+            )
+            option = f" O={ev.option}" if ev.option else ""
+            line = f"trial {ev.trial}/{self.n} [{ev.mode}{option}]: {label}"
+            if self.tty:
+                self.out.write("\r\033[K" + line)
+                self.out.flush()
+
+    def on_result(self, r: m.TrialResult) -> None:
+        """A finished trial: one table row."""
+        with self.lock:
+            self.results.append(r)
+            if self.tty:
+                self.out.write("\r\033[K")
+            if not self._header_done:
+                self.out.write(
+                    f"{'trial':>5} {'mode':<10} {'O':<5} {'robot':<6} {'human':<6} "
+                    f"{'outcome':<8} {'switch':>6} {'viol':>4} {'score':>5}\n"
+                )
+                self._header_done = True
+            self.out.write(
+                f"{r.trial:>5} {r.mode:<10} {r.option or '-':<5} {r.robot or '-':<6} "
+                f"{r.human or '-':<6} {r.outcome or '-':<8} {r.switches:>6} {r.violations:>4} "
+                f"{r.score:>5}\n"
+            )
+            self.out.flush()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `nod run`."""
+    p = argparse.ArgumentParser(
+        prog="nod run",
+        description="Start a Zenoh router and every service as separate processes, and run one "
+        "participant's 8 trials. With --sim a synthetic participant stands in for the camera "
+        "and the person, and simulated arm and eyes stand in for the hardware.",
+    )
+    p.add_argument("--sim", action="store_true", help="simulate participant, arm and eyes")
+    p.add_argument("--db", type=Path, default=Path("nod-sessions.sqlite"), help="session store")
+    p.add_argument("--seed", type=int, default=1, help="seed of the simulated participant")
+    p.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second")
+    p.add_argument("--listen", default=DEFAULT_ROUTER, help=f"router endpoint ({DEFAULT_ROUTER})")
+    p.add_argument("--rig", type=check_rig, default="rig1", help="rig name scoping every key")
+    p.add_argument("--participant", default="P01", help="participant id stored with the session")
+    p.add_argument("--clicks", default="10", help="counter clicks per trial: N, 'prompt' or 'none'")
+    p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
+    p.add_argument("--stale-ms", type=float, default=None, help="safety staleness bound (ms)")
+    p.add_argument("--logs", type=Path, default=None, help="folder for service logs")
+    p.add_argument("-v", "--verbose", action="store_true", help="services log at debug level")
+    return p
+
+
+def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list[str]:
+    """The command line of one child service."""
+    cmd = [
+        sys.executable,
+        "-m",
+        "services.cli",
+        service,
+        "--connect",
+        args.listen,
+        "--rig",
+        args.rig,
+        "--speed",
+        repr(args.speed),
+        "--epoch-ns",
+        str(epoch_ns),
+    ]
+    if args.params is not None:
+        cmd += ["--params", str(args.params)]
+    if args.verbose:
+        cmd.append("-v")
+    if service in ("actuation", "eyes") and args.stale_ms is not None:
+        cmd += ["--stale-ms", repr(args.stale_ms)]
+    if service == "sim":
+        cmd += ["--seed", str(args.seed)]
+    if service == "experiment":
+        cmd += [
+            "--db",
+            str(args.db),
+            "--participant",
+            args.participant,
+            "--seed",
+            str(args.seed),
+            "--clicks",
+            args.clicks,
+        ]
+    return cmd
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one session on the fabric; exit 0 when every trial is stored."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    if not args.sim:
+        print(
+            "nod run: only --sim is available from this command; on a rig, start each "
+            "service with its own command (see deploy/)",
+            file=sys.stderr,
+        )
+        return 2
+    if not 0.05 <= args.speed <= 50:
+        print(f"nod run: --speed must be in [0.05, 50], got {args.speed}", file=sys.stderr)
+        return 2
+    logs = args.logs or args.db.with_suffix(".logs")
+    logs.mkdir(parents=True, exist_ok=True)
+    try:
+        router = open_session(make_config(mode="router", listen=[args.listen]))
+    except ConnectionError as exc:
+        print(f"nod run: cannot listen on {args.listen}: {exc}", file=sys.stderr)
+        return 2
+    from services.config import load_service_config
+
+    n_trials = len(load_service_config(args.params).protocol.trials)
+    view = SessionView(n_trials)
+    keys = Keys(args.rig)
+    subs = [
+        router.declare_subscriber(
+            keys.topic("experiment/trial"), lambda s: _decoded(m.TrialEvent, s, view.on_trial)
+        ),
+        router.declare_subscriber(
+            keys.topic("experiment/result"), lambda s: _decoded(m.TrialResult, s, view.on_result)
+        ),
+    ]
+    epoch_ns = time.time_ns()
+    print(
+        f"router listening on {args.listen}; rig {args.rig!r}; speed {args.speed}x; "
+        f"logs in {logs}/",
+        flush=True,
+    )
+    children: dict[str, subprocess.Popen] = {}
+    stopping = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stopping.set())
+    signal.signal(signal.SIGTERM, lambda *_: stopping.set())
+    code = 1
+    try:
+        for service in (*SERVICES, "experiment"):
+            children[service] = subprocess.Popen(
+                child_command(service, args, epoch_ns),
+                stdout=(logs / f"{service}.log").open("w"),
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,  # our Ctrl-C handling stops them in order
+            )
+        code = _supervise(children, stopping)
+    finally:
+        _stop_all(children)
+        for sub in subs:
+            sub.undeclare()
+        router.close()
+    if code == 0:
+        print(f"session stored in {args.db} ({len(view.results)} trials)")
+    elif code == 130:
+        print("\ninterrupted: every service stopped", file=sys.stderr)
+    else:
+        _explain_failure(children, logs)
+    return code
+
+
+def _decoded(cls, sample, handler) -> None:
+    try:
+        handler(m.decode(cls, sample.payload.to_bytes()))
+    except m.MessageError as exc:
+        log.warning("bad message on %s: %s", sample.key_expr, exc)
+
+
+def _supervise(children: dict[str, subprocess.Popen], stopping: threading.Event) -> int:
+    """Wait for the conductor; a service dying early fails the run."""
+    conductor = children["experiment"]
+    while not stopping.is_set():
+        rc = conductor.poll()
+        if rc is not None:
+            return rc
+        for name, proc in children.items():
+            if name != "experiment" and proc.poll() is not None:
+                print(
+                    f"\nnod run: service {name} exited early with code {proc.returncode}",
+                    file=sys.stderr,
+                )
+                return 1
+        stopping.wait(0.05)
+    return 130
+
+
+def _stop_all(children: dict[str, subprocess.Popen]) -> None:
+    """SIGTERM every child (they stop cleanly), then kill what is left after 5 s."""
+    for proc in children.values():
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+    deadline = time.monotonic() + 5.0
+    for proc in children.values():
+        try:
+            proc.wait(max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def _explain_failure(children: dict[str, subprocess.Popen], logs: Path) -> None:
+    for name, proc in children.items():
+        if proc.returncode not in (0, -signal.SIGTERM, None):
+            tail = (logs / f"{name}.log").read_text(errors="replace").splitlines()[-8:]
+            print(f"--- {name} (exit {proc.returncode}), last lines of its log:", file=sys.stderr)
+            print("\n".join(tail), file=sys.stderr)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

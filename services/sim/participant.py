@@ -1,0 +1,217 @@
+"""A synthetic participant: eq 2 for the opinion, a kinematic hand, 21 noisy landmarks.
+
+The participant's internal opinion follows eq 2,
+    ż_h = −d z_h + u tanh(α z_h + γ_h · r̂) + b_h,
+where r̂ ∈ [−1, 1] is what the participant sees of the robot (the arm's heading, after a
+perception delay) and γ_h > 0 because the participant's objective is to *match* the robot
+(the paper's γ < 0 models the robot's deliberate disagreement, not the person's goal). The bias
+b_h = preference + gaze: a seeded random preference per trial, plus the gaze cue's pull toward
+the option the eyes look at, scaled by the cue's strength (|yaw|) and a trust that grows after
+trials where following the gaze paid off.
+
+The opinion steers a hand: after a reaction time the hand heads for the box of sign(z_h), its
+speed scaled by conviction |z_h| (low conviction = hesitation). Once past the commit line a
+rule-abiding participant keeps its choice; it switches at most `max_switches` times. The hand is
+published as 21 landmarks around its centre with Gaussian noise, exactly as vision would.
+
+Pure: time is an argument, randomness comes from a seeded numpy Generator.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from services.core.geometry import Colour, Point, TableLayout, colour_sign
+from services.decision.dynamics import AgentParams
+
+# A flat hand seen from above, 21 MediaPipe-ordered landmarks relative to the palm centre
+# (wrist, thumb ×4, index ×4, middle ×4, ring ×4, little ×4), in units of the hand radius.
+_HAND_TEMPLATE = np.array(
+    [(0.0, 0.9)]
+    + [(-0.45 - 0.15 * i, 0.5 - 0.25 * i) for i in range(4)]
+    + [(-0.30 + 0.0 * i, 0.0 - 0.30 * i) for i in range(4)]
+    + [(-0.05, 0.05 - 0.33 * i) for i in range(4)]
+    + [(0.20, 0.08 - 0.30 * i) for i in range(4)]
+    + [(0.42, 0.18 - 0.24 * i) for i in range(4)]
+)
+_HAND_TEMPLATE = _HAND_TEMPLATE - _HAND_TEMPLATE.mean(axis=0)
+
+
+@dataclass(frozen=True, slots=True)
+class ParticipantParams:
+    """A participant's traits; `jittered` draws one person of a cohort around these."""
+
+    agent: AgentParams = field(default_factory=lambda: AgentParams(gamma=3.0))  # γ_h > 0: follow
+    preference_mean: float = 2.6  # |b_h| of the private preference, drawn per trial
+    preference_sd: float = 0.6
+    gaze_gain: float = 5.0  # b_h pull per radian of gaze yaw, times trust
+    trust0: float = 0.9  # trust in the gaze at trial 4
+    trust_step: float = 0.25  # trust gained after a consensus trial that followed the gaze
+    perception_delay_s: float = 0.25  # how late the participant sees the arm's heading
+    reaction_s: float = 0.30  # from "go" to the first hand movement
+    speed: float = 0.40  # peak hand speed, normalised image units per second
+    accel: float = 3.0  # hand acceleration limit (units/s²)
+    full_conviction: float = 0.15  # |z_h| at which the hand moves at full speed
+    max_switches: int = 1  # the rules allow one change of path
+    rule_breaking: float = 0.05  # probability per trial of ignoring the commit-line rule
+    hand_radius: float = 0.03  # landmark spread around the centre
+    landmark_noise: float = 0.002  # per-landmark Gaussian noise (sd)
+    start: Point = (0.5, 0.85)  # rest position of the hand, participant's side of the table
+
+    def __post_init__(self) -> None:
+        for name in ("speed", "accel", "full_conviction", "hand_radius"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"ParticipantParams.{name} must be > 0")
+        if not 0 <= self.rule_breaking <= 1:
+            raise ValueError("ParticipantParams.rule_breaking must be in [0, 1]")
+
+
+class Participant:
+    """One simulated person over a session of trials."""
+
+    def __init__(self, params: ParticipantParams, layout: TableLayout, seed: int) -> None:
+        self.p = params
+        self.layout = layout
+        self.rng = np.random.default_rng(seed)
+        self.trust = params.trust0
+        self.pos = np.array(params.start, dtype=float)
+        self.vel = np.zeros(2)
+        self.z_h = 0.0
+        self.b_h = 0.0
+        self.t_go: float | None = None
+        self.t = 0.0
+        self.pressed: Colour | None = None
+        self.switches = 0
+        self._heading: Colour | None = None
+        self._obeys_commit = True
+        self._robot_seen: deque[tuple[float, float]] = deque()
+        self._gaze_sign = 0
+        self._gaze_pull = 0.0
+        self._last_seen = 0.0
+
+    # -- protocol events -------------------------------------------------------------------
+
+    def new_trial(self, gaze_yaw: float, option: Colour | None) -> None:
+        """Prepare for a trial: draw today's preference, read the gaze cue, hand at rest."""
+        pref = abs(self.rng.normal(self.p.preference_mean, self.p.preference_sd))
+        pref_sign = 1 if self.rng.random() < 0.5 else -1
+        self._gaze_sign = int(math.copysign(1, gaze_yaw)) if abs(gaze_yaw) > 1e-9 else 0
+        self._gaze_pull = self.p.gaze_gain * abs(gaze_yaw) * self.trust
+        self.b_h = pref_sign * pref + self._gaze_sign * self._gaze_pull
+        self.z_h = 0.0
+        self.pos = np.array(self.p.start, dtype=float)
+        self.vel = np.zeros(2)
+        self.t_go = None
+        self.pressed = None
+        self.switches = 0
+        self._heading = None
+        self._obeys_commit = self.rng.random() >= self.p.rule_breaking
+        self._robot_seen.clear()
+        self._last_seen = 0.0
+
+    def go(self, t: float) -> None:
+        """The countdown said "go"."""
+        self.t_go = t
+
+    def trial_ended(self, robot: Colour | None) -> None:
+        """Learn from the trial: following the gaze and agreeing with the robot builds trust."""
+        if self._gaze_sign and robot is not None and self.pressed is not None:
+            followed = colour_sign(self.pressed) == self._gaze_sign
+            if followed and self.pressed == robot:
+                self.trust += self.p.trust_step
+            elif followed:
+                self.trust = max(0.0, self.trust - self.p.trust_step)
+
+    def see_robot(self, t: float, heading: int) -> None:
+        """What the arm is doing now: +1 toward red, −1 toward blue, 0 still."""
+        self._robot_seen.append((t, float(heading)))
+
+    # -- dynamics --------------------------------------------------------------------------
+
+    def _robot_perceived(self) -> float:
+        cutoff = self.t - self.p.perception_delay_s
+        while self._robot_seen and self._robot_seen[0][0] <= cutoff:
+            self._last_seen = self._robot_seen.popleft()[1]
+        return self._last_seen
+
+    def advance(self, t: float, dt: float = 0.002) -> None:
+        """Integrate opinion (eq 2, RK4 with r̂ held) and hand motion up to time t."""
+        if self.t_go is None or self.pressed is not None:
+            self.t = max(self.t, t)  # at rest (before "go" or after the press): nothing evolves
+            return
+        if self.t < self.t_go:
+            self.t = min(t, self.t_go)
+        while self.t < t - 1e-12:
+            h = min(dt, t - self.t)
+            self._step(h)
+            self.t += h
+
+    def _step(self, h: float) -> None:
+        a = self.p.agent
+        if self.pressed is not None:
+            return
+        r_hat = self._robot_perceived()
+        committed = self._heading is not None and (
+            self.switches >= self.p.max_switches
+            or (self._obeys_commit and self.layout.commit.crossed(tuple(self.pos)))
+        )
+
+        def f(z: float) -> float:
+            return -a.d * z + a.u * math.tanh(a.alpha * z + a.gamma * r_hat) + self.b_h
+
+        k1 = f(self.z_h)
+        k2 = f(self.z_h + 0.5 * h * k1)
+        k3 = f(self.z_h + 0.5 * h * k2)
+        k4 = f(self.z_h + h * k3)
+        self.z_h += h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+        if self.t < self.t_go + self.p.reaction_s:
+            return
+        wanted: Colour = "red" if self.z_h > 0 else "blue"
+        if self._heading is None:
+            self._heading = wanted
+        elif wanted != self._heading and not committed:
+            self._heading = wanted
+            self.switches += 1
+        target = np.array(self.layout.box(self._heading).center)
+        to_target = target - self.pos
+        dist = float(np.hypot(*to_target))
+        conviction = min(1.0, abs(self.z_h) / self.p.full_conviction)
+        if committed:
+            conviction = 1.0  # a committed hand goes straight on
+        v_des = to_target / max(dist, 1e-9) * self.p.speed * conviction
+        dv = v_des - self.vel
+        dv_norm = float(np.hypot(*dv))
+        max_dv = self.p.accel * h
+        if dv_norm > max_dv:
+            dv *= max_dv / dv_norm
+        self.vel = self.vel + dv
+        self.pos = self.pos + self.vel * h
+        self.pressed = self.layout.pressed([tuple(q) for q in self.landmarks(noise=False)])
+
+    # -- what the camera sees ---------------------------------------------------------------
+
+    def landmarks(self, noise: bool = True) -> np.ndarray:
+        """21 landmarks (x, y) around the hand centre, with camera noise when asked."""
+        pts = self.pos + _HAND_TEMPLATE * self.p.hand_radius
+        if noise:
+            pts = pts + self.rng.normal(0.0, self.p.landmark_noise, pts.shape)
+        return np.clip(pts, 0.0, 1.0)
+
+
+def jittered(base: ParticipantParams, rng: np.random.Generator) -> ParticipantParams:
+    """One member of a cohort: the base traits with person-to-person variation."""
+    from dataclasses import replace
+
+    return replace(
+        base,
+        preference_mean=max(0.5, rng.normal(base.preference_mean, 0.4)),
+        trust0=max(0.1, rng.normal(base.trust0, 0.25)),
+        reaction_s=max(0.1, rng.normal(base.reaction_s, 0.06)),
+        speed=max(0.2, rng.normal(base.speed, 0.06)),
+        perception_delay_s=max(0.1, rng.normal(base.perception_delay_s, 0.05)),
+    )

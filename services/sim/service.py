@@ -1,0 +1,140 @@
+"""`nod sim`: a synthetic participant publishing hand poses exactly as vision would.
+
+It stands in for the camera and the person: at camera rate it publishes 21 noisy landmarks on
+`vision/hand`, and the table geometry on `vision/layout`. It watches the protocol (trial events),
+the gaze cue (`eyes/cmd`) and the arm (`actuation/state`, `actuation/press`) the way a person
+watches the rig, and its opinion (eq 2) steers the hand. Seeded: the same seed and the same
+robot give the same participant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+import numpy as np
+
+from services.config import NodConfig, add_config_arg, layout_fields, load_service_config
+from services.core import messages as m
+from services.core.clock import add_clock_args
+from services.core.geometry import colour_sign
+from services.core.node import Node, setup_logging
+from services.core.session import add_zenoh_args
+from services.sim.participant import Participant, jittered
+
+log = logging.getLogger("nod.sim")
+NS = 1e-9
+
+
+class SimService:
+    """Wires a Participant to the rig's keys."""
+
+    def __init__(self, node: Node, cfg: NodConfig, seed: int, rate_hz: float, cohort: bool):
+        self.node = node
+        self.layout = cfg.layout
+        rng = np.random.default_rng(seed)
+        params = jittered(cfg.participant, rng) if cohort else cfg.participant
+        self.person = Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
+        self.person.advance(node.clock.now_ns() * NS)  # at rest: only sets its clock
+        self.gaze_yaw = 0.0
+        self.option: str | None = None
+        self.robot: str | None = None
+        self.pub_hand = node.publisher("vision/hand")
+        self.pub_layout = node.publisher("vision/layout")
+        node.subscribe("experiment/trial", self.on_trial)
+        node.subscribe("eyes/cmd", self.on_gaze)
+        node.subscribe("actuation/state", self.on_arm)
+        node.subscribe("actuation/press", self.on_press)
+        node.every(1.0 / rate_hz, self.frame)
+        node.every(1.0, self.publish_layout)
+
+    def on_gaze(self, msg: m.GazeMsg) -> None:
+        """The participant sees where the eyes look."""
+        self.gaze_yaw = msg.yaw
+
+    def on_trial(self, ev: m.TrialEvent) -> None:
+        """Follow the protocol like a participant listening to the countdown."""
+        t = self._advance(ev.t_ns)
+        if ev.phase == "setup":
+            self.robot = None
+            self.person.new_trial(self.gaze_yaw, ev.option)
+        elif ev.phase == "go":
+            self.person.go(t)
+        elif ev.phase == "end":
+            self.person.trial_ended(self.robot)  # type: ignore[arg-type]
+
+    def on_arm(self, msg: m.ArmStateMsg) -> None:
+        """Where the arm is heading, as the participant sees it."""
+        heading = colour_sign(msg.target) if msg.target and msg.moving else 0
+        self.person.see_robot(msg.t_ns * NS, heading)
+
+    def on_press(self, msg: m.PressMsg) -> None:
+        """The robot pressed a buzzer."""
+        self.robot = msg.colour
+
+    def _advance(self, t_ns: int) -> float:
+        t = t_ns * NS
+        if t > self.person.t:
+            self.person.advance(t)
+        return self.person.t
+
+    def frame(self, now_ns: int) -> None:
+        """One camera frame: advance the person and publish the hand."""
+        self._advance(now_ns)
+        pts = self.person.landmarks()
+        center = pts.mean(axis=0)
+        self.pub_hand.put(
+            t_ns=now_ns,
+            detected=True,
+            center=(float(center[0]), float(center[1])),
+            landmarks=tuple((float(x), float(y)) for x, y in pts),
+            source="sim",
+        )
+
+    def publish_layout(self, now_ns: int) -> None:
+        """The table geometry, for every service that needs the boxes."""
+        self.pub_layout.put(t_ns=now_ns, **layout_fields(self.layout))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `nod sim`."""
+    p = argparse.ArgumentParser(
+        prog="nod sim",
+        description="Publish a synthetic participant's hand on vision/hand (stands in for vision).",
+    )
+    add_zenoh_args(p)
+    add_clock_args(p)
+    add_config_arg(p)
+    p.add_argument("--seed", type=int, default=1, help="random seed of the participant")
+    p.add_argument("--rate", type=float, default=30.0, help="camera rate in Hz (default 30)")
+    p.add_argument(
+        "--cohort",
+        action="store_true",
+        help="draw person-to-person variation of the participant's traits from the seed",
+    )
+    p.add_argument("-v", "--verbose", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the sim participant until SIGINT/SIGTERM."""
+    args = build_parser().parse_args(argv)
+    setup_logging(args.verbose)
+    try:
+        if not 1.0 <= args.rate <= 1000.0:
+            raise ValueError(f"--rate must be in [1, 1000] Hz, got {args.rate}")
+        cfg = load_service_config(args.params)
+        node = Node("sim", args, stands_in_for=("vision",))
+    except (ValueError, OSError, ConnectionError) as exc:
+        print(f"nod sim: {exc}", file=sys.stderr)
+        return 2
+    log.info("effective config: %s", json.dumps(cfg.summary("participant")))
+    SimService(node, cfg, args.seed, args.rate, args.cohort)
+    node.run()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,203 @@
+"""The decision engine: ZOH integration of eq 1 with eq 6, driven by poses (Algorithm 1)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from services.core.geometry import Box, TableLayout
+from services.decision.bias import BiasParams
+from services.decision.dynamics import PairParams, rk4_step, robot_rate
+from services.decision.model import DecisionModel, DecisionParams
+
+NS = 1_000_000_000
+
+
+def reach(model: DecisionModel, target, seconds: float, hz: float = 30.0, speed: float = 0.1):
+    """Move a one-landmark hand from (0.5, 0.8) toward `target`; return every output."""
+    x, y = 0.5, 0.8
+    outs = []
+    for i in range(int(seconds * hz) + 1):
+        dx, dy = target[0] - x, target[1] - y
+        dist = math.hypot(dx, dy)
+        if dist > 0.05:
+            x, y = x + dx / dist * speed / hz, y + dy / dist * speed / hz
+        outs.append(model.on_hand(round(i * NS / hz), [(x, y)]))
+    return outs
+
+
+@pytest.mark.parametrize("colour", ["red", "blue"])
+def test_unbiased_robot_opposes_the_human(colour):
+    model = DecisionModel()
+    model.reset("dissensus", None)
+    outs = reach(model, model.layout.box(colour).corner, 2.0)
+    last = outs[-1]
+    sign = 1 if colour == "red" else -1
+    assert sign * last.z_hat > 0
+    assert sign * last.z_r < 0  # γ < 0: the robot takes the other buzzer
+    assert last.dissensus and last.b_r == 0.0
+
+
+@pytest.mark.parametrize("colour", ["red", "blue"])
+def test_consensus_mode_follows_option(colour):
+    model = DecisionModel()
+    model.reset("consensus", colour)
+    outs = reach(model, model.layout.box(colour).corner, 3.0)
+    sign = 1 if colour == "red" else -1
+    # The robot first opposes, then the bias pulls it over to O within ~3 s.
+    assert any(sign * o.z_r < 0 for o in outs[:15])
+    assert sign * outs[-1].z_r > 0 and not outs[-1].dissensus
+    assert sign * outs[-1].b_r > model.params.pair.robot.u
+
+
+def test_zero_order_hold_new_pose_affects_only_later_intervals():
+    model = DecisionModel()
+    model.reset("dissensus", None)
+    model.on_hand(0, [(0.5, 0.8)])
+    # The pose at t1 moves toward red, but over [0, t1] the held ẑ_h is the first frame's 0:
+    # with z_r = b_r = 0 and ẑ_h = 0, ż_r = 0 exactly.
+    out1 = model.on_hand(NS // 30, [(0.52, 0.78)])
+    assert out1.z_hat > 0 and out1.z_r == 0.0
+    # Over [t1, t2] the new ẑ_h acts: the result is RK4 of eq 1 with it held.
+    out2 = model.on_hand(2 * NS // 30, [(0.52, 0.78)])
+    p = model.params.pair
+    z = 0.0
+    span = 2 * NS // 30 - NS // 30
+    steps = [0.001] * (span // 1_000_000) + [(span % 1_000_000) * 1e-9]
+    for h in steps:
+        z = rk4_step(lambda v: robot_rate(v, out1.z_hat, 0.0, p), z, h)
+    assert out2.z_r < 0
+    assert out2.z_r == pytest.approx(z, rel=1e-12)
+
+
+@pytest.mark.parametrize("bad_t", [0, 5, 10])  # earlier, earlier, repeated
+def test_non_advancing_timestamps_do_not_integrate(bad_t):
+    model = DecisionModel()
+    model.reset("consensus", "red")
+    model.on_hand(0, [(0.5, 0.8)])
+    before = model.on_hand(10, [(0.55, 0.75)])
+    before = model.on_hand(10 + NS // 10, [(0.56, 0.74)])
+    out = model.on_hand(before.t_ns - 10 + bad_t, [(0.1, 0.1)])  # bad_t ≤ 10 → not after
+    assert out.t_ns == before.t_ns
+    assert (out.z_r, out.b_r, out.z_hat) == (before.z_r, before.b_r, before.z_hat)
+    assert out.observation == before.observation
+    # The rejected pose did not move the observer's reference either.
+    nxt = model.on_hand(before.t_ns + NS // 30, [(0.56, 0.74)])
+    assert nxt.z_hat == before.z_hat and not nxt.observation.moved
+
+
+def test_max_gap_bound_honoured():
+    def primed():
+        m = DecisionModel()
+        m.reset("consensus", "blue")
+        m.on_hand(0, [(0.5, 0.8)])
+        m.on_hand(NS // 30, [(0.48, 0.78)])
+        return m
+
+    long_gap, bounded = primed(), primed()
+    t1 = NS // 30
+    a = long_gap.on_hand(t1 + 10 * NS, [(0.48, 0.78)])
+    b = bounded.on_hand(t1 + NS // 2, [(0.48, 0.78)])
+    assert a.t_ns == t1 + 10 * NS  # time moves on even though only 0.5 s was integrated
+    assert (a.z_r, a.b_r) == (b.z_r, b.b_r)
+    c = primed().on_hand(t1 + 4 * NS // 10, [(0.48, 0.78)])
+    assert c.b_r != b.b_r  # a gap under the bound is integrated in full
+
+
+def test_step_size_does_not_change_the_trajectory_much():
+    coarse = DecisionModel(DecisionParams(dt=0.004))
+    fine = DecisionModel(DecisionParams(dt=0.0005))
+    for m in (coarse, fine):
+        m.reset("consensus", "red")
+    a = reach(coarse, coarse.layout.red.corner, 2.0, hz=120)[-1]
+    b = reach(fine, fine.layout.red.corner, 2.0, hz=120)[-1]
+    assert a.z_r == pytest.approx(b.z_r, abs=1e-3)
+    assert a.b_r == pytest.approx(b.b_r, abs=1e-3)
+
+
+def test_first_pose_sets_time_without_integrating():
+    model = DecisionModel()
+    model.reset("consensus", "red")
+    out = model.on_hand(123, [(0.4, 0.4)])
+    assert out.t_ns == 123 and model.t_ns == 123
+    assert (out.z_r, out.b_r, out.z_hat) == (0.0, 0.0, 0.0)
+
+
+def test_no_hand_holds_z_hat_and_keeps_integrating():
+    model = DecisionModel()
+    model.reset("dissensus", None)
+    model.on_hand(0, [(0.5, 0.8)])
+    z_hat = model.on_hand(NS // 30, [(0.52, 0.78)]).z_hat
+    out = model.on_hand(NS // 3, None)
+    assert not out.observation.detected
+    assert out.z_hat == z_hat and out.z_r < 0
+
+
+def test_reset_clears_state_and_validates():
+    model = DecisionModel()
+    model.reset("consensus", "red")
+    reach(model, model.layout.red.corner, 1.0)
+    model.reset("consensus", "blue")
+    assert (model.z_r, model.b_r, model.z_hat, model.t_ns) == (0.0, 0.0, 0.0, None)
+    assert model.mode == "consensus" and model.option == "blue"
+    with pytest.raises(ValueError, match="option"):
+        model.reset("consensus", None)
+    with pytest.raises(ValueError, match="mode"):
+        model.reset("agree", "red")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="option"):
+        model.reset("dissensus", "green")  # type: ignore[arg-type]
+
+
+def test_set_layout_mirrors_reading():
+    flipped = TableLayout(red=Box(0.14, 0.12, 0.28, 0.26), blue=Box(0.72, 0.12, 0.86, 0.26))
+    model = DecisionModel()
+    model.reset("dissensus", None)
+    model.on_hand(0, [(0.5, 0.8)])
+    assert model.on_hand(NS // 30, [(0.52, 0.78)]).z_hat > 0  # up-right: red on the right
+    model.set_layout(flipped)
+    assert model.layout is flipped
+    assert model.on_hand(2 * NS // 30, [(0.54, 0.76)]).z_hat < 0  # up-right: now blue
+
+
+def test_params_validation():
+    with pytest.raises(ValueError, match="dt"):
+        DecisionParams(dt=0.0)
+    with pytest.raises(ValueError, match="max_gap_s"):
+        DecisionParams(max_gap_s=-1.0)
+    with pytest.raises(ValueError, match="b_max"):
+        DecisionParams(bias=BiasParams(b_max=2.0))
+    assert DecisionModel(DecisionParams(pair=PairParams())).b_star == pytest.approx(2.74)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seq=st.lists(
+        st.tuples(
+            st.integers(-50_000_000, 300_000_000), st.tuples(st.floats(0, 1), st.floats(0, 1))
+        ),
+        min_size=2,
+        max_size=80,
+    ),
+    mode=st.sampled_from(["dissensus", "consensus"]),
+)
+def test_state_stays_finite_and_bounded(seq, mode):
+    model = DecisionModel()
+    model.reset(mode, "blue")
+    t = 0
+    last_t = None
+    for gap, p in seq:
+        t += gap
+        out = model.on_hand(t, [p])
+        if last_t is not None and t <= last_t:
+            assert out.t_ns == last_t
+        else:
+            last_t = t
+        assert out.t_ns == last_t
+        # |ż_r| ≤ d|z_r| + u + |b_r| keeps |z_r| below (u + b_max)/d from rest.
+        bound = (model.params.pair.robot.u + model.params.bias.b_max) / model.params.pair.robot.d
+        assert math.isfinite(out.z_r) and abs(out.z_r) <= bound + 1e-9
+        assert abs(out.b_r) <= model.params.bias.b_max
+        assert out.dissensus == (out.z_r * out.z_hat < 0)
