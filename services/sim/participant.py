@@ -48,14 +48,14 @@ class ParticipantParams:
     agent: AgentParams = field(default_factory=lambda: AgentParams(gamma=3.0))  # γ_h > 0: follow
     preference_mean: float = 2.6  # |b_h| of the private preference, drawn per trial
     preference_sd: float = 0.6
-    gaze_gain: float = 5.0  # b_h pull per radian of gaze yaw, times trust
+    gaze_gain: float = 7.0  # b_h pull per radian of gaze yaw, times trust
     trust0: float = 0.9  # trust in the gaze at trial 4
     trust_step: float = 0.25  # trust gained after a consensus trial that followed the gaze
     perception_delay_s: float = 0.25  # how late the participant sees the arm's heading
     reaction_s: float = 0.30  # from "go" to the first hand movement
-    speed: float = 0.40  # peak hand speed, normalised image units per second
+    speed: float = 0.32  # peak hand speed, normalised image units per second
     accel: float = 3.0  # hand acceleration limit (units/s²)
-    full_conviction: float = 0.15  # |z_h| at which the hand moves at full speed
+    full_conviction: float = 0.40  # |z_h| at which the hand moves at full speed
     max_switches: int = 1  # the rules allow one change of path
     rule_breaking: float = 0.05  # probability per trial of ignoring the commit-line rule
     hand_radius: float = 0.03  # landmark spread around the centre

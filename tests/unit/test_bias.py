@@ -34,7 +34,8 @@ def test_signs_of_sigma_and_beta():
 
 
 def test_threshold_default_and_override():
-    assert P.threshold(2.24) == pytest.approx(2.74)
+    assert P.threshold(2.24) == pytest.approx(2.24 + P.b_star_margin)
+    assert P.threshold(2.24) > 2.24
     assert BiasParams(b_star_margin=0.0).threshold(2.24) == 2.24
     assert BiasParams(b_star=3.0).threshold(2.24) == 3.0
 
@@ -123,7 +124,7 @@ poses = st.lists(
 @settings(max_examples=40, deadline=None)
 @given(seq=poses, option=colours, b_max=st.floats(2.8, 4.0))
 def test_bias_never_exceeds_clamp(seq, option, b_max):
-    model = DecisionModel(DecisionParams(bias=BiasParams(b_max=b_max)))
+    model = DecisionModel(DecisionParams(bias=BiasParams(b_star_margin=0.5, b_max=b_max)))
     model.reset("consensus", option)
     t = 0
     for gap, p in seq:
@@ -135,7 +136,7 @@ def test_bias_never_exceeds_clamp(seq, option, b_max):
 def test_clamp_is_reached_in_long_dissensus():
     # O = red but the human keeps heading blue: the robot opposes (z_r > 0), the pair stays in
     # dissensus and the σ term pushes b_r on past b* until the clamp holds it.
-    model = DecisionModel(DecisionParams(bias=BiasParams(b_max=3.0)))
+    model = DecisionModel(DecisionParams(bias=BiasParams(b_star_margin=0.5, b_max=3.0)))
     model.reset("consensus", "red")
     x, y = 0.7, 0.9
     for i in range(30 * 30):

@@ -169,7 +169,9 @@ def test_params_validation():
         DecisionParams(max_gap_s=-1.0)
     with pytest.raises(ValueError, match="b_max"):
         DecisionParams(bias=BiasParams(b_max=2.0))
-    assert DecisionModel(DecisionParams(pair=PairParams())).b_star == pytest.approx(2.74)
+    assert DecisionModel(DecisionParams(pair=PairParams())).b_star == pytest.approx(
+        2.24 + BiasParams().b_star_margin
+    )
 
 
 @settings(max_examples=40, deadline=None)
