@@ -1,0 +1,106 @@
+"""Fixtures for tests that start real processes on a real Zenoh router on a free loopback port."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+
+import pytest
+
+from services.core import messages as m
+from services.core.session import make_config, open_session
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on right now (the OS picks it)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def endpoint() -> str:
+    """A fresh loopback endpoint per test: two test runs never share a port."""
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture
+def router(endpoint):
+    """A Zenoh router session listening on the endpoint."""
+    session = open_session(make_config(mode="router", listen=[endpoint]))
+    yield session
+    session.close()
+
+
+@pytest.fixture
+def client(router, endpoint):
+    """A client session connected to the router."""
+    session = open_session(make_config(mode="client", connect=[endpoint]))
+    yield session
+    session.close()
+
+
+@pytest.fixture
+def spawn(endpoint, tmp_path) -> Iterator[Callable[..., subprocess.Popen]]:
+    """Start `nod <service> --connect <endpoint> …` as a child process; stopped at teardown."""
+    procs: list[subprocess.Popen] = []
+
+    def start(service: str, *args: str) -> subprocess.Popen:
+        log = (tmp_path / f"{service}.log").open("w")
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", service, "--connect", endpoint, *args],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            cwd=ROOT,
+        )
+        proc.log_path = tmp_path / f"{service}.log"  # type: ignore[attr-defined]
+        procs.append(proc)
+        return proc
+
+    yield start
+    for proc in procs:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+    for proc in procs:
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+class Collector:
+    """Decodes and keeps every sample of one key, with its arrival time."""
+
+    def __init__(self, session, key: str, cls: type[m.Message]) -> None:
+        self.items: list[tuple[float, m.Message]] = []
+        self.bad = 0
+        self._sub = session.declare_subscriber(key, self._on)
+        self.cls = cls
+
+    def _on(self, sample) -> None:
+        try:
+            self.items.append((time.monotonic(), m.decode(self.cls, sample.payload.to_bytes())))
+        except m.MessageError:
+            self.bad += 1
+
+    @property
+    def messages(self) -> list[m.Message]:
+        return [msg for _, msg in self.items]
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float, what: str) -> None:
+    """Poll until predicate() holds; fail the test with `what` after timeout seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.01)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")

@@ -1,0 +1,77 @@
+"""A service receiving garbage on its keys keeps running and keeps computing."""
+
+import time
+
+import msgpack
+import pytest
+
+from services.core import messages as m
+from services.core.keys import Keys
+
+from .conftest import Collector, wait_for
+
+pytestmark = pytest.mark.integration
+KEYS = Keys("rig1")
+
+
+def _pose(seq: int, t_ns: int, x: float, y: float) -> bytes:
+    lm = tuple((x + dx, y + dy) for dx, dy in ((0.01, 0.0), (-0.01, 0.0), (0.0, 0.01)))
+    return m.encode(m.HandPose(seq=seq, t_ns=t_ns, detected=True, center=(x, y), landmarks=lm))
+
+
+def test_decision_survives_garbage_and_keeps_publishing(client, spawn):
+    proc = spawn("decision")
+    z_r = Collector(client, KEYS.topic("decision/z_r"), m.Scalar)
+    z_h = Collector(client, KEYS.topic("decision/z_h"), m.Scalar)
+    hand = client.declare_publisher(KEYS.topic("vision/hand"))
+    trial = client.declare_publisher(KEYS.topic("experiment/trial"))
+    t0 = time.time_ns()
+    wait_for(lambda: (hand.put(_pose(0, t0, 0.5, 0.85)), bool(z_r.items))[1], 20, "decision up")
+
+    garbage = [
+        b"",
+        b"\xc1\xff",
+        b"not msgpack at all",
+        msgpack.packb([1, 2, 3]),
+        msgpack.packb(
+            {
+                "v": 1,
+                "seq": 1,
+                "t_ns": 1,
+                "detected": True,
+                "center": [0.5, float("nan")],
+                "landmarks": [[0.5, 0.5]],
+            }
+        ),
+        msgpack.packb(
+            {
+                "v": 1,
+                "seq": 1,
+                "t_ns": 1,
+                "detected": True,
+                "center": [0.5, 0.5],
+                "landmarks": [[0.5]],
+            }
+        ),
+        msgpack.packb({"v": 7, "seq": 1, "t_ns": 1}),
+        b"\x00" * 100_000,
+    ]
+    for payload in garbage:
+        hand.put(payload)
+        trial.put(payload)
+    trial.put(m.encode(m.TrialEvent(seq=0, t_ns=t0 + 1, phase="go", trial=1, mode="dissensus")))
+
+    # A hand heading for red after the garbage: decision must still answer every pose.
+    n_before = len(z_r.items)
+    for i in range(1, 31):
+        hand.put(_pose(i, t0 + i * 33_000_000, 0.5 + 0.008 * i, 0.85 - 0.01 * i))
+        time.sleep(0.005)
+    wait_for(lambda: len(z_r.items) >= n_before + 30, 10, "30 answers after the garbage")
+    assert proc.poll() is None, "decision died on garbage"
+    last_zh = z_h.messages[-1]
+    assert last_zh.value > 0  # the human heads for red
+    assert z_r.messages[-1].value < 0  # dissensus trial: the robot opposes
+    assert z_r.messages[-1].src_seq == 30
+    log = proc.log_path.read_text()
+    assert log.count("dropped bad message") >= 2 * len(garbage) - 2
+    assert "vision/hand" in log and "experiment/trial" in log

@@ -1,0 +1,121 @@
+"""The whole experiment: `nod run --sim` as a user runs it, every service its own process."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from services.experiment.protocol import default_schedule
+
+from .conftest import ROOT, free_port
+
+pytestmark = pytest.mark.integration
+
+
+def _nod(*args: str, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "services.cli", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        **kw,
+    )
+
+
+def _processes_mentioning(text: str) -> list[int]:
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except OSError:
+                continue
+            if text in cmdline and int(entry.name) != os.getpid():
+                pids.append(int(entry.name))
+    return pids
+
+
+def test_full_session_on_the_simulator(tmp_path):
+    db = tmp_path / "session.sqlite"
+    port = free_port()
+    # At 8x a 250 ms bound is 31 ms of wall time, tighter than a loaded 2-core CI scheduler
+    # guarantees; the safety tests check the real bound at 1x.
+    run = _nod(
+        "run",
+        "--sim",
+        "--speed",
+        "8",
+        "--seed",
+        "3",
+        "--db",
+        str(db),
+        "--listen",
+        f"tcp/127.0.0.1:{port}",
+        "--stale-ms",
+        "2000",
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "session stored" in run.stdout
+    assert not _processes_mentioning(f"127.0.0.1:{port}"), "children left running"
+
+    report = _nod("report", "--db", str(db), "--json")
+    assert report.returncode == 0, report.stderr
+    trials = json.loads(report.stdout)
+    schedule = default_schedule()
+    assert [t["trial"] for t in trials] == [s.index for s in schedule]
+    for t, spec in zip(trials, schedule, strict=True):
+        assert (t["mode"], t["option"]) == (spec.mode, spec.option)
+        assert t["robot"] in ("red", "blue")
+        assert t["outcome"] in ("C", "CH", "D", "DH", None)
+        assert set(t) >= {"human", "switches", "violations", "score"}
+    pressed = [t for t in trials if t["human"] is not None]
+    assert len(pressed) >= 6
+    # The robot disagrees in the dissensus trials and ends on O in the consensus trials.
+    assert sum(t["robot"] != t["human"] for t in trials[:3] if t["human"]) >= 2
+    assert sum(t["robot"] == t["option"] for t in trials[3:]) >= 4
+    assert sum(t["outcome"] in ("C", "CH") for t in trials[3:]) >= 3
+
+    import sqlite3
+
+    con = sqlite3.connect(db)
+    assert con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    n_samples = dict(con.execute("SELECT trial, COUNT(*) FROM samples GROUP BY trial").fetchall())
+    assert all(n_samples.get(t["trial"], 0) >= 20 for t in pressed)
+    status = con.execute("SELECT status FROM sessions").fetchall()
+    assert status == [("complete",)]
+
+
+def test_ctrl_c_stops_every_child(tmp_path):
+    port = free_port()
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "run",
+            "--sim",
+            "--db",
+            str(tmp_path / "s.sqlite"),
+            "--listen",
+            f"tcp/127.0.0.1:{port}",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 30
+    while len(_processes_mentioning(f"127.0.0.1:{port}")) < 6 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, out + err
+    assert "interrupted" in err
+    assert not _processes_mentioning(f"127.0.0.1:{port}")

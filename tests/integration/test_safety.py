@@ -1,0 +1,133 @@
+"""Safety over the fabric: an e-stop, stale inputs and lost liveliness stop a moving arm."""
+
+import threading
+import time
+
+import pytest
+
+from services.core import messages as m
+from services.core.keys import Keys
+
+from .conftest import Collector, wait_for
+
+pytestmark = pytest.mark.integration
+KEYS = Keys("rig1")
+BOUND_NS = 250_000_000
+
+
+class Feeder:
+    """Stands in for vision and decision: fresh hand poses and a steady z_r toward red."""
+
+    def __init__(self, client) -> None:
+        self.hand = client.declare_publisher(KEYS.topic("vision/hand"))
+        self.z_r = client.declare_publisher(KEYS.topic("decision/z_r"))
+        self.tokens = [
+            client.liveliness().declare_token(KEYS.alive(s)) for s in ("decision", "vision")
+        ]
+        self.running = threading.Event()
+        self.running.set()
+        self.quit = threading.Event()
+        self.seq = 0
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        while not self.quit.is_set():
+            if self.running.is_set():
+                t = time.time_ns()
+                self.seq += 1
+                self.hand.put(
+                    m.encode(
+                        m.HandPose(
+                            seq=self.seq,
+                            t_ns=t,
+                            detected=True,
+                            center=(0.5, 0.85),
+                            landmarks=((0.5, 0.85),),
+                        )
+                    )
+                )
+                self.z_r.put(m.encode(m.Scalar(seq=self.seq, t_ns=t, value=0.3, src_seq=self.seq)))
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        self.quit.set()
+        self.thread.join()
+        for token in self.tokens:
+            token.undeclare()
+
+
+def _start_moving(client, spawn):
+    spawn("actuation")
+    state = Collector(client, KEYS.topic("actuation/state"), m.ArmStateMsg)
+    feeder = Feeder(client)
+    trial = client.declare_publisher(KEYS.topic("experiment/trial"))
+    wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 20, "actuation ready")
+    for i, phase in enumerate(("setup", "go")):
+        trial.put(m.encode(m.TrialEvent(seq=i, t_ns=time.time_ns(), phase=phase, trial=1)))
+        time.sleep(0.1)
+    wait_for(lambda: bool(state.messages) and state.messages[-1].moving, 10, "the arm moving")
+    return state, feeder
+
+
+def _first_after(state: Collector, t_ns: int, pred):
+    return next((s for s in state.messages if s.t_ns >= t_ns and pred(s)), None)
+
+
+def test_estop_stops_the_arm_within_the_bound_and_latches(client, spawn):
+    state, feeder = _start_moving(client, spawn)
+    try:
+        estop = client.declare_publisher(KEYS.topic("safety/estop"))
+        t_estop = time.time_ns()
+        estop.put(m.encode(m.Estop(seq=0, t_ns=t_estop, engaged=True, reason="test")))
+        wait_for(
+            lambda: _first_after(state, t_estop, lambda s: not s.moving) is not None,
+            5,
+            "the arm at rest after the e-stop",
+        )
+        flagged = _first_after(state, t_estop, lambda s: s.safe_stop)
+        stopped = _first_after(state, t_estop, lambda s: not s.moving)
+        assert flagged is not None and "e-stop" in flagged.safety_reason
+        assert flagged.t_ns - t_estop <= BOUND_NS
+        assert stopped.t_ns - t_estop <= BOUND_NS  # braking included
+        time.sleep(0.3)  # inputs stay fresh, yet the e-stop latches
+        assert all(s.safe_stop and not s.moving for s in state.messages[-5:])
+        t_rel = time.time_ns()
+        estop.put(m.encode(m.Estop(seq=1, t_ns=t_rel, engaged=False, reason="test")))
+        wait_for(
+            lambda: _first_after(state, t_rel, lambda s: s.moving) is not None,
+            5,
+            "the arm moving again after the release",
+        )
+    finally:
+        feeder.close()
+
+
+def test_stale_input_and_lost_liveliness_stop_the_arm(client, spawn):
+    state, feeder = _start_moving(client, spawn)
+    try:
+        feeder.running.clear()  # the camera and decision go silent
+        t_quiet = time.time_ns()
+        wait_for(
+            lambda: _first_after(state, t_quiet, lambda s: s.safe_stop) is not None,
+            5,
+            "a safe stop on stale input",
+        )
+        flagged = _first_after(state, t_quiet, lambda s: s.safe_stop)
+        assert "stale" in flagged.safety_reason
+        assert flagged.t_ns - t_quiet <= BOUND_NS + 60_000_000  # bound + one tick + jitter
+        feeder.running.set()
+        wait_for(lambda: not state.messages[-1].safe_stop, 5, "recovery on fresh input")
+        feeder.tokens[0].undeclare()  # decision's liveliness token goes away
+        t_lost = time.time_ns()
+        wait_for(
+            lambda: _first_after(state, t_lost, lambda s: s.safe_stop) is not None,
+            5,
+            "a safe stop on lost liveliness",
+        )
+        assert (
+            "decision not alive" in _first_after(state, t_lost, lambda s: s.safe_stop).safety_reason
+        )
+        feeder.tokens = feeder.tokens[1:]
+    finally:
+        feeder.close()
