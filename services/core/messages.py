@@ -15,6 +15,7 @@ import dataclasses
 import math
 import types
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal, TypeVar
 
@@ -23,6 +24,7 @@ import msgpack
 SCHEMA_VERSION = 1
 MAX_PAYLOAD_BYTES = 64 * 1024  # no message of ours comes near this; larger is garbage
 MAX_LANDMARKS = 64
+MAX_BLOB_BYTES = 256 * 1024  # a `bytes` field (the monitor's JPEG frame); larger is garbage
 
 Vec2 = tuple[float, float]
 M = TypeVar("M", bound="Message")
@@ -41,6 +43,7 @@ class Message:
     """Base of every message: sequence number and source timestamp."""
 
     KIND: ClassVar[str] = "message"
+    MAX_BYTES: ClassVar[int] = MAX_PAYLOAD_BYTES  # payload size limit checked before decoding
     seq: int = field(metadata=_rng(0, 2**63 - 1))
     t_ns: int = field(metadata=_rng(0, 2**63 - 1))
 
@@ -73,6 +76,25 @@ class Layout(Message):
     red: tuple[float, float, float, float] = field(default=(0, 0, 0, 0), metadata=_rng(0, 1))
     blue: tuple[float, float, float, float] = field(default=(0, 0, 0, 0), metadata=_rng(0, 1))
     commit_y: float = field(default=0.45, metadata=_rng(0, 1))
+
+
+@dataclass(frozen=True, slots=True)
+class VisionFrame(Message):
+    """A small downscaled JPEG of the camera with landmarks and boxes drawn, for the monitor."""
+
+    KIND: ClassVar[str] = "frame"
+    MAX_BYTES: ClassVar[int] = MAX_BLOB_BYTES + 1024  # the JPEG plus the other fields
+    jpeg: bytes = b""
+    width: int = field(default=1, metadata=_rng(1, 8192))
+    height: int = field(default=1, metadata=_rng(1, 8192))
+    hand_seq: int = field(default=0, metadata=_rng(0, 2**63 - 1))  # the hand pose drawn
+    detected: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.jpeg.startswith(b"\xff\xd8\xff"):
+            raise MessageError("frame: jpeg must hold a JPEG image (starting with FF D8 FF)")
+        if len(self.jpeg) > MAX_BLOB_BYTES:
+            raise MessageError(f"frame: jpeg of {len(self.jpeg)} bytes exceeds {MAX_BLOB_BYTES}")
 
 
 # --- decision ---------------------------------------------------------------------------------
@@ -220,7 +242,7 @@ def encode(msg: Message) -> bytes:
 def decode(cls: type[M], payload: bytes) -> M:
     """Parse and validate a payload as message type `cls`, or raise MessageError."""
     name = cls.KIND
-    if len(payload) > MAX_PAYLOAD_BYTES:
+    if len(payload) > cls.MAX_BYTES:
         raise MessageError(f"{name}: payload of {len(payload)} bytes exceeds the limit")
     try:
         data = msgpack.unpackb(payload, raw=False, strict_map_key=True)
@@ -231,19 +253,16 @@ def decode(cls: type[M], payload: bytes) -> M:
     version = data.pop("v", None)
     if version != SCHEMA_VERSION:
         raise MessageError(f"{name}: schema version {version!r}, expected {SCHEMA_VERSION}")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(str(k) for k in data if k not in fields)
+    unknown = sorted(str(k) for k in data if k not in _field_names(cls))
     if unknown:
         raise MessageError(f"{name}: unknown field(s) {unknown}")
-    hints = _hints(cls)
     kwargs: dict[str, Any] = {}
-    for fname, f in fields.items():
+    for fname, required, check in _validators(cls):
         if fname not in data:
-            if f.default is dataclasses.MISSING:
+            if required:
                 raise MessageError(f"{name}: missing field '{fname}'")
             continue
-        rng = f.metadata.get("range")
-        kwargs[fname] = _check(hints[fname], data[fname], f"{name}.{fname}", rng)
+        kwargs[fname] = check(data[fname], f"{name}.{fname}")
     try:
         return cls(**kwargs)
     except MessageError:
@@ -252,62 +271,203 @@ def decode(cls: type[M], payload: bytes) -> M:
         raise MessageError(f"{name}: {exc}") from None
 
 
-_HINTS: dict[type, dict[str, Any]] = {}
+Check = Callable[[Any, str], Any]
+_VALIDATORS: dict[type, tuple[tuple[str, bool, Check], ...]] = {}
+_NAMES: dict[type, frozenset[str]] = {}
 
 
-def _hints(cls: type) -> dict[str, Any]:
-    if cls not in _HINTS:
-        _HINTS[cls] = typing.get_type_hints(cls)
-    return _HINTS[cls]
+def _field_names(cls: type) -> frozenset[str]:
+    if cls not in _NAMES:
+        _NAMES[cls] = frozenset(f.name for f in dataclasses.fields(cls))
+    return _NAMES[cls]
 
 
-def _check(tp: Any, value: Any, where: str, rng: tuple[float, float] | None) -> Any:
-    """Validate one value against a type hint; return it normalised (lists → tuples)."""
+def _validators(cls: type) -> tuple[tuple[str, bool, Check], ...]:
+    """Per field: name, whether required, and a validator compiled once from the type hints.
+
+    Compiling keeps the hot path (a 120 Hz hand pose with 21 landmarks) free of typing
+    introspection: decoding costs a few µs instead of ~100 µs.
+    """
+    if cls not in _VALIDATORS:
+        hints = typing.get_type_hints(cls)
+        _VALIDATORS[cls] = tuple(
+            (
+                f.name,
+                f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING,
+                _compile(hints[f.name], f.metadata.get("range")),
+            )
+            for f in dataclasses.fields(cls)
+        )
+    return _VALIDATORS[cls]
+
+
+def _compile(tp: Any, rng: tuple[float, float] | None) -> Check:
+    """A validator for one type hint: (value, where) → normalised value, or MessageError.
+
+    `where` names the field in error messages only; it is never formatted on success.
+    """
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        inner = [a for a in args if a is not type(None)]
-        return _check(inner[0], value, where, rng)
+        inner = _compile(next(a for a in args if a is not type(None)), rng)
+        nullable = type(None) in args
+
+        def check_union(value: Any, where: str) -> Any:
+            if value is None and nullable:
+                return None
+            return inner(value, where)
+
+        return check_union
     if origin is Literal:
-        if value not in args:
-            raise MessageError(f"{where}: expected one of {list(args)}, got {value!r}")
-        return value
+
+        def check_literal(value: Any, where: str) -> Any:
+            if value not in args or isinstance(value, bool) != any(
+                isinstance(a, bool) for a in args
+            ):
+                raise MessageError(f"{where}: expected one of {list(args)}, got {value!r}")
+            return value
+
+        return check_literal
     if origin is tuple:
+        if len(args) == 2 and args[1] is Ellipsis:
+            elem = _compile(args[0], rng)
+            if args[0] == tuple[float, float]:
+                return _points_checker(elem, rng)
+
+            def check_seq(value: Any, where: str) -> Any:
+                if not isinstance(value, list | tuple):
+                    raise MessageError(f"{where}: expected an array, got {type(value).__name__}")
+                if len(value) > MAX_LANDMARKS:
+                    raise MessageError(f"{where}: {len(value)} items exceed {MAX_LANDMARKS}")
+                try:
+                    return tuple([elem(v, where) for v in value])
+                except MessageError:  # redo the failing item to name its index in the error
+                    for i, v in enumerate(value):
+                        elem(v, f"{where}[{i}]")
+                    raise
+
+            return check_seq
+        n = len(args)
+        if all(a is float for a in args):  # points and boxes: the hot path of a hand pose
+            lo, hi = rng if rng is not None else (-math.inf, math.inf)
+
+            def check_floats(value: Any, where: str) -> Any:
+                if type(value) is list and len(value) == n:
+                    for v in value:
+                        t = type(v)
+                        if (t is not float and t is not int) or not lo <= v <= hi:
+                            break
+                    else:
+                        return tuple([float(v) for v in value])
+                return _floats_error(value, where, n, lo, hi)
+
+            return check_floats
+        items = tuple(_compile(a, rng) for a in args)
+
+        def check_tuple(value: Any, where: str) -> Any:
+            if not isinstance(value, list | tuple):
+                raise MessageError(f"{where}: expected an array, got {type(value).__name__}")
+            if len(value) != n:
+                raise MessageError(f"{where}: expected {n} items, got {len(value)}")
+            return tuple([c(v, where) for c, v in zip(items, value, strict=True)])
+
+        return check_tuple
+    if tp is bool:
+
+        def check_bool(value: Any, where: str) -> Any:
+            if value is not True and value is not False:
+                raise MessageError(f"{where}: expected true/false, got {value!r}")
+            return value
+
+        return check_bool
+    if tp is int:
+
+        def check_int(value: Any, where: str) -> Any:
+            if type(value) is not int:  # bool is not an int here
+                raise MessageError(f"{where}: expected an integer, got {value!r}")
+            return _in_range(value, where, rng)
+
+        return check_int
+    if tp is float:
+        lo, hi = rng if rng is not None else (-math.inf, math.inf)
+
+        def check_float(value: Any, where: str) -> Any:
+            t = type(value)
+            if t is not float and t is not int:
+                raise MessageError(f"{where}: expected a number, got {value!r}")
+            if not lo <= value <= hi:  # NaN fails every comparison
+                if not math.isfinite(value):
+                    raise MessageError(f"{where}: must be finite, got {value!r}")
+                raise MessageError(f"{where}: {value!r} outside [{lo}, {hi}]")
+            if not math.isfinite(value):
+                raise MessageError(f"{where}: must be finite, got {value!r}")
+            return float(value)
+
+        return check_float
+    if tp is bytes:
+
+        def check_bytes(value: Any, where: str) -> Any:
+            if not isinstance(value, bytes):
+                raise MessageError(f"{where}: expected binary data, got {type(value).__name__}")
+            if len(value) > MAX_BLOB_BYTES:
+                raise MessageError(f"{where}: {len(value)} bytes exceed {MAX_BLOB_BYTES}")
+            return value
+
+        return check_bytes
+    if tp is str:
+
+        def check_str(value: Any, where: str) -> Any:
+            if not isinstance(value, str):
+                raise MessageError(f"{where}: expected a string, got {type(value).__name__}")
+            if len(value) > 512:
+                raise MessageError(f"{where}: string longer than 512 characters")
+            return value
+
+        return check_str
+    raise TypeError(f"unsupported message field type {tp!r}")  # a bug in this module
+
+
+def _points_checker(elem: Check, rng: tuple[float, float] | None) -> Check:
+    """Landmark arrays, the bulk of the hot path: one tight loop; details only on failure."""
+    lo, hi = rng if rng is not None else (-math.inf, math.inf)
+
+    def check_points(value: Any, where: str) -> Any:
+        if type(value) is list and len(value) <= MAX_LANDMARKS:
+            out = []
+            for p in value:
+                if type(p) is not list or len(p) != 2:
+                    break
+                x, y = p
+                if type(x) is not float or type(y) is not float:
+                    break
+                if not (lo <= x <= hi and lo <= y <= hi):  # NaN fails too
+                    break
+                out.append((x, y))
+            else:
+                return tuple(out)
         if not isinstance(value, list | tuple):
             raise MessageError(f"{where}: expected an array, got {type(value).__name__}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            if len(value) > MAX_LANDMARKS:
-                raise MessageError(f"{where}: {len(value)} items exceed {MAX_LANDMARKS}")
-            return tuple(_check(args[0], v, f"{where}[{i}]", rng) for i, v in enumerate(value))
-        if len(value) != len(args):
-            raise MessageError(f"{where}: expected {len(args)} items, got {len(value)}")
-        return tuple(
-            _check(a, v, f"{where}[{i}]", rng)
-            for i, (a, v) in enumerate(zip(args, value, strict=True))
-        )
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise MessageError(f"{where}: expected true/false, got {value!r}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise MessageError(f"{where}: expected an integer, got {value!r}")
-        return _in_range(value, where, rng)
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise MessageError(f"{where}: expected a number, got {value!r}")
-        if not math.isfinite(value):
-            raise MessageError(f"{where}: must be finite, got {value!r}")
-        return _in_range(float(value), where, rng)
-    if tp is str:
-        if not isinstance(value, str):
-            raise MessageError(f"{where}: expected a string, got {type(value).__name__}")
-        if len(value) > 512:
-            raise MessageError(f"{where}: string longer than 512 characters")
-        return value
-    raise MessageError(f"{where}: unsupported field type {tp!r}")  # a bug in this module
+        if len(value) > MAX_LANDMARKS:
+            raise MessageError(f"{where}: {len(value)} items exceed {MAX_LANDMARKS}")
+        return tuple(elem(v, f"{where}[{i}]") for i, v in enumerate(value))
+
+    return check_points
+
+
+def _floats_error(value: Any, where: str, n: int, lo: float, hi: float) -> Any:
+    """Say exactly what is wrong with an array of n numbers (the rare, slow path)."""
+    if not isinstance(value, list | tuple):
+        raise MessageError(f"{where}: expected an array, got {type(value).__name__}")
+    if len(value) != n:
+        raise MessageError(f"{where}: expected {n} items, got {len(value)}")
+    for i, v in enumerate(value):
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise MessageError(f"{where}[{i}]: expected a number, got {v!r}")
+        if not math.isfinite(v):
+            raise MessageError(f"{where}[{i}]: must be finite, got {v!r}")
+        if not lo <= v <= hi:
+            raise MessageError(f"{where}[{i}]: {v!r} outside [{lo}, {hi}]")
+    return tuple(float(v) for v in value)  # a tuple where a list was expected: fine
 
 
 def _in_range(value: float, where: str, rng: tuple[float, float] | None) -> Any:

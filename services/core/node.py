@@ -25,6 +25,9 @@ from services.core.keys import TOPICS, Keys
 from services.core.session import open_session, zenoh_config
 
 M = TypeVar("M", bound=m.Message)
+RELIABLE_TOPICS = frozenset(
+    {"experiment/trial", "experiment/result", "actuation/press", "safety/estop", "eyes/cmd"}
+)
 log = logging.getLogger(__name__)
 
 
@@ -36,7 +39,17 @@ class TopicPublisher:
         self.key = node.keys.topic(topic)
         self.cls = TOPICS[topic][0]
         self._clock = node.clock
-        self._pub = node.session.declare_publisher(self.key)
+        reliable = topic in RELIABLE_TOPICS
+        self._pub = node.session.declare_publisher(
+            self.key,
+            # Small control messages: never wait to fill a batch (latency over throughput).
+            express=True,
+            # Protocol events and safety must arrive; a late camera frame is better dropped.
+            congestion_control=zenoh.CongestionControl.BLOCK
+            if reliable
+            else zenoh.CongestionControl.DROP,
+            priority=zenoh.Priority.REAL_TIME if topic == "safety/estop" else None,
+        )
         self.seq = 0
 
     def put(self, t_ns: int | None = None, **fields: Any) -> m.Message:

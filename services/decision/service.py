@@ -49,8 +49,9 @@ class DecisionService:
         self._last_seq = pose.seq
         out = self.model.on_hand(pose.t_ns, pose.landmarks if pose.detected else None)
         # Publish with the pose's timestamp: the values describe the state at that instant.
-        self.pub_zh.put(t_ns=pose.t_ns, value=out.z_hat, src_seq=pose.seq)
+        # z_r first: it is what the arm waits for.
         self.pub_zr.put(t_ns=pose.t_ns, value=out.z_r, src_seq=pose.seq)
+        self.pub_zh.put(t_ns=pose.t_ns, value=out.z_hat, src_seq=pose.seq)
         self.pub_br.put(t_ns=pose.t_ns, value=out.b_r, src_seq=pose.seq)
 
     def on_layout(self, msg: m.Layout) -> None:
