@@ -12,10 +12,12 @@ import sys
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("services.run", "start a router and every service; run a session"),
+    "router": ("services.core.router", "a zenoh router for the lab's control station"),
     "decision": ("services.decision.service", "opinion dynamics service (eqs 1, 6, 7)"),
     "actuation": ("services.actuation.service", "robot arm behaviour service (Algorithm 2)"),
     "eyes": ("services.eyes.service", "gaze / servo eyes service (Section 5)"),
     "sim": ("services.sim.service", "synthetic participant publishing hand poses"),
+    "vision": ("services.vision.service", "camera capture and hand tracking"),
     "experiment": ("services.experiment.service", "conductor of the 8-trial protocol"),
     "estop": ("services.safety.estop", "publish (or release) an emergency stop"),
     "report": ("services.experiment.report", "per-trial results from a session database"),
