@@ -11,9 +11,11 @@ import argparse
 import json
 import logging
 import sys
+from pathlib import Path
 
-from services.actuation.arm import ArmDriver, SimArm
+from services.actuation.arm import ArmDriver
 from services.actuation.behaviour import ArmCommand, RobotBehaviour
+from services.actuation.drivers import ARM_DRIVERS, make_arm_driver
 from services.config import NodConfig, add_config_arg, layout_from_msg, load_service_config
 from services.core import messages as m
 from services.core.clock import add_clock_args
@@ -170,14 +172,24 @@ def build_parser() -> argparse.ArgumentParser:
     add_zenoh_args(p)
     add_clock_args(p)
     add_config_arg(p)
-    p.add_argument("--driver", choices=("sim",), default="sim", help="arm driver (default sim)")
+    p.add_argument("--driver", choices=ARM_DRIVERS, default="sim", help="arm driver (default sim)")
+    p.add_argument("--port", default=None, help="serial port of a real arm (e.g. /dev/ttyACM0)")
+    p.add_argument(
+        "--arm-config", type=Path, default=None, help="arm file with calibrated poses (feetech)"
+    )
     p.add_argument("--stale-ms", type=float, default=None, help="input staleness bound (ms)")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the actuation service until SIGINT/SIGTERM."""
+    """Run the actuation service until SIGINT/SIGTERM (`calibrate` records arm poses)."""
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv[:1] == ["calibrate"]:
+        from services.actuation.calibrate import main as calibrate
+
+        return calibrate(argv[1:])
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
     try:
@@ -190,8 +202,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nod actuation: {exc}", file=sys.stderr)
         return 2
     log.info("effective config: %s", json.dumps(cfg.summary("behaviour", "sim_arm", "safety")))
-    arm = SimArm(cfg.layout, cfg.sim_arm, t0=node.clock.now_ns() * NS)
-    arm.connect()
+    try:
+        arm = make_arm_driver(
+            args.driver,
+            args.port,
+            args.arm_config,
+            cfg.layout,
+            cfg.sim_arm,
+            t0=node.clock.now_ns() * NS,
+        )
+        arm.connect()
+    except (ValueError, OSError, ConnectionError) as exc:
+        node.close()
+        print(f"nod actuation: {exc}", file=sys.stderr)
+        return 2
     ActuationService(node, cfg, arm, safety)
     try:
         node.run()

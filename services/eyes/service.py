@@ -11,14 +11,16 @@ import argparse
 import json
 import logging
 import sys
+from pathlib import Path
 
 from services.config import NodConfig, add_config_arg, load_service_config
 from services.core import messages as m
 from services.core.clock import add_clock_args
 from services.core.node import Node, setup_logging
 from services.core.session import add_zenoh_args
+from services.eyes.drivers import EYES_DRIVERS, make_eyes_driver
 from services.eyes.gaze import GazeCommand, attention_gesture
-from services.eyes.servos import ServoDriver, ServoTargets, SimServoDriver
+from services.eyes.servos import ServoDriver, ServoTargets
 from services.safety.watchdog import SafetyParams, Watchdog
 
 log = logging.getLogger("nod.eyes")
@@ -36,6 +38,7 @@ class EyesService:
         self.trial = -1
         self.script: list[tuple[float, GazeCommand]] = []  # the gesture still to play
         self.applied: ServoTargets = driver.neutral()
+        self._last_cmd: GazeCommand | None = GazeCommand()
         self.safe_stop = False
         self.reason = ""
         self.pub_state = node.publisher("eyes/state")
@@ -88,7 +91,12 @@ class EyesService:
             )
         self.safe_stop, self.reason = status.safe_stop, status.reason
         cmd = GazeCommand() if self.safe_stop else self._current(now_ns * NS)
-        self.applied = self.driver.look(cmd)
+        poll = getattr(self.driver, "poll", None)  # serial drivers reconnect and re-send here
+        if poll is not None:
+            poll()
+        if cmd != self._last_cmd:  # servos hold their target: send changes only
+            self.applied = self.driver.look(cmd)
+            self._last_cmd = cmd
         if self.applied.clamped:
             log.debug("clamped servos: %s", ", ".join(self.applied.clamped))
         self.pub_state.put(
@@ -98,6 +106,7 @@ class EyesService:
             clamped=self.applied.clamped,
             safe_stop=self.safe_stop,
             safety_reason=self.reason[:400],
+            fault=(getattr(self.driver, "fault", None) or "")[:400],
         )
 
 
@@ -109,7 +118,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_zenoh_args(p)
     add_clock_args(p)
     add_config_arg(p)
-    p.add_argument("--driver", choices=("sim",), default="sim", help="servo driver (default sim)")
+    p.add_argument(
+        "--driver", choices=EYES_DRIVERS, default="sim", help="servo driver (default sim)"
+    )
+    p.add_argument("--port", default=None, help="serial port of the servo controller")
+    p.add_argument(
+        "--eyes-config", type=Path, default=None, help="eyes hardware file (channels, calibration)"
+    )
     p.add_argument("--stale-ms", type=float, default=None, help="gaze staleness bound (ms)")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
@@ -136,8 +151,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nod eyes: {exc}", file=sys.stderr)
         return 2
     log.info("effective config: %s", json.dumps(cfg.summary("eyes", "safety")))
-    driver = SimServoDriver(cfg.eyes)
-    driver.connect()
+    try:
+        driver = make_eyes_driver(args.driver, args.port, args.eyes_config, calibration=cfg.eyes)
+        driver.connect()
+    except (ValueError, OSError, ConnectionError) as exc:
+        node.close()
+        print(f"nod eyes: {exc}", file=sys.stderr)
+        return 2
     EyesService(node, driver, safety)
     try:
         node.run()
