@@ -92,6 +92,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
     p.add_argument("--stale-ms", type=float, default=None, help="safety staleness bound (ms)")
     p.add_argument("--logs", type=Path, default=None, help="folder for service logs")
+    hw = p.add_argument_group("bench-testing real hardware with the sim participant")
+    hw.add_argument("--arm-driver", default="sim", help="sim | feetech (default sim)")
+    hw.add_argument("--arm-port", default=None, help="serial port of the arm")
+    hw.add_argument("--arm-config", type=Path, default=None, help="arm file with calibrated poses")
+    hw.add_argument("--eyes-driver", default="sim", help="sim | maestro | arduino (default sim)")
+    hw.add_argument("--eyes-port", default=None, help="serial port of the eyes controller")
+    hw.add_argument("--eyes-config", type=Path, default=None, help="eyes hardware file")
     p.add_argument("-v", "--verbose", action="store_true", help="services log at debug level")
     return p
 
@@ -118,6 +125,13 @@ def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list
         cmd.append("-v")
     if service in ("actuation", "eyes") and args.stale_ms is not None:
         cmd += ["--stale-ms", repr(args.stale_ms)]
+    for svc, prefix in (("actuation", "arm"), ("eyes", "eyes")):
+        if service == svc:
+            cmd += ["--driver", getattr(args, f"{prefix}_driver")]
+            if getattr(args, f"{prefix}_port"):
+                cmd += ["--port", getattr(args, f"{prefix}_port")]
+            if getattr(args, f"{prefix}_config"):
+                cmd += [f"--{prefix}-config", str(getattr(args, f"{prefix}_config"))]
     if service == "sim":
         cmd += ["--seed", str(args.seed)]
     if service == "experiment":

@@ -23,3 +23,20 @@ def test_systemd_units_use_known_roles():
         role = unit.stem.removeprefix("nod-")
         assert f"  {role})" in launch
         assert f"launch {role}" in unit.read_text()
+
+
+def test_example_params_load_and_match_the_defaults():
+    from services.config import NodConfig, load_service_config
+
+    cfg = load_service_config(DEPLOY / "params.example.toml")
+    assert cfg == NodConfig()
+
+
+def test_unknown_param_key_is_named(tmp_path):
+    from services.config import load_service_config
+    from services.core.config import ConfigError
+
+    bad = tmp_path / "p.toml"
+    bad.write_text("[decision.bias]\nsigmaa = 0.1\n")
+    with pytest.raises(ConfigError, match="sigmaa"):
+        load_service_config(bad)
