@@ -4,6 +4,7 @@ import time
 
 import msgpack
 import pytest
+import zenoh
 
 from services.core import messages as m
 from services.core.keys import Keys
@@ -23,7 +24,10 @@ def test_decision_survives_garbage_and_keeps_publishing(client, spawn):
     proc = spawn("decision")
     z_r = Collector(client, KEYS.topic("decision/z_r"), m.Scalar)
     z_h = Collector(client, KEYS.topic("decision/z_h"), m.Scalar)
-    hand = client.declare_publisher(KEYS.topic("vision/hand"))
+    # BLOCK: the 100 kB garbage must not make the test's own valid poses droppable en route.
+    hand = client.declare_publisher(
+        KEYS.topic("vision/hand"), congestion_control=zenoh.CongestionControl.BLOCK
+    )
     trial = client.declare_publisher(KEYS.topic("experiment/trial"))
     t0 = time.time_ns()
     wait_for(lambda: (hand.put(_pose(0, t0, 0.5, 0.85)), bool(z_r.items))[1], 20, "decision up")
