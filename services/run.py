@@ -23,14 +23,17 @@ from services.core.keys import Keys, check_rig
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
 
 log = logging.getLogger("nod.run")
-SERVICES = ("decision", "actuation", "eyes", "sim")
+SERVICES = ("decision", "actuation", "eyes", "sim")  # and the conductor, "experiment"
 
 
 class SessionView:
     """Prints progress and the per-trial table from the conductor's events."""
 
-    def __init__(self, n_trials: int, stream=sys.stdout) -> None:
+    def __init__(self, n_trials: int, stream=sys.stdout, compact: bool = False) -> None:
         self.n = n_trials
+        self.compact = compact
+        self.participant = ""
+        self.total_trials = 0
         self.out = stream
         self.tty = stream.isatty()
         self.lock = threading.Lock()
@@ -48,17 +51,32 @@ class SessionView:
                 ev.phase, ev.phase
             )
             option = f" O={ev.option}" if ev.option else ""
-            line = f"trial {ev.trial}/{self.n} [{ev.mode}{option}]: {label}"
+            who = f"{self.participant} " if self.compact else ""
+            line = f"{who}trial {ev.trial}/{self.n} [{ev.mode}{option}]: {label}"
             if self.tty:
                 self.out.write("\r\033[K" + line)
                 self.out.flush()
 
+    def begin(self, participant: str) -> None:
+        """A new participant's session starts."""
+        with self.lock:
+            self.participant = participant
+            self.results = []
+
     def on_result(self, r: m.TrialResult) -> None:
-        """A finished trial: one table row."""
+        """A finished trial: a table row (one participant) or a participant's line (a study)."""
         with self.lock:
             self.results.append(r)
+            self.total_trials += 1
             if self.tty:
                 self.out.write("\r\033[K")
+            if self.compact:
+                if len(self.results) == self.n:
+                    outcomes = " ".join(f"{x.outcome or '-':<2}" for x in self.results)
+                    score = sum(x.score for x in self.results)
+                    self.out.write(f"{self.participant}: {outcomes}  score {score:>3}\n")
+                self.out.flush()
+                return
             if not self._header_done:
                 self.out.write(
                     f"{'trial':>5} {'mode':<10} {'O':<5} {'robot':<6} {'human':<6} "
@@ -88,6 +106,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", default=DEFAULT_ROUTER, help=f"router endpoint ({DEFAULT_ROUTER})")
     p.add_argument("--rig", type=check_rig, default="rig1", help="rig name scoping every key")
     p.add_argument("--participant", default="P01", help="participant id stored with the session")
+    p.add_argument(
+        "--participants",
+        type=int,
+        default=1,
+        help="run N simulated participants one after another (ids P01.., seeds seed..seed+N-1, "
+        "person-to-person variation drawn from each seed), all in one database",
+    )
     p.add_argument("--clicks", default="10", help="counter clicks per trial: N, 'prompt' or 'none'")
     p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
     p.add_argument("--stale-ms", type=float, default=None, help="safety staleness bound (ms)")
@@ -134,6 +159,8 @@ def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list
                 cmd += [f"--{prefix}-config", str(getattr(args, f"{prefix}_config"))]
     if service == "sim":
         cmd += ["--seed", str(args.seed)]
+        if getattr(args, "cohort", False):
+            cmd.append("--cohort")
     if service == "experiment":
         cmd += [
             "--db",
@@ -149,18 +176,12 @@ def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one session on the fabric; exit 0 when every trial is stored."""
+    """Run the session(s) on the fabric; exit 0 when every trial is stored."""
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    if not args.sim:
-        print(
-            "nod run: only --sim is available from this command; on a rig, start each "
-            "service with its own command (see deploy/)",
-            file=sys.stderr,
-        )
-        return 2
-    if not 0.05 <= args.speed <= 50:
-        print(f"nod run: --speed must be in [0.05, 50], got {args.speed}", file=sys.stderr)
+    problem = _check_args(args)
+    if problem:
+        print(f"nod run: {problem}", file=sys.stderr)
         return 2
     logs = args.logs or args.db.with_suffix(".logs")
     logs.mkdir(parents=True, exist_ok=True)
@@ -172,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     from services.config import load_service_config
 
     n_trials = len(load_service_config(args.params).protocol.trials)
-    view = SessionView(n_trials)
+    view = SessionView(n_trials, compact=args.participants > 1)
     keys = Keys(args.rig)
     subs = [
         router.declare_subscriber(
@@ -185,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     epoch_ns = time.time_ns()
     print(
         f"router listening on {args.listen}; rig {args.rig!r}; speed {args.speed}x; "
-        f"logs in {logs}/",
+        f"{args.participants} participant(s); logs in {logs}/",
         flush=True,
     )
     children: dict[str, subprocess.Popen] = {}
@@ -194,27 +215,65 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stopping.set())
     code = 1
     try:
-        for service in (*SERVICES, "experiment"):
-            children[service] = subprocess.Popen(
-                child_command(service, args, epoch_ns),
-                stdout=(logs / f"{service}.log").open("w"),
-                stderr=subprocess.STDOUT,
-                stdin=subprocess.DEVNULL,
-                start_new_session=True,  # our Ctrl-C handling stops them in order
-            )
-        code = _supervise(children, stopping)
+        for service in SERVICES[:-1]:  # the rig: decision, actuation, eyes stay up throughout
+            children[service] = _start(service, args, epoch_ns, logs)
+        for i in range(args.participants):
+            person = _participant(args, i)
+            view.begin(person.participant)
+            for service in ("sim", "experiment"):  # a new person: new sim, new conductor
+                children[service] = _start(service, person, epoch_ns, logs, suffix=f"-{i + 1}")
+            code = _supervise(children, stopping)
+            _stop_all({k: children.pop(k) for k in ("sim", "experiment")})
+            if code != 0:
+                break
     finally:
         _stop_all(children)
         for sub in subs:
             sub.undeclare()
         router.close()
     if code == 0:
-        print(f"session stored in {args.db} ({len(view.results)} trials)")
+        print(
+            f"{view.total_trials} trials of {args.participants} participant(s) stored in {args.db}"
+        )
     elif code == 130:
         print("\ninterrupted: every service stopped", file=sys.stderr)
     else:
-        _explain_failure(children, logs)
+        _explain_failure(logs)
     return code
+
+
+def _check_args(args: argparse.Namespace) -> str | None:
+    if not args.sim:
+        return (
+            "only --sim is available from this command; on a rig, start each service with "
+            "its own command (see deploy/)"
+        )
+    if not 0.05 <= args.speed <= 50:
+        return f"--speed must be in [0.05, 50], got {args.speed}"
+    if not 1 <= args.participants <= 1000:
+        return f"--participants must be in [1, 1000], got {args.participants}"
+    return None
+
+
+def _participant(args: argparse.Namespace, i: int) -> argparse.Namespace:
+    """The arguments of participant i: its own seed and id; a cohort draws varied traits."""
+    if args.participants == 1:
+        return args
+    return argparse.Namespace(
+        **{**vars(args), "seed": args.seed + i, "participant": f"P{i + 1:02d}", "cohort": True}
+    )
+
+
+def _start(
+    service: str, args: argparse.Namespace, epoch_ns: int, logs: Path, suffix: str = ""
+) -> subprocess.Popen:
+    return subprocess.Popen(
+        child_command(service, args, epoch_ns),
+        stdout=(logs / f"{service}{suffix}.log").open("w"),
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        start_new_session=True,  # our Ctrl-C handling stops them in order
+    )
 
 
 def _decoded(cls, sample, handler) -> None:
@@ -256,12 +315,12 @@ def _stop_all(children: dict[str, subprocess.Popen]) -> None:
             proc.wait()
 
 
-def _explain_failure(children: dict[str, subprocess.Popen], logs: Path) -> None:
-    for name, proc in children.items():
-        if proc.returncode not in (0, -signal.SIGTERM, None):
-            tail = (logs / f"{name}.log").read_text(errors="replace").splitlines()[-8:]
-            print(f"--- {name} (exit {proc.returncode}), last lines of its log:", file=sys.stderr)
-            print("\n".join(tail), file=sys.stderr)
+def _explain_failure(logs: Path) -> None:
+    """Show the end of the most recently written service logs."""
+    for path in sorted(logs.glob("*.log"), key=lambda p: p.stat().st_mtime)[-3:]:
+        tail = path.read_text(errors="replace").splitlines()[-6:]
+        print(f"--- {path.name}, last lines:", file=sys.stderr)
+        print("\n".join(tail), file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -61,7 +61,7 @@ def test_full_session_on_the_simulator(tmp_path):
         timeout=300,
     )
     assert run.returncode == 0, run.stdout + run.stderr
-    assert "session stored" in run.stdout
+    assert "8 trials of 1 participant(s) stored" in run.stdout
     assert not _processes_mentioning(f"127.0.0.1:{port}"), "children left running"
 
     report = _nod("report", "--db", str(db), "--json")
@@ -121,3 +121,42 @@ def test_ctrl_c_stops_every_child(tmp_path):
     assert proc.returncode == 130, out + err
     assert "interrupted" in err
     assert not _processes_mentioning(f"127.0.0.1:{port}")
+
+
+def test_a_small_study_stores_one_session_per_participant(tmp_path):
+    import sqlite3
+
+    db = tmp_path / "study.sqlite"
+    run = _nod(
+        "run",
+        "--sim",
+        "--speed",
+        "8",
+        "--participants",
+        "2",
+        "--db",
+        str(db),
+        "--listen",
+        f"tcp/127.0.0.1:{free_port()}",
+        "--stale-ms",
+        "2000",
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "P01:" in run.stdout and "P02:" in run.stdout
+    con = sqlite3.connect(db)
+    sessions = con.execute("SELECT participant, seed, status FROM sessions ORDER BY participant")
+    assert sessions.fetchall() == [("P01", 1, "complete"), ("P02", 2, "complete")]
+    per_session = con.execute("SELECT session, COUNT(*) FROM trials GROUP BY session").fetchall()
+    assert [n for _, n in per_session] == [8, 8]
+
+
+def test_bad_run_arguments_are_one_line_errors():
+    for args in (
+        ["run"],
+        ["run", "--sim", "--speed", "0"],
+        ["run", "--sim", "--participants", "0"],
+    ):
+        res = _nod(*args, timeout=60)
+        assert res.returncode == 2
+        assert len(res.stderr.strip().splitlines()) == 1, res.stderr
