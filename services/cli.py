@@ -22,6 +22,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "estop": ("services.safety.estop", "publish (or release) an emergency stop"),
     "report": ("services.experiment.report", "per-trial results from a session database"),
     "analyze": ("services.analysis.cli", "numerical analysis and statistics"),
+    "questionnaire": ("services.experiment.questionnaire", "enter or import Q1-Q5 answers"),
+    "export": ("services.experiment.export", "write a session database as CSV"),
 }
 
 

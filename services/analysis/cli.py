@@ -1,8 +1,8 @@
 """`nod analyze …`: thin command-line shell over the analysis library.
 
 Subcommands: thresholds (Sec 4.3), sweep (Fig 3a), equilibria (Fig 3b), square-claim
-(Sec 4.4.1), stuart-maxwell (Secs 7-8). Every bad input ends with one line on stderr,
-`nod analyze <sub>: error: <what and how to fix>`, and exit code 2.
+(Sec 4.4.1), stuart-maxwell (Secs 7-8), study (Secs 7-8, Fig 8). Every bad input ends with
+one line on stderr, `nod analyze <sub>: error: <what and how to fix>`, and exit code 2.
 """
 
 from __future__ import annotations
@@ -154,6 +154,21 @@ def _build_parser() -> _Parser:
         help="square table of counts, rows = first classification, e.g. '[[5,2],[7,4]]'",
     )
     p.add_argument("--json", action="store_true", help="print JSON")
+
+    p = sub.add_parser(
+        "study",
+        help="the whole study: Fig 8 and the Sec 7-8 statistics",
+        description="Every session of a database: per-trial outcome frequencies (Fig 8a), "
+        "control→experiment flows (8b), per-participant grid (8c), contingency table (8d), "
+        "Stuart-Maxwell tests (control vs experiment, trials 4→5 … 7→8) and the questionnaire "
+        "statistics (t-tests of Q1, Q2, Q4, Q5 vs 5.5; χ² of Q3). Timeouts are excluded from "
+        "the categorical tests and listed.",
+    )
+    p.add_argument("--db", required=True, metavar="FILE", help="session database (nod run)")
+    p.add_argument("--json", action="store_true", help="print every number as JSON")
+    p.add_argument(
+        "--out", metavar="DIR", help="write Figs 8a-8d (PNG), report.md and study.json here"
+    )
     return parser
 
 
@@ -252,12 +267,38 @@ def _cmd_stuart_maxwell(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_study(args: argparse.Namespace) -> int:
+    from services.analysis.study import load_study
+    from services.analysis.study_report import finite_json, markdown, summary, write_figures
+
+    db = Path(args.db)
+    if not db.is_file():
+        raise UsageError(f"--db: no such database {args.db!r}; run `nod run` first")
+    doc = finite_json(load_study(str(db)))
+    if args.out:
+        out = Path(args.out)
+        try:
+            figures = write_figures(doc, out)
+            (out / "study.json").write_text(json.dumps(doc, indent=2) + "\n")
+            (out / "report.md").write_text(markdown(doc, figures))
+        except OSError as exc:
+            raise UsageError(f"cannot write to --out {args.out!r}: {exc}") from None
+    if args.json:
+        print(json.dumps(doc, indent=2, allow_nan=False))
+    else:
+        print(summary(doc))
+        if args.out:
+            print(f"wrote {Path(args.out) / 'report.md'}, study.json and 4 figures")
+    return 0
+
+
 _COMMANDS = {
     "thresholds": _cmd_thresholds,
     "sweep": _cmd_sweep,
     "equilibria": _cmd_equilibria,
     "square-claim": _cmd_square_claim,
     "stuart-maxwell": _cmd_stuart_maxwell,
+    "study": _cmd_study,
 }
 
 

@@ -17,6 +17,7 @@ _RIG_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 TOPICS: dict[str, tuple[type[m.Message], str, str, str]] = {
     "vision/hand": (m.HandPose, "vision | sim", "decision, actuation, experiment", "30 Hz"),
     "vision/layout": (m.Layout, "vision | sim", "decision, actuation, experiment", "1 Hz + query"),
+    "vision/frame": (m.VisionFrame, "vision", "monitor", "2 Hz (--frames-key-hz)"),
     "decision/z_h": (m.Scalar, "decision", "experiment, sim, monitor", "per hand pose"),
     "decision/z_r": (m.Scalar, "decision", "actuation, experiment, sim", "per hand pose"),
     "decision/b_r": (m.Scalar, "decision", "experiment, monitor", "per hand pose"),

@@ -1,4 +1,6 @@
-"""The session store: one SQLite file (WAL) with sessions, trials and decimated samples.
+"""The session store: one SQLite file (WAL) with sessions, trials, samples and questionnaires.
+
+Samples are decimated; questionnaires hold the post-session answers Q1-Q5 of paper Sec 8.
 
 Each trial is written in one transaction together with its samples, so a crash mid-trial loses
 at most that trial's unfinished samples; a session left 'running' is reported when the store is
@@ -59,6 +61,16 @@ CREATE TABLE IF NOT EXISTS samples (
     ee_y     REAL
 );
 CREATE INDEX IF NOT EXISTS samples_by_trial ON samples (session, trial, t_ns);
+CREATE TABLE IF NOT EXISTS questionnaires (
+    participant TEXT PRIMARY KEY,
+    q1          INTEGER NOT NULL CHECK (q1 BETWEEN 1 AND 10),
+    q2          INTEGER NOT NULL CHECK (q2 BETWEEN 1 AND 10),
+    q3          TEXT NOT NULL CHECK (q3 IN ('Yes', 'No', 'Maybe')),
+    q4          INTEGER NOT NULL CHECK (q4 BETWEEN 1 AND 10),
+    q5          INTEGER NOT NULL CHECK (q5 BETWEEN 1 AND 10),
+    entered_ns  INTEGER NOT NULL,
+    source      TEXT NOT NULL
+);
 """
 
 
@@ -97,6 +109,21 @@ class Sample:
     b_r: float | None
     ee_x: float | None
     ee_y: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class QuestionnaireRecord:
+    """One participant's answers to Q1-Q5 of Sec 8 (validated by services.experiment.questionnaire).
+
+    Q1, Q2, Q4, Q5 are Likert ratings 1-10; Q3 is 'Yes', 'No' or 'Maybe'.
+    """
+
+    participant: str
+    q1: int
+    q2: int
+    q3: str
+    q4: int
+    q5: int
 
 
 class Store:
@@ -199,6 +226,57 @@ class Store:
         cur = self.db.execute("SELECT * FROM trials WHERE session = ? ORDER BY trial", (session,))
         return [(r[0], TrialRecord(*r[1:])) for r in cur]
 
+    def write_questionnaires(
+        self,
+        records: Sequence[QuestionnaireRecord],
+        entered_ns: int,
+        source: str,
+        replace: bool = False,
+    ) -> None:
+        """Store questionnaire answers all or nothing, in one transaction.
+
+        Without `replace`, a participant who already has answers is an error (ValueError naming
+        them) and nothing is written; with it, their earlier answers are overwritten.
+        """
+        ids = [r.participant for r in records]
+        if len(set(ids)) != len(ids):
+            dup = sorted({p for p in ids if ids.count(p) > 1})
+            raise ValueError(f"participant(s) given more than once: {', '.join(dup)}")
+        with self.db:
+            self.db.execute("BEGIN")
+            if not replace and ids:
+                marks = ", ".join("?" * len(ids))
+                taken = [
+                    str(row[0])
+                    for row in self.db.execute(
+                        f"SELECT participant FROM questionnaires WHERE participant IN ({marks}) "
+                        "ORDER BY participant",
+                        ids,
+                    )
+                ]
+                if taken:
+                    raise ValueError(
+                        f"answers already stored for {', '.join(taken)}; pass --replace to "
+                        "overwrite them"
+                    )
+            self.db.executemany(
+                "INSERT OR REPLACE INTO questionnaires VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                [(*astuple_record(r), entered_ns, source) for r in records],
+            )
+
+    def write_questionnaire(
+        self, record: QuestionnaireRecord, entered_ns: int, source: str, replace: bool = False
+    ) -> None:
+        """Store one participant's answers (see write_questionnaires)."""
+        self.write_questionnaires([record], entered_ns, source, replace)
+
+    def questionnaires(self) -> list[QuestionnaireRecord]:
+        """Every participant's answers, ordered by participant id."""
+        cur = self.db.execute(
+            "SELECT participant, q1, q2, q3, q4, q5 FROM questionnaires ORDER BY participant"
+        )
+        return [QuestionnaireRecord(*row) for row in cur]
+
     def samples(self, session: str, trial: int) -> Sequence[Sample]:
         """A trial's samples in time order."""
         cur = self.db.execute(
@@ -209,6 +287,6 @@ class Store:
         return [Sample(r[0], bool(r[1]), *r[2:]) for r in cur]
 
 
-def astuple_record(rec: TrialRecord) -> tuple[Any, ...]:
-    """A trial record as a row tuple, in column order."""
+def astuple_record(rec: TrialRecord | QuestionnaireRecord) -> tuple[Any, ...]:
+    """A record as a row tuple, in column order."""
     return tuple(asdict(rec).values())

@@ -1,0 +1,131 @@
+"""`nod export`: a session database as CSV files that pandas and R read directly.
+
+Writes sessions.csv, trials.csv, samples.csv and questionnaires.csv into one directory, each
+with a header row of the database's column names (trials.csv and samples.csv gain a
+`participant` column after `session` for convenience). Conventions, chosen so that
+`pandas.read_csv(path)` and R's `read.csv(path)` need no options:
+
+- UTF-8, comma separated, LF line ends, fields quoted only when needed (the sessions'
+  `config` column is JSON text and gets quoted);
+- a missing value (SQL NULL: a timeout's outcome, an undetected hand) is written `NA`, which
+  both read as missing in numeric and text columns alike (an empty field would come back as
+  the empty string in R's text columns);
+- floats are written with Python's shortest round-trip repr, so no precision is lost (a
+  non-finite float, which the store should never hold, is NaN / Inf / -Inf);
+- `detected` is 0/1; times are integer nanoseconds (`*_ns`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sqlite3
+import sys
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+from services.experiment.store import Store
+
+PROG = "nod export"
+MISSING = "NA"  # how a SQL NULL is written
+
+QUERIES: dict[str, str] = {
+    "sessions": "SELECT * FROM sessions ORDER BY started_ns, session",
+    "trials": (
+        "SELECT t.session, s.participant, t.trial, t.mode, t.option, t.gaze_level, t.yaw, "
+        "t.pitch, t.t_go_ns, t.t_end_ns, t.human, t.robot, t.outcome, t.switches, "
+        "t.violations, t.clicks, t.score, t.end_reason FROM trials t "
+        "LEFT JOIN sessions s ON s.session = t.session ORDER BY s.started_ns, t.session, t.trial"
+    ),
+    "samples": (
+        "SELECT m.session, s.participant, m.trial, m.t_ns, m.detected, m.hand_x, m.hand_y, "
+        "m.z_h, m.z_r, m.b_r, m.ee_x, m.ee_y FROM samples m "
+        "LEFT JOIN sessions s ON s.session = m.session "
+        "ORDER BY s.started_ns, m.session, m.trial, m.t_ns"
+    ),
+    "questionnaires": "SELECT * FROM questionnaires ORDER BY participant",
+}
+
+
+def _field(value: Any) -> Any:
+    """A SQLite value as a CSV field: NULL → NA, float → shortest round-trip text."""
+    if value is None:
+        return MISSING
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "NaN"
+        if math.isinf(value):
+            return "Inf" if value > 0 else "-Inf"
+        return repr(value)
+    return value
+
+
+def write_rows(path: Path, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> int:
+    """Write one CSV file with its header; return the number of data rows."""
+    count = 0
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(header)
+        for row in rows:
+            writer.writerow([_field(v) for v in row])
+            count += 1
+    return count
+
+
+def export(db: sqlite3.Connection, out: Path) -> dict[str, int]:
+    """Write every table of an open store as `<table>.csv` in `out`; rows written per table."""
+    out.mkdir(parents=True, exist_ok=True)
+    counts: dict[str, int] = {}
+    for name, query in QUERIES.items():
+        cur = db.execute(query)
+        header = [c[0] for c in cur.description]
+        counts[name] = write_rows(out / f"{name}.csv", header, cur)
+    return counts
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors and exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `nod export`."""
+    p = _Parser(
+        prog=PROG,
+        description="Write a session database as CSV: sessions.csv, trials.csv, samples.csv, "
+        "questionnaires.csv (headers; NA = missing; pandas.read_csv / R read.csv).",
+    )
+    p.add_argument("--db", type=Path, required=True, help="session database written by nod run")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="directory for CSVs")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run `nod export`; returns the exit code (2 for bad input)."""
+    args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    if not args.db.is_file():
+        print(f"{PROG}: error: no such database: {args.db}", file=sys.stderr)
+        return 2
+    try:
+        store = Store(args.db)
+    except (sqlite3.Error, OSError) as exc:
+        print(f"{PROG}: error: cannot open {args.db}: {exc}", file=sys.stderr)
+        return 2
+    try:
+        counts = export(store.db, args.out)
+    except OSError as exc:
+        print(f"{PROG}: error: cannot write to {args.out}: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        store.close()
+    for name, n in counts.items():
+        print(f"{args.out / (name + '.csv')}: {n} rows")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,267 @@
+"""The study analysis (Secs 7-8, Fig 8) on a realistic simulated cohort stored in SQLite."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy import stats
+
+from services.analysis.stuart_maxwell import stuart_maxwell
+from services.analysis.study import (
+    OUTCOMES,
+    likert_test,
+    load_participants,
+    load_study,
+    phase_category,
+    q3_test,
+)
+from services.config import NodConfig
+from services.experiment.store import QuestionnaireRecord, Sample, Store, TrialRecord
+from services.sim.offline import OfflineTrial, run_offline_session
+
+ROOT = Path(__file__).resolve().parents[2]
+SEEDS = range(12)
+
+
+def _simulate(seed: int) -> list[OfflineTrial]:
+    return run_offline_session(NodConfig(), seed, cohort=True)
+
+
+def _record(t: OfflineTrial, cfg: NodConfig) -> TrialRecord:
+    spec = cfg.protocol.trials[t.trial - 1]
+    return TrialRecord(
+        trial=t.trial,
+        mode=t.mode,
+        option=t.option,
+        gaze_level=spec.gaze_level,
+        yaw=spec.yaw,
+        pitch=spec.pitch,
+        t_go_ns=t.trial * 10**10,
+        t_end_ns=t.trial * 10**10 + int(t.duration_s * 1e9),
+        human=t.human,
+        robot=t.robot,
+        outcome=t.outcome,
+        switches=t.switches,
+        violations=t.violations,
+        clicks=10,
+        score=t.score,
+        end_reason="human pressed" if t.human else "timeout",
+    )
+
+
+@pytest.fixture(scope="module")
+def cohort_db(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """12 simulated participants, plus a timeout, an aborted session and a re-run."""
+    cfg = NodConfig()
+    with ProcessPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
+        sessions = list(pool.map(_simulate, SEEDS))
+    path = tmp_path_factory.mktemp("study") / "study.db"
+    store = Store(path)
+    # P03's first attempt is superseded by a later session of the same participant.
+    store.begin_session("old-P03", "P03", "sim", 99, 1, {})
+    store.write_trial("old-P03", _record(sessions[0][0], cfg), [])
+    store.finish_session("old-P03", 2, "aborted")
+    for seed, trials in zip(SEEDS, sessions, strict=True):
+        sid, pid = f"s{seed:02d}", f"P{seed + 1:02d}"
+        store.begin_session(sid, pid, "sim", seed, 10 + seed, {"seed": seed})
+        for t in trials:
+            if pid == "P02" and t.trial == 8:
+                break  # aborted before the last trial: trial 8 is missing
+            rec = _record(t, cfg)
+            if pid == "P01" and t.trial == 5:  # a timeout: no press, no outcome
+                rec = replace(rec, human=None, outcome=None, end_reason="timeout")
+            store.write_trial(sid, rec, [Sample(0, True, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7)])
+        store.finish_session(sid, 100 + seed, "aborted" if pid == "P02" else "complete")
+    rng = np.random.default_rng(7)
+    answers = [
+        QuestionnaireRecord(
+            f"P{i + 1:02d}",
+            *(int(v) for v in rng.integers(1, 11, size=2)),
+            str(rng.choice(["Yes", "No", "Maybe"])),
+            *(int(v) for v in rng.integers(1, 11, size=2)),
+        )
+        for i in range(10)
+    ]
+    store.write_questionnaires(answers, 0, "test")
+    store.close()
+    return path
+
+
+@pytest.fixture(scope="module")
+def doc(cohort_db: Path) -> dict:
+    return load_study(str(cohort_db))
+
+
+def _db_outcomes(path: Path) -> dict[str, dict[int, str | None]]:
+    store = Store(path)
+    try:
+        parts, _ = load_participants(store)
+    finally:
+        store.close()
+    return {p.participant: dict(p.outcomes) for p in parts}
+
+
+def test_participants_and_exclusions(doc: dict) -> None:
+    assert doc["participants"] == 12
+    assert [s["session"] for s in doc["sessions"] if s["participant"] == "P03"] == ["s02"]
+    assert any("old-P03" in n and "superseded" in n for n in doc["notes"])
+    assert {"participant": "P01", "trial": 5, "reason": "timeout"} in doc["excluded_trials"]
+    assert {"participant": "P02", "trial": 8, "reason": "missing"} in doc["excluded_trials"]
+    assert doc["grid"]["P01"][4] is None and doc["grid"]["P02"][7] is None
+
+
+def test_frequencies_sum_to_participants_and_match_the_db(doc: dict, cohort_db: Path) -> None:
+    outcomes = _db_outcomes(cohort_db)
+    for trial in doc["trials"]:
+        row = doc["frequencies"][str(trial)]
+        assert sum(row[o] for o in OUTCOMES) + row["none"] == row["n"] == 12
+        counts = Counter(o.get(trial) for o in outcomes.values())
+        assert all(row[o] == counts[o] for o in OUTCOMES)
+    assert doc["frequencies"]["5"]["none"] >= 1 and doc["frequencies"]["8"]["none"] >= 1
+
+
+def test_contingency_margins_match_the_phase_categories(doc: dict) -> None:
+    cats = doc["phase_categories"]
+    table = np.array(doc["contingency"]["table"])
+    control = Counter(c["control"] for c in cats.values())
+    experiment = Counter(c["experiment"] for c in cats.values())
+    assert table.sum(axis=1).tolist() == [control[o] for o in OUTCOMES]
+    assert table.sum(axis=0).tolist() == [experiment[o] for o in OUTCOMES]
+    assert doc["contingency"]["row_totals"] == table.sum(axis=1).tolist()
+    assert table.sum() == 12  # every simulated participant has outcomes in both phases
+    flows = {(f["from"], f["to"]): f["count"] for f in doc["flows"]}
+    assert sum(flows.values()) == 12
+    # The simulated cohort behaves like the paper's: dissensus first, consensus later.
+    assert control["D"] + control["DH"] >= 10 and experiment["C"] + experiment["CH"] >= 10
+
+
+def test_phase_categories_follow_the_rule(doc: dict, cohort_db: Path) -> None:
+    for pid, outcomes in _db_outcomes(cohort_db).items():
+        control = [outcomes.get(t) for t in (1, 2, 3)]
+        assert doc["phase_categories"][pid]["control"] == phase_category(control)
+
+
+def test_stuart_maxwell_is_the_library_test_on_the_same_tables(doc: dict, cohort_db: Path) -> None:
+    main = doc["stuart_maxwell"]["control_vs_experiment"]
+    ref = stuart_maxwell(doc["contingency"]["table"])
+    assert main["statistic"] == pytest.approx(ref.statistic, rel=1e-12)
+    assert main["p"] == pytest.approx(ref.p) and main["df"] == ref.df
+    outcomes = _db_outcomes(cohort_db)
+    for a, b in ((4, 5), (5, 6), (6, 7), (7, 8)):
+        test = doc["stuart_maxwell"][f"trial_{a}_vs_{b}"]
+        table = np.zeros((4, 4), dtype=int)
+        for o in outcomes.values():
+            if o.get(a) is not None and o.get(b) is not None:
+                table[OUTCOMES.index(o[a]), OUTCOMES.index(o[b])] += 1
+        assert test["table"] == table.tolist() and test["n"] == table.sum()
+        try:
+            res = stuart_maxwell(table)
+        except ValueError as exc:
+            assert test["error"] == str(exc)
+        else:
+            assert test["statistic"] == pytest.approx(res.statistic, rel=1e-12)
+
+
+def test_questionnaire_statistics_are_scipys(doc: dict, cohort_db: Path) -> None:
+    store = Store(cohort_db)
+    answers = store.questionnaires()
+    store.close()
+    q = doc["questionnaire"]
+    assert q["n"] == 10
+    for key in ("q1", "q2", "q4", "q5"):
+        x = np.array([getattr(a, key) for a in answers], dtype=float)
+        ref = stats.ttest_1samp(x, 5.5)
+        assert q[key]["t"] == pytest.approx(ref.statistic) and q[key]["p"] == pytest.approx(
+            ref.pvalue
+        )
+        assert q[key]["cohens_d"] == pytest.approx((x.mean() - 5.5) / x.std(ddof=1))
+    counts = Counter(a.q3 for a in answers)
+    ref = stats.chisquare([counts["Yes"], counts["No"], counts["Maybe"]])
+    assert q["q3"]["chi2"] == pytest.approx(ref.statistic) and q["q3"]["df"] == 2
+    assert q["q3"]["cramers_v"] == pytest.approx(np.sqrt(ref.statistic / (10 * 2)))
+    assert doc["sessions_without_questionnaire"] == ["P11", "P12"]
+
+
+def _nod(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "services.cli", "analyze", "study", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def _no_nan(name: str) -> None:
+    raise AssertionError(f"non-JSON constant {name} in the output")
+
+
+def test_cli_json_and_report(doc: dict, cohort_db: Path, tmp_path: Path) -> None:
+    out = tmp_path / "report"
+    res = _nod("--db", str(cohort_db), "--json", "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    printed = json.loads(res.stdout, parse_constant=_no_nan)
+    assert printed == json.loads(json.dumps(doc))  # every number of the library's document
+    assert json.loads((out / "study.json").read_text()) == printed
+    for name in ("8a_frequencies", "8b_flows", "8c_grid", "8d_contingency"):
+        png = (out / f"fig{name}.png").read_bytes()
+        assert png.startswith(b"\x89PNG") and len(png) > 5000
+    md = (out / "report.md").read_text()
+    assert md.count("](fig8") == 4
+    main = doc["stuart_maxwell"]["control_vs_experiment"]
+    assert f"{main['statistic']:.4f}" in md
+    for key in ("q1", "q2", "q4", "q5"):
+        assert f"{doc['questionnaire'][key]['t']:.4g}" in md
+    assert f"{doc['questionnaire']['q3']['chi2']:.4f}" in md
+    assert "P01 trial 5: timeout" in md and "P02 trial 8: missing" in md
+
+
+def test_cli_errors_are_one_line(tmp_path: Path) -> None:
+    res = _nod("--db", str(tmp_path / "nope.db"))
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "no such database" in res.stderr
+    Store(tmp_path / "empty.db").close()
+    res = _nod("--db", str(tmp_path / "empty.db"))
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "nod run" in res.stderr
+
+
+def test_phase_category_examples() -> None:
+    assert phase_category(["D", "D", "C"]) == "D"
+    assert phase_category(["D", "C", "CH"]) == "CH"  # three-way tie: the later trial
+    assert phase_category(["C", "C", "CH", "CH", "D"]) == "CH"
+    assert phase_category(["CH", "C", "C", "CH", None]) == "CH"
+    assert phase_category([None, "DH", None]) == "DH"
+    assert phase_category([None, None]) is None
+
+
+@given(st.lists(st.sampled_from([*OUTCOMES, None]), min_size=1, max_size=8))
+def test_phase_category_is_a_mode_and_ties_go_late(outcomes: list[str | None]) -> None:
+    got = phase_category(outcomes)
+    counts = Counter(o for o in outcomes if o is not None)
+    if not counts:
+        assert got is None
+        return
+    top = max(counts.values())
+    assert counts[got] == top
+    last = max(i for i, o in enumerate(outcomes) if o is not None and counts[o] == top)
+    assert outcomes[last] == got
+
+
+def test_degenerate_questionnaire_tests_explain_themselves() -> None:
+    assert "at least 2" in likert_test([7])["error"]
+    assert "zero spread" in likert_test([6, 6, 6])["error"]
+    assert q3_test([])["error"] == "no Q3 answers"
+    with pytest.raises(ValueError, match="Yes, No, Maybe"):
+        q3_test(["Yes", "Perhaps"])
+    doc = q3_test(["Yes"] * 6)
+    assert doc["chi2"] == pytest.approx(12.0) and doc["cohens_w"] == pytest.approx(np.sqrt(2.0))
