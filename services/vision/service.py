@@ -1,0 +1,331 @@
+"""`nod vision`: camera capture and hand tracking, publishing what the sim publishes.
+
+Keys (see docs/vision.md):
+- `vision/hand` (HandPose) for every frame captured, at camera rate: `seq` = the frame's number
+  (gaps = frames dropped), `t_ns` = its capture time, `detected`, the landmarks and their mean
+  `center` in normalised image coordinates, `source` = the tracker's name. No hand → detected
+  false and nothing else; no frame (a lost camera) → nothing at all, so the key goes stale.
+- `vision/layout` (Layout): the buzzer boxes and the commit line from `--calibration` (else the
+  params file's `[layout]`, else SPEC's defaults), once at start and then at 1 Hz, and answered
+  to a zenoh `get` on the same key for late joiners.
+- `vision/frame` (VisionFrame): a small JPEG with the boxes and the hand drawn, at
+  `--frames-key-hz` (default 2, 0 = off), encoded on the node's tick thread, never on the
+  tracking thread that publishes hand poses.
+
+The tracking thread takes the newest captured frame, tracks it and publishes the pose; the node's
+main thread runs the low-rate ticks (layout, monitor frame, a 10 s status line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import zenoh
+
+from services.config import add_config_arg, layout_fields, load_service_config
+from services.core import messages as m
+from services.core.clock import add_clock_args
+from services.core.config import ConfigError
+from services.core.geometry import TableLayout
+from services.core.node import Node, setup_logging
+from services.core.session import add_zenoh_args
+from services.vision.calibration import load_calibration
+from services.vision.capture import Capture, CaptureError, CaptureParams, Frame, parse_source
+from services.vision.overlay import monitor_jpeg
+from services.vision.trackers import (
+    TRACKERS,
+    HandTracker,
+    TrackerOptions,
+    TrackerUnavailableError,
+    TrackResult,
+    make_tracker,
+)
+
+log = logging.getLogger("nod.vision")
+
+
+class HandPublisher:
+    """`vision/hand`: one HandPose per frame, carrying the frame's own `seq` and `t_ns`.
+
+    A live camera publishes express with congestion control DROP (the newest pose matters and
+    the capture must never block); a recording replayed as fast as possible publishes with BLOCK,
+    so a slow subscriber slows the replay down instead of losing poses.
+    """
+
+    def __init__(self, node: Node, *, lossless: bool) -> None:
+        self.key = node.keys.topic("vision/hand")
+        cc = zenoh.CongestionControl.BLOCK if lossless else zenoh.CongestionControl.DROP
+        self._pub = node.session.declare_publisher(
+            self.key, congestion_control=cc, express=not lossless
+        )
+
+    def put(self, frame: Frame, result: TrackResult, source: str) -> m.HandPose:
+        """Build, validate, encode and publish the pose of one frame."""
+        if result.detected:
+            msg = m.HandPose(
+                seq=frame.seq,
+                t_ns=frame.t_ns,
+                detected=True,
+                center=result.center,
+                landmarks=result.landmarks,
+                source=source,
+            )
+        else:
+            msg = m.HandPose(seq=frame.seq, t_ns=frame.t_ns, detected=False, source=source)
+        self._pub.put(m.encode(msg))
+        return msg
+
+
+class VisionService:
+    """Wires a Capture and a HandTracker to the rig's vision keys."""
+
+    def __init__(
+        self,
+        node: Node,
+        capture: Capture,
+        tracker: HandTracker,
+        layout: TableLayout,
+        *,
+        frames_hz: float = 2.0,
+        frame_width: int = 320,
+    ) -> None:
+        self.node = node
+        self.capture = capture
+        self.tracker = tracker
+        self.layout = layout
+        self.frame_width = frame_width
+        self.pub_hand = HandPublisher(node, lossless=capture.lossless)
+        self.pub_layout = node.publisher("vision/layout")
+        self.pub_frame = node.publisher("vision/frame") if frames_hz > 0 else None
+        self._layout = layout_fields(layout)
+        self._layout_key = node.keys.topic("vision/layout")
+        self._queryable = node.session.declare_queryable(self._layout_key, self._on_layout_query)
+        self._latest: tuple[Frame, TrackResult] | None = None
+        self._shown = -1
+        self.published = 0
+        self.detected = 0
+        self.exit_code = 0
+        self._last_report = (time.monotonic(), 0, 0)
+        node.every(1.0, self.publish_layout)
+        if frames_hz > 0:
+            node.every(1.0 / frames_hz, self.publish_frame)
+        node.every(10.0, self.report)
+
+    # -- hot path (tracking thread) ------------------------------------------------------------
+
+    def process(self, frame: Frame) -> TrackResult:
+        """Track one frame and publish its hand pose, stamped with the frame's seq and t_ns."""
+        result = self.tracker.track(frame.image)
+        self.pub_hand.put(frame, result, self.tracker.name)
+        self.detected += result.detected
+        self.published += 1
+        self._latest = (frame, result)
+        return result
+
+    def loop(self) -> None:
+        """Track frames until the source ends, fails or the node stops; then stop the node."""
+        stop = self.node.stop
+        try:
+            while not stop.is_set():
+                frame = self.capture.next(timeout=0.5)
+                if frame is None:
+                    if self.capture.ended:
+                        break
+                    continue
+                self.process(frame)
+        except CaptureError as exc:
+            log.error("%s", exc)
+            self.exit_code = 1
+        except Exception:  # best effort at shutdown: the session may close under a last put
+            if not stop.is_set():
+                log.exception("vision: tracking loop failed")
+                self.exit_code = 1
+        finally:
+            stop.set()
+
+    # -- low-rate ticks (node thread) ----------------------------------------------------------
+
+    def publish_layout(self, now_ns: int) -> None:
+        """The boxes and commit line, latched by republishing every second."""
+        self.pub_layout.put(t_ns=now_ns, **self._layout)
+
+    def _on_layout_query(self, query: zenoh.Query) -> None:
+        msg = m.Layout(seq=self.pub_layout.seq, t_ns=self.node.clock.now_ns(), **self._layout)
+        query.reply(self._layout_key, m.encode(msg))
+
+    def publish_frame(self, now_ns: int) -> None:
+        """The newest tracked frame, downscaled with boxes and hand drawn, for the monitor."""
+        latest = self._latest
+        if self.pub_frame is None or latest is None or latest[0].seq == self._shown:
+            return
+        frame, result = latest
+        jpeg, w, h = monitor_jpeg(frame.image, self.layout, result, width=self.frame_width)
+        self.pub_frame.put(
+            t_ns=frame.t_ns,
+            jpeg=jpeg,
+            width=w,
+            height=h,
+            hand_seq=frame.seq,
+            detected=result.detected,
+        )
+        self._shown = frame.seq
+
+    def report(self, now_ns: int) -> None:
+        """One status line: tracked rate, detection rate, frames dropped."""
+        t0, n0, d0 = self._last_report
+        t, n, d = time.monotonic(), self.published, self.detected
+        if t - t0 < 1.0:  # the first tick runs at start: nothing to report yet
+            return
+        self._last_report = (t, n, d)
+        if n == n0:
+            log.warning("vision: no frame from %s for %.0f s", self.capture.source.label, t - t0)
+            return
+        log.info(
+            "vision: %.1f fps tracked, hand seen in %.0f%%, %d frames dropped so far",
+            (n - n0) / (t - t0),
+            100.0 * (d - d0) / (n - n0),
+            self.capture.dropped,
+        )
+
+    def wait_for_subscriber(self, timeout_s: float) -> bool:
+        """Wait until someone subscribes to the hand key (replays of files); True if so."""
+        probe = self.node.session.declare_publisher(self.pub_hand.key)
+        try:
+            deadline = time.monotonic() + timeout_s
+            while not probe.matching_status.matching:
+                if time.monotonic() > deadline or self.node.stop.wait(0.02):
+                    return False
+            return True
+        finally:
+            probe.undeclare()
+
+
+def load_layout(calibration: Path | None, params: Path | None) -> tuple[TableLayout, str]:
+    """The table geometry: calibration file, else the params file's layout, else SPEC's."""
+    if calibration is not None:
+        return load_calibration(calibration), str(calibration)
+    if params is not None:
+        return load_service_config(params).layout, f"{params} [layout]"
+    return TableLayout(), "SPEC defaults"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `nod vision`."""
+    p = argparse.ArgumentParser(
+        prog="nod vision",
+        description="Capture a camera, track the hand, publish vision/hand, vision/layout and "
+        "vision/frame. `nod vision calibrate --help` writes the calibration file.",
+    )
+    add_zenoh_args(p)
+    add_clock_args(p)
+    add_config_arg(p)
+    g = p.add_argument_group("capture")
+    g.add_argument(
+        "--source",
+        required=True,
+        help="camera index (0), video file, stream URL (rtsp://, http://) or 'sim'",
+    )
+    g.add_argument("--width", type=int, default=None, help="frame width to ask the camera for")
+    g.add_argument("--height", type=int, default=None, help="frame height to ask the camera for")
+    g.add_argument("--fps", type=float, default=None, help="camera rate to ask for (Hz)")
+    g.add_argument("--realtime", action="store_true", help="play a file at its own frame rate")
+    g.add_argument("--loop", action="store_true", help="play a file (or sim) again at its end")
+    g.add_argument("--stall", type=float, default=3.0, help="reopen a camera silent this long (s)")
+    t = p.add_argument_group("tracking")
+    t.add_argument("--tracker", choices=sorted(TRACKERS), default="aruco", help="hand tracker")
+    t.add_argument("--dictionary", default="DICT_4X4_50", help="ArUco dictionary (aruco, sim)")
+    t.add_argument("--marker-id", type=int, default=None, help="the hand's marker id (any)")
+    t.add_argument("--model-complexity", type=int, default=1, help="mediapipe model: 0 or 1")
+    t.add_argument("--min-confidence", type=float, default=0.5, help="mediapipe confidence")
+    t.add_argument("--calibration", type=Path, default=None, help="boxes + commit line (TOML)")
+    o = p.add_argument_group("output")
+    o.add_argument("--frames-key-hz", type=float, default=2.0, help="monitor JPEG rate (0: off)")
+    o.add_argument("--frame-width", type=int, default=320, help="monitor JPEG width (px)")
+    o.add_argument(
+        "--wait-for-subscriber",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="wait up to S seconds for a hand-key subscriber before reading (file replays)",
+    )
+    p.add_argument("-v", "--verbose", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run `nod vision` (or `nod vision calibrate …`); 0 at a file's end or on a signal."""
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    if args_list[:1] == ["calibrate"]:
+        from services.vision.calibration import main as calibrate_main
+
+        return calibrate_main(args_list[1:])
+    args = build_parser().parse_args(args_list)
+    setup_logging(args.verbose)
+    if not args.verbose:  # OpenCV's own warnings repeat on every reopen attempt; ours say it all
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        if not 0 <= args.frames_key_hz <= 30:
+            raise ValueError(f"--frames-key-hz must be in [0, 30], got {args.frames_key_hz}")
+        if not 16 <= args.frame_width <= 1920:
+            raise ValueError(f"--frame-width must be in [16, 1920], got {args.frame_width}")
+        layout, layout_origin = load_layout(args.calibration, args.params)
+        params = CaptureParams(
+            width=args.width,
+            height=args.height,
+            fps=args.fps,
+            realtime=args.realtime,
+            loop=args.loop,
+            stall_s=args.stall,
+        )
+        capture = Capture(parse_source(args.source), params)
+        info = capture.open()
+        options = TrackerOptions(
+            dictionary=args.dictionary,
+            marker_id=args.marker_id,
+            model_complexity=args.model_complexity,
+            min_confidence=args.min_confidence,
+        )
+        tracker = make_tracker(args.tracker, options)
+    except (ValueError, OSError, ConfigError, CaptureError, TrackerUnavailableError) as exc:
+        print(f"nod vision: {exc}", file=sys.stderr)
+        if "capture" in locals():
+            capture.close()
+        return 2
+    log.info("%s: %s", capture.source.label, info.describe(params))
+    log.info("tracker %s; layout from %s: %s", tracker.name, layout_origin, layout_fields(layout))
+    try:
+        node = Node("vision", args)
+    except (ValueError, OSError, ConnectionError) as exc:
+        print(f"nod vision: {exc}", file=sys.stderr)
+        capture.close()
+        tracker.close()
+        return 2
+    service = VisionService(
+        node, capture, tracker, layout, frames_hz=args.frames_key_hz, frame_width=args.frame_width
+    )
+    if args.wait_for_subscriber > 0 and not service.wait_for_subscriber(args.wait_for_subscriber):
+        log.warning("no subscriber on %s yet; starting anyway", service.pub_hand.key)
+    capture.start(node.clock.now_ns)
+    worker = threading.Thread(target=service.loop, name="vision-track", daemon=True)
+    worker.start()
+    try:
+        node.run()
+    finally:
+        node.stop.set()
+        capture.close()
+        worker.join(timeout=2.0)
+        tracker.close()
+    log.info(
+        "vision: %d hand poses published (%d with a hand)", service.published, service.detected
+    )
+    return service.exit_code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
