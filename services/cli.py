@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "analyze": ("services.analysis.cli", "numerical analysis and statistics"),
     "questionnaire": ("services.experiment.questionnaire", "enter or import Q1-Q5 answers"),
     "export": ("services.experiment.export", "write a session database as CSV"),
+    "monitor": ("services.monitor.service", "live view of every key in Rerun"),
 }
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -107,6 +108,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rig", type=check_rig, default="rig1", help="rig name scoping every key")
     p.add_argument("--participant", default="P01", help="participant id stored with the session")
     p.add_argument(
+        "--monitor",
+        nargs="?",
+        const="--spawn",
+        default=None,
+        metavar="ARGS",
+        help="also start `nod monitor` with these arguments (default --spawn), e.g. "
+        "--monitor='--save session.rrd' or --monitor=--serve-web",
+    )
+    p.add_argument(
+        "--render",
+        action="store_true",
+        help="run the camera path too: the sim renders frames, `nod vision` tracks the marker",
+    )
+    p.add_argument(
         "--participants",
         type=int,
         default=1,
@@ -157,8 +172,12 @@ def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list
                 cmd += ["--port", getattr(args, f"{prefix}_port")]
             if getattr(args, f"{prefix}_config"):
                 cmd += [f"--{prefix}-config", str(getattr(args, f"{prefix}_config"))]
+    if service == "vision":
+        cmd += ["--source", "zenoh:sim/camera", "--tracker", "aruco"]
     if service == "sim":
         cmd += ["--seed", str(args.seed)]
+        if args.render:
+            cmd.append("--render")
         if getattr(args, "cohort", False):
             cmd.append("--cohort")
     if service == "experiment":
@@ -209,13 +228,15 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.participants} participant(s); logs in {logs}/",
         flush=True,
     )
+    monitor = _start_monitor(args, router, keys, logs) if args.monitor is not None else None
     children: dict[str, subprocess.Popen] = {}
     stopping = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stopping.set())
     signal.signal(signal.SIGTERM, lambda *_: stopping.set())
     code = 1
     try:
-        for service in SERVICES[:-1]:  # the rig: decision, actuation, eyes stay up throughout
+        rig = [*SERVICES[:-1], *(["vision"] if args.render else [])]
+        for service in rig:  # the rig: decision, actuation, eyes (, vision) stay up throughout
             children[service] = _start(service, args, epoch_ns, logs)
         for i in range(args.participants):
             person = _participant(args, i)
@@ -228,6 +249,8 @@ def main(argv: list[str] | None = None) -> int:
                 break
     finally:
         _stop_all(children)
+        if monitor is not None:  # outside `children`: a closed viewer must not fail the run
+            _stop_all({"monitor": monitor}, grace_s=20.0)  # time to write the .rrd's footer
         for sub in subs:
             sub.undeclare()
         router.close()
@@ -240,6 +263,34 @@ def main(argv: list[str] | None = None) -> int:
     else:
         _explain_failure(logs)
     return code
+
+
+def _start_monitor(args: argparse.Namespace, router, keys: Keys, logs: Path) -> subprocess.Popen:
+    """Start `nod monitor` and wait until it listens, so trial 1 is recorded from its setup."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "monitor",
+            "--connect",
+            args.listen,
+            "--rig",
+            args.rig,
+            *shlex.split(args.monitor),
+        ],
+        stdout=(logs / "monitor.log").open("w"),
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and proc.poll() is None:
+        if list(router.liveliness().get(keys.alive("monitor"), timeout=0.5)):
+            break
+        time.sleep(0.1)
+    print(f"monitor: nod monitor {args.monitor} (log in {logs}/monitor.log)", flush=True)
+    return proc
 
 
 def _check_args(args: argparse.Namespace) -> str | None:
@@ -301,12 +352,12 @@ def _supervise(children: dict[str, subprocess.Popen], stopping: threading.Event)
     return 130
 
 
-def _stop_all(children: dict[str, subprocess.Popen]) -> None:
-    """SIGTERM every child (they stop cleanly), then kill what is left after 5 s."""
+def _stop_all(children: dict[str, subprocess.Popen], grace_s: float = 5.0) -> None:
+    """SIGTERM every child (they stop cleanly), then kill what is left after `grace_s`."""
     for proc in children.values():
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGTERM)
-    deadline = time.monotonic() + 5.0
+    deadline = time.monotonic() + grace_s
     for proc in children.values():
         try:
             proc.wait(max(0.0, deadline - time.monotonic()))

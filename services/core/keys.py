@@ -18,6 +18,7 @@ TOPICS: dict[str, tuple[type[m.Message], str, str, str]] = {
     "vision/hand": (m.HandPose, "vision | sim", "decision, actuation, experiment", "30 Hz"),
     "vision/layout": (m.Layout, "vision | sim", "decision, actuation, experiment", "1 Hz + query"),
     "vision/frame": (m.VisionFrame, "vision", "monitor", "2 Hz (--frames-key-hz)"),
+    "sim/camera": (m.VisionFrame, "sim --render", "vision --source zenoh:sim/camera", "30 Hz"),
     "decision/z_h": (m.Scalar, "decision", "experiment, sim, monitor", "per hand pose"),
     "decision/z_r": (m.Scalar, "decision", "actuation, experiment, sim", "per hand pose"),
     "decision/b_r": (m.Scalar, "decision", "experiment, monitor", "per hand pose"),

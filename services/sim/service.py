@@ -31,7 +31,15 @@ NS = 1e-9
 class SimService:
     """Wires a Participant to the rig's keys."""
 
-    def __init__(self, node: Node, cfg: NodConfig, seed: int, rate_hz: float, cohort: bool):
+    def __init__(
+        self,
+        node: Node,
+        cfg: NodConfig,
+        seed: int,
+        rate_hz: float,
+        cohort: bool,
+        render: bool = False,
+    ):
         self.node = node
         self.layout = cfg.layout
         rng = np.random.default_rng(seed)
@@ -41,14 +49,24 @@ class SimService:
         self.gaze_yaw = 0.0
         self.option: str | None = None
         self.robot: str | None = None
-        self.pub_hand = node.publisher("vision/hand")
-        self.pub_layout = node.publisher("vision/layout")
+        # --render: be the camera, not the tracker — frames go to `nod vision`, which publishes
+        # the hand and the layout itself.
+        self.renderer = None
+        if render:
+            from services.vision.trackers.sim import SceneRenderer
+
+            self.renderer = SceneRenderer(layout=cfg.layout, noise=2.0, seed=seed)
+            self.pub_camera = node.publisher("sim/camera")
+        else:
+            self.pub_hand = node.publisher("vision/hand")
+            self.pub_layout = node.publisher("vision/layout")
         node.subscribe("experiment/trial", self.on_trial)
         node.subscribe("eyes/cmd", self.on_gaze)
         node.subscribe("actuation/state", self.on_arm)
         node.subscribe("actuation/press", self.on_press)
         node.every(1.0 / rate_hz, self.frame)
-        node.every(1.0, self.publish_layout)
+        if not render:
+            node.every(1.0, self.publish_layout)
 
     def on_gaze(self, msg: m.GazeMsg) -> None:
         """The participant sees where the eyes look."""
@@ -83,6 +101,9 @@ class SimService:
     def frame(self, now_ns: int) -> None:
         """One camera frame: advance the person and publish the hand."""
         self._advance(now_ns)
+        if self.renderer is not None:
+            self._render(now_ns)
+            return
         pts = self.person.landmarks()
         center = pts.mean(axis=0)
         self.pub_hand.put(
@@ -92,6 +113,23 @@ class SimService:
             landmarks=tuple((float(x), float(y)) for x, y in pts),
             source="sim",
         )
+
+    def _render(self, now_ns: int) -> None:
+        import cv2
+
+        x, y = (float(v) for v in self.person.pos)
+        image = self.renderer.render((x, y))
+        ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
+        if ok:
+            h, w = image.shape[:2]
+            self.pub_camera.put(
+                t_ns=now_ns,
+                jpeg=jpeg.tobytes(),
+                width=w,
+                height=h,
+                hand_seq=self.pub_camera.seq,
+                detected=True,
+            )
 
     def publish_layout(self, now_ns: int) -> None:
         """The table geometry, for every service that needs the boxes."""
@@ -114,6 +152,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="draw person-to-person variation of the participant's traits from the seed",
     )
+    p.add_argument(
+        "--render",
+        action="store_true",
+        help="publish rendered camera frames on sim/camera (for `nod vision --source "
+        "zenoh:sim/camera`) instead of hand poses",
+    )
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
@@ -126,12 +170,12 @@ def main(argv: list[str] | None = None) -> int:
         if not 1.0 <= args.rate <= 1000.0:
             raise ValueError(f"--rate must be in [1, 1000] Hz, got {args.rate}")
         cfg = load_service_config(args.params)
-        node = Node("sim", args, stands_in_for=("vision",))
+        node = Node("sim", args, stands_in_for=() if args.render else ("vision",))
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod sim: {exc}", file=sys.stderr)
         return 2
     log.info("effective config: %s", json.dumps(cfg.summary("participant")))
-    SimService(node, cfg, args.seed, args.rate, args.cohort)
+    SimService(node, cfg, args.seed, args.rate, args.cohort, render=args.render)
     node.run()
     return 0
 

@@ -33,7 +33,7 @@ import numpy as np
 
 log = logging.getLogger("nod.vision.capture")
 
-SourceKind = Literal["device", "file", "url", "sim"]
+SourceKind = Literal["device", "file", "url", "sim", "zenoh"]
 
 
 class CaptureError(RuntimeError):
@@ -50,17 +50,26 @@ class Source:
     @property
     def label(self) -> str:
         """How logs name the source."""
-        names = {"device": "camera", "file": "video file", "url": "stream", "sim": "rendered scene"}
+        names = {
+            "device": "camera",
+            "file": "video file",
+            "url": "stream",
+            "sim": "rendered scene",
+            "zenoh": "frames on key",
+        }
         return f"{names[self.kind]} {self.target}" if self.kind != "sim" else names["sim"]
 
     @property
     def live(self) -> bool:
         """A camera or stream: frames happen in real time and can be missed."""
-        return self.kind in ("device", "url")
+        return self.kind in ("device", "url", "zenoh")
 
 
 def parse_source(text: str) -> Source:
-    """`0` → device 0; `rtsp://…`, `http://…` → stream; `sim` → rendered scene; else a file."""
+    """Read `--source`: a device index, a stream URL, `sim`, `zenoh:TOPIC`, or else a file.
+
+    `zenoh:TOPIC` reads JPEG frames from the rig's key TOPIC (e.g. `zenoh:sim/camera`).
+    """
     text = text.strip()
     if not text:
         raise ValueError("--source is empty; give a device index, a video file or a URL")
@@ -68,6 +77,8 @@ def parse_source(text: str) -> Source:
         return Source("device", int(text))
     if text == "sim":
         return Source("sim", "sim")
+    if text.startswith("zenoh:"):
+        return Source("zenoh", text.removeprefix("zenoh:"))
     if "://" in text:
         return Source("url", text)
     return Source("file", text)
@@ -154,6 +165,8 @@ def open_video(source: Source, params: CaptureParams) -> VideoLike:
 
         renderer = SceneRenderer(width=params.width or 640, height=params.height or 480)
         return RenderedSource(renderer, demo_path(renderer.layout), fps=params.fps or 30.0)
+    if source.kind == "zenoh":
+        raise ValueError("a zenoh frame source needs the service's session (nod vision opens it)")
     if source.kind == "url":
         ms = int(params.timeout_s * 1000)
         opts = [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms]
@@ -238,6 +251,7 @@ class Capture:
             "device": "is the camera plugged in and free? (ls /dev/video*; another program?)",
             "url": "is the stream up and the URL right? (try it with ffplay)",
             "sim": "the renderer failed",
+            "zenoh": "is `nod sim --render` (or another frame publisher) running on this rig?",
         }[self.source.kind]
 
     # -- the reader ----------------------------------------------------------------------------

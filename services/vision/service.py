@@ -36,7 +36,14 @@ from services.core.geometry import TableLayout
 from services.core.node import Node, setup_logging
 from services.core.session import add_zenoh_args
 from services.vision.calibration import load_calibration
-from services.vision.capture import Capture, CaptureError, CaptureParams, Frame, parse_source
+from services.vision.capture import (
+    Capture,
+    CaptureError,
+    CaptureParams,
+    Frame,
+    open_video,
+    parse_source,
+)
 from services.vision.overlay import monitor_jpeg
 from services.vision.trackers import (
     TRACKERS,
@@ -46,6 +53,7 @@ from services.vision.trackers import (
     TrackResult,
     make_tracker,
 )
+from services.vision.zenoh_camera import ZenohCamera
 
 log = logging.getLogger("nod.vision")
 
@@ -258,6 +266,17 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _opener(node: Node | None, params: CaptureParams):
+    """The frame opener: OpenCV, or the node's own session for a `zenoh:` source."""
+    if node is None:
+        return open_video
+
+    def open_zenoh(source, _params):
+        return ZenohCamera(node.session, node.keys.topic(str(source.target)), params.timeout_s)
+
+    return open_zenoh
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run `nod vision` (or `nod vision calibrate …`); 0 at a file's end or on a signal."""
     args_list = list(sys.argv[1:] if argv is None else argv)
@@ -283,7 +302,9 @@ def main(argv: list[str] | None = None) -> int:
             loop=args.loop,
             stall_s=args.stall,
         )
-        capture = Capture(parse_source(args.source), params)
+        source = parse_source(args.source)
+        node = Node("vision", args) if source.kind == "zenoh" else None
+        capture = Capture(source, params, opener=_opener(node, params))
         info = capture.open()
         options = TrackerOptions(
             dictionary=args.dictionary,
@@ -292,15 +313,24 @@ def main(argv: list[str] | None = None) -> int:
             min_confidence=args.min_confidence,
         )
         tracker = make_tracker(args.tracker, options)
-    except (ValueError, OSError, ConfigError, CaptureError, TrackerUnavailableError) as exc:
+    except (
+        ValueError,
+        OSError,
+        ConnectionError,
+        ConfigError,
+        CaptureError,
+        TrackerUnavailableError,
+    ) as exc:
         print(f"nod vision: {exc}", file=sys.stderr)
         if "capture" in locals():
             capture.close()
+        if locals().get("node") is not None:
+            node.close()
         return 2
     log.info("%s: %s", capture.source.label, info.describe(params))
     log.info("tracker %s; layout from %s: %s", tracker.name, layout_origin, layout_fields(layout))
     try:
-        node = Node("vision", args)
+        node = node or Node("vision", args)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod vision: {exc}", file=sys.stderr)
         capture.close()

@@ -1,0 +1,333 @@
+"""The Rerun bridge: one decoded message in, the Rerun log calls that show it out.
+
+No Zenoh here: `RerunBridge.log(topic, msg)` takes a message of the contract and logs it to a
+`rerun.RecordingStream`, so it is tested against a recording saved to an `.rrd` file. Every row is
+stamped with the message's own source time `t_ns` on the `time` timeline and with the current
+trial on the `trial` sequence timeline. The entity tree (`ENTITIES`) and the blueprint that lays
+it out live here too, so the paths are written once:
+
+    opinion/{z_h,z_r,b_r}     time series of ẑ_h, z_r, b_r (one view)
+    table/{buzzers,commit_line,hand,arm}   the table: boxes, commit line, hand centre, end effector
+    eyes/gaze/{yaw,pitch}     the commanded gaze (rad);  eyes/servos: the servo targets (deg)
+    state/{trial,arm,gaze}    protocol phase, arm phase and gaze level as state lanes
+    log/{trial,result,arm,safety,services}   text log: events, countdown, outcomes, safety
+    camera/frame              the vision service's low-rate JPEG frames
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from services.core import messages as m
+from services.eyes.servos import SERVO_NAMES
+
+APPLICATION_ID = "nod_hri"
+TIMELINE = "time"  # the message's source timestamp, `t_ns`
+TRIAL_TIMELINE = "trial"  # the trial number (0 before the first trial)
+TRAIL_S = 3.0  # seconds of hand / end-effector path shown on the table
+
+RED = (220, 50, 47)
+BLUE = (38, 110, 220)
+SCALAR_STYLE: dict[str, tuple[str, tuple[int, int, int]]] = {
+    "decision/z_h": ("ẑ_h (human, observed)", (230, 140, 20)),
+    "decision/z_r": ("z_r (robot)", (20, 150, 90)),
+    "decision/b_r": ("b_r (robot bias)", (130, 80, 200)),
+}
+
+ENTITIES: dict[str, str] = {
+    "decision/z_h": "opinion/z_h",
+    "decision/z_r": "opinion/z_r",
+    "decision/b_r": "opinion/b_r",
+    "hand": "table/hand",
+    "buzzers": "table/buzzers",
+    "commit_line": "table/commit_line",
+    "arm": "table/arm",
+    "gaze_yaw": "eyes/gaze/yaw",
+    "gaze_pitch": "eyes/gaze/pitch",
+    "servos": "eyes/servos",
+    "state_trial": "state/trial",
+    "state_arm": "state/arm",
+    "state_gaze": "state/gaze",
+    "log_trial": "log/trial",
+    "log_result": "log/result",
+    "log_arm": "log/arm",
+    "log_safety": "log/safety",
+    "log_services": "log/services",
+    "frame": "camera/frame",
+}
+
+
+def blueprint() -> rrb.Blueprint:
+    """The at-a-glance layout: opinions and states left, table, camera and text log right."""
+    trail = rrb.VisibleTimeRange(
+        TIMELINE,
+        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-TRAIL_S),
+        end=rrb.TimeRangeBoundary.cursor_relative(),
+    )
+    left = rrb.Vertical(
+        rrb.TimeSeriesView(origin="opinion", name="opinions: ẑ_h, z_r, b_r"),
+        rrb.Horizontal(
+            rrb.TimeSeriesView(origin="eyes/gaze", name="gaze command (rad)"),
+            rrb.TimeSeriesView(origin="eyes/servos", name="eye servo targets (deg)"),
+        ),
+        rrb.StateTimelineView(origin="state", name="trial · arm · gaze"),
+        row_shares=[3, 2, 1],
+    )
+    right = rrb.Vertical(
+        rrb.Horizontal(
+            rrb.Spatial2DView(
+                origin="table",
+                name="table: buzzers, commit line, hand and arm",
+                visual_bounds=rrb.VisualBounds2D(x_range=[0.0, 1.0], y_range=[0.0, 1.0]),
+                time_ranges=trail,
+            ),
+            rrb.Spatial2DView(origin="camera", name="camera"),
+        ),
+        rrb.TextLogView(origin="log", name="events, outcomes, safety"),
+        row_shares=[3, 2],
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(left, right, column_shares=[3, 2]),
+        rrb.TimePanel(timeline=TIMELINE),
+        collapse_panels=True,
+    )
+
+
+_NUMBERS = re.compile(r"\d+(\.\d+)?")
+
+
+def _opt(value: str | None) -> str:
+    return value if value else "-"
+
+
+class RerunBridge:
+    """Logs the messages of one rig to one Rerun recording (call from one thread)."""
+
+    def __init__(self, rec: rr.RecordingStream) -> None:
+        self.rec = rec
+        self.trial = 0
+        self.logged = 0
+        self.last_t_ns: int | None = None
+        self._layout: tuple[Any, ...] | None = None
+        self._arm: dict[str, Any] = {}
+        self._eyes: dict[str, Any] = {}
+        self._cmd: tuple[Any, ...] | None = None
+        self._gaze_state: str | None = None
+
+    def log_styles(self) -> None:
+        """Static names and colours of the series (once, before any data)."""
+        for topic, (name, colour) in SCALAR_STYLE.items():
+            self.rec.log(ENTITIES[topic], rr.SeriesLines(names=name, colors=colour), static=True)
+        self.rec.log(ENTITIES["gaze_yaw"], rr.SeriesLines(names="yaw ψ"), static=True)
+        self.rec.log(ENTITIES["gaze_pitch"], rr.SeriesLines(names="pitch φ"), static=True)
+        self.rec.log(ENTITIES["servos"], rr.SeriesLines(names=list(SERVO_NAMES)), static=True)
+        # Point styles once: the 120 Hz rows then carry positions only (half the logging cost).
+        hand = rr.Points2D.from_fields(radii=0.006, colors=(240, 200, 40))
+        self.rec.log(ENTITIES["hand"], hand, static=True)
+        arm = rr.Points2D.from_fields(radii=0.008, labels=["arm"], show_labels=True)
+        self.rec.log(ENTITIES["arm"], arm, static=True)
+
+    # -- dispatch ------------------------------------------------------------------------------
+
+    def log(self, topic: str, msg: m.Message) -> None:
+        """Log one decoded message of `topic` (e.g. "vision/hand") at its own timestamp."""
+        handler = getattr(self, f"_on_{msg.KIND}", None)
+        if handler is None:
+            return
+        if isinstance(msg, m.TrialEvent | m.TrialResult):
+            self.trial = msg.trial  # before stamping: an event belongs to its own trial
+        self._stamp(msg.t_ns)
+        handler(topic, msg)
+        self.logged += 1
+
+    def note(self, text: str, level: str = "INFO", t_ns: int | None = None) -> None:
+        """A line from the monitor itself (service liveliness, drops) on `log/services`."""
+        stamp = t_ns if t_ns is not None else self.last_t_ns
+        if stamp is not None:
+            self._stamp(stamp)
+        self.rec.log(ENTITIES["log_services"], rr.TextLog(text, level=level))
+
+    def _stamp(self, t_ns: int) -> None:
+        self.last_t_ns = t_ns if self.last_t_ns is None else max(self.last_t_ns, t_ns)
+        self.rec.set_time(TIMELINE, timestamp=np.datetime64(t_ns, "ns"))
+        self.rec.set_time(TRIAL_TIMELINE, sequence=self.trial)
+
+    # -- vision --------------------------------------------------------------------------------
+
+    def _on_hand(self, topic: str, msg: m.HandPose) -> None:
+        if msg.detected and msg.center is not None:
+            self.rec.log(ENTITIES["hand"], rr.Points2D([msg.center]))
+
+    def _on_layout(self, topic: str, msg: m.Layout) -> None:
+        key = (msg.red, msg.blue, msg.commit_y)
+        if key == self._layout:
+            return  # re-published every second; log only what changed
+        self._layout = key
+        # Static: always drawn, whatever the time cursor or the table's trail window.
+        self.rec.log(
+            ENTITIES["buzzers"],
+            rr.Boxes2D(
+                array=np.array([msg.red, msg.blue], dtype=np.float32),
+                array_format=rr.Box2DFormat.XYXY,
+                colors=[RED, BLUE],
+                labels=["red", "blue"],
+            ),
+            static=True,
+        )
+        self.rec.log(
+            ENTITIES["commit_line"],
+            rr.LineStrips2D(
+                [[(0.0, msg.commit_y), (1.0, msg.commit_y)]],
+                colors=(128, 128, 128),
+                labels=["commit line"],
+            ),
+            static=True,
+        )
+
+    def _on_frame(self, topic: str, msg: Any) -> None:
+        self.rec.log(ENTITIES["frame"], rr.EncodedImage(contents=msg.jpeg, media_type="image/jpeg"))
+
+    # -- decision ------------------------------------------------------------------------------
+
+    def _on_scalar(self, topic: str, msg: m.Scalar) -> None:
+        path = ENTITIES.get(topic)
+        if path is not None:
+            self.rec.log(path, rr.Scalars(msg.value))
+
+    # -- actuation -----------------------------------------------------------------------------
+
+    def _on_arm_state(self, topic: str, msg: m.ArmStateMsg) -> None:
+        prev = self._arm
+        if prev.get("safe_stop") != msg.safe_stop:  # red while safe-stopped
+            colour = (230, 60, 60) if msg.safe_stop else (90, 200, 250)
+            self.rec.log(ENTITIES["arm"], rr.Points2D.from_fields(colors=colour))
+        self.rec.log(ENTITIES["arm"], rr.Points2D([msg.ee]))
+        if prev.get("phase") != msg.phase:
+            self.rec.log(ENTITIES["state_arm"], rr.StateChange(state=msg.phase))
+        self._safety("arm", prev, msg.safe_stop, msg.safety_reason, msg.fault)
+        self._arm = {
+            "phase": msg.phase,
+            "safe_stop": msg.safe_stop,
+            "reason": _NUMBERS.sub("#", msg.safety_reason),
+            "fault": msg.fault,
+        }
+
+    def _on_arm_cmd(self, topic: str, msg: m.ArmCommandMsg) -> None:
+        key = (msg.action, msg.direction, msg.target)
+        if key == self._cmd:
+            return  # the 10 Hz repeat of the same command
+        self._cmd = key
+        target = f" → {msg.target}" if msg.target else ""
+        reason = f" ({msg.reason})" if msg.reason else ""
+        self.rec.log(
+            ENTITIES["log_arm"],
+            rr.TextLog(f"arm {msg.action}{target} dir {msg.direction:+d}{reason}", level="DEBUG"),
+        )
+
+    def _on_press(self, topic: str, msg: m.PressMsg) -> None:
+        self.rec.log(
+            ENTITIES["log_trial"],
+            rr.TextLog(f"trial {msg.trial}: robot pressed {msg.colour}", level="INFO"),
+        )
+
+    # -- eyes ----------------------------------------------------------------------------------
+
+    def _on_gaze(self, topic: str, msg: m.GazeMsg) -> None:
+        self.rec.log(ENTITIES["gaze_yaw"], rr.Scalars(msg.yaw))
+        self.rec.log(ENTITIES["gaze_pitch"], rr.Scalars(msg.pitch))
+        state = f"{msg.level} + gesture" if msg.gesture else msg.level
+        if state != self._gaze_state:
+            self._gaze_state = state
+            self.rec.log(ENTITIES["state_gaze"], rr.StateChange(state=state))
+
+    def _on_eyes_state(self, topic: str, msg: m.EyesStateMsg) -> None:
+        self.rec.log(ENTITIES["servos"], rr.Scalars(np.asarray(msg.angles_deg, dtype=np.float64)))
+        prev = self._eyes
+        self._safety("eyes", prev, msg.safe_stop, msg.safety_reason, msg.fault)
+        if msg.clamped and tuple(msg.clamped) != prev.get("clamped"):
+            self.rec.log(
+                ENTITIES["log_safety"],
+                rr.TextLog(f"eyes: servo target clamped: {', '.join(msg.clamped)}", level="WARN"),
+            )
+        self._eyes = {
+            "safe_stop": msg.safe_stop,
+            "reason": _NUMBERS.sub("#", msg.safety_reason),
+            "fault": msg.fault,
+            "clamped": tuple(msg.clamped),
+        }
+
+    def _safety(
+        self, who: str, prev: dict[str, Any], safe_stop: bool, reason: str, fault: str
+    ) -> None:
+        """Text-log safe-stop and fault transitions of the arm or the eyes."""
+        was = prev.get("safe_stop", False)
+        # A reason like "gaze stale (257 ms)" changes every message; log when its words change.
+        if safe_stop and (not was or _NUMBERS.sub("#", reason) != prev.get("reason")):
+            self.rec.log(
+                ENTITIES["log_safety"],
+                rr.TextLog(f"{who}: SAFE STOP ({reason or 'no reason given'})", level="WARN"),
+            )
+        elif was and not safe_stop:
+            self.rec.log(
+                ENTITIES["log_safety"], rr.TextLog(f"{who}: safe stop cleared", level="INFO")
+            )
+        if fault != prev.get("fault", ""):
+            text = f"{who}: FAULT {fault}" if fault else f"{who}: fault cleared"
+            self.rec.log(
+                ENTITIES["log_safety"], rr.TextLog(text, level="ERROR" if fault else "INFO")
+            )
+
+    # -- experiment and safety -----------------------------------------------------------------
+
+    def _on_trial(self, topic: str, msg: m.TrialEvent) -> None:
+        self.rec.log(ENTITIES["state_trial"], rr.StateChange(state=msg.phase))
+        if msg.phase == "setup":
+            option = f" O={msg.option}" if msg.option else ""
+            text = f"trial {msg.trial} setup: {msg.mode}{option}, gaze {_opt(msg.text)}"
+        elif msg.phase == "countdown":
+            text = f"trial {msg.trial} countdown {msg.text}"
+        else:
+            extra = f": {msg.text}" if msg.text and msg.text != msg.phase else ""
+            text = f"trial {msg.trial} {msg.phase}{extra}"
+        level = "WARN" if msg.phase == "abort" else "INFO"
+        self.rec.log(ENTITIES["log_trial"], rr.TextLog(text, level=level))
+
+    def _on_result(self, topic: str, msg: m.TrialResult) -> None:
+        option = f" O={msg.option}" if msg.option else ""
+        text = (
+            f"trial {msg.trial} [{msg.mode}{option}]: robot {_opt(msg.robot)}, human "
+            f"{_opt(msg.human)} → {_opt(msg.outcome)} (switches {msg.switches}, violations "
+            f"{msg.violations}, score {msg.score})"
+        )
+        self.rec.log(ENTITIES["log_result"], rr.TextLog(text, level="INFO"))
+
+    def _on_estop(self, topic: str, msg: m.Estop) -> None:
+        who = f" by {msg.source}" if msg.source else ""
+        why = f": {msg.reason}" if msg.reason else ""
+        if msg.engaged:
+            self.rec.log(ENTITIES["log_safety"], rr.TextLog(f"ESTOP{who}{why}", level="ERROR"))
+        else:
+            self.rec.log(
+                ENTITIES["log_safety"], rr.TextLog(f"estop released{who}{why}", level="WARN")
+            )
+
+
+def rrd_rows(path: str | Path) -> tuple[dict[str, int], dict[str, int]]:
+    """Rows per entity path of a saved recording: (temporal rows, static rows).
+
+    A quick check of what a `--save` file holds, e.g. `rrd_rows("s.rrd")[0]["/opinion/z_h"]`.
+    """
+    from rerun.chunk import RrdReader
+
+    temporal: dict[str, int] = {}
+    static: dict[str, int] = {}
+    for chunk in RrdReader(path).stream():
+        into = static if chunk.is_static else temporal
+        into[chunk.entity_path] = into.get(chunk.entity_path, 0) + chunk.num_rows
+    return temporal, static
