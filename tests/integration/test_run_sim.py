@@ -160,3 +160,34 @@ def test_bad_run_arguments_are_one_line_errors():
         res = _nod(*args, timeout=60)
         assert res.returncode == 2
         assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_full_session_through_the_rendered_camera_path(tmp_path):
+    """`nod run --sim --render`: sim frames → nod vision (aruco) → the loop, unchanged."""
+    import sqlite3
+
+    db = tmp_path / "render.sqlite"
+    run = _nod(
+        "run",
+        "--sim",
+        "--render",
+        "--speed",
+        "3",
+        "--db",
+        str(db),
+        "--listen",
+        f"tcp/127.0.0.1:{free_port()}",
+        "--stale-ms",
+        "2000",
+        timeout=400,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    vision_log = (db.with_suffix(".logs") / "vision.log").read_text()
+    assert "hand poses published" in vision_log
+    con = sqlite3.connect(db)
+    trials = con.execute("SELECT trial, option, human, robot FROM trials ORDER BY trial").fetchall()
+    assert len(trials) == 8
+    assert sum(h is not None for _, _, h, _ in trials) >= 6  # presses seen through the camera
+    assert sum(r == o for _, o, _, r in trials[3:]) >= 4
+    sources = con.execute("SELECT COUNT(*) FROM samples WHERE hand_x IS NOT NULL").fetchone()[0]
+    assert sources > 100
