@@ -54,6 +54,17 @@ def add_config_arg(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_service_args(parser: argparse.ArgumentParser) -> None:
+    """Every service's common flags: zenoh session, shared clock, `--params`, `-v`."""
+    from services.core.clock import add_clock_args
+    from services.core.session import add_zenoh_args
+
+    add_zenoh_args(parser)
+    add_clock_args(parser)
+    add_config_arg(parser)
+    parser.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
+
+
 def load_service_config(path: Path | None) -> NodConfig:
     """The defaults, overridden by a TOML file when given."""
     if path is None:

@@ -53,8 +53,6 @@ class ArmPoses:
         return self.press_red if colour == "red" else self.press_blue
 
 
-
-
 def _lerp(a: Pose, b: Pose, u: float) -> tuple[float, ...]:
     return tuple(x + (y - x) * u for x, y in zip(a, b, strict=True))
 

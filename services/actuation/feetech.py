@@ -238,7 +238,8 @@ class FeetechBus:
         """Goal position, goal time 0 and goal speed of every servo in one SYNC_WRITE."""
         size = REG["goal_position"].size + REG["goal_time"].size + REG["goal_speed"].size
         data = {
-            i: encode_word(pos, 2, self.order) + encode_word(0, 2, self.order)
+            i: encode_word(pos, 2, self.order)
+            + encode_word(0, 2, self.order)
             + encode_word(speed, 2, self.order)
             for i, pos in goals.items()
         }

@@ -16,12 +16,11 @@ from pathlib import Path
 from services.actuation.arm import ArmDriver
 from services.actuation.behaviour import ArmCommand, RobotBehaviour
 from services.actuation.drivers import ARM_DRIVERS, make_arm_driver
-from services.config import NodConfig, add_config_arg, layout_from_msg, load_service_config
+from services.config import NodConfig, add_service_args, layout_from_msg, load_service_config
 from services.core import messages as m
-from services.core.clock import add_clock_args
 from services.core.node import Node, setup_logging
-from services.core.session import add_zenoh_args
 from services.safety.watchdog import SafetyParams, Watchdog
+from services.safety.wiring import watch_safety_inputs
 
 log = logging.getLogger("nod.actuation")
 NS = 1e-9
@@ -50,11 +49,7 @@ class ActuationService:
         node.subscribe("vision/hand", self.on_hand)
         node.subscribe("vision/layout", self.on_layout)
         node.subscribe("experiment/trial", self.on_trial)
-        node.subscribe("safety/estop", self.on_estop)
-        for service in safety.require_alive:
-            node.watch_liveliness(
-                service, lambda alive, s=service: self.watchdog.set_alive(s, alive)
-            )
+        watch_safety_inputs(node, self.watchdog, self.tick)
         node.every(0.02, self.tick)
 
     # -- inputs --------------------------------------------------------------------------------
@@ -85,17 +80,6 @@ class ActuationService:
             self._send(self.arm.home(), ev.t_ns)
         elif ev.phase == "go" and ev.trial == self.trial:
             self._apply(self.behaviour.start(self._now(ev.t_ns)), ev.t_ns)
-
-    def on_estop(self, msg: m.Estop) -> None:
-        """Engage or release the latched e-stop, and act on it at once."""
-        self.watchdog.estop(msg.engaged, msg.reason or msg.source)
-        log.warning(
-            "e-stop %s by %s: %s",
-            "ENGAGED" if msg.engaged else "released",
-            msg.source or "?",
-            msg.reason,
-        )
-        self.tick(self.node.clock.now_ns())
 
     # -- control -------------------------------------------------------------------------------
 
@@ -169,16 +153,13 @@ def build_parser() -> argparse.ArgumentParser:
         prog="nod actuation",
         description="Run Algorithm 2 on z_r and hand poses and drive the arm (default: sim arm).",
     )
-    add_zenoh_args(p)
-    add_clock_args(p)
-    add_config_arg(p)
+    add_service_args(p)
     p.add_argument("--driver", choices=ARM_DRIVERS, default="sim", help="arm driver (default sim)")
     p.add_argument("--port", default=None, help="serial port of a real arm (e.g. /dev/ttyACM0)")
     p.add_argument(
         "--arm-config", type=Path, default=None, help="arm file with calibrated poses (feetech)"
     )
     p.add_argument("--stale-ms", type=float, default=None, help="input staleness bound (ms)")
-    p.add_argument("-v", "--verbose", action="store_true")
     return p
 
 

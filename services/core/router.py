@@ -18,8 +18,14 @@ from services.core.session import DEFAULT_ROUTER, make_config, open_session
 def main(argv: list[str] | None = None) -> int:
     """Run a router until SIGINT/SIGTERM."""
     p = argparse.ArgumentParser(prog="nod router", description=__doc__.splitlines()[0])
-    p.add_argument("-l", "--listen", action="append", default=None, metavar="ENDPOINT",
-                   help=f"endpoint to listen on, repeatable (default {DEFAULT_ROUTER})")
+    p.add_argument(
+        "-l",
+        "--listen",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help=f"endpoint to listen on, repeatable (default {DEFAULT_ROUTER})",
+    )
     p.add_argument("--config", type=Path, default=None, help="a zenoh JSON5 configuration file")
     args = p.parse_args(argv)
     listen = args.listen or ([DEFAULT_ROUTER] if args.config is None else None)

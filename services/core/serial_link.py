@@ -297,4 +297,3 @@ class SerialLink:
     def __repr__(self) -> str:
         state = "open" if self.is_open else "closed"
         return f"SerialLink({self.port!r}, {self.baudrate}, {state}, fault={self.fault!r})"
-

@@ -12,11 +12,9 @@ import json
 import logging
 import sys
 
-from services.config import add_config_arg, layout_from_msg, load_service_config
+from services.config import add_service_args, layout_from_msg, load_service_config
 from services.core import messages as m
-from services.core.clock import add_clock_args
 from services.core.node import Node, setup_logging
-from services.core.session import add_zenoh_args
 from services.decision.model import DecisionModel
 
 log = logging.getLogger("nod.decision")
@@ -73,10 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Observe the human opinion (eq 7), integrate the robot opinion (eq 1) and "
         "its bias (eq 6), publish ẑ_h, z_r and b_r on every hand pose.",
     )
-    add_zenoh_args(p)
-    add_clock_args(p)
-    add_config_arg(p)
-    p.add_argument("-v", "--verbose", action="store_true")
+    add_service_args(p)
     return p
 
 

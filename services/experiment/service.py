@@ -18,11 +18,9 @@ from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
 
-from services.config import NodConfig, add_config_arg, layout_from_msg, load_service_config
+from services.config import NodConfig, add_service_args, layout_from_msg, load_service_config
 from services.core import messages as m
-from services.core.clock import add_clock_args
 from services.core.node import Node, install_signal_handlers, setup_logging
-from services.core.session import add_zenoh_args
 from services.experiment.outcome import OutcomeTracker
 from services.experiment.protocol import TrialSpec
 from services.experiment.recorder import TrialRecorder
@@ -243,9 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="nod experiment",
         description="Conduct one participant's 8 trials and store them in a SQLite file.",
     )
-    add_zenoh_args(p)
-    add_clock_args(p)
-    add_config_arg(p)
+    add_service_args(p)
     p.add_argument("--db", type=Path, default=Path("nod-sessions.sqlite"), help="session store")
     p.add_argument("--participant", default="P01", help="participant id stored with the session")
     p.add_argument("--seed", type=int, default=None, help="seed of the sim participant (stored)")
@@ -257,7 +253,6 @@ def build_parser() -> argparse.ArgumentParser:
         "after each trial), or 'none' (not entered)",
     )
     p.add_argument("--wait-services", type=float, default=30.0, help="seconds to wait for peers")
-    p.add_argument("-v", "--verbose", action="store_true")
     return p
 
 

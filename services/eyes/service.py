@@ -13,15 +13,14 @@ import logging
 import sys
 from pathlib import Path
 
-from services.config import NodConfig, add_config_arg, load_service_config
+from services.config import NodConfig, add_service_args, load_service_config
 from services.core import messages as m
-from services.core.clock import add_clock_args
 from services.core.node import Node, setup_logging
-from services.core.session import add_zenoh_args
 from services.eyes.drivers import EYES_DRIVERS, make_eyes_driver
 from services.eyes.gaze import GazeCommand, attention_gesture
 from services.eyes.servos import ServoDriver, ServoTargets
 from services.safety.watchdog import SafetyParams, Watchdog
+from services.safety.wiring import watch_safety_inputs
 
 log = logging.getLogger("nod.eyes")
 NS = 1e-9
@@ -43,11 +42,7 @@ class EyesService:
         self.reason = ""
         self.pub_state = node.publisher("eyes/state")
         node.subscribe("eyes/cmd", self.on_gaze)
-        node.subscribe("safety/estop", self.on_estop)
-        for service in safety.require_alive:
-            node.watch_liveliness(
-                service, lambda alive, s=service: self.watchdog.set_alive(s, alive)
-            )
+        watch_safety_inputs(node, self.watchdog, self.tick)
         node.every(0.02, self.tick)
 
     def on_gaze(self, msg: m.GazeMsg) -> None:
@@ -66,11 +61,6 @@ class EyesService:
                 " after the attention gesture" if msg.gesture else "",
             )
         self.gaze = target
-        self.tick(self.node.clock.now_ns())
-
-    def on_estop(self, msg: m.Estop) -> None:
-        """Engage or release the latched e-stop and act at once."""
-        self.watchdog.estop(msg.engaged, msg.reason or msg.source)
         self.tick(self.node.clock.now_ns())
 
     def _current(self, now_s: float) -> GazeCommand:
@@ -115,9 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="nod eyes", description="Drive the two servo eyes from gaze commands (Section 5)."
     )
-    add_zenoh_args(p)
-    add_clock_args(p)
-    add_config_arg(p)
+    add_service_args(p)
     p.add_argument(
         "--driver", choices=EYES_DRIVERS, default="sim", help="servo driver (default sim)"
     )
@@ -126,7 +114,6 @@ def build_parser() -> argparse.ArgumentParser:
         "--eyes-config", type=Path, default=None, help="eyes hardware file (channels, calibration)"
     )
     p.add_argument("--stale-ms", type=float, default=None, help="gaze staleness bound (ms)")
-    p.add_argument("-v", "--verbose", action="store_true")
     return p
 
 

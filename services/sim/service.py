@@ -16,12 +16,10 @@ import sys
 
 import numpy as np
 
-from services.config import NodConfig, add_config_arg, layout_fields, load_service_config
+from services.config import NodConfig, add_service_args, layout_fields, load_service_config
 from services.core import messages as m
-from services.core.clock import add_clock_args
 from services.core.geometry import colour_sign
 from services.core.node import Node, setup_logging
-from services.core.session import add_zenoh_args
 from services.sim.participant import Participant, jittered
 
 log = logging.getLogger("nod.sim")
@@ -142,9 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="nod sim",
         description="Publish a synthetic participant's hand on vision/hand (stands in for vision).",
     )
-    add_zenoh_args(p)
-    add_clock_args(p)
-    add_config_arg(p)
+    add_service_args(p)
     p.add_argument("--seed", type=int, default=1, help="random seed of the participant")
     p.add_argument("--rate", type=float, default=30.0, help="camera rate in Hz (default 30)")
     p.add_argument(
@@ -158,7 +154,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="publish rendered camera frames on sim/camera (for `nod vision --source "
         "zenoh:sim/camera`) instead of hand poses",
     )
-    p.add_argument("-v", "--verbose", action="store_true")
     return p
 
 

@@ -1,0 +1,33 @@
+"""Connect a Watchdog to the fabric: the e-stop key and the needed services' liveliness.
+
+Actuation and eyes both gate their outputs this way; this is the one place that wiring lives.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+from services.core import messages as m
+from services.core.node import Node
+from services.safety.watchdog import Watchdog
+
+log = logging.getLogger("nod.safety")
+
+
+def watch_safety_inputs(node: Node, watchdog: Watchdog, act_now: Callable[[int], None]) -> None:
+    """Feed `watchdog` with e-stops and liveliness changes; call `act_now(now_ns)` on an e-stop.
+
+    Liveliness is watched for every service in the watchdog's `require_alive`; an e-stop (or its
+    release) is acted on at once rather than at the next periodic tick.
+    """
+
+    def on_estop(msg: m.Estop) -> None:
+        watchdog.estop(msg.engaged, msg.reason or msg.source)
+        state = "ENGAGED" if msg.engaged else "released"
+        log.warning("%s: e-stop %s by %s: %s", node.service, state, msg.source or "?", msg.reason)
+        act_now(node.clock.now_ns())
+
+    node.subscribe("safety/estop", on_estop)
+    for service in watchdog.params.require_alive:
+        node.watch_liveliness(service, lambda alive, s=service: watchdog.set_alive(s, alive))
