@@ -76,13 +76,12 @@ class Node:
         self.received: Counter[str] = Counter()
         self._handles: list[Any] = []
         self._ticks: list[tuple[float, Callable[[int], None], list[float]]] = []
-        self._token = self.session.liveliness().declare_token(self.keys.alive(service))
-        # A simulator standing in for another service also holds that service's token, so
-        # watchdogs that require e.g. "vision" accept the sim without special cases.
-        self._extra_tokens = [
-            self.session.liveliness().declare_token(self.keys.alive(other))
-            for other in stands_in_for
-        ]
+        # Liveliness is declared by `ready()`, after the service has declared its subscriptions:
+        # a peer that waits for our token (the conductor does) must not talk to us before we
+        # listen. A simulator standing in for another service also holds that service's token,
+        # so watchdogs that require e.g. "vision" accept the sim without special cases.
+        self._alive_as = (service, *stands_in_for)
+        self._tokens: list[Any] = []
         log.info("%s up on rig %r (clock speed %.3g)", service, self.keys.rig, self.clock.speed)
 
     # -- pub/sub -------------------------------------------------------------------------------
@@ -136,8 +135,17 @@ class Node:
         """Run `fn(now_ns)` (locked) every `period_s` of simulated time from `run()`."""
         self._ticks.append((period_s, fn, [0.0]))
 
+    def ready(self) -> None:
+        """Declare this service alive (idempotent): call once every subscription is declared."""
+        if not self._tokens:
+            self._tokens = [
+                self.session.liveliness().declare_token(self.keys.alive(name))
+                for name in self._alive_as
+            ]
+
     def run(self) -> None:
-        """Run ticks until SIGINT/SIGTERM or `stop` is set, then close the session."""
+        """Declare the service alive, run ticks until SIGINT/SIGTERM or `stop`, then close."""
+        self.ready()
         install_signal_handlers(self.stop)
         try:
             while not self.stop.is_set():
@@ -167,7 +175,7 @@ class Node:
         for h in self._handles:
             h.undeclare()
         self._handles.clear()
-        for token in (self._token, *self._extra_tokens):
+        for token in self._tokens:
             token.undeclare()
         self.session.close()
         self.session = None  # type: ignore[assignment]

@@ -287,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     install_signal_handlers(node.stop)
     conductor = Conductor(node, cfg, store, clicks)
+    node.ready()
     session = args.session or uuid.uuid4().hex[:12]
     try:
         conductor.wait_for_services(args.wait_services)
