@@ -191,3 +191,35 @@ def test_full_session_through_the_rendered_camera_path(tmp_path):
     assert sum(r == o for _, o, _, r in trials[3:]) >= 4
     sources = con.execute("SELECT COUNT(*) FROM samples WHERE hand_x IS NOT NULL").fetchone()[0]
     assert sources > 100
+
+
+def test_a_sim_session_recorded_by_the_monitor_reads_back(tmp_path):
+    """`nod run --sim --monitor='--save …'`: the .rrd holds the session's streams and events."""
+    import sqlite3
+
+    from services.monitor.bridge import rrd_rows
+
+    db, rrd = tmp_path / "m.sqlite", tmp_path / "session.rrd"
+    run = _nod(
+        "run",
+        "--sim",
+        "--speed",
+        "8",
+        "--db",
+        str(db),
+        "--listen",
+        f"tcp/127.0.0.1:{free_port()}",
+        "--stale-ms",
+        "2000",
+        f"--monitor=--save {rrd}",
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    rows, static = rrd_rows(rrd)
+    n_results = sqlite3.connect(db).execute("SELECT COUNT(*) FROM trials").fetchone()[0]
+    assert rows["/log/result"] == n_results == 8
+    # setup, countdown ×3, go, end for each trial, and the session's end
+    assert rows["/log/trial"] >= 8 * 6
+    assert rows["/opinion/z_h"] == rows["/opinion/z_r"] > 500  # 30 Hz over a whole session
+    assert rows["/table/hand"] > 500
+    assert static["/table/buzzers"] == 1
