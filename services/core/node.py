@@ -175,6 +175,10 @@ class Node:
         for h in self._handles:
             h.undeclare()
         self._handles.clear()
+        # A handler may still be running on a zenoh thread: let it finish publishing everything
+        # it derived from its input (z_r, ẑ_h and b_r of one pose go out together or not at all).
+        with self.lock:
+            pass
         for token in self._tokens:
             token.undeclare()
         self.session.close()

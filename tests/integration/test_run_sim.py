@@ -220,6 +220,11 @@ def test_a_sim_session_recorded_by_the_monitor_reads_back(tmp_path):
     assert rows["/log/result"] == n_results == 8
     # setup, countdown ×3, go, end for each trial, and the session's end
     assert rows["/log/trial"] >= 8 * 6
-    assert rows["/opinion/z_h"] == rows["/opinion/z_r"] > 500  # 30 Hz over a whole session
+    # 30 Hz over a whole session. Control streams are published with drop congestion control
+    # (a slow monitor must never slow the loop), so on a saturated 2-core machine the monitor's
+    # link may lose a few samples of a burst: allow 1%.
+    z_r, z_h = rows["/opinion/z_r"], rows["/opinion/z_h"]
+    assert z_r > 500 and z_h > 500
+    assert abs(z_r - z_h) <= 0.01 * z_r
     assert rows["/table/hand"] > 500
     assert static["/table/buzzers"] == 1
