@@ -90,8 +90,15 @@ class Node:
         """A publisher for one topic of this rig."""
         return TopicPublisher(self, topic)
 
-    def subscribe(self, topic: str, handler: Callable[[Any], None]) -> None:
-        """Decode every sample of `topic` strictly and pass good ones to `handler` (locked)."""
+    def subscribe(
+        self, topic: str, handler: Callable[[Any], None], *, hot_path: bool = False
+    ) -> None:
+        """Decode every sample of `topic` strictly and pass good ones to `handler` (locked).
+
+        `hot_path`: run the handler on zenoh's network thread instead of handing each sample to
+        a Python thread first — one thread wake-up less per message (the control loop's inputs).
+        Only for short handlers: a slow one would hold up the session's other deliveries.
+        """
         key = self.keys.topic(topic)
         cls: type[m.Message] = TOPICS[topic][0]
 
@@ -108,7 +115,8 @@ class Node:
                 except Exception:  # a handler bug must not kill zenoh's delivery thread
                     log.exception("%s: handler for %s failed", self.service, topic)
 
-        self._handles.append(self.session.declare_subscriber(key, on_sample))
+        callback = zenoh.handlers.Callback(on_sample, indirect=False) if hot_path else on_sample
+        self._handles.append(self.session.declare_subscriber(key, callback))
 
     def _drop(self, topic: str, why: str) -> None:
         self.bad[topic] += 1

@@ -70,12 +70,20 @@ def test_decision_survives_garbage_and_keeps_publishing(client, spawn):
     for i in range(1, 31):
         hand.put(_pose(i, t0 + i * 33_000_000, 0.5 + 0.008 * i, 0.85 - 0.01 * i))
         time.sleep(0.005)
-    wait_for(lambda: len(z_r.items) >= n_before + 30, 10, "30 answers after the garbage")
+    # Every pose is answered; decision's outputs use drop congestion control (the control loop
+    # never waits for a slow reader), so on a saturated machine the router may shed one or two
+    # on the way to this test's client: wait for the last pose's answer, then count.
+    try:
+        wait_for(lambda: any(x.src_seq == 30 for x in z_r.messages), 10, "the last pose's answer")
+    except AssertionError as exc:
+        seen = sorted(msg.src_seq for msg in z_r.messages[n_before:])
+        raise AssertionError(f"{exc}; answered {seen}; log:\n{proc.log_path.read_text()}") from None
+    answered = {msg.src_seq for msg in z_r.messages[n_before:]}
+    assert len(answered & set(range(1, 31))) >= 28, (sorted(answered), proc.log_path.read_text())
     assert proc.poll() is None, "decision died on garbage"
     last_zh = z_h.messages[-1]
     assert last_zh.value > 0  # the human heads for red
     assert z_r.messages[-1].value < 0  # dissensus trial: the robot opposes
-    assert z_r.messages[-1].src_seq == 30
     log = proc.log_path.read_text()
     assert log.count("dropped bad message") >= 2 * len(garbage) - 2
     assert "vision/hand" in log and "experiment/trial" in log
