@@ -27,6 +27,27 @@ def _nod(*args: str, **kw) -> subprocess.CompletedProcess:
     )
 
 
+def _run_sim(db: Path, *extra: str, speed: str = "8", port: int | None = None):
+    """`nod run --sim` on a free port. At 8x a 250 ms bound is 31 ms of wall time, tighter than a
+    loaded 2-core CI scheduler guarantees, so these runs relax it; tests/integration/test_safety.py
+    checks the real bound at 1x."""
+    listen = f"tcp/127.0.0.1:{port or free_port()}"
+    return _nod(
+        "run",
+        "--sim",
+        "--speed",
+        speed,
+        "--db",
+        str(db),
+        "--listen",
+        listen,
+        "--stale-ms",
+        "2000",
+        *extra,
+        timeout=400,
+    )
+
+
 def _processes_mentioning(text: str) -> list[int]:
     pids = []
     for entry in Path("/proc").iterdir():
@@ -43,23 +64,7 @@ def _processes_mentioning(text: str) -> list[int]:
 def test_full_session_on_the_simulator(tmp_path):
     db = tmp_path / "session.sqlite"
     port = free_port()
-    # At 8x a 250 ms bound is 31 ms of wall time, tighter than a loaded 2-core CI scheduler
-    # guarantees; the safety tests check the real bound at 1x.
-    run = _nod(
-        "run",
-        "--sim",
-        "--speed",
-        "8",
-        "--seed",
-        "3",
-        "--db",
-        str(db),
-        "--listen",
-        f"tcp/127.0.0.1:{port}",
-        "--stale-ms",
-        "2000",
-        timeout=300,
-    )
+    run = _run_sim(db, "--seed", "3", port=port)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "8 trials of 1 participant(s) stored" in run.stdout
     assert not _processes_mentioning(f"127.0.0.1:{port}"), "children left running"
@@ -127,21 +132,7 @@ def test_a_small_study_stores_one_session_per_participant(tmp_path):
     import sqlite3
 
     db = tmp_path / "study.sqlite"
-    run = _nod(
-        "run",
-        "--sim",
-        "--speed",
-        "8",
-        "--participants",
-        "2",
-        "--db",
-        str(db),
-        "--listen",
-        f"tcp/127.0.0.1:{free_port()}",
-        "--stale-ms",
-        "2000",
-        timeout=300,
-    )
+    run = _run_sim(db, "--participants", "2")
     assert run.returncode == 0, run.stdout + run.stderr
     assert "P01:" in run.stdout and "P02:" in run.stdout
     con = sqlite3.connect(db)
@@ -167,20 +158,7 @@ def test_full_session_through_the_rendered_camera_path(tmp_path):
     import sqlite3
 
     db = tmp_path / "render.sqlite"
-    run = _nod(
-        "run",
-        "--sim",
-        "--render",
-        "--speed",
-        "3",
-        "--db",
-        str(db),
-        "--listen",
-        f"tcp/127.0.0.1:{free_port()}",
-        "--stale-ms",
-        "2000",
-        timeout=400,
-    )
+    run = _run_sim(db, "--render", speed="3")
     assert run.returncode == 0, run.stdout + run.stderr
     vision_log = (db.with_suffix(".logs") / "vision.log").read_text()
     assert "hand poses published" in vision_log
@@ -200,20 +178,7 @@ def test_a_sim_session_recorded_by_the_monitor_reads_back(tmp_path):
     from services.monitor.bridge import rrd_rows
 
     db, rrd = tmp_path / "m.sqlite", tmp_path / "session.rrd"
-    run = _nod(
-        "run",
-        "--sim",
-        "--speed",
-        "8",
-        "--db",
-        str(db),
-        "--listen",
-        f"tcp/127.0.0.1:{free_port()}",
-        "--stale-ms",
-        "2000",
-        f"--monitor=--save {rrd}",
-        timeout=300,
-    )
+    run = _run_sim(db, f"--monitor=--save {rrd}")
     assert run.returncode == 0, run.stdout + run.stderr
     rows, static = rrd_rows(rrd)
     n_results = sqlite3.connect(db).execute("SELECT COUNT(*) FROM trials").fetchone()[0]

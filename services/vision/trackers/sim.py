@@ -26,12 +26,10 @@ import numpy as np
 from services.core.geometry import TableLayout
 from services.vision.trackers import (
     NOT_DETECTED,
-    HandTracker,
-    TrackerOptions,
     TrackResult,
     normalised,
 )
-from services.vision.trackers.aruco import MarkerDetector, aruco_dictionary
+from services.vision.trackers.aruco import ArucoTracker, aruco_dictionary
 
 # A flat right hand seen from above, fingers toward −y (the buzzers), in units of the hand
 # radius; MediaPipe order: wrist, thumb CMC..tip, index MCP..tip, middle, ring, little.
@@ -286,14 +284,13 @@ def write_video(
     return truth
 
 
-class SimTracker(HandTracker):
-    """The marker posed as a flat 21-landmark hand (MediaPipe order): mean = marker centre."""
+class SimTracker(ArucoTracker):
+    """The marker posed as a flat 21-landmark hand (MediaPipe order): mean = marker centre.
+
+    The same marker detection as the aruco tracker; only the landmarks it reports differ.
+    """
 
     name = "sim"
-
-    def __init__(self, options: TrackerOptions | None = None) -> None:
-        opts = options or TrackerOptions()
-        self.detector = MarkerDetector(opts.dictionary, opts.marker_id)
 
     def track(self, frame_bgr: np.ndarray) -> TrackResult:
         """21 landmarks posed by the marker's position, rotation and size, or NOT_DETECTED."""
