@@ -2,35 +2,30 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 import serial
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repo root: tests.emulators
-
-from services.actuation.arm_path import ArmPoses  # noqa: E402
-from services.actuation.behaviour import ArmCommand  # noqa: E402
-from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig  # noqa: E402
-from services.core.geometry import TableLayout  # noqa: E402
-from services.core.serial_link import (  # noqa: E402
+from services.actuation.arm_path import ArmPoses
+from services.actuation.behaviour import ArmCommand
+from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
+from services.core.geometry import TableLayout
+from services.core.serial_link import (
     LinkConfig,
     LinkLostError,
     LinkTimeoutError,
     SerialLink,
 )
-from services.eyes.arduino import ArduinoEyesConfig, ArduinoServoDriver  # noqa: E402
-from services.eyes.gaze import GazeCommand  # noqa: E402
-from services.eyes.maestro import MaestroConfig, MaestroServoDriver  # noqa: E402
-from tests.emulators.arduino_emulator import ArduinoEyesEmulator  # noqa: E402
-from tests.emulators.feetech_emulator import FeetechBusEmulator  # noqa: E402
-from tests.emulators.maestro_emulator import MaestroEmulator  # noqa: E402
-from tests.emulators.pty_device import eventually  # noqa: E402
+from services.eyes.arduino import ArduinoEyesConfig, ArduinoServoDriver
+from services.eyes.gaze import GazeCommand
+from services.eyes.maestro import MaestroConfig, MaestroServoDriver
+from tests.emulators.arduino_emulator import ArduinoEyesEmulator
+from tests.emulators.feetech_emulator import FeetechBusEmulator
+from tests.emulators.links import LINK
+from tests.emulators.maestro_emulator import MaestroEmulator
+from tests.emulators.pty_device import eventually
 
 # An unplugged port fails at once (EIO / ENOENT), whatever the reply timeout: keep that generous
 # so a loaded machine cannot fail the healthy parts; reopen quickly.
-LINK = LinkConfig(timeout_s=0.5, backoff_initial_s=0.01, backoff_factor=2.0, backoff_max_s=0.05)
 
 
 # -- the link alone -----------------------------------------------------------------------------

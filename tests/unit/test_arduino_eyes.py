@@ -4,29 +4,22 @@ from __future__ import annotations
 
 import math
 import struct
-import sys
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repo root: tests.emulators
-
-from services.core.serial_link import LinkConfig  # noqa: E402
-from services.eyes.arduino import (  # noqa: E402
+from services.core.serial_link import LinkConfig
+from services.eyes.arduino import (
     ArduinoEyesConfig,
     ArduinoServoDriver,
     crc8,
     encode_frame,
 )
-from services.eyes.gaze import GAZE_LEVELS, GazeCommand  # noqa: E402
-from services.eyes.servos import EyesCalibration, ServoCalibration, servo_targets  # noqa: E402
-from tests.emulators.arduino_emulator import ArduinoEyesEmulator, crc8_smbus  # noqa: E402
-from tests.emulators.pty_device import eventually  # noqa: E402
-
-# Healthy paths use a generous reply timeout (a loaded machine must not fail them); tests of
-# silence use 50 ms so that detection is fast and its bound is visible.
-LINK = LinkConfig(timeout_s=0.5, backoff_initial_s=0.01, backoff_max_s=0.05)
-FAST = LinkConfig(timeout_s=0.05, backoff_initial_s=0.01, backoff_max_s=0.05)
+from services.eyes.gaze import GAZE_LEVELS, GazeCommand
+from services.eyes.servos import EyesCalibration, ServoCalibration, servo_targets
+from tests.emulators.arduino_emulator import ArduinoEyesEmulator, crc8_smbus
+from tests.emulators.links import FAST, LINK
+from tests.emulators.pty_device import eventually
 
 
 @pytest.fixture

@@ -3,18 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repo root: tests.emulators
-
-from services.actuation.arm_path import ArmPoses, locate, pose_at  # noqa: E402
-from services.actuation.behaviour import ArmCommand  # noqa: E402
-from services.actuation.calibrate import CalibrationAbortedError, calibrate  # noqa: E402
-from services.actuation.feetech import (  # noqa: E402
+from services.actuation.arm_path import ArmPoses, locate, pose_at
+from services.actuation.behaviour import ArmCommand
+from services.actuation.calibrate import CalibrationAbortedError, calibrate
+from services.actuation.feetech import (
     FeetechChecksumError,
     decode_status,
     describe_error,
@@ -23,12 +20,12 @@ from services.actuation.feetech import (  # noqa: E402
     sync_write_packet,
     write_packet,
 )
-from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig  # noqa: E402
-from services.core.config import ConfigError, from_mapping, load_toml  # noqa: E402
-from services.core.geometry import TableLayout  # noqa: E402
-from services.core.serial_link import LinkConfig  # noqa: E402
-from tests.emulators.feetech_emulator import FeetechBusEmulator  # noqa: E402
-from tests.emulators.pty_device import eventually  # noqa: E402
+from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
+from services.core.config import ConfigError, from_mapping, load_toml
+from services.core.geometry import TableLayout
+from tests.emulators.feetech_emulator import FeetechBusEmulator
+from tests.emulators.links import FAST, LINK
+from tests.emulators.pty_device import eventually
 
 ROOT = Path(__file__).resolve().parents[2]
 IDS = (1, 2, 3)
@@ -39,10 +36,6 @@ POSES = ArmPoses(
     above_blue=(1648, 2148, 1948),
     press_blue=(1648, 2348, 1848),
 )
-# Healthy paths use a generous reply timeout (a loaded machine must not fail them); tests of
-# silence use 50 ms so that detection is fast and its bound is visible.
-LINK = LinkConfig(timeout_s=0.5, backoff_initial_s=0.01, backoff_max_s=0.05)
-FAST = LinkConfig(timeout_s=0.05, backoff_initial_s=0.01, backoff_max_s=0.05)
 CFG = FeetechArmConfig(
     ids=IDS,
     move_time_s=2.0,

@@ -3,37 +3,30 @@
 from __future__ import annotations
 
 import math
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repo root: tests.emulators
-
-from services.core.serial_link import LinkConfig  # noqa: E402
-from services.eyes.gaze import GAZE_LEVELS, GazeCommand, attention_gesture  # noqa: E402
-from services.eyes.maestro import (  # noqa: E402
+from services.core.serial_link import LinkConfig
+from services.eyes.gaze import GAZE_LEVELS, GazeCommand, attention_gesture
+from services.eyes.maestro import (
     MaestroConfig,
     MaestroServoDriver,
     describe_errors,
     quarter_us,
     set_target,
 )
-from services.eyes.servos import (  # noqa: E402
+from services.eyes.servos import (
     EyesCalibration,
     ServoCalibration,
     ServoNotConnectedError,
     ServoTargets,
     servo_targets,
 )
-from tests.emulators.maestro_emulator import ERR_PROTOCOL, MaestroEmulator  # noqa: E402
-from tests.emulators.pty_device import eventually  # noqa: E402
-
-# Healthy paths use a generous reply timeout (a loaded machine must not fail them); tests of
-# silence use 50 ms so that detection is fast and its bound is visible.
-LINK = LinkConfig(timeout_s=0.5, backoff_initial_s=0.01, backoff_max_s=0.05)
-FAST = LinkConfig(timeout_s=0.05, backoff_initial_s=0.01, backoff_max_s=0.05)
+from tests.emulators.links import FAST, LINK
+from tests.emulators.maestro_emulator import ERR_PROTOCOL, MaestroEmulator
+from tests.emulators.pty_device import eventually
 
 
 @pytest.fixture
