@@ -178,8 +178,12 @@ class Node:
         """Undeclare everything and close the session (idempotent)."""
         if self.session is None:
             return
-        if self.bad:
-            log.info("%s: bad messages dropped: %s", self.service, dict(self.bad))
+        log.info(
+            "%s: messages handled %s; bad ones dropped %s",
+            self.service,
+            dict(self.received),
+            dict(self.bad) or "none",
+        )
         for h in self._handles:
             h.undeclare()
         self._handles.clear()
