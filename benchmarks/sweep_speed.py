@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from services.analysis.sweep import bias_grid, sweep, sweep_rk4  # noqa: E402
-from services.decision.dynamics import PairParams  # noqa: E402
+from services.model.dynamics import PairParams  # noqa: E402
 
 
 def main() -> int:

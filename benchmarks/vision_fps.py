@@ -37,8 +37,8 @@ import cv2
 from services.core import messages as m
 from services.core.keys import Keys
 from services.core.session import make_config, open_session
+from services.scene.render import SceneRenderer, demo_path
 from services.vision.trackers import TrackerOptions, make_tracker
-from services.vision.trackers.sim import SceneRenderer, demo_path
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 GOAL_FPS = 60.0

@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 
 from services.core import messages as m
+from services.core.cli import Parser
+from services.core.config import load_params
 from services.core.keys import Keys, check_rig
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
 
@@ -94,7 +96,7 @@ class SessionView:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod run`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod run",
         description="Start a Zenoh router and every service as separate processes, and run one "
         "participant's 8 trials. With --sim a synthetic participant stands in for the camera "
@@ -209,9 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConnectionError as exc:
         print(f"nod run: cannot listen on {args.listen}: {exc}", file=sys.stderr)
         return 2
-    from services.config import load_service_config
-
-    n_trials = len(load_service_config(args.params).protocol.trials)
+    n_trials = len(load_params(args.params).protocol.trials)
     view = SessionView(n_trials, compact=args.participants > 1)
     keys = Keys(args.rig)
     subs = [

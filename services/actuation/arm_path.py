@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from services.core.geometry import COLOURS, Colour, colour_sign
+from services.model.geometry import COLOURS, Colour, colour_sign
 
 POSE_NAMES: tuple[str, ...] = ("home", "above_red", "press_red", "above_blue", "press_blue")
 Pose = tuple[int, ...]

@@ -20,6 +20,7 @@ from typing import Any
 from services.actuation.arm_path import POSE_NAMES, ArmPoses
 from services.actuation.feetech import FeetechBus
 from services.actuation.feetech_arm import FeetechArmConfig
+from services.core.cli import Parser
 from services.core.config import ConfigError, from_mapping, load_toml
 from services.core.serial_link import LinkError, SerialLink
 
@@ -123,7 +124,7 @@ def calibrate(
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod actuation calibrate`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod actuation calibrate",
         description="Record the arm's poses (home, above/press red, above/press blue) by hand.",
     )

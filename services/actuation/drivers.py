@@ -9,10 +9,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from services.actuation.arm import ArmDriver, SimArm, SimArmParams
 from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
 from services.core.config import from_mapping, load_toml
-from services.core.geometry import TableLayout
+from services.model.arm import ArmDriver, SimArm, SimArmParams
+from services.model.geometry import TableLayout
 
 ARM_DRIVERS: tuple[str, ...] = ("sim", "feetech")
 

@@ -22,12 +22,12 @@ import logging
 import math
 from dataclasses import dataclass, field
 
-from services.actuation.arm import ArmDriver, ArmNotConnectedError, ArmState
 from services.actuation.arm_path import POSE_NAMES, ArmPoses, Pose, locate, pose_at
-from services.actuation.behaviour import ArmCommand
 from services.actuation.feetech import RESOLUTION, FeetechBus, Series
-from services.core.geometry import Colour, Point, TableLayout, colour_sign
 from services.core.serial_link import LinkConfig, LinkError, SerialLink
+from services.model.arm import ArmDriver, ArmNotConnectedError, ArmState
+from services.model.behaviour import ArmCommand
+from services.model.geometry import Colour, Point, TableLayout, colour_sign
 
 log = logging.getLogger(__name__)
 

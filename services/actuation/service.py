@@ -13,13 +13,15 @@ import logging
 import sys
 from pathlib import Path
 
-from services.actuation.arm import ArmDriver
-from services.actuation.behaviour import ArmCommand, RobotBehaviour
 from services.actuation.drivers import ARM_DRIVERS, make_arm_driver
-from services.config import NodConfig, add_service_args, layout_from_msg, load_service_config
 from services.core import messages as m
+from services.core.cli import Parser, add_service_args
+from services.core.config import load_params
 from services.core.node import Node, setup_logging
-from services.safety.watchdog import SafetyParams, Watchdog
+from services.model.arm import ArmDriver
+from services.model.behaviour import ArmCommand, RobotBehaviour
+from services.model.params import NodConfig
+from services.model.safety import SafetyParams, Watchdog
 from services.safety.wiring import watch_safety_inputs
 
 log = logging.getLogger("nod.actuation")
@@ -67,7 +69,7 @@ class ActuationService:
 
     def on_layout(self, msg: m.Layout) -> None:
         """Use the geometry vision (or the sim) published (takes effect next trial)."""
-        self.layout = layout_from_msg(msg)
+        self.layout = m.layout_from_msg(msg)
 
     def on_trial(self, ev: m.TrialEvent) -> None:
         """Setup: home and reset; go: start Algorithm 2."""
@@ -149,7 +151,7 @@ class ActuationService:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod actuation`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod actuation",
         description="Run Algorithm 2 on z_r and hand poses and drive the arm (default: sim arm).",
     )
@@ -174,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
     try:
-        cfg = load_service_config(args.params)
+        cfg = load_params(args.params)
         safety = cfg.safety
         if args.stale_ms is not None:
             safety = SafetyParams(stale_ms=args.stale_ms, require_alive=safety.require_alive)

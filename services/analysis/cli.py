@@ -13,22 +13,16 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
-from services.decision.dynamics import PairParams
+from services.core.cli import Parser
+from services.model.dynamics import PairParams
 
 PROG = "nod analyze"
 
 
 class UsageError(Exception):
     """A bad input found after parsing; reported as one line with exit code 2."""
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse, but errors are a single line on stderr (no usage dump) and exit code 2."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
 
 
 def _finite(text: str) -> float:
@@ -71,10 +65,10 @@ def load_params(path: str | None) -> PairParams:
     return from_mapping(PairParams, table, "dynamics")
 
 
-def _build_parser() -> _Parser:
-    parser = _Parser(prog=PROG, description="Numerical analysis and statistics (paper Secs 4, 7).")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    cfg = _Parser(add_help=False)
+def _build_parser() -> Parser:
+    parser = Parser(prog=PROG, description="Numerical analysis and statistics (paper Secs 4, 7).")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    cfg = Parser(add_help=False)
     cfg.add_argument(
         "--config",
         metavar="FILE.toml",

@@ -33,7 +33,7 @@ from typing import Literal, TypeAlias
 import numpy as np
 
 from services.analysis.fields import newton, rates
-from services.decision.dynamics import PairParams, jacobian
+from services.model.dynamics import PairParams, jacobian
 
 Stability: TypeAlias = Literal["stable", "unstable", "saddle", "non-hyperbolic"]
 

@@ -17,7 +17,7 @@ from typing import TypeAlias
 
 import numpy as np
 
-from services.decision.dynamics import PairParams, pair_rhs
+from services.model.dynamics import PairParams, pair_rhs
 
 Jac: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 

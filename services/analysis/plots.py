@@ -13,7 +13,7 @@ import numpy as np
 
 from services.analysis.equilibria import Equilibrium, box, deltas
 from services.analysis.sweep import SweepResult
-from services.decision.dynamics import PairParams
+from services.model.dynamics import PairParams
 
 _MARKERS = {
     "stable": dict(marker="o", color="black", markerfacecolor="black"),

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from services.analysis.stuart_maxwell import stuart_maxwell
-from services.experiment.store import QuestionnaireRecord, Store
+from services.store import QuestionnaireRecord, Store
 
 OUTCOMES: tuple[str, ...] = ("C", "CH", "D", "DH")
 TRIALS: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 7, 8)

@@ -50,7 +50,7 @@ from services.analysis.fields import (
     newton,
     rates,
 )
-from services.decision.dynamics import PairParams
+from services.model.dynamics import PairParams
 
 Progress = Callable[[float], None]
 

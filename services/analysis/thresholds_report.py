@@ -5,13 +5,13 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Any
 
-from services.decision.dynamics import PairParams, thresholds
+from services.model.dynamics import PairParams, thresholds
 
 
 def thresholds_report(p: PairParams) -> dict[str, Any]:
     """u, u* = d / (α + γλ) per adjacency eigenvalue λ, u_d* (λ_min), origin eigenvalues.
 
-    All numbers come from `services.decision.dynamics.thresholds`; `u_star` is null for an
+    All numbers come from `services.model.dynamics.thresholds`; `u_star` is null for an
     eigenvalue with α + γλ ≤ 0 (no bifurcation along that mode).
     """
     th = thresholds(p)

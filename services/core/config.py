@@ -14,6 +14,8 @@ import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
+from services.model.params import NodConfig
+
 T = TypeVar("T")
 
 
@@ -98,6 +100,13 @@ def from_mapping(cls: type[T], data: dict[str, Any], where: str = "") -> T:
         return cls(**kwargs)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where or cls.__name__}: {exc}") from None
+
+
+def load_params(path: str | Path | None) -> NodConfig:
+    """A rig's parameters: SPEC defaults, overridden by a TOML file when given."""
+    if path is None:
+        return NodConfig()
+    return from_mapping(NodConfig, load_toml(path))
 
 
 def as_dict(obj: Any) -> dict[str, Any]:

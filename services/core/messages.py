@@ -21,6 +21,8 @@ from typing import Any, ClassVar, Literal, TypeVar
 
 import msgpack
 
+from services.model.geometry import Box, CommitLine, TableLayout
+
 SCHEMA_VERSION = 1
 MAX_PAYLOAD_BYTES = 64 * 1024  # no message of ours comes near this; larger is garbage
 MAX_LANDMARKS = 64
@@ -95,6 +97,21 @@ class VisionFrame(Message):
             raise MessageError("frame: jpeg must hold a JPEG image (starting with FF D8 FF)")
         if len(self.jpeg) > MAX_BLOB_BYTES:
             raise MessageError(f"frame: jpeg of {len(self.jpeg)} bytes exceeds {MAX_BLOB_BYTES}")
+
+
+def layout_from_msg(msg: Layout) -> TableLayout:
+    """The table geometry carried by a `vision/layout` message."""
+    return TableLayout(red=Box(*msg.red), blue=Box(*msg.blue), commit=CommitLine(y=msg.commit_y))
+
+
+def layout_fields(layout: TableLayout) -> dict[str, Any]:
+    """The fields of a `vision/layout` message for a geometry."""
+    r, b = layout.red, layout.blue
+    return {
+        "red": (r.x1, r.y1, r.x2, r.y2),
+        "blue": (b.x1, b.y1, b.x2, b.y2),
+        "commit_y": layout.commit.y,
+    }
 
 
 # --- decision ---------------------------------------------------------------------------------

@@ -6,18 +6,18 @@ package. Every service (`--mode client --connect <this endpoint>`) and any Zenoh
 
 from __future__ import annotations
 
-import argparse
 import sys
 import threading
 from pathlib import Path
 
+from services.core.cli import Parser
 from services.core.node import install_signal_handlers
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run a router until SIGINT/SIGTERM."""
-    p = argparse.ArgumentParser(prog="nod router", description=__doc__.splitlines()[0])
+    p = Parser(prog="nod router", description=__doc__.splitlines()[0])
     p.add_argument(
         "-l",
         "--listen",

@@ -12,10 +12,11 @@ import json
 import logging
 import sys
 
-from services.config import add_service_args, layout_from_msg, load_service_config
 from services.core import messages as m
+from services.core.cli import Parser, add_service_args
+from services.core.config import load_params
 from services.core.node import Node, setup_logging
-from services.decision.model import DecisionModel
+from services.model.decision import DecisionModel
 
 log = logging.getLogger("nod.decision")
 
@@ -54,7 +55,7 @@ class DecisionService:
 
     def on_layout(self, msg: m.Layout) -> None:
         """Use the geometry vision (or the sim) published."""
-        self.model.set_layout(layout_from_msg(msg))
+        self.model.set_layout(m.layout_from_msg(msg))
 
     def on_trial(self, ev: m.TrialEvent) -> None:
         """Reset at setup and at "go": opinions form from the cue on (Algorithm 1 trigger)."""
@@ -66,7 +67,7 @@ class DecisionService:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod decision`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod decision",
         description="Observe the human opinion (eq 7), integrate the robot opinion (eq 1) and "
         "its bias (eq 6), publish ẑ_h, z_r and b_r on every hand pose.",
@@ -80,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
     try:
-        cfg = load_service_config(args.params)
+        cfg = load_params(args.params)
         node = Node("decision", args)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod decision: {exc}", file=sys.stderr)

@@ -24,9 +24,10 @@ import sqlite3
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
-from services.experiment.store import Store
+from services.core.cli import Parser
+from services.store import Store
 
 PROG = "nod export"
 MISSING = "NA"  # how a SQL NULL is written
@@ -85,16 +86,9 @@ def export(db: sqlite3.Connection, out: Path) -> dict[str, int]:
     return counts
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors and exit code 2."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod export`."""
-    p = _Parser(
+    p = Parser(
         prog=PROG,
         description="Write a session database as CSV: sessions.csv, trials.csv, samples.csv, "
         "questionnaires.csv (headers; NA = missing; pandas.read_csv / R read.csv).",

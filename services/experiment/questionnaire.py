@@ -24,9 +24,10 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn, TextIO
+from typing import TextIO
 
-from services.experiment.store import QuestionnaireRecord, Store
+from services.core.cli import Parser
+from services.store import QuestionnaireRecord, Store
 
 PROG = "nod questionnaire"
 LIKERT_MIN, LIKERT_MAX = 1, 10
@@ -217,16 +218,9 @@ def write_csv(records: Iterable[QuestionnaireRecord], out: TextIO) -> None:
         writer.writerow([r.participant, r.q1, r.q2, r.q3, r.q4, r.q5])
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors and exit code 2."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod questionnaire`."""
-    p = _Parser(
+    p = Parser(
         prog=PROG,
         description="Enter (prompted, on stdin) or import (CSV) the Sec 8 questionnaire Q1-Q5.",
     )

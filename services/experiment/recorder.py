@@ -9,9 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from services.core import messages as m
-from services.core.geometry import Colour, TableLayout
-from services.experiment.outcome import OutcomeTracker
-from services.experiment.store import Sample
+from services.model.geometry import Colour, TableLayout
+from services.model.outcome import OutcomeTracker
+from services.store import Sample
 
 
 @dataclass

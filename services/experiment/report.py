@@ -7,12 +7,13 @@ import json
 import sys
 from pathlib import Path
 
-from services.experiment.store import Store
+from services.core.cli import Parser
+from services.store import Store
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod report`."""
-    p = argparse.ArgumentParser(prog="nod report", description="Per-trial results of a session.")
+    p = Parser(prog="nod report", description="Per-trial results of a session.")
     p.add_argument("--db", type=Path, required=True, help="session store written by nod run")
     p.add_argument("--session", default=None, help="session id (default: the latest session)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")

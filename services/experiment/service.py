@@ -18,14 +18,16 @@ from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
 
-from services.config import NodConfig, add_service_args, layout_from_msg, load_service_config
 from services.core import messages as m
+from services.core.cli import Parser, add_service_args
+from services.core.config import load_params
 from services.core.node import Node, install_signal_handlers, setup_logging
-from services.experiment.outcome import OutcomeTracker
-from services.experiment.protocol import TrialSpec
 from services.experiment.recorder import TrialRecorder
-from services.experiment.scoring import score_trial
-from services.experiment.store import Store, TrialRecord
+from services.model.outcome import OutcomeTracker
+from services.model.params import NodConfig
+from services.model.protocol import TrialSpec
+from services.model.scoring import score_trial
+from services.store import Store, TrialRecord
 
 log = logging.getLogger("nod.experiment")
 NS = 1e-9
@@ -55,7 +57,7 @@ class Conductor:
         self.pub_result = node.publisher("experiment/result")
         self.pub_gaze = node.publisher("eyes/cmd")
         node.subscribe("vision/hand", self.on_hand)
-        node.subscribe("vision/layout", lambda msg: setattr(self, "layout", layout_from_msg(msg)))
+        node.subscribe("vision/layout", lambda msg: setattr(self, "layout", m.layout_from_msg(msg)))
         node.subscribe("decision/z_h", lambda msg: self._scalar("z_h", msg))
         node.subscribe("decision/z_r", lambda msg: self._scalar("z_r", msg))
         node.subscribe("decision/b_r", lambda msg: self._scalar("b_r", msg))
@@ -237,7 +239,7 @@ def ask_clicks(trial: int) -> int | None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod experiment`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod experiment",
         description="Conduct one participant's 8 trials and store them in a SQLite file.",
     )
@@ -272,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
     try:
-        cfg = load_service_config(args.params)
+        cfg = load_params(args.params)
         clicks = clicks_source(args.clicks)
         store = Store(args.db)
         node = Node("experiment", args)

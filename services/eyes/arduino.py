@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 from services.core.serial_link import LinkConfig, LinkCorruptError, LinkTimeoutError, SerialLink
 from services.eyes.serial_servo import SerialServoDriver
-from services.eyes.servos import EyesCalibration, ServoTargets
+from services.model.servos import EyesCalibration, ServoTargets
 
 log = logging.getLogger(__name__)
 

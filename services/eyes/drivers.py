@@ -16,7 +16,8 @@ from pathlib import Path
 from services.core.config import from_mapping, load_toml
 from services.eyes.arduino import ArduinoEyesConfig, ArduinoServoDriver
 from services.eyes.maestro import MaestroConfig, MaestroServoDriver
-from services.eyes.servos import EyesCalibration, ServoDriver, SimServoDriver
+from services.eyes.servos import ServoDriver, SimServoDriver
+from services.model.servos import EyesCalibration
 
 EYES_DRIVERS: tuple[str, ...] = ("sim", "maestro", "arduino")
 

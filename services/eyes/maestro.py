@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 from services.core.serial_link import LinkConfig, SerialLink
 from services.eyes.serial_servo import SerialServoDriver
-from services.eyes.servos import EyesCalibration, ServoTargets
+from services.model.servos import EyesCalibration, ServoTargets
 
 SET_TARGET = 0x84
 SET_SPEED = 0x87

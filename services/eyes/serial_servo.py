@@ -13,13 +13,8 @@ import logging
 from abc import abstractmethod
 
 from services.core.serial_link import LinkError, SerialLink
-from services.eyes.servos import (
-    EyesCalibration,
-    ServoDriver,
-    ServoNotConnectedError,
-    ServoTargets,
-    enforce_limits,
-)
+from services.eyes.servos import ServoDriver, ServoNotConnectedError
+from services.model.servos import EyesCalibration, ServoTargets, enforce_limits
 
 log = logging.getLogger(__name__)
 

@@ -13,13 +13,16 @@ import logging
 import sys
 from pathlib import Path
 
-from services.config import NodConfig, add_service_args, load_service_config
 from services.core import messages as m
+from services.core.cli import Parser, add_service_args
+from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.eyes.drivers import EYES_DRIVERS, make_eyes_driver
-from services.eyes.gaze import GazeCommand, attention_gesture
-from services.eyes.servos import ServoDriver, ServoTargets
-from services.safety.watchdog import SafetyParams, Watchdog
+from services.eyes.servos import ServoDriver
+from services.model.gaze import GazeCommand, attention_gesture
+from services.model.params import NodConfig
+from services.model.safety import SafetyParams, Watchdog
+from services.model.servos import ServoTargets
 from services.safety.wiring import watch_safety_inputs
 
 log = logging.getLogger("nod.eyes")
@@ -102,7 +105,7 @@ class EyesService:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod eyes`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod eyes", description="Drive the two servo eyes from gaze commands (Section 5)."
     )
     add_service_args(p)
@@ -131,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
     try:
-        cfg = load_service_config(args.params)
+        cfg = load_params(args.params)
         safety = eyes_safety(cfg, args.stale_ms)
         node = Node("eyes", args)
     except (ValueError, OSError, ConnectionError) as exc:

@@ -25,7 +25,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from services.core import messages as m
-from services.eyes.servos import SERVO_NAMES
+from services.model.servos import SERVO_NAMES
 
 APPLICATION_ID = "nod_hri"
 TIMELINE = "time"  # the message's source timestamp, `t_ns`

@@ -28,6 +28,7 @@ import rerun as rr
 import zenoh
 
 from services.core import messages as m
+from services.core.cli import Parser
 from services.core.keys import TOPICS, Keys
 from services.core.node import install_signal_handlers, setup_logging
 from services.core.session import add_zenoh_args, open_session, zenoh_config
@@ -162,7 +163,7 @@ class Monitor:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod monitor`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod monitor",
         description="Watch every key of a rig in Rerun: opinions, table, arm, eyes, trial "
         "events and safety, stamped with each message's own time. With no sink flag the "

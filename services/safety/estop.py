@@ -9,6 +9,7 @@ import sys
 import time
 
 from services.core import messages as m
+from services.core.cli import Parser
 from services.core.clock import Clock
 from services.core.keys import Keys
 from services.core.session import add_zenoh_args, open_session, zenoh_config
@@ -16,7 +17,7 @@ from services.core.session import add_zenoh_args, open_session, zenoh_config
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod estop`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod estop",
         description="Publish an e-stop on nod/<rig>/safety/estop: the arm holds and the eyes go "
         "neutral until released with --release.",

@@ -10,7 +10,7 @@ from collections.abc import Callable
 
 from services.core import messages as m
 from services.core.node import Node
-from services.safety.watchdog import Watchdog
+from services.model.safety import Watchdog
 
 log = logging.getLogger("nod.safety")
 

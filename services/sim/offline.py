@@ -13,14 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.actuation.arm import SimArm
-from services.actuation.behaviour import RobotBehaviour
-from services.config import NodConfig
-from services.core.geometry import Colour, colour_sign
-from services.decision.model import DecisionModel
-from services.experiment.outcome import OutcomeTracker
-from services.experiment.scoring import score_trial
-from services.sim.participant import Participant, jittered
+from services.model.arm import SimArm
+from services.model.behaviour import RobotBehaviour
+from services.model.decision import DecisionModel
+from services.model.geometry import Colour, colour_sign
+from services.model.outcome import OutcomeTracker
+from services.model.params import NodConfig
+from services.model.participant import Participant, jittered
+from services.model.scoring import score_trial
 
 
 @dataclass(frozen=True, slots=True)

@@ -16,11 +16,13 @@ import sys
 
 import numpy as np
 
-from services.config import NodConfig, add_service_args, layout_fields, load_service_config
 from services.core import messages as m
-from services.core.geometry import colour_sign
+from services.core.cli import Parser, add_service_args
+from services.core.config import load_params
 from services.core.node import Node, setup_logging
-from services.sim.participant import Participant, jittered
+from services.model.geometry import colour_sign
+from services.model.params import NodConfig
+from services.model.participant import Participant, jittered
 
 log = logging.getLogger("nod.sim")
 NS = 1e-9
@@ -51,7 +53,7 @@ class SimService:
         # the hand and the layout itself.
         self.renderer = None
         if render:
-            from services.vision.trackers.sim import SceneRenderer
+            from services.scene.render import SceneRenderer
 
             self.renderer = SceneRenderer(layout=cfg.layout, noise=2.0, seed=seed)
             self.pub_camera = node.publisher("sim/camera")
@@ -131,12 +133,12 @@ class SimService:
 
     def publish_layout(self, now_ns: int) -> None:
         """The table geometry, for every service that needs the boxes."""
-        self.pub_layout.put(t_ns=now_ns, **layout_fields(self.layout))
+        self.pub_layout.put(t_ns=now_ns, **m.layout_fields(self.layout))
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod sim`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod sim",
         description="Publish a synthetic participant's hand on vision/hand (stands in for vision).",
     )
@@ -164,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if not 1.0 <= args.rate <= 1000.0:
             raise ValueError(f"--rate must be in [1, 1000] Hz, got {args.rate}")
-        cfg = load_service_config(args.params)
+        cfg = load_params(args.params)
         node = Node("sim", args, stands_in_for=() if args.render else ("vision",))
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod sim: {exc}", file=sys.stderr)

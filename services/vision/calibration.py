@@ -34,8 +34,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from services.core.cli import Parser
 from services.core.config import ConfigError, from_mapping, load_toml
-from services.core.geometry import Box, CommitLine, TableLayout
+from services.model.geometry import Box, CommitLine, TableLayout
 
 log = logging.getLogger("nod.vision.calibrate")
 
@@ -222,7 +223,7 @@ def grab_frame(source: str, skip: int = 10) -> np.ndarray:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod vision calibrate`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod vision calibrate",
         description="Write the buzzer boxes and the commit line to a calibration file.",
     )

@@ -161,7 +161,7 @@ Opener = Callable[[Source, CaptureParams], VideoLike]
 def open_video(source: Source, params: CaptureParams) -> VideoLike:
     """Open a source with OpenCV (or the renderer for "sim") and apply the requested settings."""
     if source.kind == "sim":
-        from services.vision.trackers.sim import RenderedSource, SceneRenderer, demo_path
+        from services.scene.render import RenderedSource, SceneRenderer, demo_path
 
         renderer = SceneRenderer(width=params.width or 640, height=params.height or 480)
         return RenderedSource(renderer, demo_path(renderer.layout), fps=params.fps or 30.0)

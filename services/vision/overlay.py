@@ -8,8 +8,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from services.core.geometry import TableLayout
 from services.core.messages import MAX_BLOB_BYTES
+from services.model.geometry import TableLayout
 from services.vision.trackers import TrackResult
 
 _BOX_COLOURS = {"red": (0, 0, 255), "blue": (255, 64, 0)}

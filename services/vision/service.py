@@ -28,13 +28,13 @@ from pathlib import Path
 import cv2
 import zenoh
 
-from services.config import add_config_arg, layout_fields, load_service_config
 from services.core import messages as m
+from services.core.cli import Parser, add_params_arg
 from services.core.clock import add_clock_args
-from services.core.config import ConfigError
-from services.core.geometry import TableLayout
+from services.core.config import ConfigError, load_params
 from services.core.node import Node, setup_logging
 from services.core.session import add_zenoh_args
+from services.model.geometry import TableLayout
 from services.vision.calibration import load_calibration
 from services.vision.capture import (
     Capture,
@@ -111,7 +111,7 @@ class VisionService:
         self.pub_hand = HandPublisher(node, lossless=capture.lossless)
         self.pub_layout = node.publisher("vision/layout")
         self.pub_frame = node.publisher("vision/frame") if frames_hz > 0 else None
-        self._layout = layout_fields(layout)
+        self._layout = m.layout_fields(layout)
         self._layout_key = node.keys.topic("vision/layout")
         self._queryable = node.session.declare_queryable(self._layout_key, self._on_layout_query)
         self._latest: tuple[Frame, TrackResult] | None = None
@@ -219,20 +219,20 @@ def load_layout(calibration: Path | None, params: Path | None) -> tuple[TableLay
     if calibration is not None:
         return load_calibration(calibration), str(calibration)
     if params is not None:
-        return load_service_config(params).layout, f"{params} [layout]"
+        return load_params(params).layout, f"{params} [layout]"
     return TableLayout(), "SPEC defaults"
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod vision`."""
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="nod vision",
         description="Capture a camera, track the hand, publish vision/hand, vision/layout and "
         "vision/frame. `nod vision calibrate --help` writes the calibration file.",
     )
     add_zenoh_args(p)
     add_clock_args(p)
-    add_config_arg(p)
+    add_params_arg(p)
     g = p.add_argument_group("capture")
     g.add_argument(
         "--source",
@@ -328,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
             node.close()
         return 2
     log.info("%s: %s", capture.source.label, info.describe(params))
-    log.info("tracker %s; layout from %s: %s", tracker.name, layout_origin, layout_fields(layout))
+    log.info("tracker %s; layout from %s: %s", tracker.name, layout_origin, m.layout_fields(layout))
     try:
         node = node or Node("vision", args)
     except (ValueError, OSError, ConnectionError) as exc:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from services.experiment.protocol import default_schedule
+from services.model.protocol import default_schedule
 
 from .conftest import ROOT, free_port
 

@@ -6,9 +6,7 @@ import pytest
 import serial
 
 from services.actuation.arm_path import ArmPoses
-from services.actuation.behaviour import ArmCommand
 from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
-from services.core.geometry import TableLayout
 from services.core.serial_link import (
     LinkConfig,
     LinkLostError,
@@ -16,8 +14,10 @@ from services.core.serial_link import (
     SerialLink,
 )
 from services.eyes.arduino import ArduinoEyesConfig, ArduinoServoDriver
-from services.eyes.gaze import GazeCommand
 from services.eyes.maestro import MaestroConfig, MaestroServoDriver
+from services.model.behaviour import ArmCommand
+from services.model.gaze import GazeCommand
+from services.model.geometry import TableLayout
 from tests.emulators.arduino_emulator import ArduinoEyesEmulator
 from tests.emulators.feetech_emulator import FeetechBusEmulator
 from tests.emulators.links import LINK

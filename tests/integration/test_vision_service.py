@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from services.core import messages as m
-from services.core.geometry import Box, CommitLine, TableLayout
 from services.core.keys import Keys
 from services.core.session import make_config, open_session
+from services.model.geometry import Box, CommitLine, TableLayout
+from services.scene.render import HandPath, SceneRenderer, demo_path, write_video
 from services.vision.calibration import dump_calibration
-from services.vision.trackers.sim import HandPath, SceneRenderer, demo_path, write_video
 
 from .conftest import ROOT, Collector, wait_for
 

@@ -15,8 +15,8 @@ from services.eyes.arduino import (
     crc8,
     encode_frame,
 )
-from services.eyes.gaze import GAZE_LEVELS, GazeCommand
-from services.eyes.servos import EyesCalibration, ServoCalibration, servo_targets
+from services.model.gaze import GAZE_LEVELS, GazeCommand
+from services.model.servos import EyesCalibration, ServoCalibration, servo_targets
 from tests.emulators.arduino_emulator import ArduinoEyesEmulator, crc8_smbus
 from tests.emulators.links import FAST, LINK
 from tests.emulators.pty_device import eventually

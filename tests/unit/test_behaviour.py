@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.actuation.behaviour import ArmCommand, BehaviourParams, RobotBehaviour
-from services.core.geometry import TableLayout
+from services.model.behaviour import ArmCommand, BehaviourParams, RobotBehaviour
+from services.model.geometry import TableLayout
 
 LAYOUT = TableLayout()
 HOME = (0.5, 0.08)

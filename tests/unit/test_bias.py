@@ -9,15 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.core.geometry import colour_sign
-from services.decision.bias import (
+from services.model.bias import (
     BiasParams,
     beta_for,
     bias_rate,
     clamp_bias,
     sigma_for,
 )
-from services.decision.model import DecisionModel, DecisionParams
+from services.model.decision import DecisionModel, DecisionParams
+from services.model.geometry import colour_sign
 
 P = BiasParams()
 B_STAR = P.threshold(2.24)

@@ -8,10 +8,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.core.geometry import Box, TableLayout
-from services.decision.bias import BiasParams
-from services.decision.dynamics import PairParams, rk4_step, robot_rate
-from services.decision.model import DecisionModel, DecisionParams
+from services.model.bias import BiasParams
+from services.model.decision import DecisionModel, DecisionParams
+from services.model.dynamics import PairParams, rk4_step, robot_rate
+from services.model.geometry import Box, TableLayout
 
 NS = 1_000_000_000
 

@@ -26,17 +26,17 @@ def test_systemd_units_use_known_roles():
 
 
 def test_example_params_load_and_match_the_defaults():
-    from services.config import NodConfig, load_service_config
+    from services.core.config import load_params
+    from services.model.params import NodConfig
 
-    cfg = load_service_config(DEPLOY / "params.example.toml")
+    cfg = load_params(DEPLOY / "params.example.toml")
     assert cfg == NodConfig()
 
 
 def test_unknown_param_key_is_named(tmp_path):
-    from services.config import load_service_config
-    from services.core.config import ConfigError
+    from services.core.config import ConfigError, load_params
 
     bad = tmp_path / "p.toml"
     bad.write_text("[decision.bias]\nsigmaa = 0.1\n")
     with pytest.raises(ConfigError, match="sigmaa"):
-        load_service_config(bad)
+        load_params(bad)

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.decision.dynamics import (
+from services.model.dynamics import (
     AgentParams,
     PairParams,
     human_rate,

@@ -18,7 +18,7 @@ from services.analysis.equilibria import (
 )
 from services.analysis.fields import max_rate
 from services.analysis.sweep import _rk4
-from services.decision.dynamics import AgentParams, PairParams, jacobian
+from services.model.dynamics import AgentParams, PairParams, jacobian
 
 P = PairParams()
 U = P.robot.u

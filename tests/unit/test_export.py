@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.experiment.export import MISSING, main
-from services.experiment.store import QuestionnaireRecord, Sample, Store, TrialRecord
+from services.store import QuestionnaireRecord, Sample, Store, TrialRecord
 
 ROOT = Path(__file__).resolve().parents[2]
 TABLES = ("sessions", "trials", "samples", "questionnaires")

@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 
 from services.actuation.arm_path import ArmPoses, locate, pose_at
-from services.actuation.behaviour import ArmCommand
 from services.actuation.calibrate import CalibrationAbortedError, calibrate
 from services.actuation.feetech import (
     FeetechChecksumError,
@@ -22,7 +21,8 @@ from services.actuation.feetech import (
 )
 from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
 from services.core.config import ConfigError, from_mapping, load_toml
-from services.core.geometry import TableLayout
+from services.model.behaviour import ArmCommand
+from services.model.geometry import TableLayout
 from tests.emulators.feetech_emulator import FeetechBusEmulator
 from tests.emulators.links import FAST, LINK
 from tests.emulators.pty_device import eventually
@@ -255,8 +255,8 @@ def test_calibrate_abort_writes_nothing(bus, tmp_path):
 
 
 def test_factory_builds_each_arm_driver():
-    from services.actuation.arm import SimArm, SimArmParams
     from services.actuation.drivers import make_arm_driver
+    from services.model.arm import SimArm, SimArmParams
 
     example = ROOT / "deploy/hardware/arm.example.toml"
     sim = make_arm_driver("sim", None, None, LAYOUT, SimArmParams(), t0=5.0)

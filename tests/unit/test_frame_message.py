@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from services.core import messages as m
-from services.core.geometry import TableLayout
 from services.core.keys import Keys
+from services.model.geometry import TableLayout
+from services.scene.render import SceneRenderer
 from services.vision.overlay import monitor_jpeg
 from services.vision.trackers import TrackResult
-from services.vision.trackers.sim import SceneRenderer
 
 
 def _raw(**fields):

@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.eyes.gaze import (
+from services.eyes.servos import ServoDriver, ServoNotConnectedError, SimServoDriver
+from services.model.gaze import (
     GAZE_LEVEL_NAMES,
     GAZE_LEVELS,
     AttentionGestureParams,
@@ -16,14 +17,11 @@ from services.eyes.gaze import (
     attention_gesture,
     gaze_level,
 )
-from services.eyes.servos import (
+from services.model.servos import (
     SERVO_NAMES,
     EyesCalibration,
     ServoCalibration,
-    ServoDriver,
-    ServoNotConnectedError,
     ServoTargets,
-    SimServoDriver,
     enforce_limits,
     servo_targets,
 )

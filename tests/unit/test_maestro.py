@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 
 from services.core.serial_link import LinkConfig
-from services.eyes.gaze import GAZE_LEVELS, GazeCommand, attention_gesture
 from services.eyes.maestro import (
     MaestroConfig,
     MaestroServoDriver,
@@ -17,13 +16,9 @@ from services.eyes.maestro import (
     quarter_us,
     set_target,
 )
-from services.eyes.servos import (
-    EyesCalibration,
-    ServoCalibration,
-    ServoNotConnectedError,
-    ServoTargets,
-    servo_targets,
-)
+from services.eyes.servos import ServoNotConnectedError
+from services.model.gaze import GAZE_LEVELS, GazeCommand, attention_gesture
+from services.model.servos import EyesCalibration, ServoCalibration, ServoTargets, servo_targets
 from tests.emulators.links import FAST, LINK
 from tests.emulators.maestro_emulator import ERR_PROTOCOL, MaestroEmulator
 from tests.emulators.pty_device import eventually

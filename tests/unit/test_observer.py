@@ -8,8 +8,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from services.core.geometry import Box, TableLayout
-from services.decision.observer import (
+from services.model.geometry import Box, TableLayout
+from services.model.observer import (
     HumanObserver,
     ObserverParams,
     anchor_point,

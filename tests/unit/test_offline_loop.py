@@ -4,7 +4,7 @@ from collections import Counter
 
 import pytest
 
-from services.config import NodConfig
+from services.model.params import NodConfig
 from services.sim.offline import run_offline_session
 
 

@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.core.geometry import CommitLine
-from services.experiment.outcome import (
+from services.model.geometry import CommitLine
+from services.model.outcome import (
     OutcomeTracker,
     classify,
     count_switches,

@@ -19,7 +19,7 @@ from services.analysis.study import (
     q3_test,
     stuart_maxwell_doc,
 )
-from services.experiment.store import QuestionnaireRecord
+from services.store import QuestionnaireRecord
 
 N = 51  # participants (Sec 3.2.2)
 

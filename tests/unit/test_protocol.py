@@ -7,13 +7,13 @@ import dataclasses
 import pytest
 
 from services.core.config import ConfigError, from_mapping
-from services.experiment.protocol import (
+from services.model.gaze import GAZE_LEVELS, AttentionGestureParams, GazeCommand
+from services.model.protocol import (
     ProtocolParams,
     TrialSpec,
     default_schedule,
     trial_timeline,
 )
-from services.eyes.gaze import GAZE_LEVELS, AttentionGestureParams, GazeCommand
 
 EXPECTED = [
     # index, mode, option, level, yaw, pitch, gesture

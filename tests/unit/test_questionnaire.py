@@ -24,7 +24,7 @@ from services.experiment.questionnaire import (
     read_csv,
     write_csv,
 )
-from services.experiment.store import QuestionnaireRecord, Store
+from services.store import QuestionnaireRecord, Store
 
 ROOT = Path(__file__).resolve().parents[2]
 HEADER = "participant,q1,q2,q3,q4,q5\n"

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from services.experiment.scoring import TrialScore, score_range, score_trial, session_score
+from services.model.scoring import TrialScore, score_range, score_trial, session_score
 
 
 @pytest.mark.parametrize(

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.actuation.arm import ArmDriver, ArmNotConnectedError, SimArm, SimArmParams
-from services.actuation.behaviour import ArmCommand, BehaviourParams, RobotBehaviour
-from services.core.geometry import TableLayout
+from services.model.arm import ArmDriver, ArmNotConnectedError, SimArm, SimArmParams
+from services.model.behaviour import ArmCommand, BehaviourParams, RobotBehaviour
+from services.model.geometry import TableLayout
 
 LAYOUT = TableLayout()
 P = SimArmParams()

@@ -26,9 +26,9 @@ from services.analysis.study import (
     phase_category,
     q3_test,
 )
-from services.config import NodConfig
-from services.experiment.store import QuestionnaireRecord, Sample, Store, TrialRecord
+from services.model.params import NodConfig
 from services.sim.offline import OfflineTrial, run_offline_session
+from services.store import QuestionnaireRecord, Sample, Store, TrialRecord
 
 ROOT = Path(__file__).resolve().parents[2]
 SEEDS = range(12)

@@ -21,7 +21,7 @@ from services.analysis.sweep import (
     sweep,
     sweep_rk4,
 )
-from services.decision.dynamics import AgentParams, PairParams
+from services.model.dynamics import AgentParams, PairParams
 
 P = PairParams()
 U = P.robot.u

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from services.core.config import ConfigError
-from services.core.geometry import Box, CommitLine, TableLayout
+from services.model.geometry import Box, CommitLine, TableLayout
+from services.scene.render import SceneRenderer
 from services.vision.calibration import (
     CalibrationError,
     box_from_numbers,
@@ -15,7 +16,6 @@ from services.vision.calibration import (
     main,
 )
 from services.vision.service import main as vision_main
-from services.vision.trackers.sim import SceneRenderer
 
 MIRRORED = TableLayout(
     red=Box(0.10, 0.08, 0.30, 0.30), blue=Box(0.65, 0.10, 0.90, 0.28), commit=CommitLine(0.5)

@@ -4,10 +4,10 @@ import importlib.util
 
 import pytest
 
-from services.core.geometry import Box, TableLayout
+from services.model.geometry import Box, TableLayout
+from services.scene.render import SceneRenderer, demo_path, write_video
 from services.vision.calibration import dump_calibration
 from services.vision.service import load_layout, main
-from services.vision.trackers.sim import SceneRenderer, demo_path, write_video
 
 
 def test_layout_comes_from_calibration_then_params_then_spec(tmp_path):

@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from services.core.geometry import Box, TableLayout
+from services.model.geometry import HAND_TEMPLATE, Box, TableLayout
+from services.scene.render import HandPath, RenderedSource, SceneRenderer, demo_path, write_video
 from services.vision.capture import Capture, Source
 from services.vision.trackers import (
     NOT_DETECTED,
@@ -16,15 +17,7 @@ from services.vision.trackers import (
     make_tracker,
 )
 from services.vision.trackers.aruco import ArucoTracker
-from services.vision.trackers.sim import (
-    HAND_TEMPLATE,
-    HandPath,
-    RenderedSource,
-    SceneRenderer,
-    SimTracker,
-    demo_path,
-    write_video,
-)
+from services.vision.trackers.sim import SimTracker
 
 TOL = 0.01  # normalised: the bound on the centre error
 

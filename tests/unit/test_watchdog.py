@@ -2,7 +2,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from services.safety.watchdog import SafetyParams, Watchdog
+from services.model.safety import SafetyParams, Watchdog
 
 MS = 1_000_000
 

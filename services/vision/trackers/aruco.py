@@ -16,6 +16,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from services.scene.markers import aruco_dictionary
 from services.vision.trackers import (
     NOT_DETECTED,
     HandTracker,
@@ -23,15 +24,6 @@ from services.vision.trackers import (
     TrackResult,
     normalised,
 )
-
-
-def aruco_dictionary(name: str) -> cv2.aruco.Dictionary:
-    """A predefined dictionary by its cv2.aruco name, e.g. "DICT_4X4_50"."""
-    code = getattr(cv2.aruco, name, None) if name.startswith("DICT_") else None
-    if not isinstance(code, int):
-        known = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_") and n.isupper())
-        raise ValueError(f"unknown ArUco dictionary {name!r}; known: {', '.join(known)}")
-    return cv2.aruco.getPredefinedDictionary(code)
 
 
 class MarkerDetector:

@@ -12,9 +12,11 @@ from __future__ import annotations
 import json
 import sqlite3
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
+
+from services.store.records import QuestionnaireRecord, Sample, TrialRecord
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS sessions (
@@ -72,58 +74,6 @@ CREATE TABLE IF NOT EXISTS questionnaires (
     source      TEXT NOT NULL
 );
 """
-
-
-@dataclass(frozen=True, slots=True)
-class TrialRecord:
-    """One finished trial as stored."""
-
-    trial: int
-    mode: str
-    option: str | None
-    gaze_level: str
-    yaw: float
-    pitch: float
-    t_go_ns: int | None
-    t_end_ns: int | None
-    human: str | None
-    robot: str | None
-    outcome: str | None
-    switches: int
-    violations: int
-    clicks: int | None
-    score: int
-    end_reason: str
-
-
-@dataclass(frozen=True, slots=True)
-class Sample:
-    """One decimated sample of a trial's streams."""
-
-    t_ns: int
-    detected: bool
-    hand_x: float | None
-    hand_y: float | None
-    z_h: float | None
-    z_r: float | None
-    b_r: float | None
-    ee_x: float | None
-    ee_y: float | None
-
-
-@dataclass(frozen=True, slots=True)
-class QuestionnaireRecord:
-    """One participant's answers to Q1-Q5 of Sec 8 (validated by services.experiment.questionnaire).
-
-    Q1, Q2, Q4, Q5 are Likert ratings 1-10; Q3 is 'Yes', 'No' or 'Maybe'.
-    """
-
-    participant: str
-    q1: int
-    q2: int
-    q3: str
-    q4: int
-    q5: int
 
 
 class Store:

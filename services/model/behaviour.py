@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
 
-from services.core.geometry import Colour, Point, TableLayout, colour_sign, sign_colour
+from services.model.geometry import Colour, Point, TableLayout, colour_sign, sign_colour
 
 Action: TypeAlias = Literal["idle", "stop", "move", "press"]
 Phase: TypeAlias = Literal["idle", "waiting", "moving", "pausing", "pressing", "done", "aborted"]

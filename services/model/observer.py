@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from services.core.geometry import Colour, Point, TableLayout
+from services.model.geometry import Colour, Point, TableLayout
 
 _TWO_PI = 2.0 * math.pi
 _HALF_PI = 0.5 * math.pi

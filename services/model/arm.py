@@ -16,8 +16,8 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from types import TracebackType
 
-from services.actuation.behaviour import ArmCommand
-from services.core.geometry import Colour, Point, TableLayout
+from services.model.behaviour import ArmCommand
+from services.model.geometry import Colour, Point, TableLayout
 
 
 class ArmNotConnectedError(RuntimeError):

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.core.geometry import Colour, colour_sign
-from services.decision.dynamics import ArrayLike
+from services.model.dynamics import ArrayLike
+from services.model.geometry import Colour, colour_sign
 
 
 @dataclass(frozen=True, slots=True)

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
 
-from services.core.geometry import Colour
+from services.model.geometry import Colour
 
 GazeLevelName: TypeAlias = Literal[
     "neutral", "minimal", "low", "moderate", "significant", "extreme"

@@ -13,10 +13,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal, TypeAlias
 
-from services.core.geometry import Colour, Point, TableLayout
-from services.decision.bias import BiasParams, beta_for, sigma_for
-from services.decision.dynamics import PairParams
-from services.decision.observer import HumanObserver, Observation, ObserverParams
+from services.model.bias import BiasParams, beta_for, sigma_for
+from services.model.dynamics import PairParams
+from services.model.geometry import Colour, Point, TableLayout
+from services.model.observer import HumanObserver, Observation, ObserverParams
 
 Mode: TypeAlias = Literal["dissensus", "consensus"]
 MODES: tuple[Mode, Mode] = ("dissensus", "consensus")

@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
 
-from services.core.geometry import Colour, CommitLine, Point
+from services.model.geometry import Colour, CommitLine, Point
 
 Outcome: TypeAlias = Literal["C", "CH", "D", "DH"]
 OUTCOMES: tuple[Outcome, ...] = ("C", "CH", "D", "DH")

@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.core.geometry import Colour, Point, TableLayout, colour_sign
-from services.decision.dynamics import AgentParams
+from services.model.dynamics import AgentParams
+from services.model.geometry import Colour, Point, TableLayout, colour_sign
 
 # A flat hand seen from above, 21 MediaPipe-ordered landmarks relative to the palm centre
 # (wrist, thumb ×4, index ×4, middle ×4, ring ×4, little ×4), in units of the hand radius.

@@ -11,13 +11,13 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal, TypeAlias
 
-from services.core.geometry import Colour
-from services.eyes.gaze import (
+from services.model.gaze import (
     GAZE_LEVEL_NAMES,
     AttentionGestureParams,
     GazeCommand,
     attention_gesture,
 )
+from services.model.geometry import Colour
 
 Mode: TypeAlias = Literal["dissensus", "consensus"]
 
@@ -29,7 +29,7 @@ class TrialSpec:
     index: int  # 1-based trial number within a session
     mode: Mode  # "dissensus": b_r ≡ 0, controller off; "consensus": bias controller toward option
     option: Colour | None  # the convergence option O (consensus only; None in dissensus)
-    gaze_level: str  # name of the gaze level (services.eyes.gaze.GAZE_LEVEL_NAMES)
+    gaze_level: str  # name of the gaze level (services.model.gaze.GAZE_LEVEL_NAMES)
     yaw: float  # gaze yaw (rad), > 0 toward red
     pitch: float  # gaze pitch (rad)
     attention_gesture: bool = False  # run the attention gesture before setting the gaze

@@ -9,9 +9,26 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal, TypeAlias
 
+import numpy as np
+
 Point: TypeAlias = tuple[float, float]
 Colour: TypeAlias = Literal["red", "blue"]
 COLOURS: tuple[Colour, Colour] = ("red", "blue")
+
+# A flat right hand seen from above, fingers toward −y (the buzzers), in units of the hand
+# radius; MediaPipe order: wrist, thumb CMC..tip, index MCP..tip, middle, ring, little. The one
+# hand shape of the project: the simulated participant's landmarks, the rendered camera's hand
+# and the `sim` tracker's pose all use it.
+_HAND = np.array(
+    [(0.0, 0.9)]
+    + [(-0.35, 0.6), (-0.6, 0.35), (-0.8, 0.1), (-0.95, -0.1)]
+    + [(-0.32, -0.25), (-0.34, -0.6), (-0.36, -0.85), (-0.38, -1.05)]
+    + [(-0.05, -0.3), (-0.05, -0.7), (-0.05, -0.97), (-0.05, -1.2)]
+    + [(0.2, -0.25), (0.23, -0.62), (0.25, -0.88), (0.27, -1.08)]
+    + [(0.42, -0.15), (0.5, -0.42), (0.55, -0.62), (0.6, -0.8)]
+)
+HAND_TEMPLATE: np.ndarray = _HAND - _HAND.mean(axis=0)  # zero mean: centre = mean of landmarks
+HAND_TEMPLATE.setflags(write=False)
 
 
 def colour_sign(colour: Colour) -> int:

@@ -1,0 +1,37 @@
+"""What every `nod` command line shares: one-line errors, the session flags, `--params`, `-v`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import NoReturn
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse whose errors are one line on stderr (no usage dump), with exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print `prog: error: message` on one line and exit 2."""
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
+def add_params_arg(parser: argparse.ArgumentParser) -> None:
+    """Add `--params FILE.toml` (SPEC defaults when absent)."""
+    parser.add_argument(
+        "--params",
+        type=Path,
+        default=None,
+        metavar="FILE.toml",
+        help="experiment parameters overriding SPEC defaults (see deploy/params.example.toml)",
+    )
+
+
+def add_service_args(parser: argparse.ArgumentParser) -> None:
+    """Every service's common flags: zenoh session, shared clock, `--params`, `-v`."""
+    from services.core.clock import add_clock_args
+    from services.core.session import add_zenoh_args
+
+    add_zenoh_args(parser)
+    add_clock_args(parser)
+    add_params_arg(parser)
+    parser.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
