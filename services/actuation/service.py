@@ -35,7 +35,8 @@ class ActuationService:
         self.node = node
         self.layout = cfg.layout
         self.arm = arm
-        self.behaviour = RobotBehaviour(cfg.layout, cfg.behaviour)
+        self.cfg = cfg
+        self.behaviour = RobotBehaviour(cfg.layout, cfg.behaviour, cfg.debounce)
         self.watchdog = Watchdog(safety, ("z_r", "hand"))
         self.trial = 0
         self.human_pressed: str | None = None
@@ -75,13 +76,14 @@ class ActuationService:
         """Setup: home and reset; go: start Algorithm 2."""
         if ev.phase == "setup":
             self.trial = ev.trial
-            self.behaviour = RobotBehaviour(self.layout, self.behaviour.params)
+            self.behaviour = RobotBehaviour(self.layout, self.cfg.behaviour, self.cfg.debounce)
             self.human_pressed = None
             self.press_published = False
             self.arm.state(self._now(ev.t_ns))
             self._send(self.arm.home(), ev.t_ns)
         elif ev.phase == "go" and ev.trial == self.trial:
-            self._apply(self.behaviour.start(self._now(ev.t_ns)), ev.t_ns)
+            timeout = self.cfg.protocol.trial_timeout_s
+            self._apply(self.behaviour.start(self._now(ev.t_ns), timeout), ev.t_ns)
 
     # -- control -------------------------------------------------------------------------------
 

@@ -32,8 +32,8 @@ from typing import Literal, TypeAlias
 
 import numpy as np
 
-from services.analysis.fields import newton, rates
-from services.model.dynamics import PairParams, jacobian
+from services.analysis.fields import newton
+from services.model.dynamics import PairParams, jacobian, pair_rhs
 
 Stability: TypeAlias = Literal["stable", "unstable", "saddle", "non-hyperbolic"]
 
@@ -72,7 +72,7 @@ def deltas(
     """(Δ1, Δ2) of eqs 4-5 (requires u_r, u_h > 0)."""
     if p.robot.u <= 0 or p.human.u <= 0:
         raise ValueError("Δ1, Δ2 (eqs 4-5) divide by u: both agents need u > 0")
-    f_r, f_h = rates(np.asarray(z_r, float), np.asarray(z_h, float), b_r, b_h, p)
+    f_r, f_h = pair_rhs(np.asarray(z_r, float), np.asarray(z_h, float), b_r, b_h, p)
     return f_r / p.robot.u, f_h / p.human.u
 
 
@@ -142,7 +142,7 @@ def _phi(z_h: np.ndarray, b_r: float, p: PairParams) -> np.ndarray:
 def _h(z_h: np.ndarray, b_r: float, b_h: float, p: PairParams) -> np.ndarray:
     """H(z_h) = ż_h at (φ(z_h), z_h): zero exactly at the equilibria."""
     z_r = _phi(z_h, b_r, p)
-    return rates(z_r, z_h, b_r, b_h, p)[1]
+    return pair_rhs(z_r, z_h, b_r, b_h, p)[1]
 
 
 def _by_reduction(b_r: float, b_h: float, p: PairParams, grid: int) -> list[tuple[float, float]]:
@@ -237,7 +237,7 @@ def _by_multistart(
 
 def _residual(z_r: float, z_h: float, b_r: float, b_h: float, p: PairParams) -> float:
     """max(|Δ1|, |Δ2|), or max(|ż_r|, |ż_h|) for an agent with u = 0."""
-    f_r, f_h = rates(np.float64(z_r), np.float64(z_h), b_r, b_h, p)
+    f_r, f_h = pair_rhs(np.float64(z_r), np.float64(z_h), b_r, b_h, p)
     u_r = p.robot.u if p.robot.u > 0 else 1.0
     u_h = p.human.u if p.human.u > 0 else 1.0
     return float(max(abs(f_r) / u_r, abs(f_h) / u_h))

@@ -48,9 +48,8 @@ from services.analysis.fields import (
     log_norm,
     max_rate,
     newton,
-    rates,
 )
-from services.model.dynamics import PairParams
+from services.model.dynamics import PairParams, rk4_pair
 
 Progress = Callable[[float], None]
 
@@ -119,28 +118,6 @@ def _check_run(dt: float, horizon: float, tol: float) -> int:
     return max(1, round(horizon / dt))
 
 
-def _rk4(
-    z_r: np.ndarray,
-    z_h: np.ndarray,
-    b_r: np.ndarray,
-    b_h: np.ndarray,
-    p: PairParams,
-    dt: float,
-    steps: int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """`steps` classical RK4 steps of eqs 1-2, on the two components separately."""
-    half = 0.5 * dt
-    sixth = dt / 6.0
-    for _ in range(steps):
-        k1r, k1h = rates(z_r, z_h, b_r, b_h, p)
-        k2r, k2h = rates(z_r + half * k1r, z_h + half * k1h, b_r, b_h, p)
-        k3r, k3h = rates(z_r + half * k2r, z_h + half * k2h, b_r, b_h, p)
-        k4r, k4h = rates(z_r + dt * k3r, z_h + dt * k3h, b_r, b_h, p)
-        z_r = z_r + sixth * (k1r + 2.0 * (k2r + k3r) + k4r)
-        z_h = z_h + sixth * (k1h + 2.0 * (k2h + k3h) + k4h)
-    return z_r, z_h
-
-
 def sweep_rk4(
     b_r: np.ndarray,
     b_h: np.ndarray,
@@ -161,7 +138,7 @@ def sweep_rk4(
     done = 0
     while done < steps:
         n = min(chunk, steps - done)
-        z_r, z_h = _rk4(z_r, z_h, br, bh, p, dt, n)
+        z_r, z_h = rk4_pair(z_r, z_h, br, bh, p, dt, n)
         done += n
         if progress is not None:
             progress(done / steps)
@@ -204,7 +181,7 @@ def sweep(
         # Check every `check_every` s at first, then at geometrically growing intervals: the
         # few slow points left late cost more in per-check overhead than in integration.
         n = min(max(chunk, done // 8), steps - done)
-        z_r, z_h = _rk4(z_r, z_h, br, bh, p, dt, n)
+        z_r, z_h = rk4_pair(z_r, z_h, br, bh, p, dt, n)
         done += n
         finished = _certified(z_r, z_h, br, bh, p, lip, tol, screen)
         if finished is not None:

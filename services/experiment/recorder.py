@@ -7,11 +7,14 @@ stored samples line up exactly even when messages arrive interleaved.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-from services.core import messages as m
 from services.model.geometry import Colour, TableLayout
 from services.model.outcome import OutcomeTracker
-from services.store import Sample
+from services.store.records import Sample
+
+if TYPE_CHECKING:  # the recorder reads decoded messages; it needs no codec
+    from services.core import messages as m
 
 
 @dataclass

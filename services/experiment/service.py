@@ -1,9 +1,10 @@
 """`nod experiment`: the conductor of one participant's session.
 
-For each trial of the schedule: set the gaze (the eyes play the attention gesture where asked),
-announce the setup (decision and actuation reset), count "1, 2, 3, go", record the streams, end
-at the human's press (or the timeout) once the robot has pressed, classify, score, store the trial
-with its samples in one SQLite transaction, and publish the result.
+It drives the protocol state machine (`services.model.protocol.SessionProtocol`, the same one
+the offline loop drives) and does what its cues say: command the gaze (the attention gesture's
+poses too), announce the setup (decision and actuation reset), count "1, 2, 3, go", record the
+streams, and at the end of a trial (the human's press or the timeout, then the robot's press)
+judge it, store it with its samples in one SQLite transaction, and publish the result.
 """
 
 from __future__ import annotations
@@ -23,16 +24,18 @@ from services.core.cli import Parser, add_service_args
 from services.core.config import load_params
 from services.core.node import Node, install_signal_handlers, setup_logging
 from services.experiment.recorder import TrialRecorder
-from services.model.outcome import OutcomeTracker
+from services.model.outcome import OutcomeTracker, judge_trial
 from services.model.params import NodConfig
-from services.model.protocol import TrialSpec
-from services.model.scoring import score_trial
+from services.model.protocol import Cue, SessionProtocol, TrialSpec
 from services.store import Store, TrialRecord
 
 log = logging.getLogger("nod.experiment")
 NS = 1e-9
 REQUIRED = ("decision", "actuation", "eyes", "vision")
 SAMPLE_HZ = 60.0  # stored samples are decimated to this rate (a 30 Hz camera passes whole)
+# The gaze is repeated this often: the eyes' watchdog holds them neutral when it goes stale
+# (250 ms), so the keep-alive runs 5x faster than that bound, with room for a busy host.
+GAZE_KEEPALIVE_NS = 50_000_000
 
 
 class Conductor:
@@ -52,6 +55,9 @@ class Conductor:
         self.robot_press: m.PressMsg | None = None
         self.trial = 0
         self.gaze_msg: dict[str, object] | None = None
+        self._keepalive_ns = 0
+        self.session = ""
+        self.records: list[TrialRecord] = []
         self._hands: OrderedDict[int, m.HandPose] = OrderedDict()
         self.pub_trial = node.publisher("experiment/trial")
         self.pub_result = node.publisher("experiment/result")
@@ -92,22 +98,8 @@ class Conductor:
 
     # -- the script (main thread) ----------------------------------------------------------
 
-    def wait(self, sim_s: float, until: Callable[[], bool] | None = None) -> bool:
-        """Wait up to sim_s of simulated time (keeping the gaze alive); True if `until` held."""
-        end = self.node.clock.now_ns() + int(sim_s * 1e9)
-        last_keepalive = 0
-        while not self.node.stop.is_set():
-            now = self.node.clock.now_ns()
-            with self.node.lock:
-                if until is not None and until():
-                    return True
-                if self.gaze_msg is not None and now - last_keepalive >= 200_000_000:
-                    self.pub_gaze.put(t_ns=now, **self.gaze_msg)
-                    last_keepalive = now
-            if now >= end:
-                return False
-            self.node.stop.wait(min(0.005, self.node.clock.wall_seconds(0.02)))
-        raise KeyboardInterrupt
+    def _now_s(self) -> float:
+        return self.node.clock.now_ns() * NS
 
     def wait_for_services(self, timeout_s: float) -> None:
         """Block until every required service's liveliness token is seen (wall clock)."""
@@ -119,16 +111,30 @@ class Conductor:
             time.sleep(0.02)
 
     def run_session(self, session: str, participant: str, seed: int | None) -> list[TrialRecord]:
-        """Run every trial of the schedule; store and return the records."""
+        """Run every trial of the schedule through the protocol machine; store the records."""
         started = self.node.clock.now_ns()
         self.store.begin_session(
             session, participant, self.node.keys.rig, seed, started, self.cfg.summary()
         )
-        records: list[TrialRecord] = []
+        self.session = session
+        self.records = []
+        protocol = SessionProtocol(self.proto)
         status = "aborted"
         try:
-            for spec in self.proto.trials:
-                records.append(self.run_trial(session, spec))
+            with self.node.lock:
+                cues = protocol.start(self._now_s())
+            while True:
+                self._perform(protocol, cues)
+                if protocol.done:
+                    break
+                self._wait(protocol.next_due())
+                with self.node.lock:
+                    rec = self.recorder
+                    cues = protocol.advance(
+                        self._now_s(),
+                        human_pressed=rec is not None and rec.human is not None,
+                        robot_pressed=self.robot_press is not None,
+                    )
             status = "complete"
         finally:
             self.store.finish_session(session, self.node.clock.now_ns(), status)
@@ -139,88 +145,104 @@ class Conductor:
                 session=session,
                 text=status,
             )
-        return records
+        return self.records
 
-    def run_trial(self, session: str, spec: TrialSpec) -> TrialRecord:
-        """One trial, from the gaze cue to the stored result."""
-        p = self.proto
-        ev = {"trial": spec.index, "mode": spec.mode, "option": spec.option, "session": session}
+    def _wait(self, due_s: float) -> None:
+        """Sleep until the protocol's next deadline (or ≤ 5 ms), keeping the gaze alive."""
+        end_ns = min(int(due_s * 1e9), self.node.clock.now_ns() + 5_000_000)
+        while not self.node.stop.is_set():
+            now = self.node.clock.now_ns()
+            with self.node.lock:
+                if self.gaze_msg is not None and now - self._keepalive_ns >= GAZE_KEEPALIVE_NS:
+                    self.pub_gaze.put(t_ns=now, **self.gaze_msg)
+                    self._keepalive_ns = now
+            if now >= end_ns:
+                return
+            self.node.stop.wait(min(0.005, self.node.clock.wall_seconds((end_ns - now) * NS)))
+        raise KeyboardInterrupt
+
+    def _perform(self, protocol: SessionProtocol, cues: list[Cue]) -> None:
+        """Do what the protocol asks, in order (an "end" cue may bring the next trial's cues)."""
+        while cues:
+            cue = cues.pop(0)
+            spec = cue.trial
+            if spec is None:  # session_end: run_session publishes it once the store is closed
+                continue
+            ev = {"trial": spec.index, "mode": spec.mode, "option": spec.option}
+            if cue.kind == "gaze" and cue.gaze is not None:
+                with self.node.lock:
+                    self.gaze_msg = {
+                        "yaw": cue.gaze.yaw,
+                        "pitch": cue.gaze.pitch,
+                        "level": spec.gaze_level,
+                        "gesture": cue.gesture,
+                        "trial": spec.index,
+                    }
+                    self.pub_gaze.put(**self.gaze_msg)
+                    self._keepalive_ns = self.node.clock.now_ns()
+            elif cue.kind == "setup":
+                with self.node.lock:
+                    self.trial = spec.index
+                    self.robot_press = None
+                    self.recorder = None
+                    self.pub_trial.put(phase="setup", text=cue.text, session=self.session, **ev)
+            elif cue.kind == "countdown":
+                self.pub_trial.put(phase="countdown", text=cue.text, session=self.session, **ev)
+            elif cue.kind == "go":
+                with self.node.lock:
+                    go = self.pub_trial.put(
+                        phase="go", text=cue.text, session=self.session, **ev
+                    )
+                    tracker = OutcomeTracker(self.cfg.debounce, self.layout.commit)
+                    self.recorder = TrialRecorder(go.t_ns, tracker)
+            elif cue.kind == "end":
+                self._end_trial(spec, protocol)
+                cues.extend(protocol.judged(self._now_s()))
+
+    def _end_trial(self, spec: TrialSpec, protocol: SessionProtocol) -> None:
+        """Judge, store and publish the trial that just ended."""
         with self.node.lock:
-            self.trial = spec.index
-            self.robot_press = None
-            self.recorder = None
-            self.gaze_msg = {
-                "yaw": spec.yaw,
-                "pitch": spec.pitch,
-                "level": spec.gaze_level,
-                "gesture": spec.attention_gesture,
-                "trial": spec.index,
-            }
-            self.pub_gaze.put(**self.gaze_msg)
-        self.pub_trial.put(phase="setup", text=spec.gaze_level, **ev)
-        lead = p.gaze_lead_s + (p.gesture.duration_s if spec.attention_gesture else 0.0)
-        self.wait(lead)
-        for word in p.countdown[:-1]:
-            self.pub_trial.put(phase="countdown", text=word, **ev)
-            self.wait(p.countdown_interval_s)
-        with self.node.lock:
-            go = self.pub_trial.put(phase="go", text=p.countdown[-1], **ev)
-            self.recorder = TrialRecorder(
-                go.t_ns, OutcomeTracker(p.switch_c_max, self.layout.commit)
-            )
-        rec = self.recorder
-        human_or_timeout = self.wait(p.trial_timeout_s, lambda: rec.human is not None)
-        # The robot presses after the human (or at the timeout): give the arm time to get there.
-        self.wait(5.0, lambda: self.robot_press is not None)
-        with self.node.lock:
-            self.recorder = None
+            rec, self.recorder = self.recorder, None
             t_end = self.node.clock.now_ns()
             robot = self.robot_press.colour if self.robot_press else None
-        self.pub_trial.put(phase="end", **ev)
-        reason = "human pressed" if human_or_timeout else "timeout"
-        if robot is None:
-            reason += "; robot did not press"
-        result = rec.tracker.result(rec.human, robot or "red") if robot else None
-        clicks = self.clicks(spec.index)
-        score = score_trial(
-            result is not None and result.same_buzzer,
-            clicks,
-            result.violations if result else 0,
-            p.target_clicks,
+        assert rec is not None and protocol.end is not None  # "go" precedes every "end"
+        self.pub_trial.put(
+            phase="end", trial=spec.index, mode=spec.mode, option=spec.option, session=self.session
         )
+        clicks = self.clicks(spec.index)
+        j = judge_trial(rec.tracker, rec.human, robot, clicks, self.proto.target_clicks)
         record = TrialRecord(
             trial=spec.index,
             mode=spec.mode,
             option=spec.option,
             gaze_level=spec.gaze_level,
-            yaw=spec.yaw,
-            pitch=spec.pitch,
+            yaw=spec.gaze.yaw,
+            pitch=spec.gaze.pitch,
             t_go_ns=rec.t_go_ns,
             t_end_ns=t_end,
-            human=rec.human,
-            robot=robot,
-            outcome=result.outcome if (result and rec.human) else None,
-            switches=result.switches if result else 0,
-            violations=result.violations if result else 0,
+            human=j.human,
+            robot=j.robot,
+            outcome=j.outcome,
+            switches=j.switches,
+            violations=j.violations,
             clicks=clicks,
-            score=score.total,
-            end_reason=reason,
+            score=j.score,
+            end_reason=protocol.end.reason,
         )
-        self.store.write_trial(session, record, rec.samples(SAMPLE_HZ))
+        self.store.write_trial(self.session, record, rec.samples(SAMPLE_HZ))
+        self.records.append(record)
         self.pub_result.put(
             trial=spec.index,
             mode=spec.mode,
             option=spec.option,
-            robot=robot,
-            human=rec.human,
-            outcome=record.outcome,
-            switches=record.switches,
-            violations=record.violations,
-            score=record.score,
-            session=session,
+            robot=j.robot,
+            human=j.human,
+            outcome=j.outcome,
+            switches=j.switches,
+            violations=j.violations,
+            score=j.score,
+            session=self.session,
         )
-        self.wait(1.0)  # the participant returns the hand to rest
-        return record
 
 
 def ask_clicks(trial: int) -> int | None:

@@ -1,8 +1,9 @@
 """`nod eyes`: gaze commands → per-eye pan/tilt servo targets through a servo driver.
 
-The conductor publishes the trial's gaze on `eyes/cmd` and repeats it as a keepalive; a gaze
-marked `gesture` first plays the attention gesture (trial 4). When the gaze goes stale, a needed
-service's liveliness is lost, or an e-stop is engaged, the eyes go to neutral and say why.
+The conductor publishes the gaze on `eyes/cmd` (the attention gesture's poses before trial 4
+too, marked `gesture`) and repeats the current one as a keep-alive; the eyes look where the
+latest command says. When the gaze goes stale, a needed service's liveliness is lost, or an
+e-stop is engaged, the eyes go to neutral and say why.
 """
 
 from __future__ import annotations
@@ -19,26 +20,24 @@ from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.eyes.drivers import EYES_DRIVERS, make_eyes_driver
 from services.eyes.servos import ServoDriver
-from services.model.gaze import GazeCommand, attention_gesture
+from services.model.gaze import GazeCommand
 from services.model.params import NodConfig
 from services.model.safety import SafetyParams, Watchdog
 from services.model.servos import ServoTargets
 from services.safety.wiring import watch_safety_inputs
 
 log = logging.getLogger("nod.eyes")
-NS = 1e-9
 
 
 class EyesService:
-    """Wires gaze commands, the attention gesture and the watchdog to a servo driver."""
+    """Wires gaze commands and the watchdog to a servo driver."""
 
     def __init__(self, node: Node, driver: ServoDriver, safety: SafetyParams) -> None:
         self.node = node
         self.driver = driver
         self.watchdog = Watchdog(safety, ("gaze",))
         self.gaze = GazeCommand()
-        self.trial = -1
-        self.script: list[tuple[float, GazeCommand]] = []  # the gesture still to play
+        self._logged: tuple[int, str, bool] | None = None
         self.applied: ServoTargets = driver.neutral()
         self._last_cmd: GazeCommand | None = GazeCommand()
         self.safe_stop = False
@@ -49,29 +48,25 @@ class EyesService:
         node.every(0.02, self.tick)
 
     def on_gaze(self, msg: m.GazeMsg) -> None:
-        """A gaze command (or its keepalive): look there, after the gesture if it asks for one."""
+        """A gaze command (or its keep-alive): look there now.
+
+        The attention gesture arrives as a sequence of such commands from the conductor's
+        protocol (`gesture` marks its poses), so its timing has one home and the eyes only follow.
+        """
         self.watchdog.feed("gaze", msg.t_ns)
-        target = GazeCommand(msg.yaw, msg.pitch)
-        if msg.trial != self.trial:  # a new trial's cue, not a keepalive
-            self.trial = msg.trial
-            self.script = attention_gesture(msg.t_ns * NS, settle=target) if msg.gesture else []
+        self.gaze = GazeCommand(msg.yaw, msg.pitch)
+        what = (msg.trial, msg.level, msg.gesture)
+        if what != self._logged:  # a new cue, not a keep-alive
+            self._logged = what
             log.info(
                 "trial %d: gaze %s yaw=%+.2f pitch=%+.2f%s",
                 msg.trial,
                 msg.level,
                 msg.yaw,
                 msg.pitch,
-                " after the attention gesture" if msg.gesture else "",
+                " (attention gesture)" if msg.gesture else "",
             )
-        self.gaze = target
         self.tick(self.node.clock.now_ns())
-
-    def _current(self, now_s: float) -> GazeCommand:
-        while self.script and len(self.script) > 1 and self.script[1][0] <= now_s:
-            self.script.pop(0)
-        if self.script and self.script[0][0] <= now_s:
-            return self.script[0][1]
-        return self.gaze
 
     def tick(self, now_ns: int) -> None:
         """Apply the current gaze (or neutral when unsafe) and publish the state."""
@@ -83,7 +78,7 @@ class EyesService:
                 status.reason or "inputs fresh",
             )
         self.safe_stop, self.reason = status.safe_stop, status.reason
-        cmd = GazeCommand() if self.safe_stop else self._current(now_ns * NS)
+        cmd = GazeCommand() if self.safe_stop else self.gaze
         poll = getattr(self.driver, "poll", None)  # serial drivers reconnect and re-send here
         if poll is not None:
             poll()

@@ -4,16 +4,17 @@ The pseudo-code in the paper is garbled (its last branch turns red whenever σ �
 state machine implements the prose instead:
 
 - after "go", start moving toward sgn(z_r) at the first non-zero z_r;
-- a change of direction needs `c_max` consecutive samples of the new sign; then stop, pause
-  `pause_s`, and move toward the new side. A shorter flip is ignored, and an interrupted flip
-  resets the count;
+- a change of direction needs C_max consecutive samples of the new sign (`SignDebouncer`, the
+  same debounce that counts the human's switches); then stop, pause `pause_s`, and move toward
+  the new side. A shorter flip is ignored, and an interrupted flip resets the count;
 - when the human pressed (a hand landmark inside a buzzer box) or the trial timed out, stop at
-  once and press the buzzer nearest the end effector (`TableLayout.nearest`).
+  once and press the buzzer nearest the end effector (`TableLayout.nearest`). The timeout is the
+  protocol's (`ProtocolParams.trial_timeout_s`), passed to `start`: a trial has one timeout.
 
-Phases: idle → waiting (after `start`) → moving ⇄ pausing → pressing → done; `abort` leads to
-the safe "aborted" phase from anywhere. The machine is pure: time is an argument in seconds
-(float, any monotonic origin, typically sim or message time), and it never touches hardware —
-it returns an `ArmCommand` that a driver applies.
+Phases: idle → waiting (after `start`) → moving ⇄ pausing → pressing → done. Safety is not a
+phase: the actuation shell's watchdog holds the arm and the machine resumes when it clears. The
+machine is pure: time is an argument in seconds (float, any monotonic origin, typically sim or
+message time), and it never touches hardware — it returns an `ArmCommand` that a driver applies.
 """
 
 from __future__ import annotations
@@ -22,33 +23,23 @@ import math
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
 
+from services.model.debounce import DebounceParams, SignDebouncer
 from services.model.geometry import Colour, Point, TableLayout, colour_sign, sign_colour
 
 Action: TypeAlias = Literal["idle", "stop", "move", "press"]
-Phase: TypeAlias = Literal["idle", "waiting", "moving", "pausing", "pressing", "done", "aborted"]
+Phase: TypeAlias = Literal["idle", "waiting", "moving", "pausing", "pressing", "done"]
 
 
 @dataclass(frozen=True, slots=True)
 class BehaviourParams:
-    """Tuning of Algorithm 2 (SPEC §4 defaults)."""
+    """Tuning of Algorithm 2 (SPEC §4 defaults); C_max is `DebounceParams.c_max`."""
 
-    # Consecutive samples of the opposite sign of z_r needed to reverse; ≥ 1. Larger = steadier
-    # robot, slower to follow a genuine change of opinion.
-    c_max: int = 4
     # Stop before reversing (s); ≥ 0. The arm comes to rest before heading the other way.
     pause_s: float = 0.1
-    # Trial timeout after "go" (s); > 0. On expiry the robot presses the nearest buzzer.
-    timeout_s: float = 10.0
 
     def __post_init__(self) -> None:
-        if isinstance(self.c_max, bool) or not isinstance(self.c_max, int) or self.c_max < 1:
-            raise ValueError(f"BehaviourParams.c_max must be an integer >= 1, got {self.c_max!r}")
         if not math.isfinite(self.pause_s) or self.pause_s < 0:
             raise ValueError(f"BehaviourParams.pause_s must be finite and >= 0, got {self.pause_s}")
-        if not math.isfinite(self.timeout_s) or self.timeout_s <= 0:
-            raise ValueError(
-                f"BehaviourParams.timeout_s must be finite and > 0, got {self.timeout_s}"
-            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,26 +90,28 @@ class ArmCommand:
         return cls("press", colour_sign(colour), colour, reason)
 
 
-def _sign(x: float) -> int:
-    return (x > 0) - (x < 0)
-
-
 class RobotBehaviour:
     """Algorithm 2 as a state machine over (t, z_r, human press, end-effector position)."""
 
-    def __init__(self, layout: TableLayout, params: BehaviourParams | None = None) -> None:
+    def __init__(
+        self,
+        layout: TableLayout,
+        params: BehaviourParams | None = None,
+        debounce: DebounceParams | None = None,
+    ) -> None:
         """Create the machine for a table layout (needed to find the nearest buzzer)."""
         self.layout = layout
         self.params = params if params is not None else BehaviourParams()
+        self.debounce = debounce if debounce is not None else DebounceParams()
         self.reset()
 
     def reset(self) -> None:
         """Forget the previous trial: back to idle, waiting for `start`."""
         self._phase: Phase = "idle"
         self._t_go: float | None = None
+        self._timeout_s = math.inf
         self._t_last: float | None = None
-        self._direction = 0
-        self._flip_count = 0  # consecutive samples of −direction seen so far
+        self._sign = SignDebouncer(self.debounce.c_max)  # the debounced direction of z_r
         self._pause_until = 0.0
         self._target: Colour | None = None
         self._last: ArmCommand = ArmCommand.idle("not started")
@@ -132,7 +125,7 @@ class RobotBehaviour:
     @property
     def direction(self) -> int:
         """The debounced direction the robot follows: +1 red, −1 blue, 0 before its first move."""
-        return self._direction
+        return self._sign.sign
 
     @property
     def t_go(self) -> float | None:
@@ -141,8 +134,8 @@ class RobotBehaviour:
 
     @property
     def ended(self) -> bool:
-        """True once the robot's choice is final (pressing, done) or the trial was aborted."""
-        return self._phase in ("pressing", "done", "aborted")
+        """True once the robot's choice is final (pressing, done)."""
+        return self._phase in ("pressing", "done")
 
     @property
     def pressed_colour(self) -> Colour | None:
@@ -155,19 +148,21 @@ class RobotBehaviour:
         return self._last
 
     # -- transitions -----------------------------------------------------------------------
-    def start(self, t: float) -> ArmCommand:
-        """The countdown said "go" at time t (s): wait for the first non-zero z_r."""
+    def start(self, t: float, timeout_s: float) -> ArmCommand:
+        """The countdown said "go" at time t (s): wait for the first non-zero z_r.
+
+        `timeout_s` is the trial's timeout after "go" (`ProtocolParams.trial_timeout_s`): if the
+        human has not pressed by then, the robot presses the nearest buzzer.
+        """
         if self._phase != "idle":
             raise RuntimeError(f"start() in phase {self._phase!r}; call reset() between trials")
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f"timeout_s must be finite and > 0, got {timeout_s!r}")
         self._check_time(t)
         self._t_go = t
+        self._timeout_s = timeout_s
         self._phase = "waiting"
         return self._emit(ArmCommand.idle("go: waiting for a non-zero z_r"))
-
-    def abort(self, reason: str) -> ArmCommand:
-        """Safe stop (watchdog, e-stop): stop now and ignore everything until `reset`."""
-        self._phase = "aborted"
-        return self._emit(ArmCommand.stop(f"aborted: {reason}"))
 
     def complete(self) -> None:
         """The arm reports the press finished: pressing → done."""
@@ -188,57 +183,40 @@ class RobotBehaviour:
         phase = self._phase
         if phase == "idle":
             return self._emit(ArmCommand.idle("not started"))
-        if phase == "aborted":
-            return self._emit(self._last)
         if phase in ("pressing", "done"):
             # Repeat the press so a driver that missed it (or a re-connected one) converges.
             return self._emit(self._last)
 
         assert self._t_go is not None  # set by start(), the only way out of idle
-        if pressed is not None or t - self._t_go >= self.params.timeout_s:
+        if pressed is not None or t - self._t_go >= self._timeout_s:
             colour = self.layout.nearest(ee)
             self._target = colour
             self._phase = "pressing"
             why = f"human pressed {pressed}" if pressed is not None else "timeout"
             return self._emit(ArmCommand.press(colour, f"{why}: nearest buzzer is {colour}"))
 
-        s = _sign(z_r) if z_r is not None else 0
+        # None (no new sample) and 0 carry no sign: neither counts toward nor breaks a reversal.
+        reversed_now = self._sign.feed(z_r) if z_r is not None else False
         if phase == "waiting":
-            if s == 0:
+            if self._sign.sign == 0:
                 return self._emit(ArmCommand.idle("waiting for a non-zero z_r"))
-            self._direction = s
             self._phase = "moving"
-            return self._emit(ArmCommand.move(s, "first non-zero z_r"))
+            return self._emit(ArmCommand.move(self._sign.sign, "first non-zero z_r"))
 
-        reversed_now = self._debounce(s)
         if reversed_now:
             # Stop first: reversing at speed would whip the arm. Also entered from "pausing":
             # a flip back confirmed during the pause restarts the pause toward the new side.
             self._phase = "pausing"
             self._pause_until = t + self.params.pause_s
-            return self._emit(ArmCommand.stop(f"z_r sign confirmed {self._direction:+d}: pause"))
+            return self._emit(ArmCommand.stop(f"z_r sign confirmed {self._sign.sign:+d}: pause"))
         if self._phase == "pausing":
             if t < self._pause_until:
                 return self._emit(ArmCommand.stop("pausing before reversal"))
             self._phase = "moving"
-            return self._emit(ArmCommand.move(self._direction, "pause over"))
-        return self._emit(ArmCommand.move(self._direction, "continue"))
+            return self._emit(ArmCommand.move(self._sign.sign, "pause over"))
+        return self._emit(ArmCommand.move(self._sign.sign, "continue"))
 
     # -- internals -------------------------------------------------------------------------
-    def _debounce(self, s: int) -> bool:
-        """Count samples against the current direction; True when a reversal is confirmed."""
-        if s == 0:
-            return False  # no information: neither counts nor breaks a run
-        if s == self._direction:
-            self._flip_count = 0  # the flip was interrupted
-            return False
-        self._flip_count += 1
-        if self._flip_count < self.params.c_max:
-            return False
-        self._flip_count = 0
-        self._direction = s
-        return True
-
     def _check_time(self, t: float) -> None:
         if not math.isfinite(t):
             raise ValueError(f"time must be finite, got {t!r}")

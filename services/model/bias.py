@@ -18,6 +18,9 @@ drives b_r past u_r and lets z_r cross to O's sign. The margin sets how fast: 0.
 and the robot must also debounce, pause and drive back, so with 0.5 the robot mostly arrives too
 late and consensus trials end in dissensus (closed-loop simulation of 30 participants: robot on
 O in 60% of trials 4-8 with 0.5, 97% with 2.0; see services/sim/offline.py).
+
+The freeze is decided once per integration step (see `services.model.decision`), |b_r| is
+clamped to b_max after each step, and b_r ≡ 0 in dissensus-mode trials (the controller is off).
 """
 
 from __future__ import annotations
@@ -25,9 +28,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
-from services.model.dynamics import ArrayLike
 from services.model.geometry import Colour, colour_sign
 
 
@@ -75,41 +75,18 @@ def beta_for(option: Colour, params: BiasParams | None = None) -> float:
     return -p.K * sigma_for(option, p)
 
 
-def bias_active(z_r: ArrayLike, z_hat: ArrayLike) -> ArrayLike:
+def bias_active(z_r: float, z_hat: float) -> bool:
     """Whether the controller runs: the pair is in dissensus, z_r · ẑ_h < 0 (Algorithm 1)."""
     return z_r * z_hat < 0
 
 
-def bias_rate_scalar(
+def bias_rate(
     b_r: float, z_r: float, z_hat: float, sigma: float, beta: float, b_star: float
 ) -> float:
-    """Eq 6 on plain floats with signed σ and β precomputed (the decision service's hot path)."""
-    if not z_r * z_hat < 0:
-        return 0.0
+    """ḃ_r of eq 6 while the controller runs (`bias_active`), with signed σ and β of O.
+
+    The one place eq 6 is written; the decision model calls it at every RK4 stage of an active
+    step and holds b_r (ḃ_r = 0) otherwise. Plain floats: it runs ~30 times per hand pose.
+    """
     sgn = 1.0 if z_hat > 0 else -1.0
     return sigma * z_r * sgn + beta * max(0.0, b_star - abs(b_r))
-
-
-def bias_rate(
-    b_r: ArrayLike,
-    z_r: ArrayLike,
-    z_hat: ArrayLike,
-    option: Colour,
-    params: BiasParams,
-    b_star: float,
-) -> ArrayLike:
-    """ḃ_r of eq 6, zero outside dissensus (z_r · ẑ_h ≥ 0); scalars or broadcasting arrays."""
-    sigma = sigma_for(option, params)
-    beta = -params.K * sigma
-    if not any(isinstance(v, np.ndarray) for v in (b_r, z_r, z_hat)):
-        return bias_rate_scalar(float(b_r), float(z_r), float(z_hat), sigma, beta, b_star)
-    b_r, z_r, z_hat = np.asarray(b_r), np.asarray(z_r), np.asarray(z_hat)
-    rate = sigma * z_r * np.sign(z_hat) + beta * np.maximum(0.0, b_star - np.abs(b_r))
-    return np.where(bias_active(z_r, z_hat), rate, 0.0)
-
-
-def clamp_bias(b_r: ArrayLike, b_max: float) -> ArrayLike:
-    """Clamp the bias to [−b_max, b_max]."""
-    if isinstance(b_r, np.ndarray):
-        return np.clip(b_r, -b_max, b_max)
-    return max(-b_max, min(b_max, b_r))

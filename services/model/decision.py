@@ -11,15 +11,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal, TypeAlias
+from typing import NamedTuple
 
-from services.model.bias import BiasParams, beta_for, sigma_for
-from services.model.dynamics import PairParams
+from services.model.bias import BiasParams, beta_for, bias_active, bias_rate, sigma_for
+from services.model.dynamics import PairParams, opinion_rate
 from services.model.geometry import Colour, Point, TableLayout
 from services.model.observer import HumanObserver, Observation, ObserverParams
-
-Mode: TypeAlias = Literal["dissensus", "consensus"]
-MODES: tuple[Mode, Mode] = ("dissensus", "consensus")
+from services.model.protocol import MODES, Mode
 
 
 @dataclass(frozen=True)
@@ -49,9 +47,8 @@ class DecisionParams:
             )
 
 
-@dataclass(frozen=True, slots=True)
-class DecisionOutput:
-    """The engine's state after one pose.
+class DecisionOutput(NamedTuple):
+    """The engine's state after one pose (a NamedTuple: built once per camera frame).
 
     `t_ns` is the time the state refers to: the pose's timestamp, or the previous one when the
     pose was rejected for a timestamp that did not advance.
@@ -182,13 +179,15 @@ class DecisionModel:
     def _integrate(self, span_ns: int, z_hat: float) -> None:
         """RK4 over span_ns in steps of dt (the last one shorter), ẑ_h held (eq 1 and eq 6).
 
-        Plain floats and math: at 120 Hz this runs ~8 steps per pose, where NumPy's per-call
-        overhead would dominate.
+        The equations are `opinion_rate` (eq 1) and `bias_rate` (eq 6), the same functions the
+        analysis and the tests use; the RK4 stages are written out for the pair (z_r, b_r) on
+        plain floats because this runs ~8 steps per pose at 120 Hz (~33 at 30 Hz), where a
+        generic stepper's tuples or NumPy's per-call overhead would dominate.
         """
         robot = self._params.pair.robot
         d, u, alpha = robot.d, robot.u, robot.alpha
-        coupling = robot.gamma * self._params.pair.a_rh * z_hat  # γ_r a_rh ẑ_h, constant (ZOH)
-        tanh = math.tanh
+        gamma_a = robot.gamma * self._params.pair.a_rh  # γ_r a_rh; ẑ_h is held (ZOH)
+        rate, b_rate, active, tanh = opinion_rate, bias_rate, bias_active, math.tanh
         consensus = self._mode == "consensus"
         sigma, beta, b_star = self._sigma, self._beta, self._b_star
         b_max = self._params.bias.b_max
@@ -198,45 +197,33 @@ class DecisionModel:
         if rest_ns:
             steps.append(rest_ns * 1e-9)
         for h in steps:
-            # The freeze (z_r · ẑ_h < 0) is decided once per step from the state at its start:
-            # switching it inside the RK4 stages would make the right-hand side discontinuous
-            # within a step and spoil the method's accuracy; the step is short (1 ms) against
-            # the dynamics' time constants (1/d = 100 ms).
-            active = consensus and z_r * z_hat < 0
             hh = 0.5 * h
-            k1z = -d * z_r + u * tanh(alpha * z_r + coupling) + b_r
-            if active:
-                k1b = _active_rate(b_r, z_r, z_hat, sigma, beta, b_star)
+            k1z = rate(z_r, z_hat, b_r, d, u, alpha, gamma_a, tanh)
+            # The freeze (eq 6 runs only while z_r · ẑ_h < 0) is decided once per step from the
+            # state at its start: switching it inside the RK4 stages would make the right-hand
+            # side discontinuous within a step and spoil the method's accuracy; the step is
+            # short (1 ms) against the dynamics' time constants (1/d = 100 ms).
+            if consensus and active(z_r, z_hat):
+                k1b = b_rate(b_r, z_r, z_hat, sigma, beta, b_star)
                 z2, b2 = z_r + hh * k1z, b_r + hh * k1b
-                k2z = -d * z2 + u * tanh(alpha * z2 + coupling) + b2
-                k2b = _active_rate(b2, z2, z_hat, sigma, beta, b_star)
+                k2z = rate(z2, z_hat, b2, d, u, alpha, gamma_a, tanh)
+                k2b = b_rate(b2, z2, z_hat, sigma, beta, b_star)
                 z3, b3 = z_r + hh * k2z, b_r + hh * k2b
-                k3z = -d * z3 + u * tanh(alpha * z3 + coupling) + b3
-                k3b = _active_rate(b3, z3, z_hat, sigma, beta, b_star)
+                k3z = rate(z3, z_hat, b3, d, u, alpha, gamma_a, tanh)
+                k3b = b_rate(b3, z3, z_hat, sigma, beta, b_star)
                 z4, b4 = z_r + h * k3z, b_r + h * k3b
-                k4z = -d * z4 + u * tanh(alpha * z4 + coupling) + b4
-                k4b = _active_rate(b4, z4, z_hat, sigma, beta, b_star)
+                k4z = rate(z4, z_hat, b4, d, u, alpha, gamma_a, tanh)
+                k4b = b_rate(b4, z4, z_hat, sigma, beta, b_star)
                 b_r += (h / 6.0) * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)
-                # Clamp |b_r| ≤ b_max after each step (SPEC §3).
+                # Clamp |b_r| ≤ b_max after each step (SPEC §3): in dissensus the σ term never
+                # stops on its own.
                 if b_r > b_max:
                     b_r = b_max
                 elif b_r < -b_max:
                     b_r = -b_max
-            else:
-                # b_r frozen: only z_r moves.
-                z2 = z_r + hh * k1z
-                k2z = -d * z2 + u * tanh(alpha * z2 + coupling) + b_r
-                z3 = z_r + hh * k2z
-                k3z = -d * z3 + u * tanh(alpha * z3 + coupling) + b_r
-                z4 = z_r + h * k3z
-                k4z = -d * z4 + u * tanh(alpha * z4 + coupling) + b_r
+            else:  # b_r frozen: only z_r moves
+                k2z = rate(z_r + hh * k1z, z_hat, b_r, d, u, alpha, gamma_a, tanh)
+                k3z = rate(z_r + hh * k2z, z_hat, b_r, d, u, alpha, gamma_a, tanh)
+                k4z = rate(z_r + h * k3z, z_hat, b_r, d, u, alpha, gamma_a, tanh)
             z_r += (h / 6.0) * (k1z + 2.0 * k2z + 2.0 * k3z + k4z)
         self._z_r, self._b_r = z_r, b_r
-
-
-def _active_rate(
-    b_r: float, z_r: float, z_hat: float, sigma: float, beta: float, b_star: float
-) -> float:
-    """Eq 6 inside an active step: the freeze was decided at the step start, so no gate here."""
-    sgn = 1.0 if z_hat > 0 else -1.0
-    return sigma * z_r * sgn + beta * max(0.0, b_star - abs(b_r))

@@ -4,15 +4,17 @@
     ż_h = −d_h z_h + u_h tanh(α_h z_h + γ_h a_hr z_r) + b_h        (eq 2)
 
 Sign convention everywhere: z > 0 ⇔ red, z < 0 ⇔ blue. Everything here is pure and works on
-scalars or NumPy arrays alike (broadcasting), so the same code drives the live decision service
-and the vectorised analysis sweeps.
+scalars or NumPy arrays alike (broadcasting). `opinion_rate` is the only place the equations are
+written: the live decision model (`services.model.decision`), the simulated participant, the
+analysis sweeps and the equilibrium finder all call it.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import TypeAlias
+from typing import Any, TypeAlias
 
 import numpy as np
 
@@ -52,25 +54,35 @@ class PairParams:
         return np.array([[0.0, self.a_rh], [self.a_hr, 0.0]])
 
 
+def opinion_rate(
+    z: ArrayLike,
+    z_other: ArrayLike,
+    b: ArrayLike,
+    d: float,
+    u: float,
+    alpha: float,
+    gamma_a: float,
+    tanh: Callable[[Any], Any] = np.tanh,
+) -> ArrayLike:
+    """ż = −d z + u tanh(α z + γ a z_other) + b: eq 1 for the robot, eq 2 for the human.
+
+    The one place the opinion dynamics are written. `gamma_a` is γ times the adjacency weight
+    (γ_r a_rh for eq 1). `tanh` is np.tanh for arrays (the analysis) and may be math.tanh for
+    plain floats (the live decision model and the simulated participant: 20× faster per call).
+    """
+    return -d * z + u * tanh(alpha * z + gamma_a * z_other) + b
+
+
 def robot_rate(z_r: ArrayLike, z_h: ArrayLike, b_r: ArrayLike, p: PairParams) -> ArrayLike:
     """ż_r of eq 1."""
     r = p.robot
-    return -r.d * z_r + r.u * np.tanh(r.alpha * z_r + r.gamma * p.a_rh * z_h) + b_r
+    return opinion_rate(z_r, z_h, b_r, r.d, r.u, r.alpha, r.gamma * p.a_rh)
 
 
 def human_rate(z_h: ArrayLike, z_r: ArrayLike, b_h: ArrayLike, p: PairParams) -> ArrayLike:
     """ż_h of eq 2."""
     h = p.human
-    return -h.d * z_h + h.u * np.tanh(h.alpha * z_h + h.gamma * p.a_hr * z_r) + b_h
-
-
-def rk4_step(f, y: ArrayLike, dt: float) -> ArrayLike:
-    """One classical Runge-Kutta step of ẏ = f(y) (autonomous; inputs held constant = ZOH)."""
-    k1 = f(y)
-    k2 = f(y + 0.5 * dt * k1)
-    k3 = f(y + 0.5 * dt * k2)
-    k4 = f(y + dt * k3)
-    return y + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return opinion_rate(z_h, z_r, b_h, h.d, h.u, h.alpha, h.gamma * p.a_hr)
 
 
 def pair_rhs(
@@ -80,17 +92,69 @@ def pair_rhs(
     return robot_rate(z_r, z_h, b_r, p), human_rate(z_h, z_r, b_h, p)
 
 
-def jacobian(z_r: float, z_h: float, p: PairParams) -> np.ndarray:
-    """Jacobian of eqs 1-2 at (z_r, z_h) (eq 3, generalised to heterogeneous agents)."""
+def rk4_step(f: Callable[[Any], Any], y: ArrayLike, dt: float) -> ArrayLike:
+    """One classical Runge-Kutta step of ẏ = f(y) (autonomous; inputs held constant = ZOH)."""
+    k1 = f(y)
+    k2 = f(y + 0.5 * dt * k1)
+    k3 = f(y + 0.5 * dt * k2)
+    k4 = f(y + dt * k3)
+    return y + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+
+def rk4_pair(
+    z_r: np.ndarray,
+    z_h: np.ndarray,
+    b_r: ArrayLike,
+    b_h: ArrayLike,
+    p: PairParams,
+    dt: float,
+    steps: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`steps` classical RK4 steps of eqs 1-2 with constant biases, element-wise over arrays.
+
+    The two components are stepped side by side (no stacking), which keeps a whole grid of
+    bias pairs in one vectorised pass (the bias sweep, Fig 3a).
+    """
+    half = 0.5 * dt
+    sixth = dt / 6.0
+    for _ in range(steps):
+        k1r, k1h = pair_rhs(z_r, z_h, b_r, b_h, p)
+        k2r, k2h = pair_rhs(z_r + half * k1r, z_h + half * k1h, b_r, b_h, p)
+        k3r, k3h = pair_rhs(z_r + half * k2r, z_h + half * k2h, b_r, b_h, p)
+        k4r, k4h = pair_rhs(z_r + dt * k3r, z_h + dt * k3h, b_r, b_h, p)
+        z_r = z_r + sixth * (k1r + 2.0 * (k2r + k3r) + k4r)
+        z_h = z_h + sixth * (k1h + 2.0 * (k2h + k3h) + k4h)
+    return z_r, z_h
+
+
+Jacobian: TypeAlias = tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike]
+
+
+def jacobian_entries(z_r: ArrayLike, z_h: ArrayLike, p: PairParams) -> Jacobian:
+    """The entries (j11, j12, j21, j22) of the Jacobian of eqs 1-2 (eq 3) at each (z_r, z_h).
+
+    The heterogeneous generalisation of eq 3, element-wise over arrays:
+
+        J = [[-d_r + u_r α_r s_r,      u_r γ_r a_rh s_r],
+             [ u_h γ_h a_hr s_h,      -d_h + u_h α_h s_h]],   s_i = sech²(agent i's tanh argument)
+    """
     r, h = p.robot, p.human
-    s_r = 1.0 / math.cosh(r.alpha * z_r + r.gamma * p.a_rh * z_h) ** 2
-    s_h = 1.0 / math.cosh(h.alpha * z_h + h.gamma * p.a_hr * z_r) ** 2
-    return np.array(
-        [
-            [-r.d + r.u * r.alpha * s_r, r.u * r.gamma * p.a_rh * s_r],
-            [h.u * h.gamma * p.a_hr * s_h, -h.d + h.u * h.alpha * s_h],
-        ]
+    t_r = np.tanh(r.alpha * z_r + r.gamma * p.a_rh * z_h)
+    t_h = np.tanh(h.alpha * z_h + h.gamma * p.a_hr * z_r)
+    q_r = r.u * (1.0 - t_r * t_r)  # u_r sech²(·)
+    q_h = h.u * (1.0 - t_h * t_h)
+    return (
+        -r.d + r.alpha * q_r,
+        r.gamma * p.a_rh * q_r,
+        h.gamma * p.a_hr * q_h,
+        -h.d + h.alpha * q_h,
     )
+
+
+def jacobian(z_r: float, z_h: float, p: PairParams) -> np.ndarray:
+    """The Jacobian (eq 3) at one point, as a 2×2 matrix."""
+    j11, j12, j21, j22 = jacobian_entries(z_r, z_h, p)
+    return np.array([[j11, j12], [j21, j22]], dtype=float)
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, NamedTuple
 
 from services.model.geometry import Colour, Point, TableLayout
 
@@ -64,9 +64,8 @@ class ObserverParams:
             )
 
 
-@dataclass(frozen=True, slots=True)
-class Observation:
-    """What the observer read from one hand pose.
+class Observation(NamedTuple):
+    """What the observer read from one hand pose (a NamedTuple: built once per camera frame).
 
     `z_hat` is the observed opinion after this pose (held from earlier poses when this one gives
     no direction). `center`/`movement` are None when no hand was detected (stale == not

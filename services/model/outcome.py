@@ -2,11 +2,11 @@
 
 Feed the ẑ_h samples (and hand centres) from "go" to the human's press, in order:
 
-- *switches*: sign changes of ẑ_h, debounced like Algorithm 2. The first non-zero sample sets
-  the initial direction (not a switch); afterwards a new sign counts only after `c_max`
-  consecutive samples of it, and a run interrupted by the current sign starts over. A zero
-  sample (the hand has not moved yet, or stood still) carries no sign: it neither counts toward
-  a run nor breaks one.
+- *switches*: sign changes of ẑ_h, debounced like Algorithm 2 — by the same `SignDebouncer`
+  and the same `DebounceParams`. The first non-zero sample sets the initial direction (not a
+  switch); afterwards a new sign counts only after C_max consecutive samples of it, and a run
+  interrupted by the current sign starts over. A zero sample (the hand has not moved yet, or
+  stood still) carries no sign: it neither counts toward a run nor breaks one.
 - *outcome*: C (0 switches, same buzzer as the robot), D (0, different), CH (≥ 1, same),
   DH (≥ 1, different). A human who never pressed (timeout, `human=None`) is "different".
 - *violations* (paper Remark 3): a switch is a violation when it is not the first switch of the
@@ -24,7 +24,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
 
+from services.model.debounce import DebounceParams, SignDebouncer
 from services.model.geometry import Colour, CommitLine, Point
+from services.model.scoring import score_trial
 
 Outcome: TypeAlias = Literal["C", "CH", "D", "DH"]
 OUTCOMES: tuple[Outcome, ...] = ("C", "CH", "D", "DH")
@@ -62,35 +64,27 @@ class TrialOutcome:
         return self.human is not None and self.human == self.robot
 
 
-def _sign(x: float) -> int:
-    return (x > 0) - (x < 0)
-
-
 class OutcomeTracker:
     """Incremental outcome of one trial: `add` each sample, then `result`."""
 
-    def __init__(self, c_max: int = 4, commit_line: CommitLine | None = None) -> None:
-        """Debounce with `c_max` samples; test crossings against `commit_line` (default line)."""
-        if isinstance(c_max, bool) or not isinstance(c_max, int) or c_max < 1:
-            raise ValueError(f"c_max must be an integer >= 1, got {c_max!r}")
-        self.c_max = c_max
+    def __init__(
+        self, debounce: DebounceParams | None = None, commit_line: CommitLine | None = None
+    ) -> None:
+        """Debounce like Algorithm 2 (`debounce.c_max`); test crossings against `commit_line`."""
+        self.debounce = debounce if debounce is not None else DebounceParams()
         self.commit_line = commit_line if commit_line is not None else CommitLine()
         self.reset()
 
     def reset(self) -> None:
         """Start a new trial."""
-        self._n = 0
-        self._sign = 0
-        self._first_sign = 0
-        self._run = 0  # consecutive samples against the current sign
-        self._run_start = 0
+        self._sign = SignDebouncer(self.debounce.c_max)
         self._switch_indices: list[int] = []
         self._crossed_at: int | None = None
 
     @property
     def sign(self) -> int:
         """The current debounced sign of ẑ_h (0 before the first non-zero sample)."""
-        return self._sign
+        return self._sign.sign
 
     @property
     def switches(self) -> int:
@@ -105,32 +99,17 @@ class OutcomeTracker:
     @property
     def samples(self) -> int:
         """Samples fed so far."""
-        return self._n
+        return self._sign.samples
 
     def add(self, z_hat: float, center: Point | None) -> None:
         """One observation: ẑ_h and the hand centre (None when no hand was detected)."""
         if not math.isfinite(z_hat):
             raise ValueError(f"z_hat must be finite, got {z_hat!r}")
-        i = self._n
-        self._n += 1
+        i = self._sign.samples
         if self._crossed_at is None and center is not None and self.commit_line.crossed(center):
             self._crossed_at = i
-        s = _sign(z_hat)
-        if s == 0:
-            return
-        if self._sign == 0:
-            self._sign = self._first_sign = s
-            return
-        if s == self._sign:
-            self._run = 0
-            return
-        if self._run == 0:
-            self._run_start = i
-        self._run += 1
-        if self._run >= self.c_max:
-            self._switch_indices.append(self._run_start)
-            self._sign = s
-            self._run = 0
+        if self._sign.feed(z_hat):
+            self._switch_indices.append(self._sign.onset)
 
     def result(self, human: Colour | None, robot: Colour) -> TrialOutcome:
         """The outcome so far, given what the human (None: never pressed) and robot pressed."""
@@ -144,20 +123,61 @@ class OutcomeTracker:
             outcome=classify(switches, human, robot),
             switches=switches,
             violations=violations,
-            first_sign=self._first_sign,
+            first_sign=self._sign.first_sign,
             crossed_at_index=self._crossed_at,
             switch_indices=tuple(self._switch_indices),
             extra_switches=max(0, switches - 1),
             late_switches=sum(late),
             human=human,
             robot=robot,
-            samples=self._n,
+            samples=self._sign.samples,
         )
 
 
-def count_switches(z_hats: Sequence[float], c_max: int = 4) -> int:
+@dataclass(frozen=True, slots=True)
+class TrialJudgement:
+    """What is stored and published for a finished trial."""
+
+    human: Colour | None  # None: the human never pressed (timeout)
+    robot: Colour | None  # None: the robot did not press
+    outcome: Outcome | None  # None unless both pressed
+    switches: int
+    violations: int
+    score: int
+
+
+def judge_trial(
+    tracker: OutcomeTracker,
+    human: Colour | None,
+    robot: Colour | None,
+    clicks: int | None,
+    target_clicks: int,
+) -> TrialJudgement:
+    """Outcome and score of a finished trial (SPEC §6), as the conductor and offline loop store it.
+
+    A trial the robot did not press has no outcome and scores as a different buzzer; one the
+    human did not press has no outcome class either, but keeps its switch count and violations.
+    """
+    result = tracker.result(human, robot) if robot is not None else None
+    score = score_trial(
+        result is not None and result.same_buzzer,
+        clicks,
+        result.violations if result else 0,
+        target_clicks,
+    )
+    return TrialJudgement(
+        human=human,
+        robot=robot,
+        outcome=result.outcome if (result is not None and human is not None) else None,
+        switches=result.switches if result else 0,
+        violations=result.violations if result else 0,
+        score=score.total,
+    )
+
+
+def count_switches(z_hats: Sequence[float], debounce: DebounceParams | None = None) -> int:
     """Debounced sign changes of a ẑ_h sequence."""
-    tracker = OutcomeTracker(c_max)
+    tracker = OutcomeTracker(debounce)
     for z in z_hats:
         tracker.add(z, None)
     return tracker.switches
@@ -168,13 +188,13 @@ def trial_outcome(
     centers: Sequence[Point | None],
     human: Colour | None,
     robot: Colour,
-    c_max: int = 4,
+    debounce: DebounceParams | None = None,
     commit_line: CommitLine | None = None,
 ) -> TrialOutcome:
     """The outcome of a whole recorded trial (samples from "go" to the human's press)."""
     if len(z_hats) != len(centers):
         raise ValueError(f"got {len(z_hats)} ẑ_h samples but {len(centers)} hand centres")
-    tracker = OutcomeTracker(c_max, commit_line)
+    tracker = OutcomeTracker(debounce, commit_line)
     for z, c in zip(z_hats, centers, strict=True):
         tracker.add(z, c)
     return tracker.result(human, robot)

@@ -14,6 +14,7 @@ from typing import Any
 
 from services.model.arm import SimArmParams
 from services.model.behaviour import BehaviourParams
+from services.model.debounce import DebounceParams
 from services.model.decision import DecisionParams
 from services.model.geometry import TableLayout
 from services.model.participant import ParticipantParams
@@ -28,6 +29,7 @@ class NodConfig:
 
     layout: TableLayout = field(default_factory=TableLayout)
     decision: DecisionParams = field(default_factory=DecisionParams)
+    debounce: DebounceParams = field(default_factory=DebounceParams)  # Algorithm 2 and switches
     behaviour: BehaviourParams = field(default_factory=BehaviourParams)
     sim_arm: SimArmParams = field(default_factory=SimArmParams)
     safety: SafetyParams = field(default_factory=SafetyParams)

@@ -25,20 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.model.dynamics import AgentParams
-from services.model.geometry import Colour, Point, TableLayout, colour_sign
-
-# A flat hand seen from above, 21 MediaPipe-ordered landmarks relative to the palm centre
-# (wrist, thumb ×4, index ×4, middle ×4, ring ×4, little ×4), in units of the hand radius.
-_HAND_TEMPLATE = np.array(
-    [(0.0, 0.9)]
-    + [(-0.45 - 0.15 * i, 0.5 - 0.25 * i) for i in range(4)]
-    + [(-0.30 + 0.0 * i, 0.0 - 0.30 * i) for i in range(4)]
-    + [(-0.05, 0.05 - 0.33 * i) for i in range(4)]
-    + [(0.20, 0.08 - 0.30 * i) for i in range(4)]
-    + [(0.42, 0.18 - 0.24 * i) for i in range(4)]
-)
-_HAND_TEMPLATE = _HAND_TEMPLATE - _HAND_TEMPLATE.mean(axis=0)
+from services.model.dynamics import AgentParams, opinion_rate, rk4_step
+from services.model.geometry import HAND_TEMPLATE, Colour, Point, TableLayout, colour_sign
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,19 +77,23 @@ class Participant:
         self._heading: Colour | None = None
         self._obeys_commit = True
         self._robot_seen: deque[tuple[float, float]] = deque()
+        self._gaze_yaw = 0.0
+        self._preference = 0.0
         self._gaze_sign = 0
         self._gaze_pull = 0.0
         self._last_seen = 0.0
 
     # -- protocol events -------------------------------------------------------------------
 
-    def new_trial(self, gaze_yaw: float, option: Colour | None) -> None:
-        """Prepare for a trial: draw today's preference, read the gaze cue, hand at rest."""
-        pref = abs(self.rng.normal(self.p.preference_mean, self.p.preference_sd))
-        pref_sign = 1 if self.rng.random() < 0.5 else -1
-        self._gaze_sign = int(math.copysign(1, gaze_yaw)) if abs(gaze_yaw) > 1e-9 else 0
-        self._gaze_pull = self.p.gaze_gain * abs(gaze_yaw) * self.trust
-        self.b_h = pref_sign * pref + self._gaze_sign * self._gaze_pull
+    def see_gaze(self, yaw: float) -> None:
+        """The eyes' current gaze cue (not the attention gesture's poses): yaw, > 0 toward red."""
+        self._gaze_yaw = yaw
+
+    def new_trial(self, option: Colour | None) -> None:
+        """Prepare for a trial ("setup"): draw today's preference, hand at rest."""
+        self._preference = abs(self.rng.normal(self.p.preference_mean, self.p.preference_sd))
+        self._preference *= 1 if self.rng.random() < 0.5 else -1
+        self.b_h = self._preference
         self.z_h = 0.0
         self.pos = np.array(self.p.start, dtype=float)
         self.vel = np.zeros(2)
@@ -114,7 +106,15 @@ class Participant:
         self._last_seen = 0.0
 
     def go(self, t: float) -> None:
-        """The countdown said "go"."""
+        """The countdown said "go": the bias is today's preference plus the gaze cue's pull.
+
+        The gaze is read at "go", when the participant has watched the eyes settle through the
+        countdown (the attention gesture before trial 4 is over by then).
+        """
+        yaw = self._gaze_yaw
+        self._gaze_sign = int(math.copysign(1, yaw)) if abs(yaw) > 1e-9 else 0
+        self._gaze_pull = self.p.gaze_gain * abs(yaw) * self.trust
+        self.b_h = self._preference + self._gaze_sign * self._gaze_pull
         self.t_go = t
 
     def trial_ended(self, robot: Colour | None) -> None:
@@ -160,14 +160,10 @@ class Participant:
             or (self._obeys_commit and self.layout.commit.crossed(tuple(self.pos)))
         )
 
-        def f(z: float) -> float:
-            return -a.d * z + a.u * math.tanh(a.alpha * z + a.gamma * r_hat) + self.b_h
+        def f(z: float) -> float:  # eq 2 with the robot's perceived heading r̂ as z_r, a_hr = 1
+            return opinion_rate(z, r_hat, self.b_h, a.d, a.u, a.alpha, a.gamma, math.tanh)
 
-        k1 = f(self.z_h)
-        k2 = f(self.z_h + 0.5 * h * k1)
-        k3 = f(self.z_h + 0.5 * h * k2)
-        k4 = f(self.z_h + h * k3)
-        self.z_h += h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        self.z_h = rk4_step(f, self.z_h, h)
 
         if self.t < self.t_go + self.p.reaction_s:
             return
@@ -197,7 +193,7 @@ class Participant:
 
     def landmarks(self, noise: bool = True) -> np.ndarray:
         """21 landmarks (x, y) around the hand centre, with camera noise when asked."""
-        pts = self.pos + _HAND_TEMPLATE * self.p.hand_radius
+        pts = self.pos + HAND_TEMPLATE * self.p.hand_radius
         if noise:
             pts = pts + self.rng.normal(0.0, self.p.landmark_noise, pts.shape)
         return np.clip(pts, 0.0, 1.0)

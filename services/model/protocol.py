@@ -1,8 +1,14 @@
-"""The trial protocol: the 8-trial schedule and the timeline of one trial (paper Sec 3.2, SPEC §6).
+"""The trial protocol (paper Sec 3.2, SPEC §6): the 8-trial schedule and its state machine.
 
 Each trial: gaze set (after the attention gesture in trial 4) → countdown "1, 2, 3, go" → both
-move → the human presses (or timeout) → the robot presses → outcome and score recorded.
-Times are seconds (float) from any monotonic origin, always passed in.
+move → the human presses (or the timeout) → the robot presses → outcome and score recorded → a
+short rest → the next trial.
+
+`SessionProtocol` is that sequence as a state machine over time and two observations (did the
+human press, did the robot press). It returns `Cue`s — what the conductor must do now — and
+knows nothing of the fabric: the live conductor (`nod experiment`) and the offline closed loop
+(`services.sim.offline`) drive the same machine. Times are seconds (float) from any monotonic
+origin, always passed in.
 """
 
 from __future__ import annotations
@@ -16,28 +22,34 @@ from services.model.gaze import (
     AttentionGestureParams,
     GazeCommand,
     attention_gesture,
+    gaze_level,
 )
 from services.model.geometry import Colour
 
 Mode: TypeAlias = Literal["dissensus", "consensus"]
+MODES: tuple[Mode, Mode] = ("dissensus", "consensus")
 
 
 @dataclass(frozen=True, slots=True)
 class TrialSpec:
-    """What one trial does."""
+    """What one trial does.
+
+    `yaw`/`pitch` default to the gaze table's row for `gaze_level`, turned toward `option`
+    (`services.model.gaze.GAZE_LEVELS`); give them only to override the table.
+    """
 
     index: int  # 1-based trial number within a session
     mode: Mode  # "dissensus": b_r ≡ 0, controller off; "consensus": bias controller toward option
     option: Colour | None  # the convergence option O (consensus only; None in dissensus)
     gaze_level: str  # name of the gaze level (services.model.gaze.GAZE_LEVEL_NAMES)
-    yaw: float  # gaze yaw (rad), > 0 toward red
-    pitch: float  # gaze pitch (rad)
+    yaw: float | None = None  # gaze yaw (rad), > 0 toward red; None: from the gaze table
+    pitch: float | None = None  # gaze pitch (rad); None: from the gaze table
     attention_gesture: bool = False  # run the attention gesture before setting the gaze
 
     def __post_init__(self) -> None:
         if isinstance(self.index, bool) or not isinstance(self.index, int) or self.index < 1:
             raise ValueError(f"TrialSpec.index must be an integer >= 1, got {self.index!r}")
-        if self.mode not in ("dissensus", "consensus"):
+        if self.mode not in MODES:
             raise ValueError(
                 f"TrialSpec.mode must be 'dissensus' or 'consensus', got {self.mode!r}"
             )
@@ -50,25 +62,36 @@ class TrialSpec:
                 f"trial {self.index}: unknown gaze level {self.gaze_level!r}; "
                 f"expected one of {GAZE_LEVEL_NAMES}"
             )
-        if not (math.isfinite(self.yaw) and math.isfinite(self.pitch)):
+        table = gaze_level(self.gaze_level).toward(self.option)
+        if self.yaw is None:
+            object.__setattr__(self, "yaw", table.yaw)
+        if self.pitch is None:
+            object.__setattr__(self, "pitch", table.pitch)
+        if not (math.isfinite(self.yaw) and math.isfinite(self.pitch)):  # type: ignore[arg-type]
             raise ValueError(f"trial {self.index}: gaze yaw/pitch must be finite")
 
     @property
     def gaze(self) -> GazeCommand:
         """The gaze held from before the countdown to the end of the trial."""
-        return GazeCommand(self.yaw, self.pitch)
+        return GazeCommand(self.yaw, self.pitch)  # type: ignore[arg-type]
+
+    @property
+    def consensus_option(self) -> Colour | None:
+        """O in a consensus trial, None in a dissensus trial (what the decision model takes)."""
+        return self.option if self.mode == "consensus" else None
 
 
 def default_schedule() -> tuple[TrialSpec, ...]:
     """The paper's 8 trials (SPEC §5/§6): 1–3 dissensus with neutral gaze, 4–8 consensus."""
-    neutral = [TrialSpec(i, "dissensus", None, "neutral", 0.0, 0.0) for i in (1, 2, 3)]
     return (
-        *neutral,
-        TrialSpec(4, "consensus", "blue", "minimal", -0.47, 0.31, attention_gesture=True),
-        TrialSpec(5, "consensus", "red", "low", 0.53, -0.53),
-        TrialSpec(6, "consensus", "red", "moderate", 0.62, -0.62),
-        TrialSpec(7, "consensus", "blue", "significant", -0.72, 0.72),
-        TrialSpec(8, "consensus", "red", "extreme", 1.09, -0.94),
+        TrialSpec(1, "dissensus", None, "neutral"),
+        TrialSpec(2, "dissensus", None, "neutral"),
+        TrialSpec(3, "dissensus", None, "neutral"),
+        TrialSpec(4, "consensus", "blue", "minimal", attention_gesture=True),
+        TrialSpec(5, "consensus", "red", "low"),
+        TrialSpec(6, "consensus", "red", "moderate"),
+        TrialSpec(7, "consensus", "blue", "significant"),
+        TrialSpec(8, "consensus", "red", "extreme"),
     )
 
 
@@ -80,13 +103,17 @@ class ProtocolParams:
     countdown: tuple[str, ...] = ("1", "2", "3", "go")
     # Time between consecutive countdown words (s); > 0.
     countdown_interval_s: float = 0.75
-    # Trial end after "go" when the human has not pressed (s); > 0. The robot then presses.
+    # The human's time to press after "go" (s); > 0. At the timeout the robot presses the nearest
+    # buzzer (Algorithm 2 reads this same value: there is one trial timeout).
     trial_timeout_s: float = 10.0
     # Pause between setting the gaze and the first countdown word (s); ≥ 0. Lets the eyes settle
     # and the participant see them before the countdown.
     gaze_lead_s: float = 1.0
-    # Consecutive same-sign ẑ_h samples confirming a switch of the human's path (as Algorithm 2).
-    switch_c_max: int = 4
+    # How long the conductor waits for the robot's press after the human's press (or the
+    # timeout) before ending the trial without it (s); > 0. The arm needs ≈ 1–3 s to get there.
+    robot_wait_s: float = 5.0
+    # Rest after a trial is stored, before the next trial's gaze (s); ≥ 0: the hand returns.
+    rest_s: float = 1.0
     # Counter clicks the participant must make for the counter point.
     target_clicks: int = 10
     # The trials of a session, in order (indices 1..n).
@@ -97,16 +124,17 @@ class ProtocolParams:
     def __post_init__(self) -> None:
         if not self.countdown or not all(isinstance(w, str) and w for w in self.countdown):
             raise ValueError("ProtocolParams.countdown needs at least one non-empty word")
-        for name in ("countdown_interval_s", "trial_timeout_s"):
+        for name in ("countdown_interval_s", "trial_timeout_s", "robot_wait_s"):
             value = getattr(self, name)
             if not math.isfinite(value) or value <= 0:
                 raise ValueError(f"ProtocolParams.{name} must be finite and > 0, got {value}")
-        if not math.isfinite(self.gaze_lead_s) or self.gaze_lead_s < 0:
-            raise ValueError(f"ProtocolParams.gaze_lead_s must be >= 0, got {self.gaze_lead_s}")
-        for name in ("switch_c_max", "target_clicks"):
+        for name in ("gaze_lead_s", "rest_s"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"ProtocolParams.{name} must be an integer >= 1, got {value!r}")
+            if not math.isfinite(value) or value < 0:
+                raise ValueError(f"ProtocolParams.{name} must be finite and >= 0, got {value}")
+        value = self.target_clicks
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"ProtocolParams.target_clicks must be an integer >= 1, got {value!r}")
         if not self.trials:
             raise ValueError("ProtocolParams.trials must hold at least one trial")
         indices = [t.index for t in self.trials]
@@ -147,3 +175,180 @@ def trial_timeline(spec: TrialSpec, start_t: float, params: ProtocolParams) -> T
     )
     go_t = words[-1][0]
     return TrialTimeline(gaze, words, go_t, go_t + params.trial_timeout_s)
+
+
+CueKind: TypeAlias = Literal["gaze", "setup", "countdown", "go", "end", "session_end"]
+Phase: TypeAlias = Literal["idle", "cueing", "running", "robot", "judging", "rest", "done"]
+
+
+@dataclass(frozen=True, slots=True)
+class Cue:
+    """One thing the conductor must do now; `advance` returns them in the order to do them.
+
+    - "gaze": command `gaze` (`gesture`: a pose of the attention gesture, not the trial's cue);
+    - "setup": announce the trial (`text` = gaze level): decision and actuation reset;
+    - "countdown": say `text`; "go": say the last word — both agents may move;
+    - "end": the trial is over (`text` = why); judge and store it, then call `judged`;
+    - "session_end": every trial is done (`trial` is None).
+    """
+
+    kind: CueKind
+    trial: TrialSpec | None
+    text: str = ""
+    gaze: GazeCommand | None = None
+    gesture: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class TrialEnd:
+    """How a trial ended, as the machine saw it."""
+
+    human_pressed: bool  # False: the timeout ended the human's part
+    robot_pressed: bool  # False: the robot did not press within `robot_wait_s`
+    t: float  # when the "end" cue was given
+
+    @property
+    def reason(self) -> str:
+        """One line for the store: what ended the trial."""
+        text = "human pressed" if self.human_pressed else "timeout"
+        return text if self.robot_pressed else text + "; robot did not press"
+
+
+class SessionProtocol:
+    """The session as a state machine: idle → (cueing → running → robot → judging → rest)* → done.
+
+    Call `start(t)`, then `advance(t, human_pressed=…, robot_pressed=…)` as often as convenient
+    (every frame, every few ms): it returns the cues that fell due since the last call, in
+    order, each scripted cue exactly once however coarse the calls. After an "end" cue the
+    machine waits in "judging" until `judged(t)`: the conductor may take as long as it needs
+    (the operator types the counter value) without eating into the rest before the next trial.
+    """
+
+    def __init__(self, params: ProtocolParams, first_trial: int = 1) -> None:
+        """A session over `params.trials`, starting at trial `first_trial` (resume: > 1)."""
+        if not 1 <= first_trial <= len(params.trials):
+            raise ValueError(
+                f"first_trial must be in 1..{len(params.trials)}, got {first_trial!r}"
+            )
+        self.params = params
+        self._next_index = first_trial - 1
+        self._phase: Phase = "idle"
+        self._trial: TrialSpec | None = None
+        self._script: list[tuple[float, Cue]] = []
+        self._timeline: TrialTimeline | None = None
+        self._robot_deadline = math.inf
+        self._human_pressed = False
+        self._rest_until = math.inf
+        self._end: TrialEnd | None = None
+
+    # -- read-only state -------------------------------------------------------------------
+
+    @property
+    def phase(self) -> Phase:
+        """Where the session is."""
+        return self._phase
+
+    @property
+    def trial(self) -> TrialSpec | None:
+        """The current trial (None before the start and after the last one)."""
+        return self._trial
+
+    @property
+    def timeline(self) -> TrialTimeline | None:
+        """The current trial's scripted times."""
+        return self._timeline
+
+    @property
+    def end(self) -> TrialEnd | None:
+        """How the current trial ended (set with its "end" cue)."""
+        return self._end
+
+    @property
+    def done(self) -> bool:
+        """True once every trial was judged."""
+        return self._phase == "done"
+
+    def next_due(self) -> float:
+        """The earliest time at which `advance` will change something by time alone (or inf)."""
+        if self._phase == "cueing" and self._script:
+            return self._script[0][0]
+        if self._phase == "running" and self._timeline is not None:
+            return self._timeline.timeout_t
+        if self._phase == "robot":
+            return self._robot_deadline
+        if self._phase == "rest":
+            return self._rest_until
+        return math.inf
+
+    # -- transitions -----------------------------------------------------------------------
+
+    def start(self, t: float) -> list[Cue]:
+        """Begin the session at time t: the first trial's cues that are due at once."""
+        if self._phase != "idle":
+            raise RuntimeError(f"start() in phase {self._phase!r}: a session starts once")
+        out: list[Cue] = []
+        self._begin_trial(t, out)
+        return out + self.advance(t)
+
+    def advance(
+        self, t: float, *, human_pressed: bool = False, robot_pressed: bool = False
+    ) -> list[Cue]:
+        """Move to time t, given whether the human and the robot have pressed (this trial)."""
+        if not math.isfinite(t):
+            raise ValueError(f"time must be finite, got {t!r}")
+        out: list[Cue] = []
+        if self._phase == "cueing":
+            while self._script and self._script[0][0] <= t:
+                out.append(self._script.pop(0)[1])
+            if not self._script:
+                self._phase = "running"
+        if self._phase == "running":
+            assert self._timeline is not None
+            if human_pressed or t >= self._timeline.timeout_t:
+                self._human_pressed = human_pressed
+                self._phase = "robot"
+                self._robot_deadline = t + self.params.robot_wait_s
+        if self._phase == "robot" and (robot_pressed or t >= self._robot_deadline):
+            self._end = TrialEnd(self._human_pressed, robot_pressed, t)
+            self._phase = "judging"
+            out.append(Cue("end", self._trial, self._end.reason))
+        if self._phase == "rest" and t >= self._rest_until:
+            self._begin_trial(t, out)
+            out += self.advance(t)
+        return out
+
+    def judged(self, t: float) -> list[Cue]:
+        """The conductor has judged and stored the trial at time t: rest, then the next one."""
+        if self._phase != "judging":
+            raise RuntimeError(f"judged() in phase {self._phase!r}: only after an 'end' cue")
+        self._rest_until = t + self.params.rest_s
+        self._phase = "rest"
+        return self.advance(t)
+
+    def _begin_trial(self, t: float, out: list[Cue]) -> None:
+        if self._next_index >= len(self.params.trials):
+            self._phase = "done"
+            self._trial = None
+            out.append(Cue("session_end", None, "complete"))
+            return
+        spec = self.params.trials[self._next_index]
+        self._next_index += 1
+        self._trial = spec
+        self._end = None
+        self._human_pressed = False
+        self._robot_deadline = math.inf
+        tl = trial_timeline(spec, t, self.params)
+        self._timeline = tl
+        gesture = spec.attention_gesture
+        script: list[tuple[float, Cue]] = []
+        for i, (when, cmd) in enumerate(tl.gaze):
+            is_cue = i == len(tl.gaze) - 1
+            script.append((when, Cue("gaze", spec, spec.gaze_level, cmd, gesture and not is_cue)))
+            if i == 0:  # the trial is announced with its first gaze command
+                script.append((when, Cue("setup", spec, spec.gaze_level)))
+        for when, word in tl.countdown[:-1]:
+            script.append((when, Cue("countdown", spec, word)))
+        script.append((tl.go_t, Cue("go", spec, tl.countdown[-1][1])))
+        # Stable sort by time: equal times keep the order above (gaze, setup, words, go).
+        self._script = sorted(script, key=lambda item: item[0])
+        self._phase = "cueing"

@@ -1,10 +1,12 @@
-"""The closed loop in one process, without Zenoh: for tuning, tests and fast what-ifs.
+"""The closed loop in one process, without Zenoh: for tuning, tests, cohorts and what-ifs.
 
-The same pure parts the services wrap — Participant, DecisionModel, RobotBehaviour, SimArm,
-OutcomeTracker, score_trial — wired in lock step at camera rate. It shares no code path with the
-distributed run but the pure core, which is exactly what makes it a useful cross-check: the
-distributed session should produce the same kind of outcomes (not bit-identical ones: message
-timing differs).
+It drives the same `SessionProtocol` as the conductor and reacts to its cues the way the
+services do on the fabric — decision and actuation reset at "setup", start at "go"; the
+participant reads the gaze, waits for "go" and watches the arm — with the same pure parts:
+`Participant`, `DecisionModel`, `RobotBehaviour`, `SimArm`, `OutcomeTracker`, `judge_trial`.
+Everything advances in lock step at camera rate, so a seed gives one exact session. A
+distributed session gives the same kind of outcomes, not bit-identical ones: message timing
+differs.
 """
 
 from __future__ import annotations
@@ -17,10 +19,10 @@ from services.model.arm import SimArm
 from services.model.behaviour import RobotBehaviour
 from services.model.decision import DecisionModel
 from services.model.geometry import Colour, colour_sign
-from services.model.outcome import OutcomeTracker
+from services.model.outcome import OutcomeTracker, judge_trial
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered
-from services.model.scoring import score_trial
+from services.model.protocol import Cue, SessionProtocol
 
 
 @dataclass(frozen=True, slots=True)
@@ -36,77 +38,101 @@ class OfflineTrial:
     switches: int
     violations: int
     score: int
-    duration_s: float
+    duration_s: float  # from "go" to the end of the trial
+
+
+class _Loop:
+    """One participant's session: the protocol's cues dispatched to the loop's parts."""
+
+    def __init__(self, cfg: NodConfig, seed: int, cohort: bool, clicks: int | None) -> None:
+        rng = np.random.default_rng(seed)
+        params = jittered(cfg.participant, rng) if cohort else cfg.participant
+        self.cfg = cfg
+        self.clicks = clicks
+        self.person = Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
+        self.model = DecisionModel(cfg.decision, cfg.layout)
+        self.behaviour = RobotBehaviour(cfg.layout, cfg.behaviour, cfg.debounce)
+        self.arm = SimArm(cfg.layout, cfg.sim_arm, t0=0.0)
+        self.arm.connect()
+        self.protocol = SessionProtocol(cfg.protocol)
+        self.tracker: OutcomeTracker | None = None  # recording from "go" to the human's press
+        self.human: Colour | None = None
+        self.robot: Colour | None = None
+        self.t_go = 0.0
+        self.results: list[OfflineTrial] = []
+
+    def on_cues(self, t: float, cues: list[Cue]) -> None:
+        while cues:
+            cue = cues.pop(0)
+            spec = cue.trial
+            if cue.kind == "gaze" and not cue.gesture and cue.gaze is not None:
+                self.person.see_gaze(cue.gaze.yaw)
+            elif cue.kind == "setup" and spec is not None:
+                self.model.reset(spec.mode, spec.consensus_option)
+                self.behaviour.reset()
+                self.arm.state(t)
+                self.arm.home()
+                self.person.new_trial(spec.option)
+                self.tracker, self.human, self.robot = None, None, None
+            elif cue.kind == "go" and spec is not None:
+                self.model.reset(spec.mode, spec.consensus_option)
+                self.behaviour.start(t, self.cfg.protocol.trial_timeout_s)
+                self.person.go(t)
+                self.tracker = OutcomeTracker(self.cfg.debounce, self.cfg.layout.commit)
+                self.t_go = t
+            elif cue.kind == "end" and spec is not None:
+                self._judge(t, spec.index, spec.mode, spec.option)
+                cues.extend(self.protocol.judged(t))
+
+    def _judge(self, t: float, index: int, mode: str, option: Colour | None) -> None:
+        self.person.trial_ended(self.robot)
+        assert self.tracker is not None  # set at "go", which precedes every "end"
+        j = judge_trial(
+            self.tracker, self.human, self.robot, self.clicks, self.cfg.protocol.target_clicks
+        )
+        self.results.append(
+            OfflineTrial(
+                index, mode, option, j.human, j.robot, j.outcome, j.switches, j.violations,
+                j.score, t - self.t_go,
+            )
+        )
+
+    def frame(self, t: float) -> None:
+        """One camera frame: the person moves, decision reads the pose, actuation steps."""
+        self.person.advance(t)
+        pts = self.person.landmarks()
+        landmarks = [(float(x), float(y)) for x, y in pts]
+        out = self.model.on_hand(int(round(t * 1e9)), landmarks)
+        if self.tracker is not None and self.human is None:
+            center = (float(pts[:, 0].mean()), float(pts[:, 1].mean()))
+            self.tracker.add(out.z_hat, center)
+            self.human = self.cfg.layout.pressed(landmarks)
+        state = self.arm.state(t)
+        if self.behaviour.phase != "idle":
+            self.arm.send(self.behaviour.step(t, out.z_r, self.human, state.ee))
+            state = self.arm.state(t)
+        heading = colour_sign(state.target) if state.target and state.moving else 0
+        self.person.see_robot(t, heading)
+        if state.pressed is not None and self.robot is None and self.behaviour.t_go is not None:
+            self.behaviour.complete()
+            self.robot = state.pressed
 
 
 def run_offline_session(
     cfg: NodConfig, seed: int, rate_hz: float = 30.0, cohort: bool = False, clicks: int = 10
 ) -> list[OfflineTrial]:
-    """Simulate one participant's session; return each trial's outcome."""
-    rng = np.random.default_rng(seed)
-    params = jittered(cfg.participant, rng) if cohort else cfg.participant
-    person = Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
-    model = DecisionModel(cfg.decision, cfg.layout)
-    arm = SimArm(cfg.layout, cfg.sim_arm, t0=0.0)
-    arm.connect()
+    """Simulate one participant's whole session; return each trial's outcome."""
+    loop = _Loop(cfg, seed, cohort, clicks)
     dt = 1.0 / rate_hz
     t = 0.0
-    out: list[OfflineTrial] = []
-    for spec in cfg.protocol.trials:
-        arm.state(t)
-        arm.home()
-        t += 2.0  # time to get home and for the participant to see the gaze
-        arm.state(t)
-        person.advance(t)
-        person.new_trial(spec.yaw, spec.option)
-        model.reset(spec.mode, spec.option if spec.mode == "consensus" else None)
-        behaviour = RobotBehaviour(cfg.layout, cfg.behaviour)
-        tracker = OutcomeTracker(cfg.protocol.switch_c_max, cfg.layout.commit)
-        t_go = t
-        person.go(t_go)
-        behaviour.start(t_go)
-        human: Colour | None = None
-        robot: Colour | None = None
-        seq = 0
-        while t - t_go < cfg.protocol.trial_timeout_s + 5.0:
-            t += dt
-            person.advance(t)
-            landmarks = [tuple(p) for p in person.landmarks()]
-            res = model.on_hand(int(round(t * 1e9)), landmarks)
-            seq += 1
-            if human is None:
-                center = tuple(np.mean(landmarks, axis=0))
-                tracker.add(res.z_hat, center)
-                human = cfg.layout.pressed(landmarks)
-            state = arm.state(t)
-            arm.send(behaviour.step(t, res.z_r, human, state.ee))
-            state = arm.state(t)
-            heading = colour_sign(state.target) if state.target and state.moving else 0
-            person.see_robot(t, heading)
-            if state.pressed is not None:
-                behaviour.complete()
-                robot = state.pressed
-                break
-        person.trial_ended(robot)
-        result = tracker.result(human, robot) if robot else None
-        score = score_trial(
-            result is not None and result.same_buzzer,
-            clicks,
-            result.violations if result else 0,
-            cfg.protocol.target_clicks,
+    loop.on_cues(t, loop.protocol.start(t))
+    while not loop.protocol.done:
+        t += dt
+        loop.frame(t)
+        loop.on_cues(
+            t,
+            loop.protocol.advance(
+                t, human_pressed=loop.human is not None, robot_pressed=loop.robot is not None
+            ),
         )
-        out.append(
-            OfflineTrial(
-                trial=spec.index,
-                mode=spec.mode,
-                option=spec.option,
-                human=human,
-                robot=robot,
-                outcome=result.outcome if (result and human) else None,
-                switches=result.switches if result else 0,
-                violations=result.violations if result else 0,
-                score=score.total,
-                duration_s=t - t_go,
-            )
-        )
-    return out
+    return loop.results

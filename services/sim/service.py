@@ -46,7 +46,6 @@ class SimService:
         params = jittered(cfg.participant, rng) if cohort else cfg.participant
         self.person = Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
         self.person.advance(node.clock.now_ns() * NS)  # at rest: only sets its clock
-        self.gaze_yaw = 0.0
         self.option: str | None = None
         self.robot: str | None = None
         # --render: be the camera, not the tracker — frames go to `nod vision`, which publishes
@@ -69,15 +68,16 @@ class SimService:
             node.every(1.0, self.publish_layout)
 
     def on_gaze(self, msg: m.GazeMsg) -> None:
-        """The participant sees where the eyes look."""
-        self.gaze_yaw = msg.yaw
+        """The participant sees where the eyes look (the attention gesture is not a cue)."""
+        if not msg.gesture:
+            self.person.see_gaze(msg.yaw)
 
     def on_trial(self, ev: m.TrialEvent) -> None:
         """Follow the protocol like a participant listening to the countdown."""
         t = self._advance(ev.t_ns)
         if ev.phase == "setup":
             self.robot = None
-            self.person.new_trial(self.gaze_yaw, ev.option)
+            self.person.new_trial(ev.option)
         elif ev.phase == "go":
             self.person.go(t)
         elif ev.phase == "end":

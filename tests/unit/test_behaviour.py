@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.model.behaviour import ArmCommand, BehaviourParams, RobotBehaviour
+from services.model.debounce import DebounceParams
 from services.model.geometry import TableLayout
 
 LAYOUT = TableLayout()
@@ -35,22 +36,43 @@ def ref_debounced(samples: list[int], c_max: int) -> int:
     return state
 
 
-def started(params: BehaviourParams | None = None, t0: float = 0.0) -> RobotBehaviour:
-    b = RobotBehaviour(LAYOUT, params)
-    b.start(t0)
+def started(
+    params: BehaviourParams | None = None,
+    t0: float = 0.0,
+    *,
+    c_max: int | None = None,
+    timeout_s: float = 10.0,
+) -> RobotBehaviour:
+    debounce = DebounceParams(c_max) if c_max is not None else None
+    b = RobotBehaviour(LAYOUT, params, debounce)
+    b.start(t0, timeout_s)
     return b
 
 
 def test_params_validation() -> None:
     with pytest.raises(ValueError):
-        BehaviourParams(c_max=0)
+        DebounceParams(c_max=0)
     with pytest.raises(ValueError):
         BehaviourParams(pause_s=-0.1)
     with pytest.raises(ValueError):
-        BehaviourParams(timeout_s=0)
+        RobotBehaviour(LAYOUT).start(0.0, timeout_s=0)
     with pytest.raises(ValueError):
-        BehaviourParams(timeout_s=float("nan"))
-    assert BehaviourParams() == BehaviourParams(c_max=4, pause_s=0.1, timeout_s=10.0)
+        RobotBehaviour(LAYOUT).start(0.0, timeout_s=float("nan"))
+    assert BehaviourParams() == BehaviourParams(pause_s=0.1)
+
+
+def test_default_c_max_is_four_consecutive_samples() -> None:
+    # SPEC §4: C_max = 4. Three opposite samples never turn the robot; the fourth does.
+    b = started()
+    t = 0.0
+    b.step(t, 1.0, None, HOME)
+    for _ in range(3):
+        t += DT
+        b.step(t, -1.0, None, HOME)
+    assert b.direction == 1
+    t += DT
+    b.step(t, -1.0, None, HOME)
+    assert b.direction == -1
 
 
 def test_arm_command_validation() -> None:
@@ -73,7 +95,7 @@ def test_idle_before_go_and_waiting_until_nonzero() -> None:
     b = RobotBehaviour(LAYOUT)
     assert b.step(0.0, 1.0, None, HOME).action == "idle"
     assert b.phase == "idle"
-    b.start(0.1)
+    b.start(0.1, 10.0)
     assert b.phase == "waiting"
     assert b.step(0.2, None, None, HOME).action == "idle"
     assert b.step(0.3, 0.0, None, HOME).action == "idle"
@@ -85,14 +107,14 @@ def test_idle_before_go_and_waiting_until_nonzero() -> None:
 def test_start_twice_needs_reset() -> None:
     b = started()
     with pytest.raises(RuntimeError):
-        b.start(1.0)
+        b.start(1.0, 10.0)
     b.reset()
-    b.start(2.0)
+    b.start(2.0, 10.0)
     assert b.t_go == 2.0
 
 
 def test_reversal_needs_c_max_samples_then_pause_then_move() -> None:
-    b = started(BehaviourParams(c_max=4, pause_s=0.1))
+    b = started(BehaviourParams(pause_s=0.1), c_max=4)
     t = 0.0
     assert b.step(t, 1.0, None, HOME).action == "move"
     for _ in range(3):
@@ -116,7 +138,7 @@ def test_reversal_needs_c_max_samples_then_pause_then_move() -> None:
 
 
 def test_interrupted_flip_resets_the_count() -> None:
-    b = started(BehaviourParams(c_max=3))
+    b = started(c_max=3)
     t = 0.0
     b.step(t, 1.0, None, HOME)
     for z in (-1, -1, 1, -1, -1, 0, 1, -1, -1):
@@ -131,7 +153,7 @@ def test_interrupted_flip_resets_the_count() -> None:
 
 
 def test_zero_samples_neither_count_nor_break() -> None:
-    b = started(BehaviourParams(c_max=3))
+    b = started(c_max=3)
     t = 0.0
     b.step(t, 1.0, None, HOME)
     for z in (-1, 0, None, -1, 0):
@@ -152,7 +174,7 @@ def test_zero_samples_neither_count_nor_break() -> None:
 def test_flips_shorter_than_c_max_never_change_direction(
     first: int, c_max: int, blocks: list[tuple[int, int]]
 ) -> None:
-    b = started(BehaviourParams(c_max=c_max))
+    b = started(c_max=c_max)
     t = 0.0
     assert b.step(t, float(first), None, HOME).direction == first
     for flip_len, zeros in blocks:
@@ -174,7 +196,7 @@ def test_flips_shorter_than_c_max_never_change_direction(
 def test_direction_always_equals_the_debounced_sign(
     c_max: int, pause_s: float, samples: list[int | None]
 ) -> None:
-    b = started(BehaviourParams(c_max=c_max, pause_s=pause_s))
+    b = started(BehaviourParams(pause_s=pause_s), c_max=c_max)
     seen: list[int] = []
     for k, s in enumerate(samples):
         t = (k + 1) * DT
@@ -191,7 +213,7 @@ def test_direction_always_equals_the_debounced_sign(
 @settings(max_examples=100, deadline=None)
 @given(pause_s=st.floats(0.0, 0.5), dt=st.floats(0.001, 0.05))
 def test_pause_lasts_pause_s(pause_s: float, dt: float) -> None:
-    b = started(BehaviourParams(c_max=1, pause_s=pause_s))
+    b = started(BehaviourParams(pause_s=pause_s), c_max=1)
     b.step(0.0, 1.0, None, HOME)
     t_confirm = dt
     assert b.step(t_confirm, -1.0, None, HOME).action == "stop"
@@ -209,7 +231,7 @@ def test_pause_lasts_pause_s(pause_s: float, dt: float) -> None:
 
 
 def test_flip_back_during_pause_restarts_pause_toward_the_new_side() -> None:
-    b = started(BehaviourParams(c_max=2, pause_s=1.0))
+    b = started(BehaviourParams(pause_s=1.0), c_max=2)
     b.step(0.0, 1.0, None, HOME)
     b.step(0.1, -1.0, None, HOME)
     assert b.step(0.2, -1.0, None, HOME).action == "stop"
@@ -252,7 +274,7 @@ def test_press_while_waiting_uses_home() -> None:
 
 
 def test_timeout_presses() -> None:
-    b = started(BehaviourParams(timeout_s=2.0), t0=5.0)
+    b = started(t0=5.0, timeout_s=2.0)
     b.step(5.1, 1.0, None, HOME)
     assert b.step(6.99, 1.0, None, NEAR_BLUE).action == "move"
     cmd = b.step(7.0, 1.0, None, NEAR_BLUE)
@@ -261,20 +283,8 @@ def test_timeout_presses() -> None:
 
 
 def test_timeout_even_without_any_z_r() -> None:
-    b = started(BehaviourParams(timeout_s=1.0))
+    b = started(timeout_s=1.0)
     assert b.step(1.0, None, None, NEAR_RED).target == "red"
-
-
-def test_abort_is_a_safe_stop_until_reset() -> None:
-    b = started()
-    b.step(0.0, 1.0, None, HOME)
-    cmd = b.abort("watchdog: z_r stale")
-    assert cmd.action == "stop" and "watchdog" in cmd.reason
-    assert b.ended and b.phase == "aborted" and b.pressed_colour is None
-    assert b.step(0.1, -1.0, "red", NEAR_RED).action == "stop"
-    assert b.step(50.0, 1.0, None, HOME).action == "stop"
-    b.reset()
-    assert b.phase == "idle" and not b.ended and b.direction == 0
 
 
 def test_time_and_input_validation() -> None:

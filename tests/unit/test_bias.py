@@ -4,18 +4,11 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.model.bias import (
-    BiasParams,
-    beta_for,
-    bias_rate,
-    clamp_bias,
-    sigma_for,
-)
+from services.model.bias import BiasParams, beta_for, bias_active, bias_rate, sigma_for
 from services.model.decision import DecisionModel, DecisionParams
 from services.model.geometry import colour_sign
 
@@ -43,37 +36,18 @@ def test_threshold_default_and_override():
 @settings(max_examples=300, deadline=None)
 @given(b_r=values, z_r=values, z_hat=values, option=colours)
 def test_bias_moves_toward_option_only_in_dissensus(b_r, z_r, z_hat, option):
-    rate = bias_rate(b_r, z_r, z_hat, option, P, B_STAR)
-    if z_r * z_hat < 0:
-        if abs(b_r) < B_STAR or abs(z_r) > 1e-12:
-            assert math.copysign(1, rate) == colour_sign(option)
-            assert rate != 0.0
-        expected = sigma_for(option) * z_r * math.copysign(1, z_hat) + beta_for(option) * max(
-            0.0, B_STAR - abs(b_r)
-        )
-        assert rate == pytest.approx(expected)
-    else:
-        assert rate == 0.0
-
-
-def test_bias_rate_on_arrays_matches_scalars():
-    rng = np.random.default_rng(1)
-    b_r, z_r, z_hat = (rng.uniform(-4, 4, 50) for _ in range(3))
-    z_hat[:5] = 0.0
-    for option in ("red", "blue"):
-        arr = bias_rate(b_r, z_r, z_hat, option, P, B_STAR)
-        scal = [
-            bias_rate(float(b), float(z), float(h), option, P, B_STAR)
-            for b, z, h in zip(b_r, z_r, z_hat, strict=True)
-        ]
-        np.testing.assert_allclose(arr, scal)
-
-
-def test_clamp_bias():
-    assert clamp_bias(7.0, 6.0) == 6.0
-    assert clamp_bias(-7.0, 6.0) == -6.0
-    assert clamp_bias(1.5, 6.0) == 1.5
-    np.testing.assert_array_equal(clamp_bias(np.array([-9.0, 0.0, 9.0]), 6.0), [-6.0, 0.0, 6.0])
+    active = bias_active(z_r, z_hat)
+    assert active == (z_r * z_hat < 0)
+    if not active:
+        return  # the controller is frozen: the model holds b_r
+    rate = bias_rate(b_r, z_r, z_hat, sigma_for(option, P), beta_for(option, P), B_STAR)
+    if abs(b_r) < B_STAR or abs(z_r) > 1e-12:
+        assert math.copysign(1, rate) == colour_sign(option)
+        assert rate != 0.0
+    # Eq 6 written out independently: σ z_r sgn(ẑ_h) + β max(0, b* − |b_r|).
+    sigma = -0.1 if option == "red" else 0.1
+    expected = sigma * z_r * math.copysign(1, z_hat) - 16.0 * sigma * max(0.0, B_STAR - abs(b_r))
+    assert rate == pytest.approx(expected)
 
 
 def _heading_for_red(params: DecisionParams, seconds: float, hz: float = 30.0):

@@ -17,8 +17,7 @@ from services.analysis.equilibria import (
     find_equilibria,
 )
 from services.analysis.fields import max_rate
-from services.analysis.sweep import _rk4
-from services.model.dynamics import AgentParams, PairParams, jacobian
+from services.model.dynamics import AgentParams, PairParams, jacobian, rk4_pair
 
 P = PairParams()
 U = P.robot.u
@@ -157,7 +156,7 @@ def test_random_biases_long_rk4_ends_on_a_returned_stable_equilibrium(
     rng = np.random.default_rng(seed)
     z_r0, z_h0 = rng.uniform(-1.5, 1.5, size=(2, 16))
     br, bh = np.full(16, b_r), np.full(16, b_h)
-    z_r, z_h = _rk4(z_r0, z_h0, br, bh, P, 0.02, 1500)  # 30 s (fixed points = equilibria)
+    z_r, z_h = rk4_pair(z_r0, z_h0, br, bh, P, 0.02, 1500)  # 30 s (fixed points = equilibria)
     settled = max_rate(z_r, z_h, br, bh, P) < 1e-8
     slowest = min(abs(v.real) for e in eqs for v in e.eigenvalues)
     if slowest > 1.0:  # near a bifurcation (e.g. b_r = b_h = 2.5) convergence is very slow

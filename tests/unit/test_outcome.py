@@ -6,6 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from services.model.debounce import DebounceParams
 from services.model.geometry import CommitLine
 from services.model.outcome import (
     OutcomeTracker,
@@ -14,6 +15,7 @@ from services.model.outcome import (
     trial_outcome,
 )
 
+D = DebounceParams
 BEFORE = (0.5, 0.8)  # participant's side of the default commit line (y = 0.45)
 AFTER = (0.5, 0.3)  # past the line, on the buzzers' side
 
@@ -73,17 +75,26 @@ def test_straight_path_is_c_or_d() -> None:
 def test_one_early_switch_is_allowed() -> None:
     z = [1, 1, -1, -1, -1, -1, -1]
     centers = [BEFORE] * 6 + [AFTER]
-    out = trial_outcome(z, centers, "blue", "blue", c_max=4)
+    out = trial_outcome(z, centers, "blue", "blue", D(4))
     assert (out.outcome, out.switches, out.violations) == ("CH", 1, 0)
     assert out.switch_indices == (2,) and out.first_sign == 1
 
 
+def test_default_switch_debounce_is_c_max_four() -> None:
+    # SPEC §6: switches are debounced like Algorithm 2 (C_max = 4): a run of three is noise,
+    # four is a switch; C vs CH of every stored trial hangs on this.
+    assert count_switches([1, -1, -1, -1, 1]) == 0
+    assert count_switches([1, -1, -1, -1, -1]) == 1
+    assert trial_outcome([1, -1, -1, -1], [None] * 4, "red", "red").outcome == "C"
+    assert trial_outcome([1, -1, -1, -1, -1], [None] * 5, "blue", "blue").outcome == "CH"
+
+
 def test_short_flip_is_not_a_switch_and_zeros_do_not_break_runs() -> None:
-    assert count_switches([1, -1, -1, -1, 1, 1], c_max=4) == 0
-    assert count_switches([1, -1, 0, -1, 0, 0, -1, -1], c_max=4) == 1
-    assert count_switches([1, -1, -1, 1, -1, -1, -1], c_max=4) == 0
-    assert count_switches([0, 0, 0], c_max=1) == 0
-    assert count_switches([-1, 1, -1, 1], c_max=1) == 3
+    assert count_switches([1, -1, -1, -1, 1, 1], D(4)) == 0
+    assert count_switches([1, -1, 0, -1, 0, 0, -1, -1], D(4)) == 1
+    assert count_switches([1, -1, -1, 1, -1, -1, -1], D(4)) == 0
+    assert count_switches([0, 0, 0], D(1)) == 0
+    assert count_switches([-1, 1, -1, 1], D(1)) == 3
 
 
 def test_second_switch_is_a_violation() -> None:
@@ -123,13 +134,14 @@ def test_crossing_latches_and_a_late_second_switch_counts_once() -> None:
 
 def test_mirrored_commit_line() -> None:
     line = CommitLine(y=0.5, start_side="above")
-    out = trial_outcome([1, 1, -1], [(0.5, 0.2), (0.5, 0.6), (0.5, 0.7)], "red", "red", 1, line)
+    centers = [(0.5, 0.2), (0.5, 0.6), (0.5, 0.7)]
+    out = trial_outcome([1, 1, -1], centers, "red", "red", D(1), line)
     assert out.crossed_at_index == 1 and out.late_switches == 1
 
 
 def test_validation() -> None:
     with pytest.raises(ValueError):
-        OutcomeTracker(c_max=0)
+        DebounceParams(c_max=0)
     with pytest.raises(ValueError):
         OutcomeTracker().add(float("nan"), None)
     with pytest.raises(ValueError):
@@ -137,7 +149,7 @@ def test_validation() -> None:
 
 
 def test_tracker_reset() -> None:
-    tr = OutcomeTracker(c_max=1)
+    tr = OutcomeTracker(D(1))
     for z in (1, -1, 1):
         tr.add(z, AFTER)
     assert tr.switches == 2
@@ -152,8 +164,8 @@ z_values = st.lists(st.sampled_from([-2.0, -0.3, 0.0, 0.0, 0.4, 1.5]), max_size=
 @given(z=z_values, c_max=st.integers(1, 6))
 def test_switch_count_equals_reference(z: list[float], c_max: int) -> None:
     onsets = ref_switch_onsets(z, c_max)
-    assert count_switches(z, c_max) == len(onsets)
-    out = trial_outcome(z, [None] * len(z), "red", "red", c_max)
+    assert count_switches(z, D(c_max)) == len(onsets)
+    out = trial_outcome(z, [None] * len(z), "red", "red", D(c_max))
     assert list(out.switch_indices) == onsets
     assert out.violations == max(0, len(onsets) - 1)  # no crossing: only extra switches
 
@@ -162,7 +174,7 @@ def test_switch_count_equals_reference(z: list[float], c_max: int) -> None:
 @given(z=z_values, c_max=st.integers(1, 6), cross=st.integers(0, 130))
 def test_violations_against_reference(z: list[float], c_max: int, cross: int) -> None:
     centers = [BEFORE if i < cross else AFTER for i in range(len(z))]
-    out = trial_outcome(z, centers, "blue", "red", c_max)
+    out = trial_outcome(z, centers, "blue", "red", D(c_max))
     onsets = ref_switch_onsets(z, c_max)
     crossed = cross if cross < len(z) else None
     assert out.crossed_at_index == crossed

@@ -223,7 +223,7 @@ def drive(
     """Close the loop: behaviour → sim arm, as the actuation service would."""
     beh = RobotBehaviour(LAYOUT, BehaviourParams())
     a = arm()
-    beh.start(0.0)
+    beh.start(0.0, timeout_s=10.0)
     trace = []
     t = 0.0
     while t <= until:
@@ -271,7 +271,7 @@ def test_press_ends_in_the_box_nearest_at_decision(
 
     beh = RobotBehaviour(LAYOUT)
     a = arm()
-    beh.start(0.0)
+    beh.start(0.0, timeout_s=10.0)
     t = 0.0
     while beh.phase != "done":
         a.advance(t)

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.analysis.equilibria import find_equilibria
-from services.analysis.fields import is_stable, jacobian_entries, max_rate
+from services.analysis.fields import is_stable, max_rate
 from services.analysis.progress import ProgressBar
 from services.analysis.square_claim import check_square_claim, square_claim
 from services.analysis.sweep import (
@@ -21,7 +21,7 @@ from services.analysis.sweep import (
     sweep,
     sweep_rk4,
 )
-from services.model.dynamics import AgentParams, PairParams
+from services.model.dynamics import AgentParams, PairParams, jacobian_entries
 
 P = PairParams()
 U = P.robot.u
