@@ -18,6 +18,7 @@ from services.core import messages as m
 from services.core.cli import Parser, add_service_args
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
+from services.core.session import Fabric
 from services.model.arm import ArmDriver
 from services.model.behaviour import ArmCommand, RobotBehaviour
 from services.model.params import NodConfig
@@ -182,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         safety = cfg.safety
         if args.stale_ms is not None:
             safety = SafetyParams(stale_ms=args.stale_ms, require_alive=safety.require_alive)
-        node = Node("actuation", args)
+        node = Node("actuation", Fabric.from_args(args))
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod actuation: {exc}", file=sys.stderr)
         return 2

@@ -58,8 +58,3 @@ def add_clock_args(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="wall time (ns) where the shared simulated clock starts (set by `nod run`)",
     )
-
-
-def clock_from_args(args: argparse.Namespace) -> Clock:
-    """The clock the flags ask for."""
-    return Clock(args.speed, args.epoch_ns)

@@ -10,28 +10,9 @@ import re
 from dataclasses import dataclass
 
 from services.core import messages as m
+from services.core.contract import TOPICS
 
 _RIG_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
-
-# topic -> (message type, publisher, subscribers, rate) — the README's contract table is this.
-TOPICS: dict[str, tuple[type[m.Message], str, str, str]] = {
-    "vision/hand": (m.HandPose, "vision | sim", "decision, actuation, experiment", "30 Hz"),
-    "vision/layout": (m.Layout, "vision | sim", "decision, actuation, experiment", "1 Hz + query"),
-    "vision/frame": (m.VisionFrame, "vision", "monitor", "2 Hz (--frames-key-hz)"),
-    "sim/camera": (m.VisionFrame, "sim --render", "vision --source zenoh:sim/camera", "30 Hz"),
-    "decision/z_h": (m.Scalar, "decision", "experiment, sim, monitor", "per hand pose"),
-    "decision/z_r": (m.Scalar, "decision", "actuation, experiment, sim", "per hand pose"),
-    "decision/b_r": (m.Scalar, "decision", "experiment, monitor", "per hand pose"),
-    "actuation/cmd": (m.ArmCommandMsg, "actuation", "monitor", "on change + 10 Hz"),
-    "actuation/state": (m.ArmStateMsg, "actuation", "sim, experiment, monitor", "50 Hz"),
-    "actuation/press": (m.PressMsg, "actuation", "experiment", "once per trial"),
-    "eyes/cmd": (m.GazeMsg, "experiment", "eyes, sim", "per trial + 5 Hz keepalive"),
-    "eyes/state": (m.EyesStateMsg, "eyes", "monitor", "on change + 5 Hz"),
-    "experiment/trial": (m.TrialEvent, "experiment", "decision, actuation, sim", "per event"),
-    "experiment/result": (m.TrialResult, "experiment", "monitor", "per trial"),
-    "safety/estop": (m.Estop, "anyone (`nod estop`)", "actuation, eyes", "on demand"),
-}
-
 
 def check_rig(rig: str) -> str:
     """Validate a rig name (it becomes one key chunk): letters, digits, '-' and '_'."""
@@ -55,6 +36,12 @@ class Keys:
             raise KeyError(f"unknown topic {topic!r}; known: {sorted(TOPICS)}")
         return f"nod/{self.rig}/{topic}"
 
+    def topic_of(self, key: str) -> str | None:
+        """The topic name of a full key of this rig (e.g. `vision/hand`), or None."""
+        prefix = f"nod/{self.rig}/"
+        topic = key[len(prefix) :] if key.startswith(prefix) else ""
+        return topic if topic in TOPICS else None
+
     def alive(self, service: str) -> str:
         """The liveliness token key of a service instance."""
         return f"nod/{self.rig}/alive/{service}"
@@ -66,6 +53,5 @@ class Keys:
 
     def message_type(self, key: str) -> type[m.Message] | None:
         """The message type carried on a full key of this rig, or None."""
-        prefix = f"nod/{self.rig}/"
-        topic = key[len(prefix) :] if key.startswith(prefix) else ""
-        return TOPICS[topic][0] if topic in TOPICS else None
+        topic = self.topic_of(key)
+        return TOPICS[topic].message if topic is not None else None

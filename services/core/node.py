@@ -8,7 +8,6 @@ and dropped; the service keeps running.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import signal
 import threading
@@ -20,36 +19,43 @@ from typing import Any, TypeVar
 import zenoh
 
 from services.core import messages as m
-from services.core.clock import Clock, clock_from_args
-from services.core.keys import TOPICS, Keys
-from services.core.session import open_session, zenoh_config
+from services.core.clock import Clock
+from services.core.contract import QoS, check_publisher, check_subscriber
+from services.core.keys import Keys
+from services.core.session import Fabric, open_session
 
 M = TypeVar("M", bound=m.Message)
-RELIABLE_TOPICS = frozenset(
-    {"experiment/trial", "experiment/result", "actuation/press", "safety/estop", "eyes/cmd"}
-)
 log = logging.getLogger(__name__)
+_PRIORITY = {
+    "real_time": zenoh.Priority.REAL_TIME,
+    "interactive_high": zenoh.Priority.INTERACTIVE_HIGH,
+    "data_high": zenoh.Priority.DATA_HIGH,
+    "data": zenoh.Priority.DATA,
+}
+
+
+def declare_publisher(session: zenoh.Session, key: str, qos: QoS) -> zenoh.Publisher:
+    """A zenoh publisher with a topic's QoS from the contract (every publisher goes here)."""
+    return session.declare_publisher(
+        key,
+        express=qos.express,
+        congestion_control=zenoh.CongestionControl.BLOCK
+        if qos.congestion == "block"
+        else zenoh.CongestionControl.DROP,
+        priority=_PRIORITY[qos.priority],
+    )
 
 
 class TopicPublisher:
     """Publishes one topic's messages with a running `seq` and the node clock's `t_ns`."""
 
     def __init__(self, node: Node, topic: str) -> None:
+        spec = check_publisher(topic, node.service)
         self.topic = topic
         self.key = node.keys.topic(topic)
-        self.cls = TOPICS[topic][0]
+        self.cls = spec.message
         self._clock = node.clock
-        reliable = topic in RELIABLE_TOPICS
-        self._pub = node.session.declare_publisher(
-            self.key,
-            # Small control messages: never wait to fill a batch (latency over throughput).
-            express=True,
-            # Protocol events and safety must arrive; a late camera frame is better dropped.
-            congestion_control=zenoh.CongestionControl.BLOCK
-            if reliable
-            else zenoh.CongestionControl.DROP,
-            priority=zenoh.Priority.REAL_TIME if topic == "safety/estop" else None,
-        )
+        self._pub = declare_publisher(node.session, self.key, spec.qos)
         self.seq = 0
 
     def put(self, t_ns: int | None = None, **fields: Any) -> m.Message:
@@ -64,12 +70,13 @@ class Node:
     """One service process on the Zenoh fabric."""
 
     def __init__(
-        self, service: str, args: argparse.Namespace, *, stands_in_for: tuple[str, ...] = ()
+        self, service: str, fabric: Fabric, *, stands_in_for: tuple[str, ...] = ()
     ) -> None:
         self.service = service
-        self.keys = Keys(args.rig)
-        self.clock: Clock = clock_from_args(args)
-        self.session = open_session(zenoh_config(args))
+        self.fabric = fabric
+        self.keys = Keys(fabric.rig)
+        self.clock: Clock = fabric.clock()
+        self.session = open_session(fabric.zenoh_config())
         self.lock = threading.RLock()
         self.stop = threading.Event()
         self.bad: Counter[str] = Counter()
@@ -100,7 +107,7 @@ class Node:
         Only for short handlers: a slow one would hold up the session's other deliveries.
         """
         key = self.keys.topic(topic)
-        cls: type[m.Message] = TOPICS[topic][0]
+        cls: type[m.Message] = check_subscriber(topic, self.service).message
 
         def on_sample(sample: zenoh.Sample) -> None:
             try:

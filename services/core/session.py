@@ -1,19 +1,24 @@
 """One way for every service to open its Zenoh session, like the zenoh-python examples.
 
-`add_zenoh_args(parser)` adds `--mode/--connect/--listen/--config/--rig`; `zenoh_config(args)`
-builds the `zenoh.Config`. Multicast scouting is off unless a config file turns it on: a lab
-network decides its topology explicitly (and tests must never find each other by accident).
+`Fabric` is a service's place on the network as typed config: the rig, the session (mode,
+endpoints, config file) and the shared simulated clock. `add_zenoh_args(parser)` adds
+`--mode/--connect/--listen/--config/--rig` and `Fabric.from_args` reads them (with the clock
+flags); tests build a `Fabric` directly. Multicast scouting is off unless a config file turns it
+on: a lab network decides its topology explicitly (and tests must never find each other by
+accident).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import zenoh
 
+from services.core.clock import Clock
 from services.core.keys import check_rig
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
@@ -43,11 +48,48 @@ def add_zenoh_args(parser: argparse.ArgumentParser, *, default_mode: str = "clie
     g.add_argument("--rig", type=check_rig, default="rig1", help="rig name scoping every key")
 
 
-def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
-    """Build the session configuration from the shared flags."""
-    return make_config(
-        mode=args.mode, connect=args.connect, listen=args.listen, config_file=args.config
-    )
+@dataclass(frozen=True, slots=True)
+class Fabric:
+    """Where a service meets the others: its rig, its zenoh session and the shared clock."""
+
+    rig: str = "rig1"  # scopes every key: nod/<rig>/...
+    mode: Literal["client", "peer", "router"] = "client"
+    connect: tuple[str, ...] = ()  # endpoints; a client with none connects to DEFAULT_ROUTER
+    listen: tuple[str, ...] = ()
+    config_file: Path | None = None  # a zenoh JSON5 file (TLS, ACL, ...); flags go on top
+    speed: float = 1.0  # simulated seconds per wall second (simulation only)
+    epoch_ns: int | None = None  # start of the shared simulated clock (set by `nod run`)
+
+    def __post_init__(self) -> None:
+        check_rig(self.rig)
+        if self.mode not in ("client", "peer", "router"):
+            raise ValueError(f"mode must be client, peer or router, got {self.mode!r}")
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> Fabric:
+        """The fabric the shared flags describe (clock flags optional)."""
+        return cls(
+            rig=args.rig,
+            mode=args.mode,
+            connect=tuple(args.connect or ()),
+            listen=tuple(args.listen or ()),
+            config_file=args.config,
+            speed=getattr(args, "speed", 1.0),
+            epoch_ns=getattr(args, "epoch_ns", None),
+        )
+
+    def zenoh_config(self) -> zenoh.Config:
+        """The session configuration."""
+        return make_config(
+            mode=self.mode,
+            connect=list(self.connect) or None,
+            listen=list(self.listen) or None,
+            config_file=self.config_file,
+        )
+
+    def clock(self) -> Clock:
+        """The clock every message of this service is stamped with."""
+        return Clock(self.speed, self.epoch_ns)
 
 
 def make_config(

@@ -16,6 +16,7 @@ from services.core import messages as m
 from services.core.cli import Parser, add_service_args
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
+from services.core.session import Fabric
 from services.model.decision import DecisionModel
 
 log = logging.getLogger("nod.decision")
@@ -82,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose)
     try:
         cfg = load_params(args.params)
-        node = Node("decision", args)
+        node = Node("decision", Fabric.from_args(args))
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod decision: {exc}", file=sys.stderr)
         return 2

@@ -23,6 +23,7 @@ from services.core import messages as m
 from services.core.cli import Parser, add_service_args
 from services.core.config import load_params
 from services.core.node import Node, install_signal_handlers, setup_logging
+from services.core.session import Fabric
 from services.experiment.recorder import TrialRecorder
 from services.model.outcome import OutcomeTracker, judge_trial
 from services.model.params import NodConfig
@@ -299,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = load_params(args.params)
         clicks = clicks_source(args.clicks)
         store = Store(args.db)
-        node = Node("experiment", args)
+        node = Node("experiment", Fabric.from_args(args))
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod experiment: {exc}", file=sys.stderr)
         return 2

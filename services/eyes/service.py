@@ -18,6 +18,7 @@ from services.core import messages as m
 from services.core.cli import Parser, add_service_args
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
+from services.core.session import Fabric
 from services.eyes.drivers import EYES_DRIVERS, make_eyes_driver
 from services.eyes.servos import ServoDriver
 from services.model.gaze import GazeCommand
@@ -131,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = load_params(args.params)
         safety = eyes_safety(cfg, args.stale_ms)
-        node = Node("eyes", args)
+        node = Node("eyes", Fabric.from_args(args))
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod eyes: {exc}", file=sys.stderr)
         return 2

@@ -29,9 +29,10 @@ import zenoh
 
 from services.core import messages as m
 from services.core.cli import Parser
-from services.core.keys import TOPICS, Keys
+from services.core.contract import TOPICS
+from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
-from services.core.session import add_zenoh_args, open_session, zenoh_config
+from services.core.session import Fabric, add_zenoh_args, open_session
 from services.monitor.bridge import APPLICATION_ID, RerunBridge
 from services.monitor.inbox import Inbox, Item, lane_of
 from services.monitor.sinks import ViewerWatch, open_sinks
@@ -51,7 +52,7 @@ class Monitor:
         self.keys = keys
         self.bridge = bridge
         self.inbox = inbox
-        self.types: dict[str, type[m.Message]] = {t: spec[0] for t, spec in TOPICS.items()}
+        self.types: dict[str, type[m.Message]] = {name: t.message for name, t in TOPICS.items()}
         self.bad: Counter[str] = Counter()
         self.unknown: Counter[str] = Counter()
         self.errors = 0
@@ -216,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         keys = Keys(args.rig)
         inbox = Inbox(events=args.event_queue, hand=args.hand_queue)
-        session = open_session(zenoh_config(args))
+        session = open_session(Fabric.from_args(args).zenoh_config())
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod monitor: {exc}", file=sys.stderr)
         return 2

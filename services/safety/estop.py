@@ -8,11 +8,9 @@ import socket
 import sys
 import time
 
-from services.core import messages as m
 from services.core.cli import Parser
-from services.core.clock import Clock
-from services.core.keys import Keys
-from services.core.session import add_zenoh_args, open_session, zenoh_config
+from services.core.node import Node
+from services.core.session import Fabric, add_zenoh_args
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,29 +31,20 @@ def main(argv: list[str] | None = None) -> int:
     """Publish the e-stop (or its release) and exit."""
     args = build_parser().parse_args(argv)
     try:
-        session = open_session(zenoh_config(args))
-    except (ConnectionError, OSError) as exc:
+        node = Node("estop", Fabric.from_args(args))
+    except (ConnectionError, OSError, ValueError) as exc:
         print(f"nod estop: {exc}", file=sys.stderr)
         return 2
-    key = Keys(args.rig).topic("safety/estop")
     source = f"{getpass.getuser()}@{socket.gethostname()}"
-    clock = Clock()
     try:
-        pub = session.declare_publisher(key)
+        pub = node.publisher("safety/estop")  # the contract's QoS: reliable, real-time priority
         time.sleep(0.2)  # let the route to the subscribers establish before the first put
-        for i in range(max(1, args.repeat)):  # repeated: a single sample could be missed
-            msg = m.Estop(
-                seq=i,
-                t_ns=clock.now_ns(),
-                engaged=not args.release,
-                reason=args.reason,
-                source=source,
-            )
-            pub.put(m.encode(msg))
+        for _ in range(max(1, args.repeat)):  # repeated: a single sample could be missed
+            pub.put(engaged=not args.release, reason=args.reason, source=source)
             time.sleep(0.05)
     finally:
-        session.close()
-    print(f"{'released' if args.release else 'ENGAGED'} e-stop on {key}")
+        node.close()
+    print(f"{'released' if args.release else 'ENGAGED'} e-stop on {pub.key}")
     return 0
 
 

@@ -20,6 +20,7 @@ from services.core import messages as m
 from services.core.cli import Parser, add_service_args
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
+from services.core.session import Fabric
 from services.model.geometry import colour_sign
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered
@@ -167,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
         if not 1.0 <= args.rate <= 1000.0:
             raise ValueError(f"--rate must be in [1, 1000] Hz, got {args.rate}")
         cfg = load_params(args.params)
-        node = Node("sim", args, stands_in_for=() if args.render else ("vision",))
+        node = Node("sim", Fabric.from_args(args), stands_in_for=() if args.render else ("vision",))
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod sim: {exc}", file=sys.stderr)
         return 2

@@ -19,6 +19,7 @@ main thread runs the low-rate ticks (layout, monitor frame, a 10 s status line).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
 import threading
@@ -32,8 +33,9 @@ from services.core import messages as m
 from services.core.cli import Parser, add_params_arg
 from services.core.clock import add_clock_args
 from services.core.config import ConfigError, load_params
-from services.core.node import Node, setup_logging
-from services.core.session import add_zenoh_args
+from services.core.contract import check_publisher
+from services.core.node import Node, declare_publisher, setup_logging
+from services.core.session import Fabric, add_zenoh_args
 from services.model.geometry import TableLayout
 from services.vision.calibration import load_calibration
 from services.vision.capture import (
@@ -68,10 +70,10 @@ class HandPublisher:
 
     def __init__(self, node: Node, *, lossless: bool) -> None:
         self.key = node.keys.topic("vision/hand")
-        cc = zenoh.CongestionControl.BLOCK if lossless else zenoh.CongestionControl.DROP
-        self._pub = node.session.declare_publisher(
-            self.key, congestion_control=cc, express=not lossless
-        )
+        qos = check_publisher("vision/hand", node.service).qos
+        if lossless:  # a file replayed as fast as possible: never drop, batch freely
+            qos = dataclasses.replace(qos, congestion="block", express=False)
+        self._pub = declare_publisher(node.session, self.key, qos)
 
     def put(self, frame: Frame, result: TrackResult, source: str) -> m.HandPose:
         """Build, validate, encode and publish the pose of one frame."""
@@ -303,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
             stall_s=args.stall,
         )
         source = parse_source(args.source)
-        node = Node("vision", args) if source.kind == "zenoh" else None
+        node = Node("vision", Fabric.from_args(args)) if source.kind == "zenoh" else None
         capture = Capture(source, params, opener=_opener(node, params))
         info = capture.open()
         options = TrackerOptions(
@@ -330,7 +332,7 @@ def main(argv: list[str] | None = None) -> int:
     log.info("%s: %s", capture.source.label, info.describe(params))
     log.info("tracker %s; layout from %s: %s", tracker.name, layout_origin, m.layout_fields(layout))
     try:
-        node = node or Node("vision", args)
+        node = node or Node("vision", Fabric.from_args(args))
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod vision: {exc}", file=sys.stderr)
         capture.close()

@@ -9,7 +9,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from services.core import messages as m
-from services.core.keys import TOPICS, Keys
+from services.core.contract import TOPICS
+from services.core.keys import Keys
 
 coord = st.floats(min_value=0.0, max_value=1.0, allow_nan=False)
 point = st.tuples(coord, coord)
@@ -99,10 +100,10 @@ def test_literal_fields_are_checked():
 
 def test_keys_are_scoped_by_rig_and_map_back_to_types():
     keys = Keys("labA")
-    for topic, (cls, *_rest) in TOPICS.items():
+    for topic, t in TOPICS.items():
         key = keys.topic(topic)
         assert key == f"nod/labA/{topic}"
-        assert keys.message_type(key) is cls
+        assert keys.message_type(key) is t.message
     assert keys.message_type("nod/other/vision/hand") is None
     with pytest.raises(ValueError, match="rig name"):
         Keys("bad/rig")

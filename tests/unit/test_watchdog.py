@@ -69,3 +69,15 @@ def test_unknown_input_and_bad_bound():
         make().feed("other", 0)
     with pytest.raises(ValueError):
         SafetyParams(stale_ms=0)
+
+
+def test_a_required_service_never_seen_is_not_alive():
+    # Liveliness is evidence of presence: a service that never declared its token (not started,
+    # wrong rig, blocked by the network) must stop the device, not count as alive by default.
+    wd = Watchdog(SafetyParams(stale_ms=250.0), ("z_r",))
+    wd.feed("z_r", 0)
+    status = wd.check(0)
+    assert status.safe_stop
+    assert "decision not alive" in status.reason and "vision not alive" in status.reason
+    wd.set_alive("decision", True)
+    assert wd.check(0).reasons == ("vision not alive",)

@@ -1,0 +1,190 @@
+"""The one declaration of the rig's contract: every topic, its message, who talks, how often, QoS.
+
+`TOPICS` is what the code runs on: `Node.publisher` takes each topic's QoS from here and refuses
+a service that is not a declared publisher, `Node.subscribe` refuses one that is not a declared
+subscriber, decoders take the message type from here, and the README's contract table is
+`markdown_table()` (a test holds them equal; `python -m services.core.contract` prints it).
+Services that read every key of a rig (`nod monitor`) subscribe to `nod/<rig>/**` and are not
+listed per topic.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from dataclasses import dataclass
+from typing import Literal, TypeAlias
+
+from services.core import messages as m
+
+Congestion: TypeAlias = Literal["block", "drop"]
+Priority: TypeAlias = Literal["real_time", "interactive_high", "data_high", "data"]
+
+
+@dataclass(frozen=True, slots=True)
+class QoS:
+    """How a topic's samples travel (zenoh publisher options)."""
+
+    # "block": never dropped (protocol events, presses, gaze, e-stop); "drop": the newest sample
+    # matters more than an old one, so a congested link drops (camera-rate streams).
+    congestion: Congestion
+    priority: Priority = "data"
+    express: bool = True  # sent at once, never batched: latency over throughput
+
+    def describe(self) -> str:
+        """One short cell of the contract table."""
+        text = "reliable" if self.congestion == "block" else "drop if late"
+        return text if self.priority == "data" else f"{text}, {self.priority.replace('_', '-')}"
+
+
+STREAM = QoS("drop")
+RELIABLE = QoS("block")
+CONTROL = QoS("block", "interactive_high")
+SAFETY = QoS("block", "real_time")
+
+
+@dataclass(frozen=True, slots=True)
+class Topic:
+    """One key of the rig (`nod/<rig>/<name>`)."""
+
+    name: str
+    message: type[m.Message]
+    publishers: tuple[str, ...]
+    subscribers: tuple[str, ...]
+    rate: str
+    qos: QoS
+    fields: str  # the payload's own fields (besides v, seq, t_ns), for the README
+
+    def field_names(self) -> tuple[str, ...]:
+        """The message's own field names, in order."""
+        return tuple(f.name for f in dataclasses.fields(self.message) if f.name not in BASE)
+
+
+BASE = ("seq", "t_ns")
+
+_TOPICS = (
+    Topic(
+        "vision/hand", m.HandPose, ("vision", "sim"), ("decision", "actuation", "experiment"),
+        "camera (30 Hz)", STREAM,
+        "`detected` bool, `center` [x,y] (mean of the landmarks) or nil, `landmarks` up to 64 "
+        "[x,y] (21 from a hand model), normalised image coords, `source`",
+    ),
+    Topic(
+        "vision/layout", m.Layout, ("vision", "sim"), ("decision", "actuation", "experiment"),
+        "1 Hz + queryable", RELIABLE, "`red`, `blue` [x1,y1,x2,y2] boxes, `commit_y`",
+    ),
+    Topic(
+        "vision/frame", m.VisionFrame, ("vision",), (), "2 Hz", STREAM,
+        "`jpeg` (downscaled, landmarks and boxes drawn), `width`, `height`, `hand_seq`, "
+        "`detected`",
+    ),
+    Topic(
+        "sim/camera", m.VisionFrame, ("sim",), ("vision",), "30 Hz (`nod sim --render`)", STREAM,
+        "a rendered camera frame: `jpeg`, `width`, `height`, `hand_seq`, `detected`",
+    ),
+    Topic(
+        "decision/z_h", m.Scalar, ("decision",), ("experiment",), "per pose", STREAM,
+        "`value` ẑ_h, `src_seq` (the pose's seq)",
+    ),
+    Topic(
+        "decision/z_r", m.Scalar, ("decision",), ("actuation", "experiment"), "per pose", STREAM,
+        "`value` z_r, `src_seq`",
+    ),
+    Topic(
+        "decision/b_r", m.Scalar, ("decision",), ("experiment",), "per pose", STREAM,
+        "`value` b_r, `src_seq`",
+    ),
+    Topic(
+        "actuation/cmd", m.ArmCommandMsg, ("actuation",), (), "on change", RELIABLE,
+        "`action` idle/stop/move/press, `direction` ±1/0, `target`, `reason`",
+    ),
+    Topic(
+        "actuation/state", m.ArmStateMsg, ("actuation",), ("sim", "experiment"), "50 Hz", STREAM,
+        "`ee` [x,y], `phase`, `moving`, `target`, `safe_stop`, `safety_reason`, `fault`",
+    ),
+    Topic(
+        "actuation/press", m.PressMsg, ("actuation",), ("experiment", "sim"), "once per trial",
+        CONTROL, "`colour`, `trial`",
+    ),
+    Topic(
+        "eyes/cmd", m.GazeMsg, ("experiment",), ("eyes", "sim"), "per cue + 20 Hz keep-alive",
+        CONTROL, "`yaw`, `pitch` (rad, + toward red), `level`, `gesture` (a pose of the "
+        "attention gesture), `trial`",
+    ),
+    Topic(
+        "eyes/state", m.EyesStateMsg, ("eyes",), (), "50 Hz", STREAM,
+        "`angles_deg` ×4, `pulses_us` ×4, `clamped`, `safe_stop`, `safety_reason`, `fault`",
+    ),
+    Topic(
+        "experiment/trial", m.TrialEvent, ("experiment",), ("decision", "actuation", "sim", "run"),
+        "per event", CONTROL,
+        "`phase` setup/countdown/go/end/abort/session_end, `trial`, `mode`, `option`, `text`, "
+        "`session`",
+    ),
+    Topic(
+        "experiment/result", m.TrialResult, ("experiment",), ("run",), "per trial", RELIABLE,
+        "`trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, `violations`, "
+        "`score`, `session`",
+    ),
+    Topic(
+        "safety/estop", m.Estop, ("estop",), ("actuation", "eyes"), "on demand", SAFETY,
+        "`engaged`, `reason`, `source`",
+    ),
+)
+TOPICS: dict[str, Topic] = {t.name: t for t in _TOPICS}
+
+
+class ContractError(RuntimeError):
+    """Code tried to publish or subscribe outside the declared contract (a bug, not input)."""
+
+
+def topic(name: str) -> Topic:
+    """A topic by name, with the known names in the error."""
+    try:
+        return TOPICS[name]
+    except KeyError:
+        raise KeyError(f"unknown topic {name!r}; known: {sorted(TOPICS)}") from None
+
+
+def check_publisher(name: str, service: str) -> Topic:
+    """The topic, if `service` is one of its declared publishers."""
+    t = topic(name)
+    if service not in t.publishers:
+        raise ContractError(
+            f"{service} publishes {name}, but the contract names only {t.publishers}: "
+            "declare it in services/core/contract.py"
+        )
+    return t
+
+
+def check_subscriber(name: str, service: str) -> Topic:
+    """The topic, if `service` is one of its declared subscribers."""
+    t = topic(name)
+    if service not in t.subscribers:
+        raise ContractError(
+            f"{service} subscribes to {name}, but the contract names only {t.subscribers}: "
+            "declare it in services/core/contract.py"
+        )
+    return t
+
+
+def markdown_table() -> str:
+    """The README's contract table, generated from `TOPICS`."""
+
+    def names(who: tuple[str, ...]) -> str:
+        return ", ".join(f"`nod {w}`" if w in ("estop", "run") else w for w in who) or "—"
+
+    rows = [
+        "| key (`nod/<rig>/…`) | publishers | subscribers | rate | QoS | fields |",
+        "|---|---|---|---|---|---|",
+    ]
+    for t in _TOPICS:
+        rows.append(
+            f"| `{t.name}` | {names(t.publishers)} | {names(t.subscribers)} | {t.rate} "
+            f"| {t.qos.describe()} | {t.fields} |"
+        )
+    return "\n".join(rows) + "\n"
+
+
+if __name__ == "__main__":
+    sys.stdout.write(markdown_table())

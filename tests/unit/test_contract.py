@@ -1,0 +1,85 @@
+"""The contract is declared once, and the README and the code follow it."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from services.core.contract import (
+    TOPICS,
+    ContractError,
+    check_publisher,
+    check_subscriber,
+    markdown_table,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+SERVICES = ("decision", "actuation", "eyes", "vision", "sim", "experiment")
+
+
+def test_readme_table_is_the_generated_one():
+    readme = (ROOT / "README.md").read_text()
+    begin = readme.index("<!-- contract:begin")
+    start = readme.index("\n", begin) + 1
+    end = readme.index("<!-- contract:end -->")
+    assert readme[start:end] == markdown_table(), (
+        "README's contract table is stale: paste `python -m services.core.contract` between the "
+        "contract markers"
+    )
+
+
+@pytest.mark.parametrize("name", sorted(TOPICS))
+def test_every_field_of_a_message_is_documented(name):
+    t = TOPICS[name]
+    for field in t.field_names():
+        assert f"`{field}`" in t.fields, f"{name}: field {field!r} missing from the contract"
+
+
+def _calls(kind: str) -> set[tuple[str, str]]:
+    """(service, topic) of every `.publisher("…")` or `.subscribe("…")` in the services' code."""
+    found = set()
+    pattern = re.compile(rf'\.{kind}\(\s*"([a-z_]+/[a-z_]+)"')
+    for service in SERVICES:
+        for path in (ROOT / "services" / service).rglob("*.py"):
+            for topic in pattern.findall(path.read_text()):
+                found.add((service, topic))
+    return found
+
+
+def test_the_code_publishes_what_the_contract_says():
+    declared = {(p, t.name) for t in TOPICS.values() for p in t.publishers if p in SERVICES}
+    assert _calls("publisher") | {("vision", "vision/hand")} == declared
+
+
+def test_the_code_subscribes_to_what_the_contract_says():
+    declared = {(s, t.name) for t in TOPICS.values() for s in t.subscribers if s in SERVICES}
+    # vision reads rendered frames through its capture (ZenohCamera), not Node.subscribe;
+    # actuation and eyes take the e-stop through the shared safety wiring.
+    wiring = (ROOT / "services/safety/wiring.py").read_text()
+    assert 'subscribe("safety/estop"' in wiring
+    gated = {
+        (service, "safety/estop")
+        for service in SERVICES
+        if "watch_safety_inputs(" in (ROOT / "services" / service / "service.py").read_text()
+    }
+    assert gated == {("actuation", "safety/estop"), ("eyes", "safety/estop")}
+    assert _calls("subscribe") | {("vision", "sim/camera")} | gated == declared
+
+
+def test_undeclared_publishing_or_subscribing_is_refused():
+    with pytest.raises(ContractError, match="declare it"):
+        check_publisher("decision/z_r", "vision")
+    with pytest.raises(ContractError, match="declare it"):
+        check_subscriber("safety/estop", "sim")
+    with pytest.raises(KeyError, match="unknown topic"):
+        check_publisher("decision/z_q", "decision")
+    assert check_publisher("safety/estop", "estop").qos.priority == "real_time"
+    assert check_subscriber("decision/z_r", "actuation").message.KIND == "scalar"
+
+
+def test_safety_and_protocol_messages_are_never_dropped():
+    for name in ("safety/estop", "experiment/trial", "actuation/press", "eyes/cmd"):
+        assert TOPICS[name].qos.congestion == "block", name
+    assert TOPICS["safety/estop"].qos.priority == "real_time"
