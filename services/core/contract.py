@@ -10,7 +10,6 @@ listed per topic.
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
@@ -57,7 +56,7 @@ class Topic:
 
     def field_names(self) -> tuple[str, ...]:
         """The message's own field names, in order."""
-        return tuple(f.name for f in dataclasses.fields(self.message) if f.name not in BASE)
+        return tuple(f for f in m.fields(self.message) if f not in BASE)
 
 
 BASE = ("seq", "t_ns")

@@ -44,11 +44,14 @@ def test_frames_larger_than_the_small_messages_limit_are_accepted_up_to_their_ow
 @pytest.mark.parametrize(
     ("fields", "fragment"),
     [
-        ({"jpeg": "not bytes", "width": 1, "height": 1}, "expected binary data"),
+        ({"jpeg": "not bytes", "width": 1, "height": 1}, "Expected `bytes`, got `str`"),
         ({"jpeg": b"GIF89a", "width": 1, "height": 1}, "must hold a JPEG"),
         ({"width": 1, "height": 1}, "must hold a JPEG"),
-        ({"jpeg": b"\xff\xd8\xff", "width": 0, "height": 1}, "outside"),
-        ({"jpeg": b"\xff\xd8\xff" + bytes(m.MAX_BLOB_BYTES), "width": 1, "height": 1}, "exceed"),
+        ({"jpeg": b"\xff\xd8\xff", "width": 0, "height": 1}, r"\$.width"),
+        (
+            {"jpeg": b"\xff\xd8\xff" + bytes(m.MAX_BLOB_BYTES), "width": 1, "height": 1},
+            f"length <= {m.MAX_BLOB_BYTES}",
+        ),
     ],
 )
 def test_bad_frames_are_rejected_with_a_reason(fields, fragment):
