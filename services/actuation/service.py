@@ -1,13 +1,16 @@
 """`nod actuation`: Algorithm 2 on z_r and hand poses, driving an arm behind a safety gate.
 
-The behaviour state machine decides; the watchdog may veto: while any input is stale, a needed
-service's liveliness is lost, or an e-stop is engaged, the arm holds its position and the state
-key says why. The robot's press is published once per trial on `actuation/press`.
+The behaviour state machine decides; the watchdog may veto: while any input has not arrived
+within the stale bound (judged on this host's monotonic clock), a needed service's liveliness
+is lost (the conductor's too, during a trial), or an e-stop is engaged, the arm holds its
+position and the state key says why; the state also acknowledges the last e-stop command. The
+robot's press is published once per trial on `actuation/press`.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
@@ -45,7 +48,9 @@ class ActuationService:
         self.safe_stop = False
         self.safety_reason = ""
         self.last_cmd: ArmCommand | None = None
-        self._t_ns = node.clock.now_ns()  # monotone service time: samples arrive slightly late
+        # The service's own time (s) for Algorithm 2 and the arm: the rig clock, never a
+        # message's timestamp (a peer's clock must not move the arm's timers), kept monotone.
+        self._t = node.clock.now_ns() * NS
         self.pub_cmd = node.publisher("actuation/cmd")
         self.pub_state = node.publisher("actuation/state")
         self.pub_press = node.publisher("actuation/press")
@@ -53,19 +58,20 @@ class ActuationService:
         node.subscribe("vision/hand", self.on_hand)
         node.subscribe("vision/layout", self.on_layout)
         node.subscribe("experiment/trial", self.on_trial)
-        watch_safety_inputs(node, self.watchdog, self.tick)
+        watch_safety_inputs(node, self.watchdog, self.tick, also_watch=("experiment",))
         node.every(0.02, self.tick)
 
     # -- inputs --------------------------------------------------------------------------------
 
     def on_z_r(self, msg: m.Scalar) -> None:
-        """A new robot opinion: one Algorithm 2 step."""
-        self.watchdog.feed("z_r", msg.t_ns)
-        self._step(msg.t_ns, msg.value)
+        """A new robot opinion: one Algorithm 2 step (if it is fresh by the watchdog's rule)."""
+        if self.node.feed_watchdog(self.watchdog, "z_r", msg.t_ns):
+            self._step(msg.value)
 
     def on_hand(self, pose: m.HandPose) -> None:
         """Watch for the human's press: any landmark inside a buzzer box."""
-        self.watchdog.feed("hand", pose.t_ns)
+        if not self.node.feed_watchdog(self.watchdog, "hand", pose.t_ns):
+            return
         if pose.detected and self.behaviour.t_go is not None and self.human_pressed is None:
             self.human_pressed = self.layout.pressed(pose.landmarks)
 
@@ -74,33 +80,41 @@ class ActuationService:
         self.layout = m.layout_from_msg(msg)
 
     def on_trial(self, ev: m.TrialEvent) -> None:
-        """Setup: home and reset; go: start Algorithm 2."""
+        """Setup: home and reset; go: start Algorithm 2; end: the trial's choice is over.
+
+        From setup to the end of a trial the conductor's liveliness is required too: without
+        it nobody records the trial, so the robot must not press.
+        """
         if ev.phase == "setup":
             self.trial = ev.trial
             self.behaviour = RobotBehaviour(self.layout, self.cfg.behaviour, self.cfg.debounce)
             self.human_pressed = None
             self.press_published = False
-            self.arm.state(self._now(ev.t_ns))
-            self._send(self.arm.home(), ev.t_ns)
+            self.watchdog.require("experiment", True)
+            self.arm.state(self._now())
+            if not self.safe_stop:
+                self._send(self.arm.home())
         elif ev.phase == "go" and ev.trial == self.trial:
             timeout = self.cfg.protocol.trial_timeout_s
-            self._apply(self.behaviour.start(self._now(ev.t_ns), timeout), ev.t_ns)
+            self._apply(self.behaviour.start(self._now(), timeout))
+        elif ev.phase in ("end", "abort", "session_end"):
+            self.watchdog.require("experiment", False)
 
     # -- control -------------------------------------------------------------------------------
 
-    def _now(self, t_ns: int) -> float:
-        """Monotone time (s) for the state machine and the arm, from message/tick times."""
-        self._t_ns = max(self._t_ns, t_ns)
-        return self._t_ns * NS
+    def _now(self) -> float:
+        """The service's monotone time (s) on the rig clock."""
+        self._t = max(self._t, self.node.clock.now_ns() * NS)
+        return self._t
 
-    def _step(self, t_ns: int, z_r: float | None) -> None:
-        t = self._now(t_ns)
+    def _step(self, z_r: float | None) -> None:
         if self.behaviour.phase == "idle":
             return
+        t = self._now()
         state = self.arm.state(t)
-        self._apply(self.behaviour.step(t, z_r, self.human_pressed, state.ee), t_ns)
+        self._apply(self.behaviour.step(t, z_r, self.human_pressed, state.ee))
 
-    def _apply(self, cmd: ArmCommand, t_ns: int) -> None:
+    def _apply(self, cmd: ArmCommand) -> None:
         """Send the behaviour's command unless the safety gate holds the arm."""
         if self.safe_stop:
             return
@@ -110,12 +124,11 @@ class ActuationService:
             last.direction,
             last.target,
         ):  # only changes reach the arm; the reason text alone is not a new command
-            self._send(self.arm.send(cmd), t_ns)
+            self._send(self.arm.send(cmd))
 
-    def _send(self, applied: ArmCommand, t_ns: int) -> None:
+    def _send(self, applied: ArmCommand) -> None:
         self.last_cmd = applied
         self.pub_cmd.put(
-            t_ns=t_ns,
             action=applied.action,
             direction=applied.direction,
             target=applied.target,
@@ -124,24 +137,25 @@ class ActuationService:
 
     def tick(self, now_ns: int) -> None:
         """Periodic: safety gate, timers of Algorithm 2, arm state and the robot's press."""
-        status = self.watchdog.check(now_ns)
+        status = self.watchdog.check(self.node.arrival_ns())
         if status.safe_stop and not self.safe_stop:
             log.warning("SAFE STOP: %s", status.reason)
-            self._send(self.arm.hold(), now_ns)
+            self._send(self.arm.hold())
         elif not status.safe_stop and self.safe_stop:
             log.info("safety clear: resuming")
             self.last_cmd = None  # re-send the behaviour's current command
+            if self.behaviour.phase == "idle":  # between trials: back to the rest pose
+                self._send(self.arm.home())
         self.safe_stop, self.safety_reason = status.safe_stop, status.reason
         if not self.safe_stop:
-            self._step(now_ns, None)
-        state = self.arm.state(self._now(now_ns))
+            self._step(None)
+        state = self.arm.state(self._now())
         if state.pressed is not None and not self.press_published and self.behaviour.t_go:
             self.behaviour.complete()
             self.press_published = True
-            self.pub_press.put(t_ns=now_ns, colour=state.pressed, trial=self.trial)
+            self.pub_press.put(colour=state.pressed, trial=self.trial)
             log.info("trial %d: robot pressed %s", self.trial, state.pressed)
         self.pub_state.put(
-            t_ns=now_ns,
             ee=state.ee,
             phase=self.behaviour.phase,
             moving=state.moving,
@@ -149,6 +163,9 @@ class ActuationService:
             safe_stop=self.safe_stop,
             safety_reason=self.safety_reason[:400],
             fault=(state.fault or "")[:400],
+            estop=self.watchdog.estopped,
+            estop_id=self.watchdog.estop_id,
+            trial=self.trial,
         )
 
 
@@ -182,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = load_params(args.params)
         safety = cfg.safety
         if args.stale_ms is not None:
-            safety = SafetyParams(stale_ms=args.stale_ms, require_alive=safety.require_alive)
+            safety = dataclasses.replace(safety, stale_ms=args.stale_ms)
         node = Node("actuation", Fabric.from_args(args))
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod actuation: {exc}", file=sys.stderr)

@@ -3,7 +3,8 @@
 `TOPICS` is what the code runs on: `Node.publisher` takes each topic's QoS from here and refuses
 a service that is not a declared publisher, `Node.subscribe` refuses one that is not a declared
 subscriber, decoders take the message type from here, and the README's contract table is
-`markdown_table()` (a test holds them equal; `python -m services.core.contract` prints it).
+`markdown_table()` (a test holds them equal; `python -m services.core.contract` prints it,
+`--update README.md` rewrites it in place).
 Services that read every key of a rig (`nod monitor`) subscribe to `nod/<rig>/**` and are not
 listed per topic.
 """
@@ -99,7 +100,8 @@ _TOPICS = (
     ),
     Topic(
         "actuation/state", m.ArmStateMsg, ("actuation",), ("sim", "experiment"), "50 Hz", STREAM,
-        "`ee` [x,y], `phase`, `moving`, `target`, `safe_stop`, `safety_reason`, `fault`",
+        "`ee` [x,y], `phase`, `moving`, `target`, `safe_stop`, `safety_reason`, `fault`, "
+        "`estop` (latched), `estop_id` (the last e-stop command obeyed), `trial`",
     ),
     Topic(
         "actuation/press", m.PressMsg, ("actuation",), ("experiment", "sim"), "once per trial",
@@ -112,7 +114,8 @@ _TOPICS = (
     ),
     Topic(
         "eyes/state", m.EyesStateMsg, ("eyes",), (), "50 Hz", STREAM,
-        "`angles_deg` ×4, `pulses_us` ×4, `clamped`, `safe_stop`, `safety_reason`, `fault`",
+        "`angles_deg` ×4, `pulses_us` ×4, `clamped`, `safe_stop`, `safety_reason`, `fault`, "
+        "`estop`, `estop_id`",
     ),
     Topic(
         "experiment/trial", m.TrialEvent, ("experiment",), ("decision", "actuation", "sim", "run"),
@@ -127,7 +130,7 @@ _TOPICS = (
     ),
     Topic(
         "safety/estop", m.Estop, ("estop",), ("actuation", "eyes"), "on demand", SAFETY,
-        "`engaged`, `reason`, `source`",
+        "`engaged`, `reason`, `source` (user@host), `id` (acknowledged on the state keys)",
     ),
 )
 TOPICS: dict[str, Topic] = {t.name: t for t in _TOPICS}
@@ -185,5 +188,19 @@ def markdown_table() -> str:
     return "\n".join(rows) + "\n"
 
 
-if __name__ == "__main__":
-    sys.stdout.write(markdown_table())
+def update_readme(path: str) -> None:
+    """Replace the table between the README's contract markers with the generated one."""
+    with open(path, encoding="utf-8") as fh:
+        text = fh.read()
+    begin = text.index("<!-- contract:begin")
+    start = text.index("\n", begin) + 1
+    end = text.index("<!-- contract:end -->")
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(text[:start] + markdown_table() + text[end:])
+
+
+if __name__ == "__main__":  # python -m services.core.contract [--update README.md]
+    if sys.argv[1:2] == ["--update"]:
+        update_readme(sys.argv[2])
+    else:
+        sys.stdout.write(markdown_table())

@@ -171,6 +171,9 @@ class ArmStateMsg(Message, frozen=True, kw_only=True):
     safe_stop: bool = False
     safety_reason: Text = ""
     fault: Text = ""
+    estop: bool = False  # the e-stop is engaged (latched)
+    estop_id: Text = ""  # the last e-stop command obeyed (engage or release): the acknowledgement
+    trial: Trial = 0  # the trial the arm is in (from the conductor's setup)
 
 
 class PressMsg(Message, frozen=True, kw_only=True):
@@ -209,6 +212,8 @@ class EyesStateMsg(Message, frozen=True, kw_only=True):
     safe_stop: bool = False
     safety_reason: Text = ""
     fault: Text = ""
+    estop: bool = False  # the e-stop is engaged (latched)
+    estop_id: Text = ""  # the last e-stop command obeyed (engage or release): the acknowledgement
 
 
 # --- experiment -------------------------------------------------------------------------------
@@ -255,6 +260,7 @@ class Estop(Message, frozen=True, kw_only=True):
     engaged: bool = True
     reason: Text = ""
     source: Text = ""
+    id: Text = ""  # the command's id, echoed as `estop_id` on the state keys of each device obeying
 
 
 # --- codec ------------------------------------------------------------------------------------

@@ -23,6 +23,7 @@ from services.core.clock import Clock
 from services.core.contract import QoS, check_publisher, check_subscriber
 from services.core.keys import Keys
 from services.core.session import Fabric, open_session
+from services.model.safety import Watchdog
 
 M = TypeVar("M", bound=m.Message)
 log = logging.getLogger(__name__)
@@ -145,6 +146,28 @@ class Node:
         self._handles.append(sub)
 
     # -- time ----------------------------------------------------------------------------------
+
+    @staticmethod
+    def arrival_ns() -> int:
+        """Now on this host's monotonic clock: what a watchdog judges freshness by."""
+        return time.monotonic_ns()
+
+    def offset_ns(self, t_ns: int) -> float:
+        """A source timestamp minus the rig clock now, in wall ns (skew, or delay if negative)."""
+        return (t_ns - self.clock.now_ns()) / self.clock.speed
+
+    def feed_watchdog(self, watchdog: Watchdog, name: str, t_ns: int) -> bool:
+        """Feed a watchdog with a message that arrived now; False if its stamp was refused."""
+        offset = self.offset_ns(t_ns)
+        if watchdog.feed(name, self.arrival_ns(), offset):
+            return True
+        n = watchdog.clock_faults
+        if n <= 10 or n % 100 == 0:  # one line each, never a flood
+            log.warning(
+                "%s: %s refused: stamped %+.0f ms from our clock (clock fault #%d)",
+                self.service, name, offset / 1e6, n,
+            )
+        return False
 
     def every(self, period_s: float, fn: Callable[[int], None]) -> None:
         """Run `fn(now_ns)` (locked) every `period_s` of simulated time from `run()`."""

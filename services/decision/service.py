@@ -25,9 +25,11 @@ log = logging.getLogger("nod.decision")
 class DecisionService:
     """Wires a DecisionModel to the rig's keys."""
 
-    def __init__(self, node: Node, model: DecisionModel) -> None:
+    def __init__(self, node: Node, model: DecisionModel, skew_ms: float = 100.0) -> None:
         self.node = node
         self.model = model
+        self.skew_ns = skew_ms * 1e6
+        self.future = 0
         self.pub_zh = node.publisher("decision/z_h")
         self.pub_zr = node.publisher("decision/z_r")
         self.pub_br = node.publisher("decision/b_r")
@@ -39,6 +41,17 @@ class DecisionService:
 
     def on_hand(self, pose: m.HandPose) -> None:
         """Advance the dynamics to the pose's time and publish ẑ_h, z_r, b_r."""
+        ahead = self.node.offset_ns(pose.t_ns)
+        if ahead > self.skew_ns:
+            # A pose from the future (a fast clock or a forged stamp) would drag the model's
+            # time ahead and freeze it against every later pose: refuse it.
+            self.future += 1
+            if self.future <= 10 or self.future % 100 == 0:
+                log.warning(
+                    "hand pose seq %d stamped %.0f ms ahead of our clock; refused (#%d)",
+                    pose.seq, ahead / 1e6, self.future,
+                )
+            return
         if self.model.t_ns is not None and pose.t_ns <= self.model.t_ns:
             self.out_of_order += 1  # stale or reordered pose: time never runs backwards
             if self.out_of_order <= 10 or self.out_of_order % 100 == 0:
@@ -88,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nod decision: {exc}", file=sys.stderr)
         return 2
     log.info("effective config: %s", json.dumps(cfg.summary("decision")))
-    DecisionService(node, DecisionModel(cfg.decision, cfg.layout))
+    DecisionService(node, DecisionModel(cfg.decision, cfg.layout), cfg.safety.skew_ms)
     node.run()
     return 0
 

@@ -9,6 +9,7 @@ e-stop is engaged, the eyes go to neutral and say why.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
@@ -54,7 +55,8 @@ class EyesService:
         The attention gesture arrives as a sequence of such commands from the conductor's
         protocol (`gesture` marks its poses), so its timing has one home and the eyes only follow.
         """
-        self.watchdog.feed("gaze", msg.t_ns)
+        if not self.node.feed_watchdog(self.watchdog, "gaze", msg.t_ns):
+            return  # stamped outside the skew bound: not a command to follow
         self.gaze = GazeCommand(msg.yaw, msg.pitch)
         what = (msg.trial, msg.level, msg.gesture)
         if what != self._logged:  # a new cue, not a keep-alive
@@ -71,7 +73,7 @@ class EyesService:
 
     def tick(self, now_ns: int) -> None:
         """Apply the current gaze (or neutral when unsafe) and publish the state."""
-        status = self.watchdog.check(now_ns)
+        status = self.watchdog.check(self.node.arrival_ns())
         if status.safe_stop != self.safe_stop:
             (log.warning if status.safe_stop else log.info)(
                 "eyes %s: %s",
@@ -89,13 +91,14 @@ class EyesService:
         if self.applied.clamped:
             log.debug("clamped servos: %s", ", ".join(self.applied.clamped))
         self.pub_state.put(
-            t_ns=now_ns,
             angles_deg=self.applied.angles_deg,
             pulses_us=self.applied.pulses_us,
             clamped=self.applied.clamped,
             safe_stop=self.safe_stop,
             safety_reason=self.reason[:400],
             fault=(getattr(self.driver, "fault", None) or "")[:400],
+            estop=self.watchdog.estopped,
+            estop_id=self.watchdog.estop_id,
         )
 
 
@@ -119,9 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
 def eyes_safety(cfg: NodConfig, stale_ms: float | None) -> SafetyParams:
     """The eyes' watchdog: the gaze keepalive, plus the conductor's liveliness."""
     base = cfg.safety
-    return SafetyParams(
-        stale_ms=base.stale_ms if stale_ms is None else stale_ms,
-        require_alive=(*base.require_alive, "experiment"),
+    needed = base.require_alive + (() if "experiment" in base.require_alive else ("experiment",))
+    return dataclasses.replace(
+        base, stale_ms=base.stale_ms if stale_ms is None else stale_ms, require_alive=needed
     )
 
 

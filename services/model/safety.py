@@ -1,26 +1,58 @@
-"""The safety gate of actuation and eyes: stale inputs, lost liveliness, e-stop → safe stop.
+"""The safety gate of actuation and eyes: stale inputs, clock faults, lost liveliness, e-stop.
 
-Pure and clock-free: the shell feeds it input timestamps, liveliness changes and e-stop messages
-and asks `check(now_ns)`. An e-stop latches until an explicit release; staleness and lost
-liveliness clear by themselves when fresh inputs (or the token) come back, because they describe
-the present state of the inputs, not an operator's decision.
+Pure and clock-free: the shell feeds it each input's *arrival* time on its own monotonic clock
+(with the message's source timestamp as an offset against the rig clock), liveliness changes
+and e-stop messages, and asks `check(now_ns)` on the same monotonic clock.
+
+- Freshness is judged by arrival, never by the source timestamp: a peer's clock cannot make an
+  input look fresh. A source timestamp further than `skew_ms` from the rig clock (ahead: a
+  clock that runs fast or a forged stamp; behind: a delayed or replayed message) is a clock
+  fault: counted, reported as a warning while recent, and the message does not refresh its
+  input — so an input whose every message is skewed goes stale and stops the device, while one
+  stray message among good ones does not.
+- A required service counts as alive only once its liveliness token has been seen, and stops
+  counting the moment it goes.
+- An e-stop latches until an explicit release; staleness and lost liveliness clear by
+  themselves when fresh inputs (or the token) come back, because they describe the present
+  state of the inputs, not an operator's decision.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+
+MAX_STALE_MS = 10_000.0  # a bound longer than this is no safety bound
+MAX_SKEW_MS = 60_000.0
 
 
 @dataclass(frozen=True, slots=True)
 class SafetyParams:
-    """Safety bounds; every field is a safety decision."""
+    """Safety bounds; every field is a safety decision, validated at start-up."""
 
-    stale_ms: float = 250.0  # an input older than this (source time) forces a safe stop
-    require_alive: tuple[str, ...] = ("decision", "vision")  # services whose loss stops us
+    # An input not received for this long (ms, local monotonic clock) forces a safe stop; in
+    # (0, 10000]. Every input the gate watches is published several times faster than this.
+    stale_ms: float = 250.0
+    # A source timestamp further than this (ms, in wall time) from the rig clock is a clock
+    # fault, not a fresh input; in (0, 60000]. Hosts are synchronised (NTP/PTP) well within it.
+    skew_ms: float = 100.0
+    # Services whose liveliness the device needs; never empty (it would turn the gate off).
+    require_alive: tuple[str, ...] = ("decision", "vision")
 
     def __post_init__(self) -> None:
-        if not self.stale_ms > 0:
-            raise ValueError(f"stale_ms must be > 0, got {self.stale_ms}")
+        for name, top in (("stale_ms", MAX_STALE_MS), ("skew_ms", MAX_SKEW_MS)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"safety.{name} must be a number, got {value!r}")
+            if not (math.isfinite(value) and 0 < value <= top):
+                raise ValueError(f"safety.{name} must be in (0, {top:.0f}] ms, got {value!r}")
+        if not self.require_alive or not all(
+            isinstance(s, str) and s for s in self.require_alive
+        ):
+            raise ValueError(
+                "safety.require_alive must name at least one service (an empty list would "
+                f"disable the liveliness gate), got {self.require_alive!r}"
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -28,12 +60,13 @@ class SafetyStatus:
     """Whether the device must be in its safe state, and every reason why."""
 
     safe_stop: bool
-    reasons: tuple[str, ...] = ()
+    reasons: tuple[str, ...] = ()  # why the device must stop (empty: it may run)
+    warnings: tuple[str, ...] = ()  # faults that do not stop it (a recent clock fault)
 
     @property
     def reason(self) -> str:
-        """All reasons in one line."""
-        return "; ".join(self.reasons)
+        """All reasons, then the warnings, in one line."""
+        return "; ".join((*self.reasons, *self.warnings))
 
 
 @dataclass
@@ -42,42 +75,73 @@ class Watchdog:
 
     params: SafetyParams
     inputs: tuple[str, ...]
-    _last_ns: dict[str, int] = field(default_factory=dict)
+    _arrived: dict[str, int] = field(default_factory=dict)
     _alive: dict[str, bool] = field(default_factory=dict)
+    _required: set[str] = field(default_factory=set)  # required now beyond params.require_alive
+    _skew: dict[str, tuple[int, float]] = field(default_factory=dict)  # input → (arrival, ms)
     _estop: str | None = None
+    estop_id: str = ""  # the last e-stop command obeyed (engage or release), for acknowledgements
+    clock_faults: int = 0  # messages refused for their timestamp
 
-    def feed(self, name: str, t_ns: int) -> None:
-        """Record a fresh message on input `name` with source time t_ns (monotone max)."""
+    def feed(self, name: str, arrival_ns: int, offset_ns: float | None = None) -> bool:
+        """A message on input `name` arrived at `arrival_ns` (local monotonic).
+
+        `offset_ns` is its source timestamp minus the rig clock's reading at arrival, in wall
+        time. Returns whether it counted as fresh (False: a clock fault).
+        """
         if name not in self.inputs:
             raise KeyError(f"unknown input {name!r}; watched inputs are {self.inputs}")
-        self._last_ns[name] = max(t_ns, self._last_ns.get(name, t_ns))
+        if offset_ns is not None and not abs(offset_ns) <= self.params.skew_ms * 1e6:
+            self.clock_faults += 1
+            self._skew[name] = (arrival_ns, offset_ns / 1e6)
+            return False
+        self._arrived[name] = max(arrival_ns, self._arrived.get(name, arrival_ns))
+        return True
 
     def set_alive(self, service: str, alive: bool) -> None:
         """Record a liveliness change of a service."""
         self._alive[service] = alive
 
-    def estop(self, engaged: bool, reason: str = "") -> None:
-        """Engage (latched) or release the e-stop."""
+    def require(self, service: str, required: bool) -> None:
+        """Require a service's liveliness from now on (or stop requiring it), e.g. in a trial."""
+        if required:
+            self._required.add(service)
+        else:
+            self._required.discard(service)
+
+    def estop(self, engaged: bool, reason: str = "", command_id: str = "") -> None:
+        """Engage (latched) or release the e-stop; `command_id` is acknowledged on state keys."""
         self._estop = (reason or "e-stop") if engaged else None
+        self.estop_id = command_id
 
     @property
     def estopped(self) -> bool:
         """Whether the e-stop is engaged."""
         return self._estop is not None
 
+    def required(self) -> tuple[str, ...]:
+        """Every service whose liveliness is needed now."""
+        extra = sorted(s for s in self._required if s not in self.params.require_alive)
+        return (*self.params.require_alive, *extra)
+
     def check(self, now_ns: int) -> SafetyStatus:
-        """Every reason to be stopped now (none → may run)."""
+        """Every reason to be stopped now (none → may run); `now_ns` on the arrival clock."""
         reasons: list[str] = []
+        warnings: list[str] = []
         if self._estop is not None:
             reasons.append(f"e-stop: {self._estop}")
-        for service in self.params.require_alive:
+        for service in self.required():
             if not self._alive.get(service, False):
                 reasons.append(f"{service} not alive")
         bound_ns = self.params.stale_ms * 1e6
         for name in self.inputs:
-            last = self._last_ns.get(name)
+            last = self._arrived.get(name)
+            skew = self._skew.get(name)
+            if skew is not None and now_ns - skew[0] <= bound_ns:
+                ahead = "ahead of" if skew[1] > 0 else "behind"
+                warnings.append(f"{name} clock fault: stamped {abs(skew[1]):.0f} ms {ahead} ours")
             if last is None:
                 reasons.append(f"no {name} yet")
             elif now_ns - last > bound_ns:
                 reasons.append(f"{name} stale ({(now_ns - last) / 1e6:.0f} ms)")
-        return SafetyStatus(bool(reasons), tuple(reasons))
+        return SafetyStatus(bool(reasons), tuple(reasons), tuple(warnings))

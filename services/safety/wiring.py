@@ -15,19 +15,25 @@ from services.model.safety import Watchdog
 log = logging.getLogger("nod.safety")
 
 
-def watch_safety_inputs(node: Node, watchdog: Watchdog, act_now: Callable[[int], None]) -> None:
+def watch_safety_inputs(
+    node: Node,
+    watchdog: Watchdog,
+    act_now: Callable[[int], None],
+    also_watch: tuple[str, ...] = (),
+) -> None:
     """Feed `watchdog` with e-stops and liveliness changes; call `act_now(now_ns)` on an e-stop.
 
-    Liveliness is watched for every service in the watchdog's `require_alive`; an e-stop (or its
-    release) is acted on at once rather than at the next periodic tick.
+    Liveliness is watched for every service in the watchdog's `require_alive` and in
+    `also_watch` (services it requires only at times, e.g. the conductor during a trial); an
+    e-stop (or its release) is acted on at once rather than at the next periodic tick.
     """
 
     def on_estop(msg: m.Estop) -> None:
-        watchdog.estop(msg.engaged, msg.reason or msg.source)
+        watchdog.estop(msg.engaged, msg.reason or msg.source, msg.id)
         state = "ENGAGED" if msg.engaged else "released"
         log.warning("%s: e-stop %s by %s: %s", node.service, state, msg.source or "?", msg.reason)
         act_now(node.clock.now_ns())
 
     node.subscribe("safety/estop", on_estop)
-    for service in watchdog.params.require_alive:
+    for service in dict.fromkeys((*watchdog.params.require_alive, *also_watch)):
         node.watch_liveliness(service, lambda alive, s=service: watchdog.set_alive(s, alive))

@@ -75,7 +75,7 @@ class SimService:
 
     def on_trial(self, ev: m.TrialEvent) -> None:
         """Follow the protocol like a participant listening to the countdown."""
-        t = self._advance(ev.t_ns)
+        t = self._advance(self.node.clock.now_ns())  # our clock, not the event's stamp
         if ev.phase == "setup":
             self.robot = None
             self.person.new_trial(ev.option)
@@ -87,7 +87,7 @@ class SimService:
     def on_arm(self, msg: m.ArmStateMsg) -> None:
         """Where the arm is heading, as the participant sees it."""
         heading = colour_sign(msg.target) if msg.target and msg.moving else 0
-        self.person.see_robot(msg.t_ns * NS, heading)
+        self.person.see_robot(self.node.clock.now_ns() * NS, heading)
 
     def on_press(self, msg: m.PressMsg) -> None:
         """The robot pressed a buzzer."""

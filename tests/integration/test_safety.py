@@ -22,7 +22,8 @@ class Feeder:
         self.hand = client.declare_publisher(KEYS.topic("vision/hand"))
         self.z_r = client.declare_publisher(KEYS.topic("decision/z_r"))
         self.tokens = [
-            client.liveliness().declare_token(KEYS.alive(s)) for s in ("decision", "vision")
+            client.liveliness().declare_token(KEYS.alive(s))
+            for s in ("decision", "vision", "experiment")  # the conductor too: a trial needs it
         ]
         self.running = threading.Event()
         self.running.set()
@@ -129,5 +130,37 @@ def test_stale_input_and_lost_liveliness_stop_the_arm(client, spawn):
             "decision not alive" in _first_after(state, t_lost, lambda s: s.safe_stop).safety_reason
         )
         feeder.tokens = feeder.tokens[1:]
+    finally:
+        feeder.close()
+
+
+def test_future_stamps_cannot_hold_the_gate_open(client, spawn):
+    # Once fooled the old gate for good: a pose and a z_r stamped an hour ahead, then silence;
+    # and a z_r stamped 2^63-1 that froze actuation at 100% CPU. Freshness is judged by arrival.
+    state, feeder = _start_moving(client, spawn)
+    try:
+        feeder.running.clear()
+        t = time.time_ns()
+        hour = 3600 * 10**9
+        forged_hand = m.HandPose(
+            seq=10**6, t_ns=t + hour, detected=True, center=(0.5, 0.85), landmarks=((0.5, 0.85),)
+        )
+        feeder.hand.put(m.encode(forged_hand))
+        feeder.z_r.put(m.encode(m.Scalar(seq=10**6, t_ns=t + hour, value=0.3, src_seq=1)))
+        feeder.z_r.put(m.encode(m.Scalar(seq=10**6 + 1, t_ns=2**63 - 1, value=0.3, src_seq=2)))
+        t_quiet = time.time_ns()
+        wait_for(
+            lambda: _first_after(state, t_quiet, lambda s: s.safe_stop) is not None,
+            5,
+            "a safe stop although the last inputs were stamped in the future",
+        )
+        flagged = _first_after(state, t_quiet, lambda s: s.safe_stop)
+        assert flagged.t_ns - t_quiet <= BOUND_NS + 60_000_000
+        assert "stale" in flagged.safety_reason
+        # Still alive and ticking at its 50 Hz (the 2^63-1 stamp once stopped the state key).
+        n = len(state.messages)
+        time.sleep(1.0)
+        assert len(state.messages) - n >= 30
+        assert all(s.safe_stop and not s.moving for s in state.messages[-10:])
     finally:
         feeder.close()

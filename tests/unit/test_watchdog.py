@@ -81,3 +81,74 @@ def test_a_required_service_never_seen_is_not_alive():
     assert "decision not alive" in status.reason and "vision not alive" in status.reason
     wd.set_alive("decision", True)
     assert wd.check(0).reasons == ("vision not alive",)
+
+
+HOUR_NS = 3600 * 10**9
+
+
+def test_a_future_stamp_never_counts_as_fresh():
+    # One pose and one z_r stamped an hour ahead, then silence: the gate must still trip once
+    # the stale bound has passed since the last *arrival* it accepted.
+    wd = make()
+    assert wd.feed("z_r", 0, offset_ns=0.0) and wd.feed("hand", 0, offset_ns=0.0)
+    assert not wd.feed("z_r", 10 * MS, offset_ns=HOUR_NS)
+    assert not wd.feed("hand", 10 * MS, offset_ns=float(2**63 - 1))
+    assert wd.clock_faults == 2
+    status = wd.check(100 * MS)
+    assert not status.safe_stop  # the good messages are still fresh...
+    assert "z_r clock fault: stamped 3600000 ms ahead of ours" in status.reason  # ...but reported
+    status = wd.check(300 * MS)
+    assert status.safe_stop and "z_r stale" in status.reason and "hand stale" in status.reason
+
+
+@given(st.floats(allow_nan=True, allow_infinity=True))
+def test_only_stamps_within_the_skew_bound_refresh(offset_ms):
+    wd = make()
+    fresh = wd.feed("z_r", 5 * MS, offset_ns=offset_ms * 1e6)
+    assert fresh == (abs(offset_ms) <= 100.0)  # NaN is never within the bound
+
+
+def test_late_messages_are_clock_faults_too():
+    wd = make()
+    assert not wd.feed("z_r", 0, offset_ns=-500 * MS)
+    assert "behind ours" in wd.check(0).reason and "no z_r yet" in wd.check(0).reason
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"stale_ms": float("inf")},
+        {"stale_ms": float("nan")},
+        {"stale_ms": 0.0},
+        {"stale_ms": 20_000.0},
+        {"stale_ms": True},
+        {"skew_ms": float("inf")},
+        {"skew_ms": -1.0},
+        {"require_alive": ()},
+        {"require_alive": ("",)},
+    ],
+)
+def test_settings_that_would_switch_safety_off_are_refused(kwargs):
+    with pytest.raises(ValueError, match="safety"):
+        SafetyParams(**kwargs)
+
+
+def test_a_trial_can_require_the_conductor_and_release_it():
+    wd = make()
+    wd.feed("z_r", 0)
+    wd.feed("hand", 0)
+    wd.require("experiment", True)
+    assert wd.check(0).reasons == ("experiment not alive",)
+    wd.set_alive("experiment", True)
+    assert not wd.check(0).safe_stop
+    wd.set_alive("experiment", False)
+    wd.require("experiment", False)
+    assert not wd.check(0).safe_stop
+
+
+def test_the_estop_command_id_is_kept_for_the_acknowledgement():
+    wd = make()
+    wd.estop(True, "operator", "cmd-1")
+    assert wd.estopped and wd.estop_id == "cmd-1"
+    wd.estop(False, "", "cmd-2")
+    assert not wd.estopped and wd.estop_id == "cmd-2"
