@@ -8,6 +8,7 @@ subcommand's heavy imports happen only when it runs).
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -46,7 +47,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nod: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
         return 2
     module = importlib.import_module(COMMANDS[name][0])
-    return int(module.main(rest) or 0)
+    try:
+        return int(module.main(rest) or 0)
+    except KeyboardInterrupt:
+        return 130
+    except Exception as exc:  # the last line of defence: one line, not a traceback
+        if os.environ.get("NOD_TRACEBACK"):
+            raise
+        text = " ".join(str(exc).split())[:300]
+        hint = "(NOD_TRACEBACK=1 shows where)"
+        print(f"nod {name}: {type(exc).__name__}: {text} {hint}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ import argparse
 import dataclasses
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -97,6 +98,10 @@ class ActuationService:
         elif ev.phase == "go" and ev.trial == self.trial:
             timeout = self.cfg.protocol.trial_timeout_s
             self._apply(self.behaviour.start(self._now(), timeout))
+        elif ev.phase == "interrupted" and ev.trial == self.trial:
+            # The trial is void: forget its moves, so clearing the stop does not resume them.
+            self.behaviour = RobotBehaviour(self.layout, self.cfg.behaviour, self.cfg.debounce)
+            self.watchdog.require("experiment", False)
         elif ev.phase in ("end", "abort", "session_end"):
             self.watchdog.require("experiment", False)
 
@@ -200,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         safety = cfg.safety
         if args.stale_ms is not None:
             safety = dataclasses.replace(safety, stale_ms=args.stale_ms)
-        node = Node("actuation", Fabric.from_args(args))
+        node = Node("actuation", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod actuation: {exc}", file=sys.stderr)
         return 2
@@ -220,6 +225,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nod actuation: {exc}", file=sys.stderr)
         return 2
     ActuationService(node, cfg, arm, safety)
+    node.on_forced_exit(arm.hold)  # if a signal's clean stop hangs: hold the arm, then exit
     try:
         node.run()
     finally:

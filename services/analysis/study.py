@@ -71,11 +71,17 @@ def load_participants(store: Store) -> tuple[list[ParticipantOutcomes], list[str
         bad = sorted({t.outcome for _, t in trials if t.outcome not in (*OUTCOMES, None)})
         if bad:
             raise ValueError(f"session {s['session']}: unknown outcome(s) {bad}")
+        for _, t in trials:
+            if t.interrupted:  # broken by a safe stop or e-stop: never scored, never counted
+                notes.append(
+                    f"session {s['session']} ({s['participant']}) trial {t.trial} was "
+                    "interrupted by a safe stop: excluded"
+                )
         part = ParticipantOutcomes(
             participant=str(s["participant"]),
             session=str(s["session"]),
             status=str(s["status"]),
-            outcomes={t.trial: t.outcome for _, t in trials},
+            outcomes={t.trial: None if t.interrupted else t.outcome for _, t in trials},
         )
         if part.participant in latest:
             notes.append(

@@ -99,7 +99,8 @@ _TOPICS = (
         "`action` idle/stop/move/press, `direction` ±1/0, `target`, `reason`",
     ),
     Topic(
-        "actuation/state", m.ArmStateMsg, ("actuation",), ("sim", "experiment"), "50 Hz", STREAM,
+        "actuation/state", m.ArmStateMsg, ("actuation",), ("sim", "experiment", "estop"), "50 Hz",
+        STREAM,
         "`ee` [x,y], `phase`, `moving`, `target`, `safe_stop`, `safety_reason`, `fault`, "
         "`estop` (latched), `estop_id` (the last e-stop command obeyed), `trial`",
     ),
@@ -113,23 +114,24 @@ _TOPICS = (
         "attention gesture), `trial`",
     ),
     Topic(
-        "eyes/state", m.EyesStateMsg, ("eyes",), (), "50 Hz", STREAM,
+        "eyes/state", m.EyesStateMsg, ("eyes",), ("experiment", "estop"), "50 Hz", STREAM,
         "`angles_deg` ×4, `pulses_us` ×4, `clamped`, `safe_stop`, `safety_reason`, `fault`, "
         "`estop`, `estop_id`",
     ),
     Topic(
         "experiment/trial", m.TrialEvent, ("experiment",), ("decision", "actuation", "sim", "run"),
         "per event", CONTROL,
-        "`phase` setup/countdown/go/end/abort/session_end, `trial`, `mode`, `option`, `text`, "
-        "`session`",
+        "`phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, `mode`, "
+        "`option`, `text`, `session`",
     ),
     Topic(
         "experiment/result", m.TrialResult, ("experiment",), ("run",), "per trial", RELIABLE,
         "`trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, `violations`, "
-        "`score`, `session`",
+        "`score`, `session`, `interrupted`",
     ),
     Topic(
-        "safety/estop", m.Estop, ("estop",), ("actuation", "eyes"), "on demand", SAFETY,
+        "safety/estop", m.Estop, ("estop",), ("actuation", "eyes", "experiment"), "on demand",
+        SAFETY,
         "`engaged`, `reason`, `source` (user@host), `id` (acknowledged on the state keys)",
     ),
 )

@@ -100,6 +100,12 @@ class Layout(Message, frozen=True, kw_only=True):
     blue: Box4 = (0.0, 0.0, 0.0, 0.0)
     commit_y: Unit = 0.45
 
+    def __post_init__(self) -> None:
+        for name in ("red", "blue"):
+            x1, y1, x2, y2 = getattr(self, name)
+            if x1 > x2 or y1 > y2:
+                raise MessageError(f"layout: {name} box needs x1 <= x2 and y1 <= y2")
+
 
 class VisionFrame(Message, frozen=True, kw_only=True):
     """A small downscaled JPEG of the camera with landmarks and boxes drawn, for the monitor."""
@@ -218,7 +224,9 @@ class EyesStateMsg(Message, frozen=True, kw_only=True):
 
 # --- experiment -------------------------------------------------------------------------------
 
-TrialPhase = Literal["setup", "countdown", "go", "end", "result", "abort", "session_end"]
+TrialPhase = Literal[
+    "setup", "countdown", "go", "end", "interrupted", "result", "abort", "session_end"
+]
 Mode = Literal["dissensus", "consensus"]
 
 
@@ -248,6 +256,7 @@ class TrialResult(Message, frozen=True, kw_only=True):
     violations: Trial = 0
     score: Score = 0
     session: Text = ""
+    interrupted: bool = False  # broken by a safe stop or e-stop and not repeated: not scored
 
 
 # --- safety -----------------------------------------------------------------------------------

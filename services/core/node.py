@@ -9,6 +9,7 @@ and dropped; the service keeps running.
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import threading
 import time
@@ -22,7 +23,7 @@ from services.core import messages as m
 from services.core.clock import Clock
 from services.core.contract import QoS, check_publisher, check_subscriber
 from services.core.keys import Keys
-from services.core.session import Fabric, open_session
+from services.core.session import Fabric, open_session_retrying
 from services.model.safety import Watchdog
 
 M = TypeVar("M", bound=m.Message)
@@ -71,15 +72,27 @@ class Node:
     """One service process on the Zenoh fabric."""
 
     def __init__(
-        self, service: str, fabric: Fabric, *, stands_in_for: tuple[str, ...] = ()
+        self,
+        service: str,
+        fabric: Fabric,
+        *,
+        stands_in_for: tuple[str, ...] = (),
+        retry_s: float | None = None,
     ) -> None:
+        """Open the session; with `retry_s`, wait up to that long for a router (inf: forever).
+
+        Services retry (a rig's hosts start in any order, and a router may restart); one-shot
+        tools fail at once. SIGINT/SIGTERM end the wait.
+        """
         self.service = service
         self.fabric = fabric
         self.keys = Keys(fabric.rig)
         self.clock: Clock = fabric.clock()
-        self.session = open_session(fabric.zenoh_config())
         self.lock = threading.RLock()
         self.stop = threading.Event()
+        self._exit_hooks: list[Callable[[], None]] = []
+        install_signal_handlers(self.stop, self._exit_hooks)
+        self.session = open_session_retrying(fabric, self.stop, service, retry_s)
         self.bad: Counter[str] = Counter()
         self.received: Counter[str] = Counter()
         self._handles: list[Any] = []
@@ -120,6 +133,8 @@ class Node:
                 self.received[topic] += 1
                 try:
                     handler(msg)
+                except ValueError as exc:  # a valid message the model cannot use (bad geometry)
+                    self._drop(topic, f"refused: {exc}")
                 except Exception:  # a handler bug must not kill zenoh's delivery thread
                     log.exception("%s: handler for %s failed", self.service, topic)
 
@@ -129,8 +144,10 @@ class Node:
     def _drop(self, topic: str, why: str) -> None:
         self.bad[topic] += 1
         n = self.bad[topic]
-        if n <= 10 or n % 100 == 0:  # one line each, but never a log flood from a bad peer
-            log.warning("%s: dropped bad message #%d on %s: %s", self.service, n, topic, why)
+        if n <= 10 or n % 1000 == 0:  # one line each, but never a log flood from a bad peer
+            log.warning(
+                "%s: dropped bad message #%d on %s: %s", self.service, n, topic, clip(why)
+            )
 
     def watch_liveliness(self, service: str, on_change: Callable[[bool], None]) -> None:
         """Call `on_change(alive)` (locked) when `service`'s liveliness token appears or goes."""
@@ -144,6 +161,10 @@ class Node:
             self.keys.alive(service), on_sample, history=True
         )
         self._handles.append(sub)
+
+    def on_forced_exit(self, hook: Callable[[], None]) -> None:
+        """Run `hook` (e.g. hold the arm) if a signal's clean stop does not finish in time."""
+        self._exit_hooks.append(hook)
 
     # -- time ----------------------------------------------------------------------------------
 
@@ -184,7 +205,6 @@ class Node:
     def run(self) -> None:
         """Declare the service alive, run ticks until SIGINT/SIGTERM or `stop`, then close."""
         self.ready()
-        install_signal_handlers(self.stop)
         try:
             while not self.stop.is_set():
                 now_wall = time.monotonic()
@@ -205,9 +225,10 @@ class Node:
             self.close()
 
     def close(self) -> None:
-        """Undeclare everything and close the session (idempotent)."""
+        """Stop, undeclare everything and close the session (idempotent)."""
         if self.session is None:
             return
+        self.stop.set()  # threads of the service (ticks, keep-alives) wind down
         log.info(
             "%s: messages handled %s; bad ones dropped %s",
             self.service,
@@ -218,21 +239,56 @@ class Node:
             h.undeclare()
         self._handles.clear()
         # A handler may still be running on a zenoh thread: let it finish publishing everything
-        # it derived from its input (z_r, ẑ_h and b_r of one pose go out together or not at all).
+        # it derived from its input (z_r, ẑ_h and b_r of one pose go out together or not at
+        # all). From here on `session` is None under the lock: nothing publishes any more.
         with self.lock:
-            pass
+            session, self.session = self.session, None  # type: ignore[assignment]
         for token in self._tokens:
             token.undeclare()
-        self.session.close()
-        self.session = None  # type: ignore[assignment]
+        session.close()
 
 
-def install_signal_handlers(stop: threading.Event) -> None:
-    """Turn SIGINT and SIGTERM into `stop.set()` (only possible from the main thread)."""
+EXIT_GRACE_S = 2.0  # a service stops within this after SIGTERM, whatever blocks it
+
+
+def install_signal_handlers(
+    stop: threading.Event,
+    exit_hooks: list[Callable[[], None]] | None = None,
+    grace_s: float = EXIT_GRACE_S,
+) -> None:
+    """Turn SIGINT and SIGTERM into `stop.set()`; force the exit if that has not ended us soon.
+
+    A clean stop undeclares, closes and lets the device reach its safe state. If the process is
+    still alive `grace_s` later (a put blocked on a vanished router, a hung driver), the exit
+    hooks run (the device's safe state, best effort) and the process exits with 128 + signal.
+    Only possible from the main thread.
+    """
     if threading.current_thread() is not threading.main_thread():
         return
+
+    def force_exit(signum: int) -> None:
+        for hook in exit_hooks or ():
+            try:
+                hook()
+            except Exception:  # best effort: nothing may prevent the exit itself
+                log.exception("exit hook failed")
+        log.warning("did not stop within %.0f s of signal %d: exiting now", grace_s, signum)
+        os._exit(128 + signum)
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        stop.set()
+        timer = threading.Timer(grace_s, force_exit, (signum,))
+        timer.daemon = True
+        timer.start()
+
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, on_signal)
+
+
+def clip(text: str, limit: int = 200) -> str:
+    """One short line of untrusted text for a log: whitespace folded, long text cut."""
+    flat = " ".join(text.split())
+    return flat if len(flat) <= limit else flat[:limit] + f"… (+{len(flat) - limit} chars)"
 
 
 def setup_logging(verbose: bool = False) -> None:

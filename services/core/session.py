@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
+import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -22,6 +25,7 @@ from services.core.clock import Clock
 from services.core.keys import check_rig
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+log = logging.getLogger(__name__)
 
 
 def add_zenoh_args(parser: argparse.ArgumentParser, *, default_mode: str = "client") -> None:
@@ -119,6 +123,29 @@ def make_config(
 
 def _insert(conf: zenoh.Config, key: str, value: Any) -> None:
     conf.insert_json5(key, json.dumps(value))
+
+
+def open_session_retrying(
+    fabric: Fabric, stop: threading.Event, who: str, retry_s: float | None
+) -> zenoh.Session:
+    """Open a session; while no router answers, retry with backoff (up to `retry_s`, or never).
+
+    One line per attempt (0.2 s, doubling to 5 s apart). `stop` (a signal) ends the wait with a
+    ConnectionError.
+    """
+    deadline = None if retry_s is None else time.monotonic() + retry_s
+    delay = 0.2
+    while True:
+        try:
+            return open_session(fabric.zenoh_config())
+        except ConnectionError as exc:
+            if deadline is None or time.monotonic() + delay > deadline or stop.is_set():
+                raise
+            where = ", ".join(fabric.connect) or DEFAULT_ROUTER
+            log.warning("%s: no router at %s yet; retrying in %.1f s", who, where, delay)
+            if stop.wait(delay):
+                raise ConnectionError("stopped while waiting for the router") from exc
+            delay = min(delay * 2, 5.0)
 
 
 def open_session(conf: zenoh.Config) -> zenoh.Session:

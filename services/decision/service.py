@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 
 from services.core import messages as m
@@ -96,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose)
     try:
         cfg = load_params(args.params)
-        node = Node("decision", Fabric.from_args(args))
+        node = Node("decision", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod decision: {exc}", file=sys.stderr)
         return 2

@@ -1,9 +1,10 @@
 """`nod export`: a session database as CSV files that pandas and R read directly.
 
-Writes sessions.csv, trials.csv, samples.csv and questionnaires.csv into one directory, each
-with a header row of the database's column names (trials.csv and samples.csv gain a
-`participant` column after `session` for convenience). Conventions, chosen so that
-`pandas.read_csv(path)` and R's `read.csv(path)` need no options:
+Writes sessions.csv, trials.csv, samples.csv, questionnaires.csv, safety_events.csv and
+interruptions.csv into one directory, each with a header row of the database's column names
+(the per-session tables gain a `participant` column after `session` for convenience). A trial
+with `interrupted` = 1 was broken by a safe stop or an e-stop and never scored. Conventions,
+chosen so that `pandas.read_csv(path)` and R's `read.csv(path)` need no options:
 
 - UTF-8, comma separated, LF line ends, fields quoted only when needed (the sessions'
   `config` column is JSON text and gets quoted);
@@ -37,7 +38,7 @@ QUERIES: dict[str, str] = {
     "trials": (
         "SELECT t.session, s.participant, t.trial, t.mode, t.option, t.gaze_level, t.yaw, "
         "t.pitch, t.t_go_ns, t.t_end_ns, t.human, t.robot, t.outcome, t.switches, "
-        "t.violations, t.clicks, t.score, t.end_reason FROM trials t "
+        "t.violations, t.clicks, t.score, t.end_reason, t.interrupted, t.attempts FROM trials t "
         "LEFT JOIN sessions s ON s.session = t.session ORDER BY s.started_ns, t.session, t.trial"
     ),
     "samples": (
@@ -47,6 +48,16 @@ QUERIES: dict[str, str] = {
         "ORDER BY s.started_ns, m.session, m.trial, m.t_ns"
     ),
     "questionnaires": "SELECT * FROM questionnaires ORDER BY participant",
+    "safety_events": (
+        "SELECT e.session, s.participant, e.trial, e.attempt, e.t_ns, e.device, e.event, "
+        "e.reason FROM safety_events e LEFT JOIN sessions s ON s.session = e.session "
+        "ORDER BY s.started_ns, e.session, e.t_ns"
+    ),
+    "interruptions": (
+        "SELECT i.session, s.participant, i.trial, i.attempt, i.t_start_ns, i.t_ns, i.reason "
+        "FROM interruptions i LEFT JOIN sessions s ON s.session = i.session "
+        "ORDER BY s.started_ns, i.session, i.trial, i.attempt"
+    ),
 }
 
 

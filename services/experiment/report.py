@@ -29,6 +29,9 @@ def main(argv: list[str] | None = None) -> int:
     store = Store(args.db)
     try:
         trials = store.trials(args.session)
+        session = trials[0][0] if trials else None
+        events = store.safety_events(session) if session else []
+        broken = store.interruptions(session) if session else []
     finally:
         store.close()
     if args.session is not None and not trials:
@@ -46,6 +49,11 @@ def main(argv: list[str] | None = None) -> int:
             "switches": t.switches,
             "violations": t.violations,
             "score": t.score,
+            "interrupted": t.interrupted,
+            "attempts": t.attempts,
+            "safe_stops": sum(e.trial == t.trial and e.event == "safe_stop" for e in events),
+            "estops": sum(e.trial == t.trial and e.event == "estop" for e in events),
+            "end_reason": t.end_reason,
         }
         for session, t in trials
     ]
@@ -53,11 +61,16 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(rows, indent=2))
         return 0
     for r in rows:
+        flags = " INTERRUPTED (not scored)" if r["interrupted"] else ""
+        safety = f" safe_stops={r['safe_stops']} estops={r['estops']}" if r["safe_stops"] else ""
+        retries = f" attempts={r['attempts']}" if r["attempts"] > 1 else ""
         print(
             f"{r['trial']:>3} {r['mode']:<10} {r['option'] or '-':<5} robot={r['robot'] or '-':<5}"
             f" human={r['human'] or '-':<5} {r['outcome'] or '-':<3} switches={r['switches']}"
-            f" violations={r['violations']} score={r['score']}"
+            f" violations={r['violations']} score={r['score']}{retries}{safety}{flags}"
         )
+    for b in broken:
+        print(f"    trial {b.trial} attempt {b.attempt} interrupted: {b.reason}")
     return 0
 
 

@@ -10,9 +10,12 @@ judge it, store it with its samples in one SQLite transaction, and publish the r
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
+import math
 import sys
+import threading
 import time
 import uuid
 from collections import OrderedDict
@@ -22,13 +25,15 @@ from pathlib import Path
 from services.core import messages as m
 from services.core.cli import Parser, add_service_args
 from services.core.config import load_params
-from services.core.node import Node, install_signal_handlers, setup_logging
+from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.experiment.recorder import TrialRecorder
+from services.experiment.rig_watch import RigWatch
+from services.model.geometry import Colour
 from services.model.outcome import OutcomeTracker, judge_trial
 from services.model.params import NodConfig
 from services.model.protocol import Cue, SessionProtocol, TrialSpec
-from services.store import Store, TrialRecord
+from services.store import Interruption, Store, TrialRecord
 
 log = logging.getLogger("nod.experiment")
 NS = 1e-9
@@ -56,9 +61,11 @@ class Conductor:
         self.robot_press: m.PressMsg | None = None
         self.trial = 0
         self.gaze_msg: dict[str, object] | None = None
-        self._keepalive_ns = 0
         self.session = ""
         self.records: list[TrialRecord] = []
+        self.rig = RigWatch()
+        self.protocol: SessionProtocol | None = None
+        self._trial_start_ns = 0
         self._hands: OrderedDict[int, m.HandPose] = OrderedDict()
         self.pub_trial = node.publisher("experiment/trial")
         self.pub_result = node.publisher("experiment/result")
@@ -70,8 +77,14 @@ class Conductor:
         node.subscribe("decision/b_r", lambda msg: self._scalar("b_r", msg))
         node.subscribe("actuation/state", self.on_arm)
         node.subscribe("actuation/press", self.on_press)
+        node.subscribe("eyes/state", self.on_eyes)
+        node.subscribe("safety/estop", self.on_estop)
         for service in REQUIRED:
             node.watch_liveliness(service, lambda a, s=service: self.alive.__setitem__(s, a))
+        # The gaze keep-alive runs on its own thread: the operator's counter prompt blocks the
+        # main thread, and the eyes must not drop to neutral while the operator types.
+        self._keepalive = threading.Thread(target=self._keep_gaze_alive, daemon=True)
+        self._keepalive.start()
 
     # -- callbacks (under the node lock) ---------------------------------------------------
 
@@ -88,9 +101,18 @@ class Conductor:
             self.recorder.on_scalar(name, msg, self._hands.get(msg.src_seq))
 
     def on_arm(self, msg: m.ArmStateMsg) -> None:
-        """The arm's end effector, for the samples."""
+        """The arm's end effector for the samples, and its safety state."""
+        self.rig.device_state("actuation", msg.safe_stop, msg.safety_reason, self._now_ns())
         if self.recorder is not None:
             self.recorder.on_arm(msg)
+
+    def on_eyes(self, msg: m.EyesStateMsg) -> None:
+        """The eyes' safety state."""
+        self.rig.device_state("eyes", msg.safe_stop, msg.safety_reason, self._now_ns())
+
+    def on_estop(self, msg: m.Estop) -> None:
+        """An e-stop command: it breaks a running trial and holds the session until released."""
+        self.rig.estop(msg.engaged, msg.reason, msg.source, self._now_ns())
 
     def on_press(self, msg: m.PressMsg) -> None:
         """The robot pressed a buzzer."""
@@ -98,6 +120,9 @@ class Conductor:
             self.robot_press = msg
 
     # -- the script (main thread) ----------------------------------------------------------
+
+    def _now_ns(self) -> int:
+        return self.node.clock.now_ns()
 
     def _now_s(self) -> float:
         return self.node.clock.now_ns() * NS
@@ -111,15 +136,21 @@ class Conductor:
                 raise TimeoutError(f"services not alive after {timeout_s:.0f} s: {missing}")
             time.sleep(0.02)
 
-    def run_session(self, session: str, participant: str, seed: int | None) -> list[TrialRecord]:
-        """Run every trial of the schedule through the protocol machine; store the records."""
+    def run_session(
+        self, session: str, participant: str, seed: int | None, first_trial: int = 1
+    ) -> list[TrialRecord]:
+        """Run the schedule from `first_trial` through the protocol machine; store the records.
+
+        A trial broken by a safe stop or an e-stop is stored as interrupted; the session waits
+        until the rig is safe again, then repeats it (or moves on, as the protocol says).
+        """
         started = self.node.clock.now_ns()
         self.store.begin_session(
             session, participant, self.node.keys.rig, seed, started, self.cfg.summary()
         )
         self.session = session
         self.records = []
-        protocol = SessionProtocol(self.proto)
+        protocol = self.protocol = SessionProtocol(self.proto, first_trial)
         status = "aborted"
         try:
             with self.node.lock:
@@ -130,6 +161,13 @@ class Conductor:
                     break
                 self._wait(protocol.next_due())
                 with self.node.lock:
+                    why = self.rig.interruption() if protocol.running_trial else None
+                    if why is not None:
+                        cues = protocol.interrupt(self._now_s(), why)
+                        continue
+                    if protocol.phase == "paused":
+                        cues = protocol.resume(self._now_s()) if self._rig_ready() else []
+                        continue
                     rec = self.recorder
                     cues = protocol.advance(
                         self._now_s(),
@@ -138,8 +176,12 @@ class Conductor:
                     )
             status = "complete"
         finally:
+            with self.node.lock:
+                events = self.rig.take_events()
+            self.store.write_events(session, events)
             self.store.finish_session(session, self.node.clock.now_ns(), status)
-            self.gaze_msg = None
+            with self.node.lock:
+                self.gaze_msg = None
             self.pub_trial.put(
                 phase="session_end" if status == "complete" else "abort",
                 trial=self.trial,
@@ -148,19 +190,29 @@ class Conductor:
             )
         return self.records
 
-    def _wait(self, due_s: float) -> None:
-        """Sleep until the protocol's next deadline (or ≤ 5 ms), keeping the gaze alive."""
-        end_ns = min(int(due_s * 1e9), self.node.clock.now_ns() + 5_000_000)
-        while not self.node.stop.is_set():
-            now = self.node.clock.now_ns()
+    def _rig_ready(self) -> bool:
+        """After an interruption: is the rig safe (and settled) again? Says so once."""
+        if self.rig.safe(self._now_ns()):
+            log.info("rig safe again: resuming the session")
+            return True
+        return False
+
+    def _keep_gaze_alive(self) -> None:
+        """Repeat the current gaze command every GAZE_KEEPALIVE_NS (rig clock) until closed."""
+        period_s = self.node.clock.wall_seconds(GAZE_KEEPALIVE_NS * NS)
+        while not self.node.stop.wait(period_s):
             with self.node.lock:
-                if self.gaze_msg is not None and now - self._keepalive_ns >= GAZE_KEEPALIVE_NS:
-                    self.pub_gaze.put(t_ns=now, **self.gaze_msg)
-                    self._keepalive_ns = now
-            if now >= end_ns:
-                return
-            self.node.stop.wait(min(0.005, self.node.clock.wall_seconds((end_ns - now) * NS)))
-        raise KeyboardInterrupt
+                if self.gaze_msg is not None and self.node.session is not None:
+                    self.pub_gaze.put(**self.gaze_msg)
+
+    def _wait(self, due_s: float) -> None:
+        """Sleep until the protocol's next deadline, or at most 5 ms (presses, safety)."""
+        now = self.node.clock.now_ns()
+        end_ns = now + 5_000_000
+        if math.isfinite(due_s):  # inf while paused or judging: poll
+            end_ns = min(int(due_s * 1e9), end_ns)
+        if self.node.stop.wait(max(0.0, self.node.clock.wall_seconds((end_ns - now) * NS))):
+            raise KeyboardInterrupt
 
     def _perform(self, protocol: SessionProtocol, cues: list[Cue]) -> None:
         """Do what the protocol asks, in order (an "end" cue may bring the next trial's cues)."""
@@ -180,12 +232,13 @@ class Conductor:
                         "trial": spec.index,
                     }
                     self.pub_gaze.put(**self.gaze_msg)
-                    self._keepalive_ns = self.node.clock.now_ns()
             elif cue.kind == "setup":
                 with self.node.lock:
                     self.trial = spec.index
                     self.robot_press = None
                     self.recorder = None
+                    self.rig.begin(spec.index, protocol.attempt)
+                    self._trial_start_ns = self._now_ns()
                     self.pub_trial.put(phase="setup", text=cue.text, session=self.session, **ev)
             elif cue.kind == "countdown":
                 self.pub_trial.put(phase="countdown", text=cue.text, session=self.session, **ev)
@@ -199,19 +252,62 @@ class Conductor:
             elif cue.kind == "end":
                 self._end_trial(spec, protocol)
                 cues.extend(protocol.judged(self._now_s()))
+            elif cue.kind == "interrupted":
+                self._interrupted(spec, protocol, cue.text)
+
+    def _interrupted(self, spec: TrialSpec, protocol: SessionProtocol, why: str) -> None:
+        """Store the broken start of a trial; the session pauses until the rig is safe."""
+        with self.node.lock:
+            self.recorder = None
+            events = self.rig.take_events()
+            now = self._now_ns()
+        log.warning("trial %d (attempt %d) INTERRUPTED: %s", spec.index, protocol.attempt, why)
+        self.pub_trial.put(
+            phase="interrupted",
+            trial=spec.index,
+            mode=spec.mode,
+            option=spec.option,
+            text=why[:400],
+            session=self.session,
+        )
+        record = Interruption(spec.index, protocol.attempt, self._trial_start_ns, now, why)
+        self.store.write_interruption(self.session, record, events)
+        last_chance = (
+            not self.proto.repeat_interrupted or protocol.attempt >= self.proto.max_attempts
+        )
+        if last_chance:  # not repeated: stored as an interrupted trial, never scored
+            self._store_trial(
+                spec, protocol, None, None, None, f"interrupted: {why}", interrupted=True
+            )
 
     def _end_trial(self, spec: TrialSpec, protocol: SessionProtocol) -> None:
         """Judge, store and publish the trial that just ended."""
         with self.node.lock:
             rec, self.recorder = self.recorder, None
-            t_end = self.node.clock.now_ns()
             robot = self.robot_press.colour if self.robot_press else None
         assert rec is not None and protocol.end is not None  # "go" precedes every "end"
         self.pub_trial.put(
             phase="end", trial=spec.index, mode=spec.mode, option=spec.option, session=self.session
         )
-        clicks = self.clicks(spec.index)
-        j = judge_trial(rec.tracker, rec.human, robot, clicks, self.proto.target_clicks)
+        self._store_trial(spec, protocol, rec, robot, self.clicks(spec.index), protocol.end.reason)
+
+    def _store_trial(
+        self,
+        spec: TrialSpec,
+        protocol: SessionProtocol,
+        rec: TrialRecorder | None,
+        robot: Colour | None,
+        clicks: int | None,
+        reason: str,
+        interrupted: bool = False,
+    ) -> None:
+        tracker = rec.tracker if rec is not None else OutcomeTracker(self.cfg.debounce)
+        human = rec.human if rec is not None else None
+        j = judge_trial(tracker, human, robot, clicks, self.proto.target_clicks)
+        if interrupted:  # never scored: no outcome, no points
+            j = dataclasses.replace(j, outcome=None, score=0)
+        with self.node.lock:
+            events = self.rig.take_events()
         record = TrialRecord(
             trial=spec.index,
             mode=spec.mode,
@@ -219,8 +315,8 @@ class Conductor:
             gaze_level=spec.gaze_level,
             yaw=spec.gaze.yaw,
             pitch=spec.gaze.pitch,
-            t_go_ns=rec.t_go_ns,
-            t_end_ns=t_end,
+            t_go_ns=rec.t_go_ns if rec is not None else None,
+            t_end_ns=self._now_ns(),
             human=j.human,
             robot=j.robot,
             outcome=j.outcome,
@@ -228,9 +324,12 @@ class Conductor:
             violations=j.violations,
             clicks=clicks,
             score=j.score,
-            end_reason=protocol.end.reason,
+            end_reason=reason[:400],
+            interrupted=interrupted,
+            attempts=protocol.attempt,
         )
-        self.store.write_trial(self.session, record, rec.samples(SAMPLE_HZ))
+        samples = rec.samples(SAMPLE_HZ) if rec is not None else []
+        self.store.write_trial(self.session, record, samples, events)
         self.records.append(record)
         self.pub_result.put(
             trial=spec.index,
@@ -243,6 +342,7 @@ class Conductor:
             violations=j.violations,
             score=j.score,
             session=self.session,
+            interrupted=interrupted,
         )
 
 
@@ -300,7 +400,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = load_params(args.params)
         clicks = clicks_source(args.clicks)
         store = Store(args.db)
-        node = Node("experiment", Fabric.from_args(args))
+        node = Node("experiment", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod experiment: {exc}", file=sys.stderr)
         return 2
@@ -310,7 +410,6 @@ def main(argv: list[str] | None = None) -> int:
             session,
             done,
         )
-    install_signal_handlers(node.stop)
     conductor = Conductor(node, cfg, store, clicks)
     node.ready()
     session = args.session or uuid.uuid4().hex[:12]

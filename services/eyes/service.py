@@ -12,6 +12,7 @@ import argparse
 import dataclasses
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -135,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = load_params(args.params)
         safety = eyes_safety(cfg, args.stale_ms)
-        node = Node("eyes", Fabric.from_args(args))
+        node = Node("eyes", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod eyes: {exc}", file=sys.stderr)
         return 2
@@ -148,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nod eyes: {exc}", file=sys.stderr)
         return 2
     EyesService(node, driver, safety)
+    node.on_forced_exit(driver.neutral)  # if a signal's clean stop hangs: eyes neutral, exit
     try:
         node.run()
     finally:

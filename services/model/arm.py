@@ -272,7 +272,7 @@ class SimArm(ArmDriver):
                 # Brake in time to arrive at rest (v² = 2 a d), and never step past the goal.
                 speed = min(p.max_speed, math.sqrt(2.0 * p.max_accel * dist), dist / dt)
                 v_des = (dx / dist * speed, dy / dist * speed)
-        vx, vy = self._vel
+        vx, vy = v0 = self._vel
         ax, ay = v_des[0] - vx, v_des[1] - vy
         dv = math.hypot(ax, ay)
         dv_max = p.max_accel * dt
@@ -288,7 +288,10 @@ class SimArm(ArmDriver):
         self._pos = (self._pos[0] + vx * dt, self._pos[1] + vy * dt)
         if goal is not None:
             dist = math.dist(self._pos, goal)
-            if dist < _ARRIVED and math.hypot(vx, vy) <= dv_max:
+            # Snap onto the goal only if stopping from the step's *initial* velocity is itself
+            # within this step's acceleration budget: the snap replaces the update, it must not
+            # add a second velocity change on top of it.
+            if dist < _ARRIVED and math.hypot(*v0) <= dv_max:
                 self._pos, self._vel = goal, (0.0, 0.0)
         self._update_press(t_end)
 

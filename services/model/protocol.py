@@ -114,6 +114,11 @@ class ProtocolParams:
     robot_wait_s: float = 5.0
     # Rest after a trial is stored, before the next trial's gaze (s); ≥ 0: the hand returns.
     rest_s: float = 1.0
+    # A trial interrupted by a safe stop or an e-stop is repeated after the rig is safe again
+    # (true), or stored as interrupted and skipped (false). Either way it is never scored.
+    repeat_interrupted: bool = True
+    # How many times one trial may be started before it is skipped as interrupted; ≥ 1.
+    max_attempts: int = 3
     # Counter clicks the participant must make for the counter point.
     target_clicks: int = 10
     # The trials of a session, in order (indices 1..n).
@@ -132,9 +137,10 @@ class ProtocolParams:
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
                 raise ValueError(f"ProtocolParams.{name} must be finite and >= 0, got {value}")
-        value = self.target_clicks
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"ProtocolParams.target_clicks must be an integer >= 1, got {value!r}")
+        for name in ("target_clicks", "max_attempts"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"ProtocolParams.{name} must be an integer >= 1, got {value!r}")
         if not self.trials:
             raise ValueError("ProtocolParams.trials must hold at least one trial")
         indices = [t.index for t in self.trials]
@@ -177,8 +183,12 @@ def trial_timeline(spec: TrialSpec, start_t: float, params: ProtocolParams) -> T
     return TrialTimeline(gaze, words, go_t, go_t + params.trial_timeout_s)
 
 
-CueKind: TypeAlias = Literal["gaze", "setup", "countdown", "go", "end", "session_end"]
-Phase: TypeAlias = Literal["idle", "cueing", "running", "robot", "judging", "rest", "done"]
+CueKind: TypeAlias = Literal[
+    "gaze", "setup", "countdown", "go", "end", "interrupted", "session_end"
+]
+Phase: TypeAlias = Literal[
+    "idle", "cueing", "running", "robot", "judging", "paused", "rest", "done"
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -189,6 +199,8 @@ class Cue:
     - "setup": announce the trial (`text` = gaze level): decision and actuation reset;
     - "countdown": say `text`; "go": say the last word — both agents may move;
     - "end": the trial is over (`text` = why); judge and store it, then call `judged`;
+    - "interrupted": a safe stop or e-stop broke the trial (`text` = why): store the attempt as
+      interrupted (never scored); the session is paused until `resume`;
     - "session_end": every trial is done (`trial` is None).
     """
 
@@ -217,6 +229,9 @@ class TrialEnd:
 class SessionProtocol:
     """The session as a state machine: idle → (cueing → running → robot → judging → rest)* → done.
 
+    `interrupt(t, why)` from cueing, running or robot pauses the session; `resume(t)` repeats
+    the trial (a new attempt, up to `max_attempts`) or moves on, as `repeat_interrupted` says.
+
     Call `start(t)`, then `advance(t, human_pressed=…, robot_pressed=…)` as often as convenient
     (every frame, every few ms): it returns the cues that fell due since the last call, in
     order, each scripted cue exactly once however coarse the calls. After an "end" cue the
@@ -240,6 +255,7 @@ class SessionProtocol:
         self._human_pressed = False
         self._rest_until = math.inf
         self._end: TrialEnd | None = None
+        self._attempt = 0  # attempts of the current trial so far (1 = its first start)
 
     # -- read-only state -------------------------------------------------------------------
 
@@ -262,6 +278,16 @@ class SessionProtocol:
     def end(self) -> TrialEnd | None:
         """How the current trial ended (set with its "end" cue)."""
         return self._end
+
+    @property
+    def attempt(self) -> int:
+        """Which start of the current trial this is (1, or more after interruptions)."""
+        return self._attempt
+
+    @property
+    def running_trial(self) -> bool:
+        """Whether a trial is under way (from its setup to its end): what an interruption breaks."""
+        return self._phase in ("cueing", "running", "robot")
 
     @property
     def done(self) -> bool:
@@ -325,7 +351,30 @@ class SessionProtocol:
         self._phase = "rest"
         return self.advance(t)
 
-    def _begin_trial(self, t: float, out: list[Cue]) -> None:
+    def interrupt(self, t: float, why: str) -> list[Cue]:
+        """A safe stop or e-stop broke the current trial at time t: pause the session."""
+        if not self.running_trial:
+            raise RuntimeError(f"interrupt() in phase {self._phase!r}: no trial is under way")
+        self._phase = "paused"
+        self._script = []
+        return [Cue("interrupted", self._trial, why)]
+
+    def resume(self, t: float) -> list[Cue]:
+        """The rig is safe again at time t: repeat the interrupted trial, or go on to the next.
+
+        A trial is repeated while `repeat_interrupted` and it has had fewer than `max_attempts`
+        starts; otherwise the session moves on (the trial stays stored as interrupted).
+        """
+        if self._phase != "paused":
+            raise RuntimeError(f"resume() in phase {self._phase!r}: only after an interruption")
+        repeat = self.params.repeat_interrupted and self._attempt < self.params.max_attempts
+        if repeat:
+            self._next_index -= 1
+        out: list[Cue] = []
+        self._begin_trial(t, out, repeat=repeat)
+        return out + self.advance(t)
+
+    def _begin_trial(self, t: float, out: list[Cue], repeat: bool = False) -> None:
         if self._next_index >= len(self.params.trials):
             self._phase = "done"
             self._trial = None
@@ -333,6 +382,7 @@ class SessionProtocol:
             return
         spec = self.params.trials[self._next_index]
         self._next_index += 1
+        self._attempt = self._attempt + 1 if repeat else 1
         self._trial = spec
         self._end = None
         self._human_pressed = False

@@ -233,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     rec.send_recording_name(f"nod {keys.rig}")
     monitor = Monitor(session, keys, RerunBridge(rec), inbox)
     stop = threading.Event()
-    install_signal_handlers(stop)
+    install_signal_handlers(stop, grace_s=30.0)  # time to write an .rrd footer
     monitor.start()
     log.info("monitor up: logging %s to Rerun", keys.all)
     deadline = None if args.duration is None else time.monotonic() + args.duration

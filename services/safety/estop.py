@@ -1,4 +1,10 @@
-"""`nod estop`: engage (or release) the emergency stop of a rig from any machine."""
+"""`nod estop`: engage (or release) the emergency stop of a rig, and wait until every device obeys.
+
+The command goes out with the contract's safety QoS (reliable, real-time priority) and a fresh
+id; each device acknowledges it on its state key (`estop_id`, `estop`). `nod estop` repeats the
+command until every expected device has acknowledged (or `--timeout` passes), prints who obeyed
+and how fast, and exits 0 only if all did: with nobody listening it says so and fails.
+"""
 
 from __future__ import annotations
 
@@ -6,46 +12,125 @@ import argparse
 import getpass
 import socket
 import sys
+import threading
 import time
+import uuid
 
 from services.core.cli import Parser
 from services.core.node import Node
 from services.core.session import Fabric, add_zenoh_args
+
+DEVICES = ("actuation", "eyes")
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod estop`."""
     p = Parser(
         prog="nod estop",
-        description="Publish an e-stop on nod/<rig>/safety/estop: the arm holds and the eyes go "
-        "neutral until released with --release.",
+        description="Engage the e-stop of a rig (the arm holds, the eyes go neutral) until it is "
+        "released with --release; waits for every device to acknowledge.",
     )
     add_zenoh_args(p)
     p.add_argument("--release", action="store_true", help="release a latched e-stop")
     p.add_argument("--reason", default="operator", help="reason shown on the state keys")
-    p.add_argument("--repeat", type=int, default=3, help="publish this many times, 50 ms apart")
+    p.add_argument(
+        "--timeout", type=float, default=1.0, help="seconds to wait for acknowledgements (1)"
+    )
+    p.add_argument(
+        "--devices",
+        default=",".join(DEVICES),
+        help=f"devices that must acknowledge, comma separated (default {','.join(DEVICES)})",
+    )
     return p
 
 
+class Acks:
+    """Collects the devices' acknowledgements of one e-stop command."""
+
+    def __init__(self, command_id: str, engaged: bool, t0: float) -> None:
+        self.command_id = command_id
+        self.engaged = engaged
+        self.t0 = t0
+        self.lock = threading.Lock()
+        self.obeyed: dict[str, tuple[float, str]] = {}  # device → (seconds, reason shown)
+        self.done = threading.Event()
+        self.expected: tuple[str, ...] = ()
+
+    def state(self, device: str, estop_id: str, estop: bool, reason: str) -> None:
+        """Record a device's state message if it acknowledges our command."""
+        if estop_id != self.command_id or estop != self.engaged:
+            return
+        with self.lock:
+            if device not in self.obeyed:
+                self.obeyed[device] = (time.monotonic() - self.t0, reason)
+            if all(d in self.obeyed for d in self.expected):
+                self.done.set()
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Publish the e-stop (or its release) and exit."""
+    """Publish the e-stop (or its release); exit 0 when every device acknowledged it."""
     args = build_parser().parse_args(argv)
+    expected = tuple(d for d in args.devices.split(",") if d)
+    if not expected or any(d not in DEVICES for d in expected):
+        print(f"nod estop: --devices must name some of {', '.join(DEVICES)}", file=sys.stderr)
+        return 2
+    if not 0 < args.timeout <= 60:
+        print(f"nod estop: --timeout must be in (0, 60] s, got {args.timeout}", file=sys.stderr)
+        return 2
     try:
         node = Node("estop", Fabric.from_args(args))
     except (ConnectionError, OSError, ValueError) as exc:
         print(f"nod estop: {exc}", file=sys.stderr)
         return 2
+    engaged = not args.release
     source = f"{getpass.getuser()}@{socket.gethostname()}"
+    acks = Acks(uuid.uuid4().hex[:16], engaged, time.monotonic())
+    acks.expected = expected
     try:
+        node.subscribe(
+            "actuation/state",
+            lambda s: acks.state("actuation", s.estop_id, s.estop, s.safety_reason),
+        )
+        node.subscribe(
+            "eyes/state", lambda s: acks.state("eyes", s.estop_id, s.estop, s.safety_reason)
+        )
         pub = node.publisher("safety/estop")  # the contract's QoS: reliable, real-time priority
-        time.sleep(0.2)  # let the route to the subscribers establish before the first put
-        for _ in range(max(1, args.repeat)):  # repeated: a single sample could be missed
-            pub.put(engaged=not args.release, reason=args.reason, source=source)
-            time.sleep(0.05)
+        deadline = acks.t0 + args.timeout
+        while not acks.done.is_set() and time.monotonic() < deadline:
+            # Repeated until acknowledged: a device that joins late, or a sample that raced the
+            # route being set up, still gets it. Devices treat repeats of one id as one command.
+            pub.put(engaged=engaged, reason=args.reason, source=source, id=acks.command_id)
+            acks.done.wait(0.05)
+        alive = {d for d in expected if _alive(node, d)}
     finally:
         node.close()
-    print(f"{'released' if args.release else 'ENGAGED'} e-stop on {pub.key}")
-    return 0
+    return _report(acks, expected, alive, engaged, args.rig, pub_key=f"nod/{args.rig}")
+
+
+def _alive(node: Node, device: str) -> bool:
+    replies = node.session.liveliness().get(node.keys.alive(device), timeout=0.3)
+    return any(r.ok is not None for r in replies)
+
+
+def _report(
+    acks: Acks, expected: tuple[str, ...], alive: set[str], engaged: bool, rig: str, pub_key: str
+) -> int:
+    what = "ENGAGED" if engaged else "released"
+    failed = False
+    for device in expected:
+        if device in acks.obeyed:
+            seconds, reason = acks.obeyed[device]
+            shown = f" ({reason})" if reason else ""
+            print(f"{device}: obeyed in {seconds * 1e3:.0f} ms{shown}")
+        elif device in alive:
+            print(f"{device}: alive but did NOT acknowledge within the timeout", file=sys.stderr)
+            failed = True
+        else:
+            print(f"{device}: not running on rig {rig!r} (no liveliness)", file=sys.stderr)
+            failed = True
+    verdict = "by every device" if not failed else "NOT by every device"
+    print(f"e-stop {what} on {pub_key}, acknowledged {verdict}")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

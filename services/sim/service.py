@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 
 import numpy as np
@@ -83,6 +84,8 @@ class SimService:
             self.person.go(t)
         elif ev.phase == "end":
             self.person.trial_ended(self.robot)  # type: ignore[arg-type]
+        elif ev.phase == "interrupted":  # a void trial teaches nothing
+            self.person.trial_ended(None)
 
     def on_arm(self, msg: m.ArmStateMsg) -> None:
         """Where the arm is heading, as the participant sees it."""
@@ -168,7 +171,8 @@ def main(argv: list[str] | None = None) -> int:
         if not 1.0 <= args.rate <= 1000.0:
             raise ValueError(f"--rate must be in [1, 1000] Hz, got {args.rate}")
         cfg = load_params(args.params)
-        node = Node("sim", Fabric.from_args(args), stands_in_for=() if args.render else ("vision",))
+        stands_in = () if args.render else ("vision",)
+        node = Node("sim", Fabric.from_args(args), stands_in_for=stands_in, retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod sim: {exc}", file=sys.stderr)
         return 2

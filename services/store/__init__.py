@@ -1,6 +1,20 @@
 """The session store: one SQLite file per study, written by the conductor, read by the tools."""
 
-from services.store.records import QuestionnaireRecord, Sample, TrialRecord
-from services.store.store import Store
+from services.store.records import (
+    Interruption,
+    QuestionnaireRecord,
+    SafetyEvent,
+    Sample,
+    TrialRecord,
+)
+from services.store.store import Store, StoreError
 
-__all__ = ["QuestionnaireRecord", "Sample", "Store", "TrialRecord"]
+__all__ = [
+    "Interruption",
+    "QuestionnaireRecord",
+    "SafetyEvent",
+    "Sample",
+    "Store",
+    "StoreError",
+    "TrialRecord",
+]

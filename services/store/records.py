@@ -25,6 +25,8 @@ class TrialRecord:
     clicks: int | None
     score: int
     end_reason: str
+    interrupted: bool = False  # broken by a safe stop or e-stop and not repeated: never scored
+    attempts: int = 1  # starts of this trial, the interrupted ones included
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,3 +57,26 @@ class QuestionnaireRecord:
     q3: str
     q4: int
     q5: int
+
+
+@dataclass(frozen=True, slots=True)
+class SafetyEvent:
+    """A change of the rig's safety state seen by the conductor during a session."""
+
+    trial: int  # the trial under way or last started (0 before the first)
+    attempt: int  # which start of that trial
+    t_ns: int
+    device: str  # "actuation", "eyes", or "estop" (the operator's command)
+    event: str  # "safe_stop", "clear", "estop", "release"
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class Interruption:
+    """One start of a trial that a safe stop or an e-stop broke."""
+
+    trial: int
+    attempt: int
+    t_start_ns: int  # the trial's setup
+    t_ns: int  # when it was broken
+    reason: str

@@ -16,7 +16,13 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from services.store.records import QuestionnaireRecord, Sample, TrialRecord
+from services.store.records import (
+    Interruption,
+    QuestionnaireRecord,
+    SafetyEvent,
+    Sample,
+    TrialRecord,
+)
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS sessions (
@@ -47,7 +53,28 @@ CREATE TABLE IF NOT EXISTS trials (
     clicks      INTEGER,
     score       INTEGER NOT NULL,
     end_reason  TEXT NOT NULL,
+    interrupted INTEGER NOT NULL DEFAULT 0,
+    attempts    INTEGER NOT NULL DEFAULT 1,
     PRIMARY KEY (session, trial)
+);
+CREATE TABLE IF NOT EXISTS safety_events (
+    session TEXT NOT NULL,
+    trial   INTEGER NOT NULL,
+    attempt INTEGER NOT NULL,
+    t_ns    INTEGER NOT NULL,
+    device  TEXT NOT NULL,
+    event   TEXT NOT NULL CHECK (event IN ('safe_stop', 'clear', 'estop', 'release')),
+    reason  TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS safety_events_by_trial ON safety_events (session, trial, t_ns);
+CREATE TABLE IF NOT EXISTS interruptions (
+    session    TEXT NOT NULL,
+    trial      INTEGER NOT NULL,
+    attempt    INTEGER NOT NULL,
+    t_start_ns INTEGER NOT NULL,
+    t_ns       INTEGER NOT NULL,
+    reason     TEXT NOT NULL,
+    PRIMARY KEY (session, trial, attempt)
 );
 CREATE TABLE IF NOT EXISTS samples (
     session  TEXT NOT NULL,
@@ -76,17 +103,42 @@ CREATE TABLE IF NOT EXISTS questionnaires (
 """
 
 
+class StoreError(OSError):
+    """The database file cannot be opened or is not a session database."""
+
+
 class Store:
     """A session database file."""
 
     def __init__(self, path: str | Path) -> None:
+        """Open (or create) a session database; StoreError says why it cannot be used."""
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
-        self.db.execute("PRAGMA journal_mode=WAL")
-        self.db.execute("PRAGMA synchronous=NORMAL")
-        self.db.execute("PRAGMA foreign_keys=ON")
-        self.db.executescript(SCHEMA)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
+        except (OSError, sqlite3.Error) as exc:
+            raise StoreError(f"cannot open the session database {self.path}: {exc}") from None
+        try:
+            self.db.execute("PRAGMA journal_mode=WAL")
+            self.db.execute("PRAGMA synchronous=NORMAL")
+            self.db.execute("PRAGMA foreign_keys=ON")
+            self.db.executescript(SCHEMA)
+            self._migrate()
+        except sqlite3.DatabaseError as exc:
+            self.db.close()
+            raise StoreError(
+                f"{self.path} is not a usable session database ({exc}); give another --db"
+            ) from None
+
+    def _migrate(self) -> None:
+        """Bring a file written by an older version up to this schema (columns added at the end)."""
+        have = {row[1] for row in self.db.execute("PRAGMA table_info(trials)")}
+        for column, decl in (
+            ("interrupted", "INTEGER NOT NULL DEFAULT 0"),
+            ("attempts", "INTEGER NOT NULL DEFAULT 1"),
+        ):
+            if column not in have:
+                self.db.execute(f"ALTER TABLE trials ADD COLUMN {column} {decl}")
 
     def close(self) -> None:
         """Close the database (checkpointing the WAL)."""
@@ -126,15 +178,22 @@ class Store:
                 (finished_ns, status, session),
             )
 
-    def write_trial(self, session: str, rec: TrialRecord, samples: Iterable[Sample]) -> None:
-        """Store one trial and its samples atomically."""
+    def write_trial(
+        self,
+        session: str,
+        rec: TrialRecord,
+        samples: Iterable[Sample],
+        events: Iterable[SafetyEvent] = (),
+    ) -> None:
+        """Store one trial, its samples and the safety events since the last write atomically."""
         with self.db:
             self.db.execute("BEGIN")
             self.db.execute(
                 "INSERT OR REPLACE INTO trials VALUES "
-                "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (session, *astuple_record(rec)),
             )
+            self._events(session, events)
             self.db.execute(
                 "DELETE FROM samples WHERE session = ? AND trial = ?", (session, rec.trial)
             )
@@ -158,6 +217,48 @@ class Store:
                 ],
             )
 
+    def write_interruption(
+        self, session: str, rec: Interruption, events: Iterable[SafetyEvent] = ()
+    ) -> None:
+        """Store a broken start of a trial with the safety events that broke it, atomically."""
+        with self.db:
+            self.db.execute("BEGIN")
+            self.db.execute(
+                "INSERT OR REPLACE INTO interruptions VALUES (?, ?, ?, ?, ?, ?)",
+                (session, *astuple_record(rec)),
+            )
+            self._events(session, events)
+
+    def write_events(self, session: str, events: Iterable[SafetyEvent]) -> None:
+        """Store safety events on their own (those after the last trial of a session)."""
+        with self.db:
+            self.db.execute("BEGIN")
+            self._events(session, events)
+
+    def _events(self, session: str, events: Iterable[SafetyEvent]) -> None:
+        self.db.executemany(
+            "INSERT INTO safety_events VALUES (?, ?, ?, ?, ?, ?, ?)",
+            [(session, *astuple_record(e)) for e in events],
+        )
+
+    def safety_events(self, session: str) -> list[SafetyEvent]:
+        """A session's safety events in time order."""
+        cur = self.db.execute(
+            "SELECT trial, attempt, t_ns, device, event, reason FROM safety_events "
+            "WHERE session = ? ORDER BY t_ns",
+            (session,),
+        )
+        return [SafetyEvent(*row) for row in cur]
+
+    def interruptions(self, session: str) -> list[Interruption]:
+        """A session's broken trial starts, in order."""
+        cur = self.db.execute(
+            "SELECT trial, attempt, t_start_ns, t_ns, reason FROM interruptions "
+            "WHERE session = ? ORDER BY trial, attempt",
+            (session,),
+        )
+        return [Interruption(*row) for row in cur]
+
     def sessions(self) -> list[dict[str, Any]]:
         """Every session, oldest first."""
         cur = self.db.execute("SELECT * FROM sessions ORDER BY started_ns")
@@ -174,7 +275,7 @@ class Store:
                 return []
             session = row[0]
         cur = self.db.execute("SELECT * FROM trials WHERE session = ? ORDER BY trial", (session,))
-        return [(r[0], TrialRecord(*r[1:])) for r in cur]
+        return [(r[0], TrialRecord(*r[1:-2], bool(r[-2]), r[-1])) for r in cur]
 
     def write_questionnaires(
         self,
@@ -237,6 +338,6 @@ class Store:
         return [Sample(r[0], bool(r[1]), *r[2:]) for r in cur]
 
 
-def astuple_record(rec: TrialRecord | QuestionnaireRecord) -> tuple[Any, ...]:
+def astuple_record(rec: Any) -> tuple[Any, ...]:
     """A record as a row tuple, in column order."""
     return tuple(asdict(rec).values())

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import sys
 import threading
 import time
@@ -305,7 +306,8 @@ def main(argv: list[str] | None = None) -> int:
             stall_s=args.stall,
         )
         source = parse_source(args.source)
-        node = Node("vision", Fabric.from_args(args)) if source.kind == "zenoh" else None
+        fabric = Fabric.from_args(args)
+        node = Node("vision", fabric, retry_s=math.inf) if source.kind == "zenoh" else None
         capture = Capture(source, params, opener=_opener(node, params))
         info = capture.open()
         options = TrackerOptions(
@@ -332,7 +334,7 @@ def main(argv: list[str] | None = None) -> int:
     log.info("%s: %s", capture.source.label, info.describe(params))
     log.info("tracker %s; layout from %s: %s", tracker.name, layout_origin, m.layout_fields(layout))
     try:
-        node = node or Node("vision", Fabric.from_args(args))
+        node = node or Node("vision", fabric, retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod vision: {exc}", file=sys.stderr)
         capture.close()

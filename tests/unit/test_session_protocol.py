@@ -131,3 +131,36 @@ def test_next_due_is_the_next_scripted_time():
     protocol = SessionProtocol(P)
     protocol.start(10.0)
     assert protocol.next_due() == pytest.approx(10.0 + P.gaze_lead_s)  # the first word
+
+
+def test_an_interrupted_trial_is_repeated_after_resume():
+    protocol = SessionProtocol(P, first_trial=2)
+    protocol.start(0.0)
+    go = protocol.timeline.go_t
+    protocol.advance(go + 0.5)
+    assert protocol.running_trial and protocol.attempt == 1
+    cues = protocol.interrupt(go + 0.6, "actuation: e-stop: operator")
+    assert [(c.kind, c.trial.index, c.text) for c in cues] == [
+        ("interrupted", 2, "actuation: e-stop: operator")
+    ]
+    assert protocol.phase == "paused" and not protocol.running_trial
+    assert protocol.advance(1000.0, human_pressed=True, robot_pressed=True) == []  # held
+    again = protocol.resume(1000.0)
+    assert [c.kind for c in again] == ["gaze", "setup"] and again[1].trial.index == 2
+    assert protocol.attempt == 2
+    with pytest.raises(RuntimeError):
+        protocol.resume(1001.0)
+
+
+def test_a_trial_is_skipped_after_max_attempts_or_when_repeats_are_off():
+    cases = ((ProtocolParams(max_attempts=2), 2), (ProtocolParams(repeat_interrupted=False), 1))
+    for params, attempts in cases:
+        protocol = SessionProtocol(params)
+        protocol.start(0.0)
+        for _ in range(attempts):
+            assert protocol.trial.index == 1
+            protocol.interrupt(1.0, "eyes: gaze stale")
+            cues = protocol.resume(2.0)
+        assert cues[1].trial.index == 2 and protocol.attempt == 1
+    with pytest.raises(RuntimeError):
+        SessionProtocol(P).interrupt(0.0, "nothing under way")

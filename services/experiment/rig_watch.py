@@ -1,0 +1,97 @@
+"""What the conductor knows of the rig's safety: each device's safe stop, the e-stop, their history.
+
+Fed with the devices' state messages and the e-stop commands (the conductor's callbacks), it
+keeps the safety events of the session (every change, with its reason) until they are stored,
+says why a running trial must be interrupted, and whether the rig has been safe long enough to
+resume. Times are the conductor's clock (ns), passed in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from services.store.records import SafetyEvent
+
+DEVICES = ("actuation", "eyes")
+
+
+@dataclass
+class RigWatch:
+    """The safety state of the rig's devices as their state keys report it."""
+
+    settle_ns: int = 500_000_000  # how long the rig must stay safe before a session resumes
+    trial: int = 0
+    attempt: int = 1
+    _stopped: dict[str, str] = field(default_factory=dict)  # device → reason, while stopped
+    _seen: dict[str, int] = field(default_factory=dict)  # device → time of its last state
+    _estop: str | None = None
+    _safe_since: int | None = None
+    _pending: list[SafetyEvent] = field(default_factory=list)
+    _break: str | None = None  # the first new stop since the trial began
+
+    def device_state(self, device: str, safe_stop: bool, reason: str, now_ns: int) -> None:
+        """A device's state message: record each change of its safe stop."""
+        self._seen[device] = now_ns
+        was = device in self._stopped
+        if safe_stop and not was:
+            self._stopped[device] = reason
+            self._event(now_ns, device, "safe_stop", reason)
+            self._break = self._break or f"{device}: {reason}"
+        elif not safe_stop and was:
+            del self._stopped[device]
+            self._event(now_ns, device, "clear", "")
+        self._update(now_ns)
+
+    def estop(self, engaged: bool, reason: str, source: str, now_ns: int) -> None:
+        """An e-stop command (engage or release) on the rig's key."""
+        if engaged and self._estop is None:
+            self._estop = reason or "e-stop"
+            self._event(now_ns, "estop", "estop", f"{reason} ({source})")
+            self._break = self._break or f"e-stop by {source}: {reason}"
+        elif not engaged and self._estop is not None:
+            self._estop = None
+            self._event(now_ns, "estop", "release", f"{reason} ({source})")
+        self._update(now_ns)
+
+    def begin(self, trial: int, attempt: int) -> None:
+        """A trial (re)starts: later stops break it."""
+        self.trial, self.attempt = trial, attempt
+        self._break = None
+
+    def interruption(self) -> str | None:
+        """Why the running trial must stop (the first stop since it began), or None."""
+        return self._break
+
+    def safe(self, now_ns: int) -> bool:
+        """Whether every device reports no safe stop, no e-stop holds, for `settle_ns` now."""
+        self._update(now_ns)
+        fresh = all(now_ns - self._seen.get(d, -(2**62)) < self.settle_ns for d in DEVICES)
+        return (
+            fresh and self._safe_since is not None and now_ns - self._safe_since >= self.settle_ns
+        )
+
+    def why_unsafe(self) -> str:
+        """What holds the rig, in one line."""
+        parts = [f"{d}: {r}" for d, r in sorted(self._stopped.items())]
+        if self._estop is not None:
+            parts.insert(0, f"e-stop engaged ({self._estop})")
+        missing = [d for d in DEVICES if d not in self._seen]
+        parts += [f"no state from {d}" for d in missing]
+        return "; ".join(parts) or "settling"
+
+    def take_events(self) -> list[SafetyEvent]:
+        """The events not stored yet (they go with the next trial, interruption or session end)."""
+        out, self._pending = self._pending, []
+        return out
+
+    def _update(self, now_ns: int) -> None:
+        unsafe = bool(self._stopped) or self._estop is not None
+        if unsafe:
+            self._safe_since = None
+        elif self._safe_since is None:
+            self._safe_since = now_ns
+
+    def _event(self, now_ns: int, device: str, event: str, reason: str) -> None:
+        self._pending.append(
+            SafetyEvent(self.trial, self.attempt, now_ns, device, event, reason[:400])
+        )

@@ -1,0 +1,110 @@
+"""The e-stop as the rig's most reliable message: acknowledged, reported, and a trial it breaks is
+repeated, never scored."""
+
+from __future__ import annotations
+
+import sqlite3
+import subprocess
+import sys
+import time
+
+import pytest
+
+from services.store import Store
+
+from .conftest import ROOT, free_port, wait_for
+
+pytestmark = pytest.mark.integration
+
+
+def _nod(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "services.cli", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_estop_with_nobody_listening_fails_and_says_so(router, endpoint):
+    t0 = time.monotonic()
+    run = _nod("estop", "--connect", endpoint, "--timeout", "0.5")
+    assert run.returncode == 1, run.stdout + run.stderr
+    assert "actuation: not running" in run.stderr and "eyes: not running" in run.stderr
+    assert "NOT by every device" in run.stdout
+    assert time.monotonic() - t0 < 15
+
+
+def test_estop_is_acknowledged_by_actuation_and_eyes(router, endpoint, spawn):
+    spawn("actuation")
+    spawn("eyes")
+    time.sleep(3.0)  # both up (the e-stop must reach devices in any state, safe or not)
+    run = _nod("estop", "--connect", endpoint, "--reason", "test")
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "actuation: obeyed in" in run.stdout and "eyes: obeyed in" in run.stdout
+    assert "e-stop: test" in run.stdout  # the reason each device now shows
+    release = _nod("estop", "--connect", endpoint, "--release")
+    assert release.returncode == 0, release.stdout + release.stderr
+    only_arm = _nod("estop", "--connect", endpoint, "--devices", "actuation", "--timeout", "2")
+    assert only_arm.returncode == 0 and "eyes" not in only_arm.stdout
+
+
+def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path):
+    db = tmp_path / "s.sqlite"
+    logs = tmp_path / "logs"
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "run", "--sim", "--speed", "4", "--seed", "2",
+         "--db", str(db), "--listen", endpoint, "--stale-ms", "1000", "--logs", str(logs)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        def in_trial_two() -> bool:  # trial 1 stored: trial 2 is under way
+            if not db.exists():
+                return False
+            with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as ro:  # a reader, not a writer
+                try:
+                    return ro.execute("SELECT COUNT(*) FROM trials").fetchone()[0] >= 1
+                except sqlite3.OperationalError:  # the schema is not there yet
+                    return False
+
+        wait_for(in_trial_two, 120, "trial 1 stored")
+        time.sleep(1.0)  # into trial 2's countdown or reach (at 4x)
+        engaged = _nod("estop", "--connect", endpoint, "--reason", "bump")
+        assert engaged.returncode == 0, engaged.stdout + engaged.stderr
+        time.sleep(1.5)
+        released = _nod("estop", "--connect", endpoint, "--release")
+        out, _ = run.communicate(timeout=300)
+        assert released.returncode == 0, released.stdout + released.stderr + out + "".join(
+            f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(logs.glob("*.log"))
+        )
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 0, out + "".join(
+        f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(logs.glob("*.log"))
+    )
+    store = Store(db)
+    try:
+        trials = [t for _, t in store.trials()]
+        session = store.sessions()[-1]["session"]
+        broken = store.interruptions(session)
+        events = store.safety_events(session)
+    finally:
+        store.close()
+    context = f"{trials}\n{broken}\n{events}\n{out}"
+    assert [t.trial for t in trials] == list(range(1, 9)), context  # every trial stored once
+    assert not any(t.interrupted for t in trials), context  # repeated, then scored
+    assert [(b.trial, b.attempt) for b in broken] == [(2, 1)], context
+    assert "e-stop" in broken[0].reason and "bump" in broken[0].reason, context
+    assert trials[1].attempts == 2 and trials[1].robot is not None, context
+    kinds = [(e.device, e.event) for e in events if e.trial == 2]
+    assert ("estop", "estop") in kinds and ("estop", "release") in kinds, context
+    assert ("actuation", "safe_stop") in kinds and ("actuation", "clear") in kinds, context
+    report = _nod("report", "--db", str(db))
+    assert "trial 2 attempt 1 interrupted" in report.stdout and "attempts=2" in report.stdout
