@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
+from services.actuation.threaded_arm import ThreadedArm
 from services.core.config import from_mapping, load_toml
 from services.model.arm import ArmDriver, SimArm, SimArmParams
 from services.model.geometry import TableLayout
@@ -49,4 +50,5 @@ def make_arm_driver(
             "`nod actuation calibrate --port DEV --out arm.toml` "
             "(example: deploy/hardware/arm.example.toml)"
         )
-    return FeetechArm(port, load_arm_config(config_path), layout, home=params.home)
+    # The bus I/O runs on its own thread: the actuation tick never waits for the servos.
+    return ThreadedArm(FeetechArm(port, load_arm_config(config_path), layout, home=params.home))

@@ -111,19 +111,23 @@ class Node:
         """A publisher for one topic of this rig."""
         return TopicPublisher(self, topic)
 
-    def subscribe(
-        self, topic: str, handler: Callable[[Any], None], *, hot_path: bool = False
-    ) -> None:
+    def subscribe(self, topic: str, handler: Callable[[Any], None]) -> None:
         """Decode every sample of `topic` strictly and pass good ones to `handler` (locked).
 
-        `hot_path`: run the handler on zenoh's network thread instead of handing each sample to
-        a Python thread first — one thread wake-up less per message (the control loop's inputs).
-        Only for short handlers: a slow one would hold up the session's other deliveries.
+        The handler runs on zenoh's network thread, as the sample arrives: no queue between the
+        network and the check (zenoh's own hand-off queue is unbounded, and a burst of hostile
+        samples held there grew a service by tens of MB), one thread wake-up less per message.
+        So handlers must be short — every one in this project is; I/O lives on its own threads.
         """
         key = self.keys.topic(topic)
         cls: type[m.Message] = check_subscriber(topic, self.service).message
+        limit = cls.MAX_BYTES
 
         def on_sample(sample: zenoh.Sample) -> None:
+            size = len(sample.payload)
+            if size > limit:  # before copying it out of zenoh's buffer
+                self._drop(topic, f"payload of {size} bytes exceeds the limit {limit}")
+                return
             try:
                 msg = m.decode(cls, sample.payload.to_bytes())
             except m.MessageError as exc:
@@ -138,7 +142,7 @@ class Node:
                 except Exception:  # a handler bug must not kill zenoh's delivery thread
                     log.exception("%s: handler for %s failed", self.service, topic)
 
-        callback = zenoh.handlers.Callback(on_sample, indirect=False) if hot_path else on_sample
+        callback = zenoh.handlers.Callback(on_sample, indirect=False)
         self._handles.append(self.session.declare_subscriber(key, callback))
 
     def _drop(self, topic: str, why: str) -> None:

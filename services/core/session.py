@@ -25,6 +25,9 @@ from services.core.clock import Clock
 from services.core.keys import check_rig
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+# The transport refuses larger messages (zenoh's default is 1 GiB): no message of the rig comes
+# near it (a monitor frame is ≤ 260 kB), and an oversized one would stay resident in every host.
+MAX_MESSAGE_BYTES = 1 << 20
 log = logging.getLogger(__name__)
 
 
@@ -111,6 +114,7 @@ def make_config(
     else:
         conf = zenoh.Config()
         _insert(conf, "scouting/multicast/enabled", False)
+        _insert(conf, "transport/link/rx/max_message_size", MAX_MESSAGE_BYTES)
     _insert(conf, "mode", mode)
     if connect is None and mode == "client" and config_file is None:
         connect = [DEFAULT_ROUTER]

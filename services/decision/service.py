@@ -36,7 +36,7 @@ class DecisionService:
         self.pub_br = node.publisher("decision/b_r")
         self.out_of_order = 0
         self._last_seq: int | None = None
-        node.subscribe("vision/hand", self.on_hand, hot_path=True)
+        node.subscribe("vision/hand", self.on_hand)
         node.subscribe("vision/layout", self.on_layout)
         node.subscribe("experiment/trial", self.on_trial)
 

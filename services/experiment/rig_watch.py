@@ -53,6 +53,11 @@ class RigWatch:
             self._event(now_ns, "estop", "release", f"{reason} ({source})")
         self._update(now_ns)
 
+    def compromised(self, why: str, now_ns: int) -> None:
+        """Something other than a device makes the trial untrustworthy (a second hand stream)."""
+        self._break = self._break or why
+        self._event(now_ns, "rig", "safe_stop", why)
+
     def begin(self, trial: int, attempt: int) -> None:
         """A trial (re)starts: later stops break it."""
         self.trial, self.attempt = trial, attempt

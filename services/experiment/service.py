@@ -67,6 +67,10 @@ class Conductor:
         self.protocol: SessionProtocol | None = None
         self._trial_start_ns = 0
         self._hands: OrderedDict[int, m.HandPose] = OrderedDict()
+        self._last_hand_seq: int | None = None
+        self._seq_regressions = 0  # in the current trial
+        self._arm: tuple[int, str, str | None] = (0, "idle", None)  # trial, phase, target
+        self.refused_presses = 0
         self.pub_trial = node.publisher("experiment/trial")
         self.pub_result = node.publisher("experiment/result")
         self.pub_gaze = node.publisher("eyes/cmd")
@@ -89,7 +93,20 @@ class Conductor:
     # -- callbacks (under the node lock) ---------------------------------------------------
 
     def on_hand(self, pose: m.HandPose) -> None:
-        """Keep recent poses to join with decision outputs; detect the human's press."""
+        """Keep recent poses to join with decision outputs; detect the human's press.
+
+        One camera numbers its poses in order; a pose numbered at or below the last one means
+        a second publisher on the key (a restarted camera starts over once). Three in a trial
+        and the trial is interrupted: its press could be anyone's.
+        """
+        if self._last_hand_seq is not None and pose.seq <= self._last_hand_seq:
+            self._seq_regressions += 1
+            if self._seq_regressions == 3:
+                self.rig.compromised(
+                    "two publishers on vision/hand (its seq went backwards 3 times)",
+                    self._now_ns(),
+                )
+        self._last_hand_seq = pose.seq
         self._hands[pose.seq] = pose
         while len(self._hands) > 256:
             self._hands.popitem(last=False)
@@ -103,6 +120,7 @@ class Conductor:
     def on_arm(self, msg: m.ArmStateMsg) -> None:
         """The arm's end effector for the samples, and its safety state."""
         self.rig.device_state("actuation", msg.safe_stop, msg.safety_reason, self._now_ns())
+        self._arm = (msg.trial, msg.phase, msg.target)
         if self.recorder is not None:
             self.recorder.on_arm(msg)
 
@@ -115,9 +133,23 @@ class Conductor:
         self.rig.estop(msg.engaged, msg.reason, msg.source, self._now_ns())
 
     def on_press(self, msg: m.PressMsg) -> None:
-        """The robot pressed a buzzer."""
-        if msg.trial == self.trial:
+        """The robot pressed a buzzer — if the arm's own state says so too.
+
+        A press is taken only when the latest actuation/state is in this trial, pressing (or
+        done) and at that buzzer: a forged press on the key alone is refused and logged.
+        """
+        if msg.trial != self.trial or self.robot_press is not None:
+            return
+        trial, phase, target = self._arm
+        if trial == msg.trial and phase in ("pressing", "done") and target == msg.colour:
             self.robot_press = msg
+            return
+        self.refused_presses += 1
+        if self.refused_presses <= 10:
+            log.warning(
+                "press of %s in trial %d refused: actuation/state says trial %d, %s, at %s",
+                msg.colour, msg.trial, trial, phase, target,
+            )
 
     # -- the script (main thread) ----------------------------------------------------------
 
@@ -238,6 +270,7 @@ class Conductor:
                     self.robot_press = None
                     self.recorder = None
                     self.rig.begin(spec.index, protocol.attempt)
+                    self._seq_regressions = 0
                     self._trial_start_ns = self._now_ns()
                     self.pub_trial.put(phase="setup", text=cue.text, session=self.session, **ev)
             elif cue.kind == "countdown":

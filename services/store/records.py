@@ -66,7 +66,7 @@ class SafetyEvent:
     trial: int  # the trial under way or last started (0 before the first)
     attempt: int  # which start of that trial
     t_ns: int
-    device: str  # "actuation", "eyes", or "estop" (the operator's command)
+    device: str  # "actuation", "eyes", "estop" (the operator's command), "rig" (a hostile input)
     event: str  # "safe_stop", "clear", "estop", "release"
     reason: str
 

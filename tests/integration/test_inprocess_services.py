@@ -103,3 +103,125 @@ def test_eyes_follow_gaze_commands_and_go_neutral_when_they_stop(router, endpoin
         eyes.stop.set()
         runner.join(5)
         conductor.close()
+
+
+def test_a_silent_arduino_never_holds_up_the_eyes_safety(router, endpoint, client):
+    # The board goes silent (and a reopen would wait 3 s for its boot): the serial I/O runs on
+    # the driver's own thread, so the state key keeps its 50 Hz and an e-stop shows within 100 ms.
+    from services.eyes.arduino import ArduinoEyesConfig, ArduinoServoDriver
+    from tests.emulators.arduino_emulator import ArduinoEyesEmulator
+    from tests.emulators.links import LINK
+
+    with ArduinoEyesEmulator() as board:
+        driver = ArduinoServoDriver(board.port, ArduinoEyesConfig(boot_wait_s=3.0, link=LINK))
+        driver.connect()
+        fabric = Fabric(connect=(endpoint,))
+        eyes = Node("eyes", fabric)
+        safety = SafetyParams(stale_ms=250.0, require_alive=("experiment",))
+        EyesService(eyes, driver, safety)
+        runner = threading.Thread(target=eyes.run, daemon=True)
+        runner.start()
+        conductor = Node("experiment", fabric)
+        gaze = conductor.publisher("eyes/cmd")
+        conductor.ready()
+        operator = Node("estop", fabric)
+        estop = operator.publisher("safety/estop")
+        state = Collector(client, eyes.keys.topic("eyes/state"), m.EyesStateMsg)
+        stop = threading.Event()
+
+        def keep_alive() -> None:
+            while not stop.wait(0.03):
+                gaze.put(yaw=0.5, pitch=0.0, level="low", trial=5)
+
+        pump = threading.Thread(target=keep_alive, daemon=True)
+        pump.start()
+        try:
+            wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 5.0, "eyes up")
+            board.silent = True
+            board.unplug()  # gone: the driver reopens with a 3 s boot wait, on its own thread
+            time.sleep(0.5)
+            n = len(state.messages)
+            time.sleep(1.0)
+            assert len(state.messages) - n >= 35  # ≈ 50 Hz while the board is gone
+            t0 = time.monotonic()
+            estop.put(engaged=True, reason="test", source="test", id="e1")
+            wait_for(
+                lambda: any(s.estop_id == "e1" and s.safe_stop for s in state.messages),
+                2.0,
+                "the e-stop on eyes/state",
+            )
+            assert time.monotonic() - t0 < 0.1 + 0.05  # the bound, plus the test's own polling
+            assert any(s.fault for s in state.messages[-5:])
+        finally:
+            stop.set()
+            pump.join()
+            eyes.stop.set()
+            runner.join(5)
+            conductor.close()
+            operator.close()
+            driver.disconnect()
+
+
+def test_a_silent_arm_bus_never_holds_up_the_actuation_safety(router, endpoint, client):
+    # The servos stop answering mid-trial: the bus I/O runs on the arm driver's own thread, so
+    # actuation's state key keeps its pace and an e-stop shows within 100 ms.
+    from services.actuation.arm_path import ArmPoses
+    from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
+    from services.actuation.service import ActuationService
+    from services.actuation.threaded_arm import ThreadedArm
+    from services.model.params import NodConfig
+    from tests.emulators.feetech_emulator import FeetechBusEmulator
+    from tests.emulators.links import LINK
+
+    poses = ArmPoses((2048, 2048), (2448, 2148), (2448, 2348), (1648, 2148), (1648, 2348))
+    cfg = FeetechArmConfig(ids=(1, 2), poll_interval_s=0.05, poses=poses, link=LINK)
+    with FeetechBusEmulator({1: 2048, 2: 2048}) as bus:
+        arm = ThreadedArm(FeetechArm(bus.port, cfg, NodConfig().layout))
+        arm.connect()
+        fabric = Fabric(connect=(endpoint,))
+        node = Node("actuation", fabric)
+        safety = SafetyParams(stale_ms=250.0, require_alive=("decision",))
+        ActuationService(node, NodConfig(), arm, safety)
+        runner = threading.Thread(target=node.run, daemon=True)
+        runner.start()
+        peer = Node("decision", fabric)
+        z_r = peer.publisher("decision/z_r")
+        peer.ready()
+        camera = Node("sim", fabric)
+        hands = camera.publisher("vision/hand")
+        operator = Node("estop", fabric)
+        estop = operator.publisher("safety/estop")
+        state = Collector(client, node.keys.topic("actuation/state"), m.ArmStateMsg)
+        stop = threading.Event()
+
+        def inputs() -> None:
+            while not stop.wait(0.02):
+                z_r.put(value=0.3, src_seq=0)
+                hands.put(detected=True, center=(0.5, 0.85), landmarks=((0.5, 0.85),))
+
+        pump = threading.Thread(target=inputs, daemon=True)
+        pump.start()
+        try:
+            wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 5.0, "arm up")
+            bus.silent = True  # every read now costs the link's timeouts
+            time.sleep(0.5)
+            n = len(state.messages)
+            time.sleep(1.0)
+            assert len(state.messages) - n >= 35  # ≈ 50 Hz while the bus is silent
+            assert any(s.fault for s in state.messages[-5:])
+            t0 = time.monotonic()
+            estop.put(engaged=True, reason="test", source="test", id="a1")
+            wait_for(
+                lambda: any(s.estop_id == "a1" and s.safe_stop for s in state.messages),
+                2.0,
+                "the e-stop on actuation/state",
+            )
+            assert time.monotonic() - t0 < 0.15
+        finally:
+            stop.set()
+            pump.join()
+            node.stop.set()
+            runner.join(5)
+            for other in (peer, camera, operator):
+                other.close()
+            arm.disconnect()

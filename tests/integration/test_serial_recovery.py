@@ -95,12 +95,14 @@ def test_maestro_recovers_after_unplug():
         drv = MaestroServoDriver(emu.port, MaestroConfig(speed=20, link=LINK))
         drv.connect()
         drv.look(GazeCommand(0.3, -0.1))
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         emu.unplug()
         applied = drv.look(GazeCommand(-0.6, 0.2))  # must not raise
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         assert drv.fault is not None and drv.is_connected
-        assert drv.poll() is not None  # still gone
+        assert drv.poll(wait_s=2.0) is not None  # still gone
         emu.replug()  # a power-cycled Maestro: targets off, speeds reset
-        assert eventually(lambda: drv.poll() is None)
+        assert eventually(lambda: drv.poll(wait_s=2.0) is None)
         assert emu.channels[0].speed == 20  # initialised again
         assert emu.targets_us() == tuple(round(p * 4) / 4 for p in applied.pulses_us)
         drv.disconnect()
@@ -112,10 +114,11 @@ def test_arduino_recovers_after_unplug():
         drv.connect()
         emu.unplug()
         applied = drv.look(GazeCommand(0.62, -0.62))
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         assert drv.fault is not None
         emu.replug()
         emu.boot_frames = 1  # the reset on open: the bootloader eats the first ping
-        assert eventually(lambda: drv.poll() is None)
+        assert eventually(lambda: drv.poll(wait_s=2.0) is None)
         assert emu.pulses == [round(p) for p in applied.pulses_us]
         drv.disconnect()
 

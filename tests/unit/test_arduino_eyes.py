@@ -48,6 +48,7 @@ def test_a_gaze_command_becomes_the_right_frame(board):
         board.take_received()
         level = GAZE_LEVELS["extreme"]
         applied = drv.look(GazeCommand(level.yaw, level.pitch))
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         assert applied == servo_targets(GazeCommand(level.yaw, level.pitch), calib)
         pulses = [round(p) for p in applied.pulses_us]
         payload = struct.pack("<4H", *pulses)
@@ -72,8 +73,9 @@ def test_corrupt_reply_is_detected_and_the_targets_resent(board):
     with driver_for(board) as drv:
         board.corrupt_replies = 1
         applied = drv.look(GazeCommand(0.4, -0.2))
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         assert "checksum" in (drv.fault or "")
-        assert drv.poll() is None
+        assert drv.poll(wait_s=2.0) is None
         assert board.pulses == [round(p) for p in applied.pulses_us]
 
 
@@ -81,10 +83,11 @@ def test_silence_is_detected_and_recovered(board):
     with driver_for(board, link=FAST) as drv:
         board.silent = True
         drv.look(GazeCommand(-0.47, 0.31))
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         assert "no reply" in (drv.fault or "")
-        assert "no reply" in (drv.poll() or "")
+        assert "no reply" in (drv.poll(wait_s=2.0) or "")
         board.silent = False
-        assert eventually(lambda: drv.poll() is None)
+        assert eventually(lambda: drv.poll(wait_s=2.0) is None)
         assert board.pulses == [round(p) for p in drv.latched.pulses_us]
 
 
@@ -102,6 +105,7 @@ def test_firmware_clamp_is_echoed_not_hidden(board):
     )
     with driver_for(board, calib) as drv:
         applied = drv.look(GazeCommand(yaw=-2.0))  # 0° → 400 µs: below the sketch's 500 µs
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         assert applied.pulses_us[0] == 400.0
         assert drv.firmware_pulses is not None and drv.firmware_pulses[0] == 500
         assert drv.fault is None

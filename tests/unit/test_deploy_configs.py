@@ -13,6 +13,7 @@ def test_zenoh_configs_parse(name):
     conf = zenoh.Config.from_file(str(DEPLOY / "zenoh" / name))
     assert conf.get_json("mode") in ('"router"', '"client"', "router", "client")
     assert conf.get_json("scouting/multicast/enabled") in ("false", False)
+    assert int(conf.get_json("transport/link/rx/max_message_size")) == 1 << 20
 
 
 def test_systemd_units_use_known_roles():

@@ -256,13 +256,15 @@ def test_calibrate_abort_writes_nothing(bus, tmp_path):
 
 def test_factory_builds_each_arm_driver():
     from services.actuation.drivers import make_arm_driver
+    from services.actuation.threaded_arm import ThreadedArm
     from services.model.arm import SimArm, SimArmParams
 
     example = ROOT / "deploy/hardware/arm.example.toml"
     sim = make_arm_driver("sim", None, None, LAYOUT, SimArmParams(), t0=5.0)
     assert isinstance(sim, SimArm) and sim.t == 5.0
     arm = make_arm_driver("feetech", "/dev/ttyACM0", example, LAYOUT, SimArmParams(home=(0.4, 0.1)))
-    assert isinstance(arm, FeetechArm) and arm.home_point == (0.4, 0.1)
+    assert isinstance(arm, ThreadedArm) and isinstance(arm.inner, FeetechArm)
+    assert arm.inner.home_point == (0.4, 0.1)
     assert not arm.is_connected
     with pytest.raises(ValueError, match="calibrate"):
         make_arm_driver("feetech", "/dev/ttyACM0", None, LAYOUT, None)

@@ -78,6 +78,7 @@ def test_a_gaze_command_becomes_the_right_bytes(maestro):
         yaw = GAZE_LEVELS["low"].yaw  # +0.53 rad toward red
         pitch = GAZE_LEVELS["low"].pitch
         applied = drv.look(GazeCommand(yaw, pitch))
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         # left pan: 90 + 30.37 + 2 deg; right pan mirrored: 90 - 30.37 deg; tilts: 90 - 30.37.
         deg = math.degrees(yaw)
 
@@ -102,11 +103,13 @@ def test_out_of_range_is_clamped_and_reported_never_sent_raw(maestro):
     with MaestroServoDriver(maestro.port, MaestroConfig(link=LINK), calib) as drv:
         maestro.take_received()
         applied = drv.look(GazeCommand(yaw=3.0, pitch=0.0))  # 172° on the left pan
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         assert "left_pan" in applied.clamped
         assert maestro.channels[0].target == quarter_us(500 + 150 / 180 * 2000)
         # a hand-built target outside the limits is re-clamped by the driver too
         raw = ServoTargets((0.0, 90.0, 90.0, 90.0), (500.0, 1500.0, 1500.0, 1500.0))
         assert drv.send(raw).angles_deg[0] == 30.0
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         assert maestro.channels[0].target == quarter_us(500 + 30 / 180 * 2000)
 
 
@@ -115,6 +118,7 @@ def test_attention_gesture_is_a_timed_sequence_of_targets(maestro):
         seq = attention_gesture(start_t=0.0)
         for _, cmd in seq:
             drv.look(cmd)
+            assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         settle = seq[-1][1]
         assert maestro.targets_us() == tuple(
             quarter_us(p) / 4 for p in servo_targets(settle, drv.calibration).pulses_us
@@ -126,11 +130,12 @@ def test_attention_gesture_is_a_timed_sequence_of_targets(maestro):
 def test_protocol_errors_reported_and_targets_resent(maestro):
     with driver_for(maestro) as drv:
         drv.look(GazeCommand(0.2, 0.1))
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         assert drv.fault is None
         maestro.inject_errors(ERR_PROTOCOL)  # e.g. line noise on a TTL link
-        assert "serial protocol error" in (drv.poll() or "")
+        assert "serial protocol error" in (drv.poll(wait_s=2.0) or "")
         maestro.take_received()
-        assert drv.poll() is None  # errors were cleared by reading them...
+        assert drv.poll(wait_s=2.0) is None  # errors were cleared by reading them...
         resent = maestro.take_received()  # ...and the latched targets written again
         assert resent[:4] == set_target(0, quarter_us(drv.latched.pulses_us[0]))
 
@@ -140,11 +145,12 @@ def test_silence_is_detected_within_the_timeout(maestro):
         maestro.silent = True
         t0 = time.monotonic()
         applied = drv.look(GazeCommand(0.3, 0.0))  # does not raise
+        assert drv.settle(2.0)  # the driver's I/O runs on its own thread
         assert time.monotonic() - t0 < 1.0  # bounded by the 50 ms timeout, not a hang
         assert applied.angles_deg[0] == pytest.approx(90 + math.degrees(0.3))
         assert "no Get Errors reply" in (drv.fault or "")
         maestro.silent = False
-        assert eventually(lambda: drv.poll() is None)
+        assert eventually(lambda: drv.poll(wait_s=2.0) is None)
         assert maestro.targets_us()[0] == quarter_us(applied.pulses_us[0]) / 4
 
 
