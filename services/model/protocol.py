@@ -40,8 +40,8 @@ class TrialSpec:
 
     index: int  # 1-based trial number within a session
     mode: Mode  # "dissensus": b_r ≡ 0, controller off; "consensus": bias controller toward option
-    option: Colour | None  # the convergence option O (consensus only; None in dissensus)
-    gaze_level: str  # name of the gaze level (services.model.gaze.GAZE_LEVEL_NAMES)
+    option: Colour | None = None  # the convergence option O (consensus only; None: dissensus)
+    gaze_level: str = "neutral"  # name of the gaze level (services.model.gaze.GAZE_LEVEL_NAMES)
     yaw: float | None = None  # gaze yaw (rad), > 0 toward red; None: from the gaze table
     pitch: float | None = None  # gaze pitch (rad); None: from the gaze table
     attention_gesture: bool = False  # run the attention gesture before setting the gaze
