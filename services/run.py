@@ -379,16 +379,26 @@ def _supervise(children: dict[str, subprocess.Popen], stopping: threading.Event)
     while not stopping.is_set():
         rc = conductor.poll()
         if rc is not None:
-            return rc
+            if rc != 0:
+                print(f"\nnod run: the conductor (experiment) {_how(rc)}", file=sys.stderr)
+            return rc if rc >= 0 else 128 - rc
         for name, proc in children.items():
             if name != "experiment" and proc.poll() is not None:
-                print(
-                    f"\nnod run: service {name} exited early with code {proc.returncode}",
-                    file=sys.stderr,
-                )
+                print(f"\nnod run: service {name} {_how(proc.returncode)}", file=sys.stderr)
                 return 1
         stopping.wait(0.05)
     return 130
+
+
+def _how(rc: int) -> str:
+    """How a child ended, in words: an exit code, or the signal that killed it."""
+    if rc < 0:
+        try:
+            name = signal.Signals(-rc).name
+        except ValueError:
+            name = f"signal {-rc}"
+        return f"was killed by {name}"
+    return f"exited with code {rc}"
 
 
 def _stop_all(children: dict[str, subprocess.Popen], grace_s: float = 5.0) -> None:

@@ -3,11 +3,15 @@
 Fed with the devices' state messages and the e-stop commands (the conductor's callbacks), it
 keeps the safety events of the session (every change, with its reason) until they are stored,
 says why a running trial must be interrupted, and whether the rig has been safe long enough to
-resume. Times are the conductor's clock (ns), passed in.
+resume. Events are stamped with the conductor's (rig) clock, passed in; how long a device has
+been silent or the rig safe is judged on this host's monotonic clock, in wall time, like every
+watchdog of the rig (a simulated clock at 4x must not make 125 ms of silence look like 500).
 """
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from services.store.records import SafetyEvent
@@ -20,8 +24,10 @@ class RigWatch:
     """The safety state of the rig's devices as their state keys report it."""
 
     settle_ns: int = 500_000_000  # how long the rig must stay safe before a session resumes
+    silent_ns: int = 500_000_000  # a device whose state stops this long (a cut link) breaks a trial
     trial: int = 0
     attempt: int = 1
+    monotonic: Callable[[], int] = time.monotonic_ns
     _stopped: dict[str, str] = field(default_factory=dict)  # device → reason, while stopped
     _seen: dict[str, int] = field(default_factory=dict)  # device → time of its last state
     _estop: str | None = None
@@ -31,7 +37,7 @@ class RigWatch:
 
     def device_state(self, device: str, safe_stop: bool, reason: str, now_ns: int) -> None:
         """A device's state message: record each change of its safe stop."""
-        self._seen[device] = now_ns
+        self._seen[device] = self.monotonic()
         was = device in self._stopped
         if safe_stop and not was:
             self._stopped[device] = reason
@@ -63,17 +69,34 @@ class RigWatch:
         self.trial, self.attempt = trial, attempt
         self._break = None
 
-    def interruption(self) -> str | None:
-        """Why the running trial must stop (the first stop since it began), or None."""
+    def lost(self, service: str, now_ns: int) -> None:
+        """A service the session needs lost its liveliness."""
+        self._event(now_ns, service, "safe_stop", "liveliness lost")
+        self._break = self._break or f"{service} lost (liveliness)"
+
+    def interruption(self, now_ns: int) -> str | None:
+        """Why the running trial must stop (the first stop since it began), or None.
+
+        A device that stopped reporting (its state key silent for `silent_ns`: a cut link, a
+        hung host) breaks the trial too: its silence is no evidence that it is safe.
+        """
+        if self._break is None:
+            mono = self.monotonic()
+            for device in DEVICES:
+                seen = self._seen.get(device)
+                if seen is not None and mono - seen > self.silent_ns:
+                    why = f"{device}/state silent for {(mono - seen) / 1e6:.0f} ms"
+                    self._event(now_ns, device, "safe_stop", why)
+                    self._break = why
+                    break
         return self._break
 
     def safe(self, now_ns: int) -> bool:
         """Whether every device reports no safe stop, no e-stop holds, for `settle_ns` now."""
         self._update(now_ns)
-        fresh = all(now_ns - self._seen.get(d, -(2**62)) < self.settle_ns for d in DEVICES)
-        return (
-            fresh and self._safe_since is not None and now_ns - self._safe_since >= self.settle_ns
-        )
+        mono = self.monotonic()
+        fresh = all(mono - self._seen.get(d, -(2**62)) < self.settle_ns for d in DEVICES)
+        return fresh and self._safe_since is not None and mono - self._safe_since >= self.settle_ns
 
     def why_unsafe(self) -> str:
         """What holds the rig, in one line."""
@@ -94,7 +117,7 @@ class RigWatch:
         if unsafe:
             self._safe_since = None
         elif self._safe_since is None:
-            self._safe_since = now_ns
+            self._safe_since = self.monotonic()
 
     def _event(self, now_ns: int, device: str, event: str, reason: str) -> None:
         self._pending.append(

@@ -71,6 +71,7 @@ class Conductor:
         self._seq_regressions = 0  # in the current trial
         self._arm: tuple[int, str, str | None] = (0, "idle", None)  # trial, phase, target
         self.refused_presses = 0
+        self._held = False  # the session waits for the rig
         self.pub_trial = node.publisher("experiment/trial")
         self.pub_result = node.publisher("experiment/result")
         self.pub_gaze = node.publisher("eyes/cmd")
@@ -84,13 +85,19 @@ class Conductor:
         node.subscribe("eyes/state", self.on_eyes)
         node.subscribe("safety/estop", self.on_estop)
         for service in REQUIRED:
-            node.watch_liveliness(service, lambda a, s=service: self.alive.__setitem__(s, a))
+            node.watch_liveliness(service, lambda a, s=service: self._liveliness(s, a))
         # The gaze keep-alive runs on its own thread: the operator's counter prompt blocks the
         # main thread, and the eyes must not drop to neutral while the operator types.
         self._keepalive = threading.Thread(target=self._keep_gaze_alive, daemon=True)
         self._keepalive.start()
 
     # -- callbacks (under the node lock) ---------------------------------------------------
+
+    def _liveliness(self, service: str, alive: bool) -> None:
+        was = self.alive.get(service, False)
+        self.alive[service] = alive
+        if was and not alive:  # during a trial this breaks it; between trials it holds the next
+            self.rig.lost(service, self._now_ns())
 
     def on_hand(self, pose: m.HandPose) -> None:
         """Keep recent poses to join with decision outputs; detect the human's press.
@@ -169,7 +176,12 @@ class Conductor:
             time.sleep(0.02)
 
     def run_session(
-        self, session: str, participant: str, seed: int | None, first_trial: int = 1
+        self,
+        session: str,
+        participant: str,
+        seed: int | None,
+        first_trial: int = 1,
+        resume: bool = False,
     ) -> list[TrialRecord]:
         """Run the schedule from `first_trial` through the protocol machine; store the records.
 
@@ -177,9 +189,10 @@ class Conductor:
         until the rig is safe again, then repeats it (or moves on, as the protocol says).
         """
         started = self.node.clock.now_ns()
-        self.store.begin_session(
-            session, participant, self.node.keys.rig, seed, started, self.cfg.summary()
-        )
+        if not resume:
+            self.store.begin_session(
+                session, participant, self.node.keys.rig, seed, started, self.cfg.summary()
+            )
         self.session = session
         self.records = []
         protocol = self.protocol = SessionProtocol(self.proto, first_trial)
@@ -193,12 +206,15 @@ class Conductor:
                     break
                 self._wait(protocol.next_due())
                 with self.node.lock:
-                    why = self.rig.interruption() if protocol.running_trial else None
+                    why = self.rig.interruption(self._now_ns()) if protocol.running_trial else None
                     if why is not None:
                         cues = protocol.interrupt(self._now_s(), why)
                         continue
                     if protocol.phase == "paused":
                         cues = protocol.resume(self._now_s()) if self._rig_ready() else []
+                        continue
+                    if protocol.phase == "rest" and not self._rig_ready():
+                        cues = []  # no new trial on an unsafe rig: the rest lasts until it is
                         continue
                     rec = self.recorder
                     cues = protocol.advance(
@@ -223,10 +239,15 @@ class Conductor:
         return self.records
 
     def _rig_ready(self) -> bool:
-        """After an interruption: is the rig safe (and settled) again? Says so once."""
+        """Is the rig safe (and settled)? Says once when it is not, and when it is again."""
         if self.rig.safe(self._now_ns()):
-            log.info("rig safe again: resuming the session")
+            if self._held:
+                log.info("rig safe again: the session goes on")
+                self._held = False
             return True
+        if not self._held:
+            log.warning("session held: %s", self.rig.why_unsafe())
+            self._held = True
         return False
 
     def _keep_gaze_alive(self) -> None:
@@ -405,6 +426,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="seed of the sim participant (stored)")
     p.add_argument("--session", default=None, help="session id (default: a new UUID)")
     p.add_argument(
+        "--resume",
+        metavar="SESSION",
+        default=None,
+        help="go on with a stored session at its next trial (after a crash or an abort); the "
+        "participant and seed are the session's own",
+    )
+    p.add_argument(
         "--clicks",
         default="prompt",
         help="counter clicks the operator counted: a number for every trial, or 'prompt' (ask "
@@ -433,25 +461,48 @@ def main(argv: list[str] | None = None) -> int:
         cfg = load_params(args.params)
         clicks = clicks_source(args.clicks)
         store = Store(args.db)
-        node = Node("experiment", Fabric.from_args(args), retry_s=math.inf)
-    except (ValueError, OSError, ConnectionError) as exc:
+    except (ValueError, OSError) as exc:
         print(f"nod experiment: {exc}", file=sys.stderr)
         return 2
+    participant, seed, first = args.participant, args.seed, 1
+    if args.resume is not None:
+        try:
+            participant, seed, done = store.resume_session(args.resume)
+        except OSError as exc:
+            store.close()
+            print(f"nod experiment: {exc}", file=sys.stderr)
+            return 2
+        if done >= len(cfg.protocol.trials):
+            store.finish_session(args.resume, time.time_ns(), "complete")
+            store.close()
+            print(f"nod experiment: session {args.resume} has all {done} trials; nothing to do")
+            return 0
+        first = done + 1
     for session, done in store.interrupted_sessions():
-        log.warning(
-            "session %s was interrupted after %d stored trial(s); its unfinished trial was lost",
-            session,
-            done,
-        )
+        if session != args.resume:
+            log.warning(
+                "session %s was interrupted after %d stored trial(s): go on with it with "
+                "`nod experiment --resume %s`",
+                session,
+                done,
+                session,
+            )
+    try:
+        node = Node("experiment", Fabric.from_args(args), retry_s=math.inf)
+    except (ValueError, OSError, ConnectionError) as exc:
+        store.close()
+        print(f"nod experiment: {exc}", file=sys.stderr)
+        return 2
     conductor = Conductor(node, cfg, store, clicks)
     node.ready()
-    session = args.session or uuid.uuid4().hex[:12]
+    session = args.resume or args.session or uuid.uuid4().hex[:12]
     try:
         conductor.wait_for_services(args.wait_services)
         log.info(
-            "session %s: all services alive; starting %d trials", session, len(cfg.protocol.trials)
+            "session %s (%s): all services alive; trials %d-%d",
+            session, participant, first, len(cfg.protocol.trials),
         )
-        conductor.run_session(session, args.participant, args.seed)
+        conductor.run_session(session, participant, seed, first, resume=args.resume is not None)
     except TimeoutError as exc:
         print(f"nod experiment: {exc}", file=sys.stderr)
         return 1

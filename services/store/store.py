@@ -169,6 +169,29 @@ class Store:
                 (session, participant, rig, seed, started_ns, json.dumps(config, default=str)),
             )
 
+    def resume_session(self, session: str) -> tuple[str, int | None, int]:
+        """Mark a stored session running again; (participant, seed, trials stored so far).
+
+        StoreError if there is no such session. The trials of a session are stored in order,
+        one transaction each, so the next trial to run is the count plus one.
+        """
+        row = self.db.execute(
+            "SELECT participant, seed FROM sessions WHERE session = ?", (session,)
+        ).fetchone()
+        if row is None:
+            known = [r[0] for r in self.db.execute("SELECT session FROM sessions")]
+            raise StoreError(f"no session {session!r} in {self.path}; known: {known[-5:]}")
+        (done,) = self.db.execute(
+            "SELECT COALESCE(MAX(trial), 0) FROM trials WHERE session = ?", (session,)
+        ).fetchone()
+        with self.db:
+            self.db.execute("BEGIN")
+            self.db.execute(
+                "UPDATE sessions SET status = 'running', finished_ns = NULL WHERE session = ?",
+                (session,),
+            )
+        return str(row[0]), row[1], int(done)
+
     def finish_session(self, session: str, finished_ns: int, status: str = "complete") -> None:
         """Mark a session complete (or aborted)."""
         with self.db:

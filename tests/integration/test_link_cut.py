@@ -1,0 +1,185 @@
+"""A cut link between two hosts (network namespaces joined by a veth pair): the arm controller
+safe-stops within the bound, and resumes when the link returns, without restarting anything."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from datetime import datetime
+
+import pytest
+
+from .conftest import ROOT
+
+pytestmark = pytest.mark.integration
+
+
+def _ip(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["ip", *args], capture_output=True, text=True)
+
+
+def _netns_available() -> str | None:
+    if os.geteuid() != 0:
+        return "needs root to create network namespaces"
+    if shutil.which("ip") is None:
+        return "needs iproute2 (`ip`)"
+    probe = f"nodprobe{os.getpid()}"
+    if _ip("netns", "add", probe).returncode != 0:
+        return "cannot create network namespaces here"
+    _ip("netns", "del", probe)
+    return None
+
+
+SKIP = _netns_available()
+
+
+class TwoHosts:
+    """Host A (router, decision, sim) and host B (actuation), joined by one veth link."""
+
+    def __init__(self, tmp_path) -> None:
+        tag = os.getpid() % 200 + 20
+        self.a, self.b = f"nodA{os.getpid()}", f"nodB{os.getpid()}"
+        self.va, self.vb = f"na{os.getpid()}"[:15], f"nb{os.getpid()}"[:15]
+        self.addr_a, self.addr_b = f"10.{tag}.7.1", f"10.{tag}.7.2"
+        self.endpoint = f"tcp/{self.addr_a}:7447"
+        self.tmp = tmp_path
+        self.procs: dict[str, subprocess.Popen] = {}
+        for ns in (self.a, self.b):
+            assert _ip("netns", "add", ns).returncode == 0
+            _ip("-n", ns, "link", "set", "lo", "up")
+        assert _ip("link", "add", self.va, "type", "veth", "peer", "name", self.vb).returncode == 0
+        for dev, ns, addr in ((self.va, self.a, self.addr_a), (self.vb, self.b, self.addr_b)):
+            _ip("link", "set", dev, "netns", ns)
+            _ip("-n", ns, "addr", "add", f"{addr}/24", "dev", dev)
+            _ip("-n", ns, "link", "set", dev, "up")
+
+    def start(self, ns: str, name: str, *args: str) -> subprocess.Popen:
+        log = (self.tmp / f"{name}.log").open("w")
+        proc = subprocess.Popen(
+            ["ip", "netns", "exec", ns, sys.executable, "-m", "services.cli", *args],
+            cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+        )
+        self.procs[name] = proc
+        return proc
+
+    def link(self, up: bool) -> None:
+        _ip("-n", self.b, "link", "set", self.vb, "up" if up else "down")
+
+    def log(self, name: str) -> str:
+        return (self.tmp / f"{name}.log").read_text()
+
+    def close(self) -> None:
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc in self.procs.values():
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        for ns in (self.a, self.b):
+            _ip("netns", "del", ns)
+
+
+def _stamps(log: str, pattern: str) -> list[float]:
+    """Wall times (s) of the log lines matching `pattern` (the services log ms timestamps)."""
+    out = []
+    for line in log.splitlines():
+        if re.search(pattern, line):
+            stamp = datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S,%f")
+            out.append(stamp.timestamp())
+    return out
+
+
+@pytest.mark.skipif(SKIP is not None, reason=SKIP or "")
+def test_a_2s_link_cut_safe_stops_the_arm_and_it_resumes_without_a_restart(tmp_path):
+    hosts = TwoHosts(tmp_path)
+    try:
+        hosts.start(hosts.a, "router", "router", "--listen", hosts.endpoint)
+        time.sleep(1.0)
+        for service in ("decision", "sim"):
+            hosts.start(hosts.a, service, service, "--connect", hosts.endpoint)
+        arm = hosts.start(hosts.b, "actuation", "actuation", "--connect", hosts.endpoint)
+        deadline = time.time() + 30
+        while not _stamps(hosts.log("actuation"), "safety clear"):
+            assert time.time() < deadline, hosts.log("actuation")
+            time.sleep(0.1)
+        time.sleep(1.0)
+        t_cut = time.time()
+        hosts.link(False)
+        time.sleep(2.0)
+        t_back = time.time()
+        hosts.link(True)
+        time.sleep(3.0)
+        log = hosts.log("actuation")
+        stops = [t for t in _stamps(log, "SAFE STOP") if t >= t_cut]
+        clears = [t for t in _stamps(log, "safety clear") if t >= t_back]
+        assert stops and clears, log[-3000:]
+        to_stop, to_clear = stops[0] - t_cut, clears[0] - t_back
+        print(f"\nlink cut 2 s: safe stop after {to_stop * 1e3:.0f} ms, "
+              f"clear {to_clear * 1e3:.0f} ms after the link returned")
+        assert to_stop <= 0.25 + 0.1 + 0.05  # the bound, a tick, the log's ms rounding
+        assert to_clear <= 1.0
+        assert "stale" in log.split("SAFE STOP", 2)[-1].splitlines()[0]
+        assert arm.poll() is None and log.count("up on rig") == 1  # no restart
+    finally:
+        hosts.close()
+
+
+ONE_TRIAL = """
+[[protocol.trials]]
+index = 1
+mode = "consensus"
+option = "red"
+gaze_level = "low"
+"""
+
+
+@pytest.mark.skipif(SKIP is not None, reason=SKIP or "")
+def test_a_long_cut_mid_trial_interrupts_the_trial_and_it_is_repeated(tmp_path):
+    # Once stored as an ordinary trial with a 12 s hole in its samples: now the conductor sees
+    # the arm controller's state go silent, interrupts the trial and repeats it.
+    from services.store import Store
+
+    params = tmp_path / "one.toml"
+    params.write_text(ONE_TRIAL)
+    db = tmp_path / "s.sqlite"
+    hosts = TwoHosts(tmp_path)
+    clock = ["--speed", "2", "--epoch-ns", str(time.time_ns()), "--params", str(params)]
+    try:
+        hosts.start(hosts.a, "router", "router", "--listen", hosts.endpoint)
+        time.sleep(1.0)
+        for service in ("decision", "sim"):
+            hosts.start(hosts.a, service, service, "--connect", hosts.endpoint, *clock)
+        for service in ("actuation", "eyes"):
+            hosts.start(hosts.b, service, service, "--connect", hosts.endpoint, *clock)
+        conductor = hosts.start(
+            hosts.a, "experiment", "experiment", "--connect", hosts.endpoint, *clock,
+            "--db", str(db), "--clicks", "10",
+        )
+        deadline = time.time() + 40
+        while not _stamps(hosts.log("experiment"), "trials 1-1"):
+            assert time.time() < deadline, hosts.log("experiment")
+            time.sleep(0.05)
+        time.sleep(2.0)  # at 2x: past "go", the hand on its way
+        hosts.link(False)
+        time.sleep(3.0)
+        hosts.link(True)
+        assert conductor.wait(90) == 0, hosts.log("experiment")[-3000:]
+        store = Store(db)
+        try:
+            session = store.sessions()[-1]["session"]
+            broken = store.interruptions(session)
+            trials = [t for _, t in store.trials(session)]
+        finally:
+            store.close()
+        assert broken and "silent" in broken[0].reason, (broken, hosts.log("experiment")[-2000:])
+        assert len(trials) == 1 and trials[0].attempts == 2 and not trials[0].interrupted
+        assert trials[0].robot is not None
+    finally:
+        hosts.close()

@@ -1,0 +1,72 @@
+"""The conductor's view of the rig's safety: what breaks a trial, when the session may go on."""
+
+from services.experiment.rig_watch import RigWatch
+
+MS = 1_000_000
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 0
+
+    def __call__(self) -> int:
+        return self.t
+
+
+def watch() -> tuple[RigWatch, Clock]:
+    clock = Clock()
+    rig = RigWatch(monotonic=clock)
+    rig.begin(1, 1)
+    return rig, clock
+
+
+def report(rig: RigWatch, clock: Clock, ms: int, arm: bool = False, eyes: bool = False) -> None:
+    clock.t = ms * MS
+    rig.device_state("actuation", arm, "e-stop: x" if arm else "", ms * MS)
+    rig.device_state("eyes", eyes, "gaze stale" if eyes else "", ms * MS)
+
+
+def test_a_new_safe_stop_breaks_the_trial_and_is_logged():
+    rig, clock = watch()
+    report(rig, clock, 0)
+    assert rig.interruption(0) is None
+    report(rig, clock, 20, eyes=True)
+    assert rig.interruption(20 * MS) == "eyes: gaze stale"
+    report(rig, clock, 40, arm=True, eyes=True)
+    assert rig.interruption(40 * MS) == "eyes: gaze stale"  # the first cause is kept
+    events = [(e.device, e.event) for e in rig.take_events()]
+    assert events == [("eyes", "safe_stop"), ("actuation", "safe_stop")]
+    assert rig.take_events() == []
+
+
+def test_the_rig_is_safe_only_after_settling_with_fresh_states():
+    rig, clock = watch()
+    report(rig, clock, 0, arm=True)
+    assert not rig.safe(0)
+    for ms in range(20, 520, 20):
+        report(rig, clock, ms)
+    assert not rig.safe(500 * MS)  # clear since 20 ms: 480 ms < 500 ms settle
+    report(rig, clock, 540)
+    assert rig.safe(540 * MS)
+    clock.t = 1200 * MS  # no state for 660 ms: not evidence of safety
+    assert not rig.safe(1200 * MS)
+
+
+def test_a_silent_device_breaks_a_trial_and_an_estop_holds_until_released():
+    rig, clock = watch()
+    report(rig, clock, 0)
+    clock.t = 400 * MS
+    assert rig.interruption(0) is None
+    clock.t = 501 * MS
+    assert "silent" in (rig.interruption(0) or "")
+    rig.begin(2, 1)
+    report(rig, clock, 600)
+    rig.estop(True, "bump", "op@ctl", 600 * MS)
+    assert rig.interruption(0) == "e-stop by op@ctl: bump"
+    for ms in range(620, 1400, 20):
+        report(rig, clock, ms)
+    assert not rig.safe(1400 * MS)  # latched until released
+    rig.estop(False, "", "op@ctl", 1400 * MS)
+    for ms in range(1420, 2000, 20):
+        report(rig, clock, ms)
+    assert rig.safe(2000 * MS)
