@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "questionnaire": ("services.experiment.questionnaire", "enter or import Q1-Q5 answers"),
     "export": ("services.experiment.export", "write a session database as CSV"),
     "monitor": ("services.monitor.service", "live view of every key in Rerun"),
+    "lab": ("services.lab.cli", "lab deployment tools: `nod lab secure` (mutual TLS, ACL)"),
 }
 
 

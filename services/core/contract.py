@@ -132,7 +132,14 @@ _TOPICS = (
     Topic(
         "safety/estop", m.Estop, ("estop",), ("actuation", "eyes", "experiment"), "on demand",
         SAFETY,
-        "`engaged`, `reason`, `source` (user@host), `id` (acknowledged on the state keys)",
+        "engage only (`engaged` true; false is refused here): `engaged`, `reason`, `source` "
+        "(user@host), `id` (acknowledged on the state keys)",
+    ),
+    Topic(
+        "safety/release", m.Estop, ("estop",), ("actuation", "eyes", "experiment"), "on demand",
+        SAFETY,
+        "release only (`engaged` false), a key of its own so an ACL can let every host engage "
+        "and only the control station release: `engaged`, `reason`, `source`, `id`",
     ),
 )
 TOPICS: dict[str, Topic] = {t.name: t for t in _TOPICS}

@@ -84,6 +84,7 @@ class Conductor:
         node.subscribe("actuation/press", self.on_press)
         node.subscribe("eyes/state", self.on_eyes)
         node.subscribe("safety/estop", self.on_estop)
+        node.subscribe("safety/release", self.on_estop)
         for service in REQUIRED:
             node.watch_liveliness(service, lambda a, s=service: self._liveliness(s, a))
         # The gaze keep-alive runs on its own thread: the operator's counter prompt blocks the

@@ -94,7 +94,9 @@ def main(argv: list[str] | None = None) -> int:
         node.subscribe(
             "eyes/state", lambda s: acks.state("eyes", s.estop_id, s.estop, s.safety_reason)
         )
-        pub = node.publisher("safety/estop")  # the contract's QoS: reliable, real-time priority
+        # The contract's QoS: reliable, real-time priority. Engage and release have keys of their
+        # own, so a lab's ACL can let every host engage and only the control station release.
+        pub = node.publisher("safety/estop" if engaged else "safety/release")
         deadline = acks.t0 + args.timeout
         while not acks.done.is_set() and time.monotonic() < deadline:
             # Repeated until acknowledged: a device that joins late, or a sample that raced the

@@ -28,12 +28,17 @@ def watch_safety_inputs(
     e-stop (or its release) is acted on at once rather than at the next periodic tick.
     """
 
-    def on_estop(msg: m.Estop) -> None:
-        watchdog.estop(msg.engaged, msg.reason or msg.source, msg.id)
-        state = "ENGAGED" if msg.engaged else "released"
+    def on_command(msg: m.Estop, engage: bool) -> None:
+        if msg.engaged != engage:  # each key carries one direction (an ACL may guard release)
+            raise ValueError(f"an e-stop {'release' if engage else 'engage'} on the wrong key")
+        if watchdog.estopped == engage and watchdog.estop_id == msg.id:
+            return  # a repeat of the command just obeyed
+        watchdog.estop(engage, msg.reason or msg.source, msg.id)
+        state = "ENGAGED" if engage else "released"
         log.warning("%s: e-stop %s by %s: %s", node.service, state, msg.source or "?", msg.reason)
         act_now(node.clock.now_ns())
 
-    node.subscribe("safety/estop", on_estop)
+    node.subscribe("safety/estop", lambda msg: on_command(msg, True))
+    node.subscribe("safety/release", lambda msg: on_command(msg, False))
     for service in dict.fromkeys((*watchdog.params.require_alive, *also_watch)):
         node.watch_liveliness(service, lambda alive, s=service: watchdog.set_alive(s, alive))

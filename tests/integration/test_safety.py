@@ -79,6 +79,7 @@ def test_estop_stops_the_arm_within_the_bound_and_latches(client, spawn):
     state, feeder = _start_moving(client, spawn)
     try:
         estop = client.declare_publisher(KEYS.topic("safety/estop"))
+        release = client.declare_publisher(KEYS.topic("safety/release"))
         t_estop = time.time_ns()
         estop.put(m.encode(m.Estop(seq=0, t_ns=t_estop, engaged=True, reason="test")))
         wait_for(
@@ -94,7 +95,10 @@ def test_estop_stops_the_arm_within_the_bound_and_latches(client, spawn):
         time.sleep(0.3)  # inputs stay fresh, yet the e-stop latches
         assert all(s.safe_stop and not s.moving for s in state.messages[-5:])
         t_rel = time.time_ns()
-        estop.put(m.encode(m.Estop(seq=1, t_ns=t_rel, engaged=False, reason="test")))
+        estop.put(m.encode(m.Estop(seq=1, t_ns=t_rel, engaged=False, reason="wrong key")))
+        time.sleep(0.3)  # a release on the engage key is refused: still stopped
+        assert all(s.safe_stop and not s.moving for s in state.messages[-5:])
+        release.put(m.encode(m.Estop(seq=2, t_ns=time.time_ns(), engaged=False, reason="test")))
         wait_for(
             lambda: _first_after(state, t_rel, lambda s: s.moving) is not None,
             5,

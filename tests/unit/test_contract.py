@@ -58,13 +58,14 @@ def test_the_code_subscribes_to_what_the_contract_says():
     # vision reads rendered frames through its capture (ZenohCamera), not Node.subscribe;
     # actuation and eyes take the e-stop through the shared safety wiring.
     wiring = (ROOT / "services/safety/wiring.py").read_text()
-    assert 'subscribe("safety/estop"' in wiring
+    assert 'subscribe("safety/estop"' in wiring and 'subscribe("safety/release"' in wiring
     gated = {
-        (service, "safety/estop")
+        (service, topic)
         for service in SERVICES
         if "watch_safety_inputs(" in (ROOT / "services" / service / "service.py").read_text()
+        for topic in ("safety/estop", "safety/release")
     }
-    assert gated == {("actuation", "safety/estop"), ("eyes", "safety/estop")}
+    assert {service for service, _ in gated} == {"actuation", "eyes"}
     assert _calls("subscribe") | {("vision", "sim/camera")} | gated == declared
 
 
