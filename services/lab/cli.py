@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import sys
 
-TOOLS = {"secure": "services.lab.secure"}
+from services.core.cli import Parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Dispatch `nod lab secure …`."""
     args = list(sys.argv[1:] if argv is None else argv)
-    if not args or args[0] not in TOOLS:
-        print(f"usage: nod lab {{{','.join(TOOLS)}}} [options]  (--help for each)", file=sys.stderr)
-        return 0 if args[:1] in (["-h"], ["--help"]) else 2
-    if args[0] == "secure":
+    if args[:1] == ["secure"]:
         from services.lab.secure import main as secure
 
         return secure(args[1:])
+    p = Parser(prog="nod lab", description="A lab's deployment tools.")
+    p.add_argument("tool", choices=("secure",), help="secure: mutual TLS and an ACL by host")
+    p.parse_args(args)  # --help, or a one-line error for anything else
     return 2
