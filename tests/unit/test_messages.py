@@ -110,3 +110,44 @@ def test_keys_are_scoped_by_rig_and_map_back_to_types():
     assert keys.message_type("nod/other/vision/hand") is None
     with pytest.raises(ValueError, match="rig name"):
         Keys("bad/rig")
+
+
+MESSAGE_TYPES = sorted({t.message for t in TOPICS.values()}, key=lambda c: c.KIND)
+junk = st.recursive(
+    st.one_of(
+        st.none(), st.booleans(), st.integers(-(2**64), 2**64), st.floats(),
+        st.text(max_size=20), st.binary(max_size=20),
+    ),
+    lambda inner: st.one_of(
+        st.lists(inner, max_size=5), st.dictionaries(st.text(max_size=8), inner, max_size=5)
+    ),
+    max_leaves=30,
+)
+
+
+@pytest.mark.parametrize("cls", MESSAGE_TYPES, ids=lambda c: c.KIND)
+@given(payload=st.binary(max_size=400))
+def test_raw_bytes_on_every_key_decode_or_fail_cleanly(cls, payload):
+    with contextlib.suppress(m.MessageError):
+        m.decode(cls, payload)
+
+
+@pytest.mark.parametrize("cls", MESSAGE_TYPES, ids=lambda c: c.KIND)
+@given(fields=st.dictionaries(st.sampled_from(["v", "seq", "t_ns", "x"]), junk, max_size=4)
+       | st.builds(dict, junk.filter(lambda x: isinstance(x, dict))))
+def test_structured_junk_on_every_key_decodes_to_a_valid_message_or_fails_cleanly(cls, fields):
+    fields = {**fields}
+    for name in m.fields(cls)[2:]:  # poison the message's own fields too, now and then
+        if len(fields) % 3 == 0:
+            fields[name] = fields.get("x")
+    try:
+        msg = m.decode(cls, msgpack.packb(fields, use_bin_type=True))
+    except m.MessageError:
+        return
+    except (OverflowError, ValueError, TypeError):  # msgpack itself could not encode the junk
+        return
+    assert type(msg) is cls
+    for name in m.fields(cls):  # whatever passed is finite and within its bounds
+        value = getattr(msg, name)
+        if isinstance(value, float):
+            assert math.isfinite(value)
