@@ -150,6 +150,20 @@ def _build_parser() -> Parser:
     p.add_argument("--json", action="store_true", help="print JSON")
 
     p = sub.add_parser(
+        "bstar",
+        help="derive b* = u_r + margin from a press time (SPEC §3 deviation)",
+        description="The smallest margin (0.1 grid) for which the robot's arm is on O's side "
+        "when a participant who heads straight for O presses PRESS_S after go (default observer, "
+        "decision model, Algorithm 2, simulated arm; both options, several jitter seeds).",
+    )
+    p.add_argument(
+        "--press-s", type=_positive, default=2.2, help="the fastest press to cover (2.2 s)"
+    )
+    p.add_argument("--seeds", type=int, default=5, help="jitter draws per option (5)")
+    p.add_argument("--params", metavar="FILE.toml", help="rig parameters (default: SPEC)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+
+    p = sub.add_parser(
         "study",
         help="the whole study: Fig 8 and the Sec 7-8 statistics",
         description="Every session of a database: per-trial outcome frequencies (Fig 8a), "
@@ -286,7 +300,34 @@ def _cmd_study(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_bstar(args: argparse.Namespace) -> int:
+    from services.analysis.bstar import derive_margin
+    from services.core.config import load_params
+
+    cfg = load_params(args.params)
+    margin, runs = derive_margin(args.press_s, cfg, seeds=max(1, args.seeds))
+    u_r = cfg.decision.pair.robot.u
+    worst = max(r.agree_s for r in runs)
+    doc = {
+        "press_s": args.press_s,
+        "margin": margin,
+        "b_star": u_r + margin,
+        "u_r": u_r,
+        "latest_agreement_s": worst,
+        "runs": len(runs),
+    }
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        print(
+            f"b* = u_r + {margin:.1f} = {u_r + margin:.2f}: the robot is on O's side by "
+            f"{worst:.2f} s after go in all {len(runs)} runs, before a press at {args.press_s} s"
+        )
+    return 0
+
+
 _COMMANDS = {
+    "bstar": _cmd_bstar,
     "thresholds": _cmd_thresholds,
     "sweep": _cmd_sweep,
     "equilibria": _cmd_equilibria,

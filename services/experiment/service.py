@@ -70,6 +70,7 @@ class Conductor:
         self._last_hand_seq: int | None = None
         self._seq_regressions = 0  # in the current trial
         self._arm: tuple[int, str, str | None] = (0, "idle", None)  # trial, phase, target
+        self._pending_presses: dict[str, m.PressMsg] = {}  # unconfirmed, per colour, this trial
         self.refused_presses = 0
         self._held = False  # the session waits for the rig
         self.pub_trial = node.publisher("experiment/trial")
@@ -129,6 +130,11 @@ class Conductor:
         """The arm's end effector for the samples, and its safety state."""
         self.rig.device_state("actuation", msg.safe_stop, msg.safety_reason, self._now_ns())
         self._arm = (msg.trial, msg.phase, msg.target)
+        if self.robot_press is None and self._pending_presses:
+            for press in self._pending_presses.values():
+                if press.trial == self.trial and self._confirms(self._arm, press):
+                    self.robot_press = press
+                    break
         if self.recorder is not None:
             self.recorder.on_arm(msg)
 
@@ -143,21 +149,31 @@ class Conductor:
     def on_press(self, msg: m.PressMsg) -> None:
         """The robot pressed a buzzer — if the arm's own state says so too.
 
-        A press is taken only when the latest actuation/state is in this trial, pressing (or
-        done) and at that buzzer: a forged press on the key alone is refused and logged.
+        A press is taken when an actuation/state of this trial shows the arm done pressing that
+        buzzer: the latest one, or the next ones (a state may be dropped on a busy link). A
+        forged press on the key alone is never confirmed, and is logged.
         """
         if msg.trial != self.trial or self.robot_press is not None:
             return
-        trial, phase, target = self._arm
-        if trial == msg.trial and phase in ("pressing", "done") and target == msg.colour:
+        if self._confirms(self._arm, msg):
             self.robot_press = msg
             return
-        self.refused_presses += 1
-        if self.refused_presses <= 10:
-            log.warning(
-                "press of %s in trial %d refused: actuation/state says trial %d, %s, at %s",
-                msg.colour, msg.trial, trial, phase, target,
-            )
+        if msg.colour not in self._pending_presses:
+            self._pending_presses[msg.colour] = msg
+            self.refused_presses += 1
+            if self.refused_presses <= 10:
+                trial, phase, target = self._arm
+                log.warning(
+                    "press of %s in trial %d not confirmed yet: actuation/state says trial %d, "
+                    "%s, at %s (refused unless the arm confirms it)",
+                    msg.colour, msg.trial, trial, phase, target,
+                )
+
+    def _confirms(self, arm: tuple[int, str, str | None], press: m.PressMsg) -> bool:
+        trial, phase, target = arm
+        # "done": the arm has finished pressing (a forged press while it is still on its way to
+        # that buzzer must not end the trial early).
+        return trial == press.trial and phase == "done" and target == press.colour
 
     # -- the script (main thread) ----------------------------------------------------------
 
@@ -199,6 +215,7 @@ class Conductor:
         protocol = self.protocol = SessionProtocol(self.proto, first_trial)
         status = "aborted"
         try:
+            self._wait_for_a_safe_rig()
             with self.node.lock:
                 cues = protocol.start(self._now_s())
             while True:
@@ -238,6 +255,18 @@ class Conductor:
                 text=status,
             )
         return self.records
+
+    def _wait_for_a_safe_rig(self) -> None:
+        """Before the first trial: eyes neutral (kept alive), then wait until the rig is safe.
+
+        No trial starts on an unsafe rig; the first one too: a device still stopped from its
+        start-up (the eyes before any gaze) would otherwise break trial 1 as soon as it began.
+        """
+        with self.node.lock:
+            self.gaze_msg = {"yaw": 0.0, "pitch": 0.0, "level": "neutral", "trial": 0}
+            self.pub_gaze.put(**self.gaze_msg)
+        while not self._rig_ready():
+            self._wait(math.inf)
 
     def _rig_ready(self) -> bool:
         """Is the rig safe (and settled)? Says once when it is not, and when it is again."""
@@ -290,6 +319,7 @@ class Conductor:
                 with self.node.lock:
                     self.trial = spec.index
                     self.robot_press = None
+                    self._pending_presses = {}
                     self.recorder = None
                     self.rig.begin(spec.index, protocol.attempt)
                     self._seq_regressions = 0
@@ -302,7 +332,11 @@ class Conductor:
                     go = self.pub_trial.put(
                         phase="go", text=cue.text, session=self.session, **ev
                     )
-                    tracker = OutcomeTracker(self.cfg.debounce, self.layout.commit)
+                    tracker = OutcomeTracker(
+                        self.cfg.debounce,
+                        self.layout.commit,
+                        self.cfg.decision.observer.switch_dead_band,
+                    )
                     self.recorder = TrialRecorder(go.t_ns, tracker)
             elif cue.kind == "end":
                 self._end_trial(spec, protocol)

@@ -7,17 +7,23 @@ with σ = −|σ| for O = red, +|σ| for O = blue and β = −K σ. In dissensus
 so both terms push b_r toward O. |b_r| is clamped to b_max. In dissensus-mode trials the
 controller is off and b_r ≡ 0 (the caller does not call it).
 
-Deviation from the paper (decided by the lead): eq 6 uses b* = u_r. When the human heads
-straight for O, ẑ_h is large and tanh(α z_r + γ ẑ_h) saturates at −sgn(O), so
-ż_r ≈ −d_r z_r − u_r sgn(O) + b_r and z_r relaxes to (b_r − u_r sgn(O)) / d_r. The β term stops
-exactly when |b_r| = u_r, i.e. when that equilibrium reaches z_r = 0, and the σ term shrinks
-with z_r: (z_r, b_r) → (0⁻, u_r) asymptotically and z_r never changes sign (numerically
-b_r = 2.23999999 after 20 s with u_r = 2.24). So by default b* = u_r + b_star_margin, which
-drives b_r past u_r and lets z_r cross to O's sign. The margin sets how fast: 0.5 crosses after
-≈1.2 s of dissensus, 2.0 (the default) after ≈0.5 s. A participant reaches a buzzer in ≈2-2.5 s
-and the robot must also debounce, pause and drive back, so with 0.5 the robot mostly arrives too
-late and consensus trials end in dissensus (closed-loop simulation of 30 participants: robot on
-O in 60% of trials 4-8 with 0.5, 97% with 2.0; see services/sim/offline.py).
+Deviation from the paper: eq 6 uses b* = u_r. When the human heads straight for O, ẑ_h is
+large and tanh(α z_r + γ ẑ_h) saturates at −sgn(O), so ż_r ≈ −d_r z_r − u_r sgn(O) + b_r and
+z_r relaxes to (b_r − u_r sgn(O)) / d_r. The β term stops exactly when |b_r| = u_r, i.e. when
+that equilibrium reaches z_r = 0, and the σ term shrinks with z_r: (z_r, b_r) → (0⁻, u_r)
+asymptotically and z_r never changes sign (numerically b_r = 2.23999999 after 20 s with
+u_r = 2.24). So by default b* = u_r + b_star_margin, which drives b_r past u_r and lets z_r
+cross to O's sign; the margin sets how fast.
+
+The margin is derived, not tuned (`services.analysis.bstar`, `nod analyze bstar`): the
+requirement is that when the participant heads straight for O, the robot's arm is on O's side
+(nearer O's box) when the participant presses, so Algorithm 2's "press the nearest buzzer" ends
+in consensus. Run with the parts that run on the rig — the default observer on a 2 px-jittered
+minimum-jerk reach, this model, Algorithm 2, the simulated arm — the smallest margin (0.1 grid)
+that meets it for a press 2.2 s after "go" (a 0.3 s reaction and a 1.9 s reach: the 10th
+percentile of the simulated cohort's consensus presses), for both options and every seed, is
+2.3. Faster presses need more (1.8 s: 3.7); slower ones less (2.6 s: 1.5; 3.0 s: 0.7).
+`b_star_margin = 0` restores the paper's rule.
 
 The freeze is decided once per integration step (see `services.model.decision`), |b_r| is
 clamped to b_max after each step, and b_r ≡ 0 in dissensus-mode trials (the controller is off).
@@ -38,7 +44,7 @@ class BiasParams:
     sigma: float = 0.1  # |σ|, gain of the sign-alignment term (1/s); the sign comes from O
     K: float = 16.0  # β = −K σ, gain of the threshold-raising term (1/s)
     b_star: float | None = None  # bias threshold b*; None → u_r + b_star_margin (see module doc)
-    b_star_margin: float = 2.0  # added to u_r when b_star is None; 0 reproduces the paper
+    b_star_margin: float = 2.3  # added to u_r when b_star is None (derived: see above); 0: paper
     b_max: float = 6.0  # clamp |b_r| ≤ b_max: in dissensus the σ term never stops on its own
 
     def __post_init__(self) -> None:

@@ -16,7 +16,8 @@ from typing import NamedTuple
 from services.model.bias import BiasParams, beta_for, bias_active, bias_rate, sigma_for
 from services.model.dynamics import PairParams, opinion_rate
 from services.model.geometry import Colour, Point, TableLayout
-from services.model.observer import HumanObserver, Observation, ObserverParams
+from services.model.observer import Observation, ObserverParams
+from services.model.observer_robust import make_observer
 from services.model.protocol import MODES, Mode
 
 
@@ -67,7 +68,7 @@ class DecisionModel:
 
     def __init__(self, params: DecisionParams | None = None, layout: TableLayout | None = None):
         self._params = params if params is not None else DecisionParams()
-        self._observer = HumanObserver(self._params.observer, layout)
+        self._observer = make_observer(self._params.observer, layout)
         self._dt_ns = max(1, round(self._params.dt * 1e9))
         self._max_gap_ns = max(1, round(self._params.max_gap_s * 1e9))
         self._b_star = self._params.bias.threshold(self._params.pair.robot.u)
@@ -162,7 +163,7 @@ class DecisionModel:
                 return self._output()
             self._integrate(min(gap_ns, self._max_gap_ns), self._observer.z_hat)
         self._t_ns = t_ns
-        self._observation = self._observer.update(landmarks)
+        self._observation = self._observer.update(landmarks, t_ns * 1e-9)
         return self._output()
 
     def _output(self) -> DecisionOutput:

@@ -30,8 +30,17 @@ _HALF_PI = 0.5 * math.pi
 
 @dataclass(frozen=True, slots=True)
 class ObserverParams:
-    """Parameters of the human-opinion observer (eq 7, Sec 4.6 defaults, SPEC §2)."""
+    """Parameters of the human-opinion observer (eq 7, Sec 4.6 defaults, SPEC §2).
 
+    `mode` picks how the movement's direction is read. "robust" (the default,
+    `services.model.observer_robust`): a lightly smoothed centre, its motion over `window_s`,
+    the angle to the bearing of each box; held when heading for neither. "paper": Algorithm 1
+    as printed (frame-to-frame motion, θ against the image x axis), for replication. Both use
+    eq 7 with `a`, `k`, `d_min`. The numbers behind the robust defaults (wrong-side frames,
+    spurious switches and latency on jittery paths at 30 and 60 Hz) are in docs/observer.md.
+    """
+
+    mode: Literal["robust", "paper"] = "robust"
     a: float = 8.0  # directional-intent gain; bounds |ẑ_h| ≤ a
     k: float = 1.5  # distance scale of tanh(k/d), in normalised image units
     noise_threshold: float = 0.002  # per-frame movement below which θ is undefined (norm. units)
@@ -41,8 +50,34 @@ class ObserverParams:
     # centre at which θ was last defined, so movements slower than noise_threshold per frame
     # still add up; makes the threshold a distance rather than a speed that depends on frame rate.
     reference: Literal["frame", "accepted"] = "frame"
+    # -- robust mode ---------------------------------------------------------------------------
+    smooth_s: float = 0.06  # time constant of the centre's exponential smoothing (s); ≥ 0
+    window_s: float = 0.12  # motion is measured over this much time (s), whatever the frame rate
+    min_speed: float = 0.10  # below this speed over the window (units/s) no direction: ẑ_h held
+    max_angle_deg: float = 55.0  # a heading further than this from both boxes' bearings: held
+    switch_margin: float = 0.15  # cos advantage the other box needs to take over the reading
+    # |ẑ_h| at or below this carries no side for the switch count (a hesitant, sideways or
+    # stopped hand must not count as a change of mind); robust mode only (the paper counts
+    # every sign change)
+    dead_band: float = 0.5
+
+    @property
+    def switch_dead_band(self) -> float:
+        """The dead band the switch count applies: `dead_band`, or 0 in paper mode."""
+        return self.dead_band if self.mode == "robust" else 0.0
 
     def __post_init__(self) -> None:
+        if self.mode not in ("robust", "paper"):
+            raise ValueError(f"ObserverParams.mode must be 'robust' or 'paper', not {self.mode!r}")
+        for name in ("smooth_s", "window_s", "min_speed", "max_angle_deg", "switch_margin",
+                     "dead_band"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"ObserverParams.{name} must be finite and >= 0, got {value!r}")
+        if not 0 < self.window_s <= 2.0 or not 0 < self.max_angle_deg < 90:
+            raise ValueError(
+                "ObserverParams.window_s must be in (0, 2] s and max_angle_deg in (0, 90)"
+            )
         for name in ("a", "k", "noise_threshold", "d_min"):
             value = getattr(self, name)
             if not math.isfinite(value):
@@ -138,7 +173,7 @@ def hand_center(landmarks: Sequence[Point]) -> Point:
 
 
 class HumanObserver:
-    """Stateful eq-7 observer: feed it one hand pose per camera frame with `update`."""
+    """Algorithm 1 as printed (the "paper" mode): feed it one hand pose per camera frame."""
 
     def __init__(self, params: ObserverParams | None = None, layout: TableLayout | None = None):
         self._params = params if params is not None else ObserverParams()
@@ -178,8 +213,11 @@ class HumanObserver:
         self._reference = None
         self._last = None
 
-    def update(self, landmarks: Sequence[Point] | None) -> Observation:
-        """Read one pose: the landmarks of one hand, or None/empty when no hand was detected."""
+    def update(self, landmarks: Sequence[Point] | None, t: float = 0.0) -> Observation:
+        """Read one pose: the landmarks of one hand, or None/empty when no hand was detected.
+
+        Algorithm 1 reads frame to frame: the time `t` (s) is not used.
+        """
         if not landmarks:
             # Stale: keep ẑ_h and the reference, so the next detection's M is measured from the
             # last centre seen rather than reading a jump from nowhere.
@@ -207,3 +245,4 @@ class HumanObserver:
             obs = Observation(z_hat, center, movement, theta, target, distance, True, True)
         self._last = obs
         return obs
+

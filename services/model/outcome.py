@@ -68,11 +68,20 @@ class OutcomeTracker:
     """Incremental outcome of one trial: `add` each sample, then `result`."""
 
     def __init__(
-        self, debounce: DebounceParams | None = None, commit_line: CommitLine | None = None
+        self,
+        debounce: DebounceParams | None = None,
+        commit_line: CommitLine | None = None,
+        dead_band: float = 0.0,
     ) -> None:
-        """Debounce like Algorithm 2 (`debounce.c_max`); test crossings against `commit_line`."""
+        """Debounce like Algorithm 2 (`debounce.c_max`); test crossings against `commit_line`.
+
+        A sample with |ẑ_h| ≤ `dead_band` carries no side (`ObserverParams.switch_dead_band`).
+        """
         self.debounce = debounce if debounce is not None else DebounceParams()
         self.commit_line = commit_line if commit_line is not None else CommitLine()
+        if not (math.isfinite(dead_band) and dead_band >= 0):
+            raise ValueError(f"dead_band must be finite and >= 0, got {dead_band!r}")
+        self.dead_band = dead_band
         self.reset()
 
     def reset(self) -> None:
@@ -108,7 +117,7 @@ class OutcomeTracker:
         i = self._sign.samples
         if self._crossed_at is None and center is not None and self.commit_line.crossed(center):
             self._crossed_at = i
-        if self._sign.feed(z_hat):
+        if self._sign.feed(z_hat if abs(z_hat) > self.dead_band else 0.0):
             self._switch_indices.append(self._sign.onset)
 
     def result(self, human: Colour | None, robot: Colour) -> TrialOutcome:

@@ -39,6 +39,7 @@ class OfflineTrial:
     violations: int
     score: int
     duration_s: float  # from "go" to the end of the trial
+    press_s: float | None = None  # from "go" to the human's press (None: never pressed)
 
 
 class _Loop:
@@ -59,6 +60,7 @@ class _Loop:
         self.human: Colour | None = None
         self.robot: Colour | None = None
         self.t_go = 0.0
+        self.t_press: float | None = None
         self.results: list[OfflineTrial] = []
 
     def on_cues(self, t: float, cues: list[Cue]) -> None:
@@ -73,12 +75,16 @@ class _Loop:
                 self.arm.state(t)
                 self.arm.home()
                 self.person.new_trial(spec.option)
-                self.tracker, self.human, self.robot = None, None, None
+                self.tracker, self.human, self.robot, self.t_press = None, None, None, None
             elif cue.kind == "go" and spec is not None:
                 self.model.reset(spec.mode, spec.consensus_option)
                 self.behaviour.start(t, self.cfg.protocol.trial_timeout_s)
                 self.person.go(t)
-                self.tracker = OutcomeTracker(self.cfg.debounce, self.cfg.layout.commit)
+                self.tracker = OutcomeTracker(
+                    self.cfg.debounce,
+                    self.cfg.layout.commit,
+                    self.cfg.decision.observer.switch_dead_band,
+                )
                 self.t_go = t
             elif cue.kind == "end" and spec is not None:
                 self._judge(t, spec.index, spec.mode, spec.option)
@@ -94,6 +100,7 @@ class _Loop:
             OfflineTrial(
                 index, mode, option, j.human, j.robot, j.outcome, j.switches, j.violations,
                 j.score, t - self.t_go,
+                None if self.t_press is None else self.t_press - self.t_go,
             )
         )
 
@@ -107,6 +114,8 @@ class _Loop:
             center = (float(pts[:, 0].mean()), float(pts[:, 1].mean()))
             self.tracker.add(out.z_hat, center)
             self.human = self.cfg.layout.pressed(landmarks)
+            if self.human is not None:
+                self.t_press = t
         state = self.arm.state(t)
         if self.behaviour.phase != "idle":
             self.arm.send(self.behaviour.step(t, out.z_r, self.human, state.ee))

@@ -140,3 +140,19 @@ def test_dissensus_mode_keeps_bias_zero(seq):
 def test_params_validation(kwargs):
     with pytest.raises(ValueError):
         BiasParams(**kwargs)
+
+
+def test_the_default_margin_is_the_smallest_that_meets_the_requirement():
+    # services.analysis.bstar: with the default observer, Algorithm 2 and the sim arm, a
+    # participant who heads straight for O and presses 2.2 s after go finds the robot on O's
+    # side; 0.1 less and some run does not.
+    from services.analysis.bstar import agreement_time
+
+    margin = BiasParams().b_star_margin
+    runs = [agreement_time(margin, 1.9, o, seed=s) for o in ("red", "blue") for s in range(3)]
+    assert all(r.in_time for r in runs), runs
+    slower = [
+        agreement_time(margin - 0.1, 1.9, o, seed=s) for o in ("red", "blue") for s in range(3)
+    ]
+    assert not all(r.in_time for r in slower)
+    assert not agreement_time(0.0, 1.9, "red").in_time  # the paper's b* = u_r never agrees

@@ -1,4 +1,9 @@
-"""The decision engine: ZOH integration of eq 1 with eq 6, driven by poses (Algorithm 1)."""
+"""The decision engine: ZOH integration of eq 1 with eq 6, driven by poses (Algorithm 1).
+
+These tests pin the engine's timing (zero-order hold, timestamps, gaps), so they drive it with
+the paper's observer, which reads a pose's direction at once; the default observer's reading
+is tested in test_observer_robust.py and, through the engine, in test_decision_oracle.py.
+"""
 
 from __future__ import annotations
 
@@ -12,8 +17,10 @@ from services.model.bias import BiasParams
 from services.model.decision import DecisionModel, DecisionParams
 from services.model.dynamics import PairParams, rk4_step, robot_rate
 from services.model.geometry import Box, TableLayout
+from services.model.observer import ObserverParams
 
 NS = 1_000_000_000
+PAPER = DecisionParams(observer=ObserverParams(mode="paper"))
 
 
 def reach(model: DecisionModel, target, seconds: float, hz: float = 30.0, speed: float = 0.1):
@@ -31,7 +38,7 @@ def reach(model: DecisionModel, target, seconds: float, hz: float = 30.0, speed:
 
 @pytest.mark.parametrize("colour", ["red", "blue"])
 def test_unbiased_robot_opposes_the_human(colour):
-    model = DecisionModel()
+    model = DecisionModel(PAPER)
     model.reset("dissensus", None)
     outs = reach(model, model.layout.box(colour).corner, 2.0)
     last = outs[-1]
@@ -43,7 +50,7 @@ def test_unbiased_robot_opposes_the_human(colour):
 
 @pytest.mark.parametrize("colour", ["red", "blue"])
 def test_consensus_mode_follows_option(colour):
-    model = DecisionModel()
+    model = DecisionModel(PAPER)
     model.reset("consensus", colour)
     outs = reach(model, model.layout.box(colour).corner, 3.0)
     sign = 1 if colour == "red" else -1
@@ -54,7 +61,7 @@ def test_consensus_mode_follows_option(colour):
 
 
 def test_zero_order_hold_new_pose_affects_only_later_intervals():
-    model = DecisionModel()
+    model = DecisionModel(PAPER)
     model.reset("dissensus", None)
     model.on_hand(0, [(0.5, 0.8)])
     # The pose at t1 moves toward red, but over [0, t1] the held ẑ_h is the first frame's 0:
@@ -75,7 +82,7 @@ def test_zero_order_hold_new_pose_affects_only_later_intervals():
 
 @pytest.mark.parametrize("bad_t", [0, 5, 10])  # earlier, earlier, repeated
 def test_non_advancing_timestamps_do_not_integrate(bad_t):
-    model = DecisionModel()
+    model = DecisionModel(PAPER)
     model.reset("consensus", "red")
     model.on_hand(0, [(0.5, 0.8)])
     before = model.on_hand(10, [(0.55, 0.75)])
@@ -91,7 +98,7 @@ def test_non_advancing_timestamps_do_not_integrate(bad_t):
 
 def test_max_gap_bound_honoured():
     def primed():
-        m = DecisionModel()
+        m = DecisionModel(PAPER)
         m.reset("consensus", "blue")
         m.on_hand(0, [(0.5, 0.8)])
         m.on_hand(NS // 30, [(0.48, 0.78)])
@@ -108,8 +115,8 @@ def test_max_gap_bound_honoured():
 
 
 def test_step_size_does_not_change_the_trajectory_much():
-    coarse = DecisionModel(DecisionParams(dt=0.004))
-    fine = DecisionModel(DecisionParams(dt=0.0005))
+    coarse = DecisionModel(DecisionParams(dt=0.004, observer=PAPER.observer))
+    fine = DecisionModel(DecisionParams(dt=0.0005, observer=PAPER.observer))
     for m in (coarse, fine):
         m.reset("consensus", "red")
     a = reach(coarse, coarse.layout.red.corner, 2.0, hz=120)[-1]
@@ -119,7 +126,7 @@ def test_step_size_does_not_change_the_trajectory_much():
 
 
 def test_first_pose_sets_time_without_integrating():
-    model = DecisionModel()
+    model = DecisionModel(PAPER)
     model.reset("consensus", "red")
     out = model.on_hand(123, [(0.4, 0.4)])
     assert out.t_ns == 123 and model.t_ns == 123
@@ -127,7 +134,7 @@ def test_first_pose_sets_time_without_integrating():
 
 
 def test_no_hand_holds_z_hat_and_keeps_integrating():
-    model = DecisionModel()
+    model = DecisionModel(PAPER)
     model.reset("dissensus", None)
     model.on_hand(0, [(0.5, 0.8)])
     z_hat = model.on_hand(NS // 30, [(0.52, 0.78)]).z_hat
@@ -137,7 +144,7 @@ def test_no_hand_holds_z_hat_and_keeps_integrating():
 
 
 def test_reset_clears_state_and_validates():
-    model = DecisionModel()
+    model = DecisionModel(PAPER)
     model.reset("consensus", "red")
     reach(model, model.layout.red.corner, 1.0)
     model.reset("consensus", "blue")
@@ -153,7 +160,7 @@ def test_reset_clears_state_and_validates():
 
 def test_set_layout_mirrors_reading():
     flipped = TableLayout(red=Box(0.14, 0.12, 0.28, 0.26), blue=Box(0.72, 0.12, 0.86, 0.26))
-    model = DecisionModel()
+    model = DecisionModel(PAPER)
     model.reset("dissensus", None)
     model.on_hand(0, [(0.5, 0.8)])
     assert model.on_hand(NS // 30, [(0.52, 0.78)]).z_hat > 0  # up-right: red on the right
@@ -186,7 +193,7 @@ def test_params_validation():
     mode=st.sampled_from(["dissensus", "consensus"]),
 )
 def test_state_stays_finite_and_bounded(seq, mode):
-    model = DecisionModel()
+    model = DecisionModel(PAPER)
     model.reset(mode, "blue")
     t = 0
     last_t = None

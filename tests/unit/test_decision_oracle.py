@@ -17,7 +17,7 @@ from services.model.decision import DecisionModel
 
 NS = 1_000_000_000
 D, U, ALPHA, GAMMA = 10.0, 2.24, 0.05, -8.0  # SPEC §1
-SIGMA, K, B_STAR, B_MAX = 0.1, 16.0, 2.24 + 2.0, 6.0  # SPEC §3 with the documented margin
+SIGMA, K, B_STAR, B_MAX = 0.1, 16.0, 2.24 + 2.3, 6.0  # SPEC §3 with the derived margin
 
 
 def eq1(z_r: float, z_hat: float, b_r: float) -> float:

@@ -1,4 +1,4 @@
-"""Observed human opinion (eq 7, Algorithm 1, SPEC §2)."""
+"""Observed human opinion, the paper mode: eq 7 and Algorithm 1 as printed (SPEC §2)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from services.model.observer import (
 )
 
 LAYOUT = TableLayout()
-PARAMS = ObserverParams()
+PARAMS = ObserverParams(mode="paper")  # Algorithm 1 as printed: what these tests pin down
 
 
 def mirrored(layout: TableLayout) -> TableLayout:

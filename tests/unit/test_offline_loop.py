@@ -29,7 +29,9 @@ def test_dissensus_trials_end_in_dissensus(cohort):
 
 def test_consensus_trials_reach_consensus_on_the_option(cohort):
     later = [t for session in cohort for t in session[3:]]
-    assert sum(t.robot == t.option for t in later) / len(later) >= 0.9
+    # The robot ends on O unless a participant heading straight for O presses faster than the
+    # requirement b* was derived for (2.2 s after go; services/analysis/bstar.py).
+    assert sum(t.robot == t.option for t in later) / len(later) >= 0.8
     assert sum(t.outcome in ("C", "CH") for t in later) / len(later) >= 0.6
     # Trust grows with the gaze's strength: the last trial agrees at least as often as the 4th.
     c4 = sum(s[3].outcome == "C" for s in cohort)
