@@ -18,6 +18,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "actuation": ("services.actuation.service", "robot arm behaviour service (Algorithm 2)"),
     "eyes": ("services.eyes.service", "gaze / servo eyes service (Section 5)"),
     "sim": ("services.sim.service", "synthetic participant publishing hand poses"),
+    "cohort": ("services.sim.cohort", "a simulated cohort, offline on every core, as a study"),
+    "calibrate-cohort": ("services.sim.calibrate", "fit the sim participant to outcome shares"),
     "vision": ("services.vision.service", "camera capture and hand tracking"),
     "experiment": ("services.experiment.service", "conductor of the 8-trial protocol"),
     "estop": ("services.safety.estop", "publish (or release) an emergency stop"),

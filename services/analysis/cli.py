@@ -164,6 +164,39 @@ def _build_parser() -> Parser:
     p.add_argument("--json", action="store_true", help="print JSON")
 
     p = sub.add_parser(
+        "trial",
+        help="one trial as Figs 6-7: ẑ_h, z_r, b_r, θ, d and the hand's path",
+        description="Draw one stored trial: opinions, eq 7's θ and d, the hand's path over the "
+        "table with the arm's end effector (panels a-d).",
+    )
+    p.add_argument("--db", required=True, metavar="FILE", help="session database")
+    p.add_argument("--session", default=None, help="session id (default: the latest)")
+    p.add_argument("--trial", type=int, required=True, help="trial number")
+    p.add_argument("--out", required=True, metavar="DIR", help="where to write trial<K>.<fmt>")
+    p.add_argument(
+        "--format", default="png", help="png, pdf, svg, comma separated (default png)"
+    )
+    p.add_argument("--params", metavar="FILE.toml", help="the rig's parameters (its layout)")
+
+    p = sub.add_parser(
+        "power",
+        help="power of a study of N participants (Stuart–Maxwell), from a simulated cohort",
+        description="Simulate a population once (offline, --params: e.g. the calibrated "
+        "cohort), draw studies of N participants from it with replacement, analyse each as a "
+        "real study; power = share of draws where a test is significant, with Wilson 95% "
+        "intervals (the Monte-Carlo error).",
+    )
+    p.add_argument("--participants", default="20,40,60", help="study sizes, e.g. 20,40,60")
+    p.add_argument("--runs", type=int, default=100, help="drawn studies per size (100)")
+    p.add_argument("--population", type=int, default=400, help="simulated people (400)")
+    p.add_argument("--alpha", type=_positive, default=0.05, help="significance level (0.05)")
+    p.add_argument("--seed", type=int, default=1, help="seed of the population and the draws")
+    p.add_argument("--params", metavar="FILE.toml", help="cohort parameters (calibrated traits)")
+    p.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--out", metavar="DIR", help="write power.json and power.png (and .pdf)")
+
+    p = sub.add_parser(
         "study",
         help="the whole study: Fig 8 and the Sec 7-8 statistics",
         description="Every session of a database: per-trial outcome frequencies (Fig 8a), "
@@ -326,7 +359,99 @@ def _cmd_bstar(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_power(args: argparse.Namespace) -> int:
+    import os
+    import time
+
+    from services.analysis.power import TESTS, plot, population, power
+    from services.core.config import load_params
+
+    try:
+        sizes = [int(x) for x in args.participants.split(",") if x.strip()]
+    except ValueError:
+        raise UsageError(
+            f"--participants must be sizes like 20,40,60, got {args.participants!r}"
+        ) from None
+    if not sizes or min(sizes) < 2 or max(sizes) > 10_000:
+        raise UsageError("--participants: sizes between 2 and 10000")
+    if not (1 <= args.runs <= 100_000 and 10 <= args.population <= 1_000_000 and args.alpha < 1):
+        raise UsageError("--runs 1-100000, --population 10-1000000, --alpha in (0, 1)")
+    cfg = load_params(args.params)
+    t0 = time.monotonic()
+    pop = population(cfg, args.population, args.seed, args.workers or os.cpu_count() or 1)
+    results = power(pop, sizes, args.runs, args.alpha, args.seed)
+    doc = {
+        "method": "one simulated population, studies drawn with replacement",
+        "population": args.population,
+        "alpha": args.alpha,
+        "params": args.params,
+        "seconds": round(time.monotonic() - t0, 1),
+        "results": results,
+    }
+    if args.out:
+        out = Path(args.out)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "power.json").write_text(json.dumps(doc, indent=2) + "\n")
+            plot(doc, str(out / "power.png"))
+            plot(doc, str(out / "power.pdf"))
+        except OSError as exc:
+            raise UsageError(f"cannot write to --out {args.out!r}: {exc}") from None
+    if args.json:
+        print(json.dumps(doc, indent=2))
+        return 0
+    print(f"power at α = {args.alpha} ({args.runs} drawn studies per size from "
+          f"{args.population} simulated people, {doc['seconds']} s):")
+    print("  N   " + "  ".join(f"{t.replace('trial_', ''):>22}" for t in TESTS))
+    for r in results:
+        cells = [
+            f"{r['power'][t]:.2f} [{r['ci95'][t][0]:.2f}-{r['ci95'][t][1]:.2f}]" for t in TESTS
+        ]
+        print(f"  {r['participants']:<4}" + "  ".join(f"{c:>22}" for c in cells))
+    return 0
+
+
+def _cmd_trial(args: argparse.Namespace) -> int:
+    from services.analysis.trial_plot import FORMATS, figure
+    from services.core.config import load_params
+    from services.store import Store
+
+    formats = [f for f in args.format.split(",") if f]
+    if not formats or any(f not in FORMATS for f in formats):
+        raise UsageError(f"--format takes {', '.join(FORMATS)}, got {args.format!r}")
+    db = Path(args.db)
+    if not db.is_file():
+        raise UsageError(f"--db: no such database {args.db!r}")
+    store = Store(db)
+    try:
+        trials = store.trials(args.session)
+        if not trials:
+            raise UsageError(f"no trials for session {args.session or '(latest)'}")
+        session = trials[0][0]
+        match = [t for _, t in trials if t.trial == args.trial]
+        if not match:
+            raise UsageError(f"session {session} has no trial {args.trial}")
+        samples = store.samples(session, args.trial)
+    finally:
+        store.close()
+    rec = match[0]
+    option = f", O={rec.option}" if rec.option else ""
+    title = (
+        f"session {session}, trial {rec.trial} ({rec.mode}{option}): human {rec.human or '-'}, "
+        f"robot {rec.robot or '-'}, outcome {rec.outcome or '-'}"
+    )
+    layout = load_params(args.params).layout
+    try:
+        paths = figure(samples, rec, layout, title, Path(args.out), formats)
+    except OSError as exc:
+        raise UsageError(f"cannot write to --out {args.out!r}: {exc}") from None
+    print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
 _COMMANDS = {
+    "trial": _cmd_trial,
+    "power": _cmd_power,
     "bstar": _cmd_bstar,
     "thresholds": _cmd_thresholds,
     "sweep": _cmd_sweep,

@@ -83,8 +83,9 @@ _TOPICS = (
         "a rendered camera frame: `jpeg`, `width`, `height`, `hand_seq`, `detected`",
     ),
     Topic(
-        "decision/z_h", m.Scalar, ("decision",), ("experiment",), "per pose", STREAM,
-        "`value` ẑ_h, `src_seq` (the pose's seq)",
+        "decision/z_h", m.Observed, ("decision",), ("experiment",), "per pose", STREAM,
+        "`value` ẑ_h, `src_seq` (the pose's seq), `theta` θ and `distance` d of eq 7 when "
+        "this pose set ẑ_h (else nil)",
     ),
     Topic(
         "decision/z_r", m.Scalar, ("decision",), ("actuation", "experiment"), "per pose", STREAM,

@@ -151,6 +151,14 @@ class Scalar(Message, frozen=True, kw_only=True):
     src_seq: Counter = 0
 
 
+class Observed(Scalar, frozen=True, kw_only=True):
+    """ẑ_h with what it was read from: θ (rad) and d (normalised) when this pose set it."""
+
+    KIND: ClassVar[str] = "observed"
+    theta: Annotated[float, msgspec.Meta(ge=0.0, le=math.pi)] | None = None
+    distance: Annotated[float, msgspec.Meta(ge=0.0, le=5.0)] | None = None
+
+
 # --- actuation --------------------------------------------------------------------------------
 
 ArmAction = Literal["idle", "stop", "move", "press"]

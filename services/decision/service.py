@@ -65,7 +65,11 @@ class DecisionService:
         # Publish with the pose's timestamp: the values describe the state at that instant.
         # z_r first: it is what the arm waits for.
         self.pub_zr.put(t_ns=pose.t_ns, value=out.z_r, src_seq=pose.seq)
-        self.pub_zh.put(t_ns=pose.t_ns, value=out.z_hat, src_seq=pose.seq)
+        obs = out.observation
+        self.pub_zh.put(
+            t_ns=pose.t_ns, value=out.z_hat, src_seq=pose.seq, theta=obs.theta,
+            distance=obs.distance,
+        )
         self.pub_br.put(t_ns=pose.t_ns, value=out.b_r, src_seq=pose.seq)
 
     def on_layout(self, msg: m.Layout) -> None:

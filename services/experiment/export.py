@@ -43,7 +43,7 @@ QUERIES: dict[str, str] = {
     ),
     "samples": (
         "SELECT m.session, s.participant, m.trial, m.t_ns, m.detected, m.hand_x, m.hand_y, "
-        "m.z_h, m.z_r, m.b_r, m.ee_x, m.ee_y FROM samples m "
+        "m.z_h, m.z_r, m.b_r, m.ee_x, m.ee_y, m.theta, m.distance FROM samples m "
         "LEFT JOIN sessions s ON s.session = m.session "
         "ORDER BY s.started_ns, m.session, m.trial, m.t_ns"
     ),

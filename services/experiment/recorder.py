@@ -22,7 +22,7 @@ class _Row:
     t_ns: int
     detected: bool
     hand: tuple[float, float] | None
-    values: dict[str, float] = field(default_factory=dict)
+    values: dict[str, float | None] = field(default_factory=dict)
     ee: tuple[float, float] | None = None
 
 
@@ -57,6 +57,9 @@ class TrialRecorder:
                 return  # its pose was never seen (dropped): nothing to join it with
             row = self._rows.setdefault(msg.src_seq, _Row(pose.t_ns, pose.detected, pose.center))
         row.values[name] = msg.value
+        if name == "z_h":
+            row.values["theta"] = getattr(msg, "theta", None)
+            row.values["distance"] = getattr(msg, "distance", None)
         if name == "z_h" and (self.t_press_ns is None or msg.t_ns <= self.t_press_ns):
             self.tracker.add(msg.value, row.hand)
 
@@ -87,6 +90,8 @@ class TrialRecorder:
                     r.values.get("b_r"),
                     ex,
                     ey,
+                    r.values.get("theta"),
+                    r.values.get("distance"),
                 )
             )
         return out

@@ -44,18 +44,29 @@ class ParticipantParams:
     speed: float = 0.32  # peak hand speed, normalised image units per second
     accel: float = 3.0  # hand acceleration limit (units/s²)
     full_conviction: float = 0.40  # |z_h| at which the hand moves at full speed
+    # Speed (as a share of `speed`) below which nobody hesitates: a torn person still moves,
+    # slowly (without it, a preference and a gaze pull that cancel froze hands until timeout).
+    min_conviction: float = 0.25
     max_switches: int = 1  # the rules allow one change of path
+    # Probability that a person allows themselves that change in a control (dissensus) trial;
+    # the paper saw almost no hesitation there (no DH, ~1% CH in trials 1-3).
+    control_switch_prob: float = 1.0
     rule_breaking: float = 0.05  # probability per trial of ignoring the commit-line rule
     hand_radius: float = 0.03  # landmark spread around the centre
-    landmark_noise: float = 0.002  # per-landmark Gaussian noise (sd)
+    # Tracker jitter (sd, normalised units; 1 px = 1/640 in x, 1/480 in y). A tracker's error is
+    # mostly common to the whole hand (it shifts the fitted hand) plus a little per landmark;
+    # measured on the aruco tracker, see docs/observer.md.
+    common_noise: float = 0.003  # the whole hand, frame to frame (≈ 2 px at 640×480)
+    landmark_noise: float = 0.001  # each landmark on top (≈ 0.6 px)
     start: Point = (0.5, 0.85)  # rest position of the hand, participant's side of the table
 
     def __post_init__(self) -> None:
         for name in ("speed", "accel", "full_conviction", "hand_radius"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ParticipantParams.{name} must be > 0")
-        if not 0 <= self.rule_breaking <= 1:
-            raise ValueError("ParticipantParams.rule_breaking must be in [0, 1]")
+        for name in ("rule_breaking", "control_switch_prob", "min_conviction"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"ParticipantParams.{name} must be in [0, 1]")
 
 
 class Participant:
@@ -66,8 +77,10 @@ class Participant:
         self.layout = layout
         self.rng = np.random.default_rng(seed)
         self.trust = params.trust0
-        self.pos = np.array(params.start, dtype=float)
-        self.vel = np.zeros(2)
+        self._x, self._y = params.start
+        self._vx = self._vy = 0.0
+        # How far a landmark sticks out of the hand's centre: nearer a box than this, test it.
+        self._reach = float(np.abs(HAND_TEMPLATE).max()) * params.hand_radius
         self.z_h = 0.0
         self.b_h = 0.0
         self.t_go: float | None = None
@@ -82,6 +95,7 @@ class Participant:
         self._gaze_sign = 0
         self._gaze_pull = 0.0
         self._last_seen = 0.0
+        self._max_switches = params.max_switches
 
     # -- protocol events -------------------------------------------------------------------
 
@@ -95,13 +109,15 @@ class Participant:
         self._preference *= 1 if self.rng.random() < 0.5 else -1
         self.b_h = self._preference
         self.z_h = 0.0
-        self.pos = np.array(self.p.start, dtype=float)
-        self.vel = np.zeros(2)
+        self._x, self._y = self.p.start
+        self._vx = self._vy = 0.0
         self.t_go = None
         self.pressed = None
         self.switches = 0
         self._heading = None
         self._obeys_commit = self.rng.random() >= self.p.rule_breaking
+        allowed = option is not None or self.rng.random() < self.p.control_switch_prob
+        self._max_switches = self.p.max_switches if allowed else 0
         self._robot_seen.clear()
         self._last_seen = 0.0
 
@@ -156,8 +172,8 @@ class Participant:
             return
         r_hat = self._robot_perceived()
         committed = self._heading is not None and (
-            self.switches >= self.p.max_switches
-            or (self._obeys_commit and self.layout.commit.crossed(tuple(self.pos)))
+            self.switches >= self._max_switches
+            or (self._obeys_commit and self.layout.commit.crossed((self._x, self._y)))
         )
 
         def f(z: float) -> float:  # eq 2 with the robot's perceived heading r̂ as z_r, a_hr = 1
@@ -173,29 +189,55 @@ class Participant:
         elif wanted != self._heading and not committed:
             self._heading = wanted
             self.switches += 1
-        target = np.array(self.layout.box(self._heading).center)
-        to_target = target - self.pos
-        dist = float(np.hypot(*to_target))
-        conviction = min(1.0, abs(self.z_h) / self.p.full_conviction)
+        # Plain floats: this runs every 2 ms of simulated time (NumPy's per-call cost dominated).
+        tx, ty = self.layout.box(self._heading).center
+        px, py = self._x, self._y
+        dx, dy = tx - px, ty - py
+        dist = math.hypot(dx, dy)
+        conviction = min(1.0, max(self.p.min_conviction, abs(self.z_h) / self.p.full_conviction))
         if committed:
             conviction = 1.0  # a committed hand goes straight on
-        v_des = to_target / max(dist, 1e-9) * self.p.speed * conviction
-        dv = v_des - self.vel
-        dv_norm = float(np.hypot(*dv))
+        gain = self.p.speed * conviction / max(dist, 1e-9)
+        ax, ay = dx * gain - self._vx, dy * gain - self._vy
+        dv = math.hypot(ax, ay)
         max_dv = self.p.accel * h
-        if dv_norm > max_dv:
-            dv *= max_dv / dv_norm
-        self.vel = self.vel + dv
-        self.pos = self.pos + self.vel * h
-        self.pressed = self.layout.pressed([tuple(q) for q in self.landmarks(noise=False)])
+        if dv > max_dv:
+            ax, ay = ax * max_dv / dv, ay * max_dv / dv
+        self._vx, self._vy = self._vx + ax, self._vy + ay
+        self._x, self._y = px + self._vx * h, py + self._vy * h
+        self.pressed = self._press_test()
+
+    def _press_test(self) -> Colour | None:
+        """A landmark of the (noise-free) hand inside a buzzer box; cheap when far from both."""
+        reach = self._reach
+        for colour in ("red", "blue"):
+            box = self.layout.box(colour)
+            if (
+                box.x1 - reach <= self._x <= box.x2 + reach
+                and box.y1 - reach <= self._y <= box.y2 + reach
+            ):
+                pts = [(float(x), float(y)) for x, y in self.landmarks(noise=False)]
+                return self.layout.pressed(pts)
+        return None
+
+    @property
+    def pos(self) -> np.ndarray:
+        """The hand centre (x, y)."""
+        return np.array((self._x, self._y))
+
+    @property
+    def vel(self) -> np.ndarray:
+        """The hand's velocity (units/s)."""
+        return np.array((self._vx, self._vy))
 
     # -- what the camera sees ---------------------------------------------------------------
 
     def landmarks(self, noise: bool = True) -> np.ndarray:
         """21 landmarks (x, y) around the hand centre, with camera noise when asked."""
-        pts = self.pos + HAND_TEMPLATE * self.p.hand_radius
+        pts = np.array((self._x, self._y)) + HAND_TEMPLATE * self.p.hand_radius
         if noise:
-            pts = pts + self.rng.normal(0.0, self.p.landmark_noise, pts.shape)
+            common = self.rng.normal(0.0, self.p.common_noise, 2)
+            pts = pts + common + self.rng.normal(0.0, self.p.landmark_noise, pts.shape)
         return np.clip(pts, 0.0, 1.0)
 
 

@@ -7,7 +7,7 @@ short rest → the next trial.
 `SessionProtocol` is that sequence as a state machine over time and two observations (did the
 human press, did the robot press). It returns `Cue`s — what the conductor must do now — and
 knows nothing of the fabric: the live conductor (`nod experiment`) and the offline closed loop
-(`services.sim.offline`) drive the same machine. Times are seconds (float) from any monotonic
+(`services.model.closed_loop`) drive the same machine. Times are seconds (float) from any monotonic
 origin, always passed in.
 """
 

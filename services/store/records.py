@@ -42,6 +42,8 @@ class Sample:
     b_r: float | None
     ee_x: float | None
     ee_y: float | None
+    theta: float | None = None  # eq 7's θ (rad) when this pose set ẑ_h
+    distance: float | None = None  # eq 7's d when this pose set ẑ_h
 
 
 @dataclass(frozen=True, slots=True)

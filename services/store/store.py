@@ -87,7 +87,9 @@ CREATE TABLE IF NOT EXISTS samples (
     z_r      REAL,
     b_r      REAL,
     ee_x     REAL,
-    ee_y     REAL
+    ee_y     REAL,
+    theta    REAL,
+    distance REAL
 );
 CREATE INDEX IF NOT EXISTS samples_by_trial ON samples (session, trial, t_ns);
 CREATE TABLE IF NOT EXISTS questionnaires (
@@ -132,13 +134,15 @@ class Store:
 
     def _migrate(self) -> None:
         """Bring a file written by an older version up to this schema (columns added at the end)."""
-        have = {row[1] for row in self.db.execute("PRAGMA table_info(trials)")}
-        for column, decl in (
-            ("interrupted", "INTEGER NOT NULL DEFAULT 0"),
-            ("attempts", "INTEGER NOT NULL DEFAULT 1"),
+        for table, column, decl in (
+            ("trials", "interrupted", "INTEGER NOT NULL DEFAULT 0"),
+            ("trials", "attempts", "INTEGER NOT NULL DEFAULT 1"),
+            ("samples", "theta", "REAL"),
+            ("samples", "distance", "REAL"),
         ):
+            have = {row[1] for row in self.db.execute(f"PRAGMA table_info({table})")}
             if column not in have:
-                self.db.execute(f"ALTER TABLE trials ADD COLUMN {column} {decl}")
+                self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
 
     def close(self) -> None:
         """Close the database (checkpointing the WAL)."""
@@ -221,7 +225,7 @@ class Store:
                 "DELETE FROM samples WHERE session = ? AND trial = ?", (session, rec.trial)
             )
             self.db.executemany(
-                "INSERT INTO samples VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "INSERT INTO samples VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 [
                     (
                         session,
@@ -235,6 +239,8 @@ class Store:
                         s.b_r,
                         s.ee_x,
                         s.ee_y,
+                        s.theta,
+                        s.distance,
                     )
                     for s in samples
                 ],
@@ -354,7 +360,8 @@ class Store:
     def samples(self, session: str, trial: int) -> Sequence[Sample]:
         """A trial's samples in time order."""
         cur = self.db.execute(
-            "SELECT t_ns, detected, hand_x, hand_y, z_h, z_r, b_r, ee_x, ee_y FROM samples "
+            "SELECT t_ns, detected, hand_x, hand_y, z_h, z_r, b_r, ee_x, ee_y, theta, distance "
+            "FROM samples "
             "WHERE session = ? AND trial = ? ORDER BY t_ns",
             (session, trial),
         )

@@ -4,8 +4,8 @@ from collections import Counter
 
 import pytest
 
+from services.model.closed_loop import run_offline_session
 from services.model.params import NodConfig
-from services.sim.offline import run_offline_session
 
 
 @pytest.fixture(scope="module")

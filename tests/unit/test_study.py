@@ -26,8 +26,8 @@ from services.analysis.study import (
     phase_category,
     q3_test,
 )
+from services.model.closed_loop import OfflineTrial, run_offline_session
 from services.model.params import NodConfig
-from services.sim.offline import OfflineTrial, run_offline_session
 from services.store import QuestionnaireRecord, Sample, Store, TrialRecord
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,4 +1,4 @@
-"""The closed loop in one process, without Zenoh: for tuning, tests, cohorts and what-ifs.
+"""The closed loop in one process, without Zenoh: for cohorts, power analysis, tuning and tests.
 
 It drives the same `SessionProtocol` as the conductor and reacts to its cues the way the
 services do on the fabric — decision and actuation reset at "setup", start at "go"; the
@@ -12,6 +12,7 @@ differs.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -23,6 +24,21 @@ from services.model.outcome import OutcomeTracker, judge_trial
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered
 from services.model.protocol import Cue, SessionProtocol
+
+
+class LoopSample(NamedTuple):
+    """One camera frame of a simulated trial: the hand, the decision's outputs, the arm."""
+
+    t_ns: int
+    hand_x: float
+    hand_y: float
+    z_h: float
+    z_r: float
+    b_r: float
+    ee_x: float
+    ee_y: float
+    theta: float | None  # eq 7's θ when this frame set ẑ_h
+    distance: float | None  # eq 7's d when this frame set ẑ_h
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,12 +56,15 @@ class OfflineTrial:
     score: int
     duration_s: float  # from "go" to the end of the trial
     press_s: float | None = None  # from "go" to the human's press (None: never pressed)
+    samples: tuple[LoopSample, ...] = ()  # every frame from "go" to the end (when recorded)
 
 
 class _Loop:
     """One participant's session: the protocol's cues dispatched to the loop's parts."""
 
-    def __init__(self, cfg: NodConfig, seed: int, cohort: bool, clicks: int | None) -> None:
+    def __init__(
+        self, cfg: NodConfig, seed: int, cohort: bool, clicks: int | None, record: bool = False
+    ) -> None:
         rng = np.random.default_rng(seed)
         params = jittered(cfg.participant, rng) if cohort else cfg.participant
         self.cfg = cfg
@@ -61,6 +80,8 @@ class _Loop:
         self.robot: Colour | None = None
         self.t_go = 0.0
         self.t_press: float | None = None
+        self.record = record
+        self.samples: list[LoopSample] = []
         self.results: list[OfflineTrial] = []
 
     def on_cues(self, t: float, cues: list[Cue]) -> None:
@@ -76,6 +97,7 @@ class _Loop:
                 self.arm.home()
                 self.person.new_trial(spec.option)
                 self.tracker, self.human, self.robot, self.t_press = None, None, None, None
+                self.samples = []
             elif cue.kind == "go" and spec is not None:
                 self.model.reset(spec.mode, spec.consensus_option)
                 self.behaviour.start(t, self.cfg.protocol.trial_timeout_s)
@@ -101,6 +123,7 @@ class _Loop:
                 index, mode, option, j.human, j.robot, j.outcome, j.switches, j.violations,
                 j.score, t - self.t_go,
                 None if self.t_press is None else self.t_press - self.t_go,
+                tuple(self.samples),
             )
         )
 
@@ -122,16 +145,29 @@ class _Loop:
             state = self.arm.state(t)
         heading = colour_sign(state.target) if state.target and state.moving else 0
         self.person.see_robot(t, heading)
+        if self.record and self.tracker is not None:
+            cx, cy = float(pts[:, 0].mean()), float(pts[:, 1].mean())
+            self.samples.append(
+                LoopSample(
+                    round(t * 1e9), cx, cy, out.z_hat, out.z_r, out.b_r, *state.ee,
+                    out.observation.theta, out.observation.distance,
+                )
+            )
         if state.pressed is not None and self.robot is None and self.behaviour.t_go is not None:
             self.behaviour.complete()
             self.robot = state.pressed
 
 
 def run_offline_session(
-    cfg: NodConfig, seed: int, rate_hz: float = 30.0, cohort: bool = False, clicks: int = 10
+    cfg: NodConfig,
+    seed: int,
+    rate_hz: float = 30.0,
+    cohort: bool = False,
+    clicks: int = 10,
+    record: bool = False,
 ) -> list[OfflineTrial]:
-    """Simulate one participant's whole session; return each trial's outcome."""
-    loop = _Loop(cfg, seed, cohort, clicks)
+    """Simulate one participant's whole session; return each trial's outcome (and samples)."""
+    loop = _Loop(cfg, seed, cohort, clicks, record)
     dt = 1.0 / rate_hz
     t = 0.0
     loop.on_cues(t, loop.protocol.start(t))

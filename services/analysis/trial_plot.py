@@ -1,0 +1,88 @@
+"""One trial as the paper's Figs 6–7 show it: the opinions, eq 7's θ and d, and the hand's path.
+
+Panels: (a) ẑ_h, z_r and b_r against time from "go"; (b) θ; (c) d; (d) the hand's path over the
+table — the buzzer boxes, the commit line, where the human pressed — with the arm's end effector.
+Read from the session store (`nod analyze trial --db F --session S --trial K --out DIR`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from services.model.geometry import TableLayout
+from services.store import Sample, TrialRecord
+
+FORMATS = ("png", "pdf", "svg")
+
+
+def figure(
+    samples: Sequence[Sample],
+    trial: TrialRecord,
+    layout: TableLayout,
+    title: str,
+    out: Path,
+    formats: Sequence[str] = ("png",),
+) -> list[Path]:
+    """Draw the four panels; write one file per format; return their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    if not samples:
+        raise ValueError(f"trial {trial.trial} has no stored samples to draw")
+    t0 = trial.t_go_ns if trial.t_go_ns is not None else samples[0].t_ns
+    t = [(s.t_ns - t0) * 1e-9 for s in samples]
+    fig = plt.figure(figsize=(10, 6.5))
+    grid = fig.add_gridspec(3, 2, width_ratios=(1.5, 1))
+    ax_z = fig.add_subplot(grid[0, 0])
+    ax_th = fig.add_subplot(grid[1, 0], sharex=ax_z)
+    ax_d = fig.add_subplot(grid[2, 0], sharex=ax_z)
+    ax_path = fig.add_subplot(grid[:, 1])
+    for key, label, colour in (
+        ("z_h", "ẑ_h (observed human)", "tab:orange"),
+        ("z_r", "z_r (robot)", "tab:blue"),
+        ("b_r", "b_r (robot bias)", "tab:green"),
+    ):
+        ax_z.plot(t, [getattr(s, key) for s in samples], label=label, color=colour, lw=1.2)
+    ax_z.axhline(0, color="grey", lw=0.6)
+    ax_z.set_ylabel("opinion (> 0 red)")
+    ax_z.legend(fontsize=7, loc="upper left")
+    ax_th.plot(t, [s.theta for s in samples], ".", ms=3, color="tab:purple")
+    ax_th.set_ylabel("θ (rad)")
+    ax_d.plot(t, [s.distance for s in samples], ".", ms=3, color="tab:brown")
+    ax_d.set_ylabel("d")
+    ax_d.set_xlabel("time from go (s)")
+    for name, colour in (("red", "tab:red"), ("blue", "tab:blue")):
+        box = layout.box(name)  # type: ignore[arg-type]
+        ax_path.add_patch(
+            Rectangle((box.x1, box.y1), box.x2 - box.x1, box.y2 - box.y1, color=colour, alpha=0.35)
+        )
+    ax_path.axhline(layout.commit.y, color="grey", ls="--", lw=0.8, label="commit line")
+    hx = [s.hand_x for s in samples if s.hand_x is not None]
+    hy = [s.hand_y for s in samples if s.hand_y is not None]
+    ax_path.plot(hx, hy, color="tab:orange", lw=1.2, label="hand")
+    if hx:
+        ax_path.plot(hx[-1], hy[-1], "o", color="tab:orange", ms=5)
+    ex = [s.ee_x for s in samples if s.ee_x is not None]
+    ey = [s.ee_y for s in samples if s.ee_y is not None]
+    ax_path.plot(ex, ey, color="black", lw=1.0, label="arm")
+    ax_path.set_xlim(0, 1)
+    ax_path.set_ylim(1, 0)  # image coordinates: y down
+    ax_path.set_aspect("equal")
+    ax_path.legend(fontsize=7, loc="lower right")
+    ax_path.set_title("table (camera view)", fontsize=9)
+    for ax, letter in zip((ax_z, ax_th, ax_d, ax_path), "abcd", strict=True):
+        ax.text(-0.12, 1.02, f"({letter})", transform=ax.transAxes, fontweight="bold")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for fmt in formats:
+        path = out / f"trial{trial.trial}.{fmt}"
+        fig.savefig(path, dpi=150)
+        paths.append(path)
+    plt.close(fig)
+    return paths
