@@ -42,6 +42,15 @@ def _positive(text: str) -> float:
     return value
 
 
+def _formats(text: str) -> tuple[str, ...]:
+    from services.analysis.figures import parse_formats
+
+    try:
+        return parse_formats(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _grid_size(text: str) -> int:
     try:
         value = int(text)
@@ -126,6 +135,17 @@ def _build_parser() -> Parser:
     p.add_argument("--png", metavar="FILE.png", help="draw the nullclines Δ1 = 0, Δ2 = 0")
 
     p = sub.add_parser(
+        "nullclines",
+        parents=[cfg],
+        help="Fig 3b: the nullclines at b = ±(u + 1) side by side",
+        description="Fig 3b in one figure: Δ1 = 0 and Δ2 = 0 (eqs 4-5) with every equilibrium "
+        "at b_r = b_h = +(u_r + OFFSET) (panel a) and −(u_r + OFFSET) (panel b). The file's "
+        "suffix picks the format (.png, .pdf, .svg).",
+    )
+    p.add_argument("--offset", type=_finite, default=1.0, help="bias beyond u_r (1, as Fig 3b)")
+    p.add_argument("--out", required=True, metavar="FILE", help="figure to write (.png/.pdf/.svg)")
+
+    p = sub.add_parser(
         "square-claim",
         parents=[cfg],
         help="check the Sec 4.4.1 square claim",
@@ -174,7 +194,8 @@ def _build_parser() -> Parser:
     p.add_argument("--trial", type=int, required=True, help="trial number")
     p.add_argument("--out", required=True, metavar="DIR", help="where to write trial<K>.<fmt>")
     p.add_argument(
-        "--format", default="png", help="png, pdf, svg, comma separated (default png)"
+        "--format", type=_formats, default=("png",), metavar="FMT",
+        help="png, pdf, svg, comma separated (default png)",
     )
     p.add_argument("--params", metavar="FILE.toml", help="the rig's parameters (its layout)")
 
@@ -208,7 +229,11 @@ def _build_parser() -> Parser:
     p.add_argument("--db", required=True, metavar="FILE", help="session database (nod run)")
     p.add_argument("--json", action="store_true", help="print every number as JSON")
     p.add_argument(
-        "--out", metavar="DIR", help="write Figs 8a-8d (PNG), report.md and study.json here"
+        "--out", metavar="DIR", help="write Figs 8a-8d, report.md and study.json here"
+    )
+    p.add_argument(
+        "--format", type=_formats, default=("png",), metavar="FMT",
+        help="figure formats for --out: png, pdf, svg, comma separated (default png)",
     )
     return parser
 
@@ -251,6 +276,25 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         f"consensus {result.consensus.mean():.2%}, converged {result.converged.mean():.2%}, "
         f"method {result.method}, compute {elapsed:.3f} s"
     )
+    return 0
+
+
+def _cmd_nullclines(args: argparse.Namespace) -> int:
+    from services.analysis.figures import FORMATS
+    from services.analysis.plots import plot_nullcline_pair
+
+    suffix = Path(args.out).suffix.lower().lstrip(".")
+    if suffix not in FORMATS:
+        raise UsageError(f"--out must end in .{', .'.join(FORMATS)}, got {args.out!r}")
+    p = load_params(args.config)
+    try:
+        panels = plot_nullcline_pair(p, args.offset, args.out)
+    except OSError as exc:
+        raise UsageError(f"cannot write {args.out}: {exc}") from None
+    for letter, eqs in zip("ab", panels, strict=True):
+        kinds = ", ".join(f"{e.stability} ({e.z_r:+.3f}, {e.z_h:+.3f})" for e in eqs)
+        print(f"({letter}) {len(eqs)} equilibria: {kinds}")
+    print(f"wrote {args.out}")
     return 0
 
 
@@ -319,7 +363,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
     if args.out:
         out = Path(args.out)
         try:
-            figures = write_figures(doc, out)
+            figures = write_figures(doc, out, args.format)
             (out / "study.json").write_text(json.dumps(doc, indent=2) + "\n")
             (out / "report.md").write_text(markdown(doc, figures))
         except OSError as exc:
@@ -329,7 +373,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     else:
         print(summary(doc))
         if args.out:
-            print(f"wrote {Path(args.out) / 'report.md'}, study.json and 4 figures")
+            kinds = "/".join(args.format)
+            print(f"wrote {Path(args.out) / 'report.md'}, study.json and 4 figures ({kinds})")
     return 0
 
 
@@ -412,13 +457,11 @@ def _cmd_power(args: argparse.Namespace) -> int:
 
 
 def _cmd_trial(args: argparse.Namespace) -> int:
-    from services.analysis.trial_plot import FORMATS, figure
+    from services.analysis.trial_plot import figure
     from services.core.config import load_params
     from services.store import Store
 
-    formats = [f for f in args.format.split(",") if f]
-    if not formats or any(f not in FORMATS for f in formats):
-        raise UsageError(f"--format takes {', '.join(FORMATS)}, got {args.format!r}")
+    formats = args.format
     db = Path(args.db)
     if not db.is_file():
         raise UsageError(f"--db: no such database {args.db!r}")
@@ -456,6 +499,7 @@ _COMMANDS = {
     "thresholds": _cmd_thresholds,
     "sweep": _cmd_sweep,
     "equilibria": _cmd_equilibria,
+    "nullclines": _cmd_nullclines,
     "square-claim": _cmd_square_claim,
     "stuart-maxwell": _cmd_stuart_maxwell,
     "study": _cmd_study,

@@ -113,11 +113,9 @@ def power(
 
 def plot(doc: dict[str, Any], path: str) -> None:
     """Power against N for every test, with the Monte-Carlo intervals."""
-    import matplotlib
+    from services.analysis.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     sizes = [r["participants"] for r in doc["results"]]
     for test in TESTS:

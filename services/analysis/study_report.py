@@ -1,4 +1,4 @@
-"""Figures 8a-8d as PNG files and a Markdown report of the study analysis (Secs 7-8).
+"""Figures 8a-8d (PNG, PDF or SVG) and a Markdown report of the study analysis (Secs 7-8).
 
 Everything here draws or formats the JSON document of services.analysis.study.analyze_study;
 no number is computed twice. matplotlib is imported lazily with the Agg backend.
@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from services.analysis.figures import FORMATS, pyplot
 from services.analysis.study import CONTROL_TRIALS, LIKERT_KEYS, OUTCOMES
 
 COLOURS: Mapping[str, str] = {
@@ -27,25 +28,21 @@ TITLES: Mapping[str, str] = {
     "8d": "Contingency table",
 }
 FIGURES: Mapping[str, str] = {
-    "8a": "fig8a_frequencies.png",
-    "8b": "fig8b_flows.png",
-    "8c": "fig8c_grid.png",
-    "8d": "fig8d_contingency.png",
+    "8a": "fig8a_frequencies",
+    "8b": "fig8b_flows",
+    "8c": "fig8c_grid",
+    "8d": "fig8d_contingency",
 }
 
 
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+def _title(ax: Any, key: str) -> None:
+    """The panel letter (a-d, as Fig 8 of the paper) and the panel's title."""
+    ax.set_title(f"({key[-1]}) {TITLES[key]}", loc="left", fontsize=10)
 
 
 def plot_frequencies(doc: Mapping[str, Any], path: Path) -> None:
     """Fig 8a: per trial, the share of participants with each outcome (grouped bars)."""
-    plt = _pyplot()
+    plt = pyplot()
     freq, n = doc["frequencies"], doc["participants"]
     keys = list(OUTCOMES) + (["none"] if any(r["none"] for r in freq.values()) else [])
     fig, ax = plt.subplots(figsize=(8.0, 3.8), dpi=120)
@@ -61,7 +58,7 @@ def plot_frequencies(doc: Mapping[str, Any], path: Path) -> None:
     ax.set_ylabel(f"% of {n} participants")
     ax.set_ylim(0, 115)
     ax.set_yticks(range(0, 101, 20))
-    ax.set_title("Outcome frequency per trial")
+    _title(ax, "8a")
     ax.legend(ncol=len(keys), fontsize=8, loc="upper center")
     fig.tight_layout()
     fig.savefig(path)
@@ -80,7 +77,7 @@ def _stack(totals: list[int], gap: float) -> dict[int, float]:
 
 def plot_flows(doc: Mapping[str, Any], path: Path) -> None:
     """Fig 8b: an alluvial plot of control → experiment categories drawn with patches."""
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.patches import PathPatch, Rectangle
     from matplotlib.path import Path as MPath
 
@@ -139,41 +136,40 @@ def plot_flows(doc: Mapping[str, Any], path: Path) -> None:
     ax.axis("off")
     ax.text(x0 + w / 2, height, "control (trials 1-3)", ha="center", va="top", fontsize=9)
     ax.text(x1 - w / 2, height, "experiment (4-8)", ha="center", va="top", fontsize=9)
-    ax.set_title("Participant flow between phase categories")
+    _title(ax, "8b")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
 
 
 def plot_grid(doc: Mapping[str, Any], path: Path) -> None:
-    """Fig 8c: each participant's outcome per trial; green as designed, red unexpected.
+    """Fig 8c: each participant's outcome per trial, coloured by outcome (as Figs 8a-8b).
 
-    As designed means disagreement (D, DH) in the control trials and agreement (C, CH) in the
-    experiment trials; grey marks a timeout or a missing trial.
+    A cell that is not as designed (agreement in a control trial, disagreement in an
+    experiment trial) gets a black frame; grey marks a timeout or a missing trial.
     """
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Rectangle
 
     grid = doc["grid"]
     names = list(grid)
-    code = []
-    for name in names:
-        row = []
-        for trial, o in zip(doc["trials"], grid[name], strict=True):
-            expected = ("D", "DH") if trial in CONTROL_TRIALS else ("C", "CH")
-            row.append(0 if o is None else (1 if o in expected else 2))
-        code.append(row)
-    fig, ax = plt.subplots(figsize=(5.5, 1.2 + 0.22 * len(names)), dpi=120)
-    cmap = ListedColormap([COLOURS["none"], "#66bb6a", "#ef5350"])
-    ax.imshow(code, cmap=cmap, vmin=0, vmax=2, aspect="auto", interpolation="nearest")
+    keys = [*OUTCOMES, "none"]
+    code = [[keys.index(o if o in OUTCOMES else "none") for o in grid[name]] for name in names]
+    fig, ax = plt.subplots(figsize=(5.5, 1.4 + 0.22 * len(names)), dpi=120)
+    cmap = ListedColormap([COLOURS[k] for k in keys])
+    ax.imshow(code, cmap=cmap, vmin=0, vmax=len(keys) - 1, aspect="auto", interpolation="nearest")
     for r, name in enumerate(names):
-        for c, o in enumerate(grid[name]):
+        for c, (trial, o) in enumerate(zip(doc["trials"], grid[name], strict=True)):
             ax.text(c, r, o or "–", ha="center", va="center", fontsize=6)
+            expected = ("D", "DH") if trial in CONTROL_TRIALS else ("C", "CH")
+            if o is not None and o not in expected:
+                ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="black", lw=1.2))
     ax.set_xticks(range(len(doc["trials"])), [str(t) for t in doc["trials"]])
     ax.set_yticks(range(len(names)), names, fontsize=6)
     ax.axvline(len(CONTROL_TRIALS) - 0.5, color="black", lw=1)
-    ax.set_xlabel("trial")
-    ax.set_title("Outcomes per participant (green: as designed, red: unexpected)", fontsize=9)
+    ax.set_xlabel("trial (framed: not as designed)")
+    _title(ax, "8c")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -181,7 +177,7 @@ def plot_grid(doc: Mapping[str, Any], path: Path) -> None:
 
 def plot_contingency(doc: Mapping[str, Any], path: Path) -> None:
     """Fig 8d: the control × experiment table as a heatmap, with its Stuart-Maxwell test."""
-    plt = _pyplot()
+    plt = pyplot()
     table = doc["contingency"]["table"]
     fig, ax = plt.subplots(figsize=(4.8, 4.2), dpi=120)
     ax.imshow(table, cmap="Blues", vmin=0)
@@ -202,22 +198,29 @@ def plot_contingency(doc: Mapping[str, Any], path: Path) -> None:
     )
     ax.set_xlabel("experiment (trials 4-8)")
     ax.set_ylabel("control (trials 1-3)")
-    ax.set_title(
-        "Contingency: " + _sm_short(doc["stuart_maxwell"]["control_vs_experiment"]), fontsize=9
-    )
+    _title(ax, "8d")
+    ax.text(0.5, -0.22, _sm_short(doc["stuart_maxwell"]["control_vs_experiment"]),
+            transform=ax.transAxes, ha="center", fontsize=8)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
 
 
-def write_figures(doc: Mapping[str, Any], out: Path) -> dict[str, Path]:
-    """Draw Figs 8a-8d into `out`; return their paths by figure name."""
+def write_figures(
+    doc: Mapping[str, Any], out: Path, formats: tuple[str, ...] = ("png",)
+) -> dict[str, Path]:
+    """Draw Figs 8a-8d into `out` in each format; return the first format's paths by figure."""
+    bad = [f for f in formats if f not in FORMATS]
+    if bad or not formats:
+        raise ValueError(f"figure formats must be among {', '.join(FORMATS)}, got {formats!r}")
     out.mkdir(parents=True, exist_ok=True)
-    paths = {k: out / v for k, v in FIGURES.items()}
-    plot_frequencies(doc, paths["8a"])
-    plot_flows(doc, paths["8b"])
-    plot_grid(doc, paths["8c"])
-    plot_contingency(doc, paths["8d"])
+    draw = {"8a": plot_frequencies, "8b": plot_flows, "8c": plot_grid, "8d": plot_contingency}
+    paths: dict[str, Path] = {}
+    for fmt in formats:
+        for key, stem in FIGURES.items():
+            path = out / f"{stem}.{fmt}"
+            draw[key](doc, path)
+            paths.setdefault(key, path)
     return paths
 
 

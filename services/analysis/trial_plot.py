@@ -10,10 +10,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+from services.analysis.figures import pyplot
 from services.model.geometry import TableLayout
 from services.store import Sample, TrialRecord
-
-FORMATS = ("png", "pdf", "svg")
 
 
 def figure(
@@ -25,12 +24,9 @@ def figure(
     formats: Sequence[str] = ("png",),
 ) -> list[Path]:
     """Draw the four panels; write one file per format; return their paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 
+    plt = pyplot()
     if not samples:
         raise ValueError(f"trial {trial.trial} has no stored samples to draw")
     t0 = trial.t_go_ns if trial.t_go_ns is not None else samples[0].t_ns

@@ -180,7 +180,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--starts", type=int, default=24, help="seeded candidates (24)")
     p.add_argument("--iterations", type=int, default=40, help="Nelder–Mead evaluations (40)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes")
+    p.add_argument(
+        "--evaluate", action="store_true",
+        help="fit nothing: score the --params cohort against the target (use a fresh --seed "
+        "to check a fit on people it was not fitted to)",
+    )
     return p
+
+
+def evaluate(
+    cfg: NodConfig, n: int, seed: int, workers: int
+) -> dict[int, dict[str, float]]:
+    """The per-trial outcome shares of a cohort of n people with seeds seed..seed+n-1."""
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        jobs = [(cfg, seed + i) for i in range(n)]
+        return shares(list(pool.map(_session, jobs, chunksize=4)))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -195,6 +209,13 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         print(f"nod calibrate-cohort: {exc}", file=sys.stderr)
         return 2
+    if args.evaluate:
+        got = evaluate(cfg, args.participants, args.seed, args.workers)
+        print(f"{args.participants} participants (seeds {args.seed}.."
+              f"{args.seed + args.participants - 1}) against {args.target}:")
+        print(table(target, got))
+        print(f"Σ TVD {sum(tvd(got[k], w) for k, w in target.items()):.3f}")
+        return 0
     print(f"fitting {len(TRAITS)} traits to {args.target}:")
     values, got = calibrate(
         cfg, target, args.participants, args.seed, args.starts, args.iterations, args.workers

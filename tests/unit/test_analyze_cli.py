@@ -64,6 +64,23 @@ def test_equilibria_png(tmp_path: Path) -> None:
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_nullclines_pair_is_fig_3b(tmp_path: Path) -> None:
+    svg = tmp_path / "fig3b.svg"
+    res = nod("nullclines", "--out", str(svg))
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    # b = ±(u + 1) = ±3.24 is past the unique-equilibrium bias: one stable point per panel,
+    # mirror images of each other, on the side of the bias.
+    assert lines[0].startswith("(a) 1 equilibria: stable (+0.142, +0.142)")
+    assert lines[1].startswith("(b) 1 equilibria: stable (-0.142, -0.142)")
+    text = svg.read_text()
+    assert "(a)" in text and "(b)" in text
+    res = nod("nullclines", "--offset", "-2", "--out", str(tmp_path / "near.png"))
+    assert res.returncode == 0 and "(a) 3 equilibria" in res.stdout  # |b| = 0.24 < u: three
+    res = nod("nullclines", "--out", str(tmp_path / "fig.jpg"))
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and ".png" in res.stderr
+
+
 def test_sweep_writes_the_arrays(tmp_path: Path) -> None:
     out, png = tmp_path / "s.npz", tmp_path / "s.png"
     res = nod("sweep", "--grid", "9", "--range", "6", "--out", str(out), "--png", str(png))
@@ -140,3 +157,13 @@ def test_bad_config_key_is_one_line(tmp_path: Path) -> None:
     cfg.write_text("[dynamics.robot]\ngamma = 1.0\n")  # no dissensus threshold
     res = nod("thresholds", "--config", str(cfg))
     assert res.returncode == 2 and "dissensus threshold" in res.stderr
+
+
+def test_parse_formats() -> None:
+    from services.analysis.figures import parse_formats
+
+    assert parse_formats("png") == ("png",)
+    assert parse_formats(" PDF, svg,pdf ,") == ("pdf", "svg")  # case, spaces, duplicates
+    for bad in ("", ",", "jpg", "png,eps"):
+        with pytest.raises(ValueError, match="png, pdf, svg"):
+            parse_formats(bad)

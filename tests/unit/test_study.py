@@ -227,6 +227,23 @@ def test_cli_json_and_report(doc: dict, cohort_db: Path, tmp_path: Path) -> None
     assert "P01 trial 5: timeout" in md and "P02 trial 8: missing" in md
 
 
+def test_cli_vector_formats_and_panel_letters(cohort_db: Path, tmp_path: Path) -> None:
+    out = tmp_path / "paper"
+    res = _nod("--db", str(cohort_db), "--out", str(out), "--format", "pdf,svg")
+    assert res.returncode == 0, res.stderr
+    assert "(pdf/svg)" in res.stdout
+    for name, letter in (("8a_frequencies", "a"), ("8b_flows", "b"), ("8c_grid", "c"),
+                         ("8d_contingency", "d")):
+        assert (out / f"fig{name}.pdf").read_bytes().startswith(b"%PDF")
+        svg = (out / f"fig{name}.svg").read_text()
+        assert "<svg" in svg and not (out / f"fig{name}.png").exists()
+        # SVG keeps text as glyph paths with the characters in comments: the panel letter is
+        # there, as in the paper's Fig 8.
+        assert f"({letter})" in svg
+    res = _nod("--db", str(cohort_db), "--out", str(out), "--format", "jpg")
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "png, pdf, svg" in res.stderr
+
+
 def test_cli_errors_are_one_line(tmp_path: Path) -> None:
     res = _nod("--db", str(tmp_path / "nope.db"))
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "no such database" in res.stderr
