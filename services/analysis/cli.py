@@ -135,6 +135,18 @@ def _build_parser() -> Parser:
     p.add_argument("--png", metavar="FILE.png", help="draw the nullclines Δ1 = 0, Δ2 = 0")
 
     p = sub.add_parser(
+        "paper-claims",
+        parents=[cfg],
+        help="settle three claims of the paper by computation",
+        description="(1) whether any paired table with the published phase margins gives the "
+        "Stuart-Maxwell statistic 68.125; (2) the diagonal bias above which eqs 1-2 have one "
+        "equilibrium (and above which every equilibrium is a consensus) against the paper's "
+        "|b| > u; (3) how Fig 3a's consensus map depends on the unstated starting opinion.",
+    )
+    p.add_argument("--grid", type=_grid_size, default=61, metavar="N", help="Fig 3a grid (61)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+
+    p = sub.add_parser(
         "nullclines",
         parents=[cfg],
         help="Fig 3b: the nullclines at b = ±(u + 1) side by side",
@@ -276,6 +288,14 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         f"consensus {result.consensus.mean():.2%}, converged {result.converged.mean():.2%}, "
         f"method {result.method}, compute {elapsed:.3f} s"
     )
+    return 0
+
+
+def _cmd_paper_claims(args: argparse.Namespace) -> int:
+    from services.analysis.paper_claims import format_report, report
+
+    doc = report(load_params(args.config), args.grid)
+    print(json.dumps(doc, indent=2) if args.json else format_report(doc))
     return 0
 
 
@@ -500,6 +520,7 @@ _COMMANDS = {
     "sweep": _cmd_sweep,
     "equilibria": _cmd_equilibria,
     "nullclines": _cmd_nullclines,
+    "paper-claims": _cmd_paper_claims,
     "square-claim": _cmd_square_claim,
     "stuart-maxwell": _cmd_stuart_maxwell,
     "study": _cmd_study,
