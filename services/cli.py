@@ -11,8 +11,12 @@ import importlib
 import os
 import sys
 
+from services.core.lifeline import die_with_parent
+
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("services.run", "start a router and every service; run a session"),
+    "up": ("services.launch.up", "start a rig's services from its rig file, supervised"),
+    "status": ("services.tools.status", "every service of a rig: alive, restarts, rates, clocks"),
     "router": ("services.core.router", "a zenoh router for the lab's control station"),
     "decision": ("services.decision.service", "opinion dynamics service (eqs 1, 6, 7)"),
     "actuation": ("services.actuation.service", "robot arm behaviour service (Algorithm 2)"),
@@ -28,6 +32,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "questionnaire": ("services.experiment.questionnaire", "enter or import Q1-Q5 answers"),
     "export": ("services.experiment.export", "write a session database as CSV"),
     "monitor": ("services.monitor.service", "live view of every key in Rerun"),
+    "topic": ("services.tools.topic", "list, echo and measure the rig's keys"),
+    "ports": ("services.tools.ports", "serial devices with their USB ids"),
     "lab": ("services.lab.cli", "lab deployment tools: `nod lab secure` (mutual TLS, ACL)"),
 }
 
@@ -41,6 +47,7 @@ def _usage() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Dispatch `nod <command> …` to the command's module."""
+    die_with_parent()  # under a launcher: end with it, even if it is SIGKILLed
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in {"-h", "--help", "help"}:
         print(_usage())

@@ -2,8 +2,11 @@
 
 The router runs inside this process (any Zenoh client can connect to `--listen` and watch every
 key); decision, actuation, eyes, the sim participant and the experiment conductor are started as
-child processes connected to it, sharing one simulated clock (`--speed`). The conductor's trial
-events drive a progress line and a per-trial table; when it exits, the others are stopped.
+child processes connected to it, sharing one simulated clock (`--speed`), under the same
+`Supervisor` as `nod up`: a service that dies is restarted with backoff (the conductor resumes
+its session, so the trial in progress is repeated), a crash loop is given up and fails the run,
+and every such event is printed and published on rig/event. The conductor's trial events drive a
+progress line and a per-trial table; when it exits, the others are stopped.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import subprocess
 import sys
 import threading
 import time
+import uuid
 from collections import Counter
 from pathlib import Path
 
@@ -24,10 +28,13 @@ import zenoh
 
 from services.core import messages as m
 from services.core.cli import Parser
+from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys, check_rig
 from services.core.node import clip
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
+from services.launch.events import RigEvents
+from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
 from services.store import Store, StoreError
 
 log = logging.getLogger("nod.run")
@@ -150,6 +157,9 @@ def build_parser() -> argparse.ArgumentParser:
     hw.add_argument("--eyes-driver", default="sim", help="sim | maestro | arduino (default sim)")
     hw.add_argument("--eyes-port", default=None, help="serial port of the eyes controller")
     hw.add_argument("--eyes-config", type=Path, default=None, help="eyes hardware file")
+    hw.add_argument(
+        "--eyes-trims", type=Path, default=None, help="eyes trims file (`nod eyes calibrate`)"
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="services log at debug level")
     return p
 
@@ -183,6 +193,8 @@ def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list
                 cmd += ["--port", getattr(args, f"{prefix}_port")]
             if getattr(args, f"{prefix}_config"):
                 cmd += [f"--{prefix}-config", str(getattr(args, f"{prefix}_config"))]
+    if service == "eyes" and getattr(args, "eyes_trims", None):
+        cmd += ["--trims", str(args.eyes_trims)]
     if service == "vision":
         cmd += ["--source", "zenoh:sim/camera", "--tracker", "aruco"]
     if service == "sim":
@@ -202,6 +214,8 @@ def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list
             "--clicks",
             args.clicks,
         ]
+        if getattr(args, "session", None):
+            cmd += ["--session", args.session]
     return cmd
 
 
@@ -237,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
         flush=True,
     )
     monitor = _start_monitor(args, router, keys, logs) if args.monitor is not None else None
-    children: dict[str, subprocess.Popen] = {}
+    events = RigEvents(router, keys, Clock(args.speed, epoch_ns))
+    supervisor = Supervisor(RestartPolicy(), on_event=events)
     stopping = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stopping.set())
     signal.signal(signal.SIGTERM, lambda *_: stopping.set())
@@ -245,19 +260,19 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rig = [*SERVICES[:-1], *(["vision"] if args.render else [])]
         for service in rig:  # the rig: decision, actuation, eyes (, vision) stay up throughout
-            children[service] = _start(service, args, epoch_ns, logs)
+            supervisor.start(_spec(service, args, epoch_ns, logs))
         for i in range(args.participants):
             person = _participant(args, i)
             view.begin(person.participant)
             for service in ("sim", "experiment"):  # a new person: new sim, new conductor
-                children[service] = _start(service, person, epoch_ns, logs, suffix=f"-{i + 1}")
-            code = _supervise(children, stopping)
-            _stop_all({k: children.pop(k) for k in ("sim", "experiment")})
+                supervisor.start(_spec(service, person, epoch_ns, logs, suffix=f"-{i + 1}"))
+            code = _supervise(supervisor, stopping)
+            supervisor.stop(["sim", "experiment"])
             if code != 0:
                 break
     finally:
-        _stop_all(children)
-        if monitor is not None:  # outside `children`: a closed viewer must not fail the run
+        supervisor.stop()
+        if monitor is not None:  # outside the supervisor: a closed viewer must not fail the run
             _stop_all({"monitor": monitor}, grace_s=20.0)  # time to write the .rrd's footer
         for sub in subs:
             sub.undeclare()
@@ -340,24 +355,29 @@ def _preflight(args: argparse.Namespace) -> str | None:
 
 
 def _participant(args: argparse.Namespace, i: int) -> argparse.Namespace:
-    """The arguments of participant i: its own seed and id; a cohort draws varied traits."""
-    if args.participants == 1:
-        return args
-    return argparse.Namespace(
-        **{**vars(args), "seed": args.seed + i, "participant": f"P{i + 1:02d}", "cohort": True}
-    )
+    """The arguments of participant i: its own seed, id and session; a cohort varies traits.
+
+    The launcher names the session, so a conductor it restarts can resume that very session.
+    """
+    extra = {"session": uuid.uuid4().hex[:12]}
+    if args.participants > 1:
+        extra |= {"seed": args.seed + i, "participant": f"P{i + 1:02d}", "cohort": True}
+    return argparse.Namespace(**{**vars(args), **extra})
 
 
-def _start(
+def _spec(
     service: str, args: argparse.Namespace, epoch_ns: int, logs: Path, suffix: str = ""
-) -> subprocess.Popen:
-    return subprocess.Popen(
-        child_command(service, args, epoch_ns),
-        stdout=(logs / f"{service}{suffix}.log").open("w"),
-        stderr=subprocess.STDOUT,
-        stdin=subprocess.DEVNULL,
-        start_new_session=True,  # our Ctrl-C handling stops them in order
-    )
+) -> ServiceSpec:
+    """A supervised child; a restarted conductor resumes its session instead of starting one."""
+    cmd = child_command(service, args, epoch_ns)
+    resume = None
+    if service == "experiment":
+        at = cmd.index("--session")
+        resumed = [*cmd[:at], "--resume", cmd[at + 1], *cmd[at + 2 :]]
+        resume = lambda: resumed  # noqa: E731
+    log_path = logs / f"{service}{suffix}.log"
+    log_path.write_text("")  # a fresh log per run; restarts append to it
+    return ServiceSpec(service, cmd, log=log_path, restart_argv=resume)
 
 
 _BAD = Counter()
@@ -373,18 +393,23 @@ def _decoded(cls, sample, handler) -> None:
             log.warning("bad message #%d on %s: %s", n, sample.key_expr, clip(str(exc)))
 
 
-def _supervise(children: dict[str, subprocess.Popen], stopping: threading.Event) -> int:
-    """Wait for the conductor; a service dying early fails the run."""
-    conductor = children["experiment"]
+def _supervise(supervisor: Supervisor, stopping: threading.Event) -> int:
+    """Supervise until the conductor finishes; a service given up on fails the run."""
     while not stopping.is_set():
-        rc = conductor.poll()
-        if rc is not None:
-            if rc != 0:
-                print(f"\nnod run: the conductor (experiment) {_how(rc)}", file=sys.stderr)
-            return rc if rc >= 0 else 128 - rc
-        for name, proc in children.items():
-            if name != "experiment" and proc.poll() is not None:
-                print(f"\nnod run: service {name} {_how(proc.returncode)}", file=sys.stderr)
+        supervisor.poll()
+        conductor = supervisor.services["experiment"]
+        if conductor.state == "done":
+            return 0
+        failed = supervisor.failed()
+        if failed:
+            for name in failed:
+                code = supervisor.services[name].last_code
+                how = _how(code) if code is not None else "failed"
+                print(f"\nnod run: service {name} {how} and was given up on", file=sys.stderr)
+            return 1
+        for name, s in supervisor.services.items():  # a service ended "normally" mid-session
+            if name != "experiment" and s.state == "done":
+                print(f"\nnod run: service {name} exited mid-session", file=sys.stderr)
                 return 1
         stopping.wait(0.05)
     return 130

@@ -146,8 +146,9 @@ class UniqueBias:
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
         return {
-            "b_unique": self.b_unique, "b_all_consensus": self.b_all_consensus, "u": self.u, "count_at_u": self.count_at_u,
-            "consensus_at_u": self.consensus_at_u, "count_below": self.count_below,
+            "b_unique": self.b_unique, "b_all_consensus": self.b_all_consensus, "u": self.u,
+            "count_at_u": self.count_at_u, "consensus_at_u": self.consensus_at_u,
+            "count_below": self.count_below,
         }
 
 

@@ -61,6 +61,9 @@ class Topic:
 
 
 BASE = ("seq", "t_ns")
+# Every long-running process of a rig sends a heartbeat on rig/status.
+EVERY_SERVICE = ("decision", "actuation", "eyes", "vision", "sim", "experiment", "monitor",
+                 "launcher")
 
 _TOPICS = (
     Topic(
@@ -129,6 +132,18 @@ _TOPICS = (
         "experiment/result", m.TrialResult, ("experiment",), ("run",), "per trial", RELIABLE,
         "`trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, `violations`, "
         "`score`, `session`, `interrupted`",
+    ),
+    Topic(
+        "rig/status", m.NodeStatus, EVERY_SERVICE, ("status",), "1 Hz per service (wall time)",
+        RELIABLE,
+        "`service`, `host`, `pid`, `version`, `started_ns`, `wall_ns` (host wall clock: clock "
+        "offsets), `restarts`, `received`, `dropped`",
+    ),
+    Topic(
+        "rig/event", m.RigEvent, ("launcher",), ("experiment", "status"), "on change",
+        RELIABLE,
+        "`host`, `service`, `kind` started/exited/restarting/gave_up/stopped, `code` (exit "
+        "code; negative: the signal), `restarts`, `text`",
     ),
     Topic(
         "safety/estop", m.Estop, ("estop",), ("actuation", "eyes", "experiment"), "on demand",

@@ -280,6 +280,46 @@ class Estop(Message, frozen=True, kw_only=True):
     id: Text = ""  # the command's id, echoed as `estop_id` on the state keys of each device obeying
 
 
+# --- the rig: service status and the launchers' events ------------------------------------------
+
+ServiceName = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
+
+
+class NodeStatus(Message, frozen=True, kw_only=True):
+    """A service's heartbeat (1 Hz of wall time): who, where, since when, and its clock.
+
+    `wall_ns` is the host's wall clock when the heartbeat left, whatever the session's clock
+    (`t_ns` is the session's, simulated under `--sim`): `nod status` compares it with its own to
+    estimate each host's clock offset.
+    """
+
+    KIND: ClassVar[str] = "status"
+    service: ServiceName = "decision"
+    host: Text = ""
+    pid: _int(0, 2**31 - 1) = 0
+    version: Text = ""
+    started_ns: Counter = 0  # wall clock at start
+    wall_ns: Counter = 0
+    restarts: _int(0, 1_000_000) = 0  # how often the launcher restarted this service
+    received: Counter = 0  # messages handled so far
+    dropped: Counter = 0  # bad messages dropped so far
+
+
+RigEventKind = Literal["started", "exited", "restarting", "gave_up", "stopped"]
+
+
+class RigEvent(Message, frozen=True, kw_only=True):
+    """A launcher's account of a service it supervises: started, died, restarted, given up."""
+
+    KIND: ClassVar[str] = "rig_event"
+    host: Text = ""
+    service: ServiceName = "decision"
+    kind: RigEventKind = "started"
+    code: _int(-255, 255) | None = None  # exit code (negative: killed by that signal)
+    restarts: _int(0, 1_000_000) = 0
+    text: Text = ""
+
+
 # --- codec ------------------------------------------------------------------------------------
 
 class _NoVersion(Message, frozen=True, kw_only=True, tag=-1):

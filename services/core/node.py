@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import socket
 import threading
 import time
 from collections import Counter
@@ -21,7 +22,7 @@ import zenoh
 
 from services.core import messages as m
 from services.core.clock import Clock
-from services.core.contract import QoS, check_publisher, check_subscriber
+from services.core.contract import EVERY_SERVICE, QoS, check_publisher, check_subscriber
 from services.core.keys import Keys
 from services.core.session import Fabric, open_session_retrying
 from services.model.safety import Watchdog
@@ -103,6 +104,10 @@ class Node:
         # so watchdogs that require e.g. "vision" accept the sim without special cases.
         self._alive_as = (service, *stands_in_for)
         self._tokens: list[Any] = []
+        self.started_ns = time.time_ns()
+        # The launcher (`nod up`, `nod run`) tells a restarted service how often it restarted it.
+        self.restarts = _env_int("NOD_RESTARTS")
+        self._heartbeat: threading.Thread | None = None
         log.info("%s up on rig %r (clock speed %.3g)", service, self.keys.rig, self.clock.speed)
 
     # -- pub/sub -------------------------------------------------------------------------------
@@ -199,12 +204,40 @@ class Node:
         self._ticks.append((period_s, fn, [0.0]))
 
     def ready(self) -> None:
-        """Declare this service alive (idempotent): call once every subscription is declared."""
+        """Declare this service alive (idempotent): call once every subscription is declared.
+
+        A long-running service also starts its heartbeat on rig/status (for `nod status`).
+        """
         if not self._tokens:
             self._tokens = [
                 self.session.liveliness().declare_token(self.keys.alive(name))
                 for name in self._alive_as
             ]
+        if self._heartbeat is None and self.service in EVERY_SERVICE:
+            status = self.publisher("rig/status")
+            self._heartbeat = threading.Thread(
+                target=self._beat, args=(status,), name="heartbeat", daemon=True
+            )
+            self._heartbeat.start()
+
+    def _beat(self, status: TopicPublisher) -> None:
+        """Publish a NodeStatus every second of wall time until the node stops."""
+        host, pid, version = socket.gethostname(), os.getpid(), package_version()
+        while True:
+            with self.lock:  # a consistent snapshot; the put itself runs unlocked
+                if self.session is None:
+                    return
+                received, dropped = sum(self.received.values()), sum(self.bad.values())
+            try:
+                status.put(
+                    service=self.service, host=host[:200], pid=pid, version=version,
+                    started_ns=self.started_ns, wall_ns=time.time_ns(),
+                    restarts=self.restarts, received=received, dropped=dropped,
+                )
+            except Exception as exc:  # a heartbeat must never take the service down
+                log.debug("%s: heartbeat not sent: %s", self.service, exc)
+            if self.stop.wait(1.0):
+                return
 
     def run(self) -> None:
         """Declare the service alive, run ticks until SIGINT/SIGTERM or `stop`, then close."""
@@ -252,6 +285,24 @@ class Node:
         session.close()
 
 
+def _env_int(name: str) -> int:
+    """A small non-negative integer from the environment (0 when absent or malformed)."""
+    try:
+        return max(0, min(1_000_000, int(os.environ.get(name, "0"))))
+    except ValueError:
+        return 0
+
+
+def package_version() -> str:
+    """The installed version of nod-hri ("dev" when run from a tree without metadata)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("nod-hri")
+    except PackageNotFoundError:
+        return "dev"
+
+
 EXIT_GRACE_S = 2.0  # a service stops within this after SIGTERM, whatever blocks it
 
 
@@ -279,14 +330,36 @@ def install_signal_handlers(
         log.warning("did not stop within %.0f s of signal %d: exiting now", grace_s, signum)
         os._exit(128 + signum)
 
-    def on_signal(signum: int, _frame: Any) -> None:
+    armed = threading.Lock()
+
+    def arm(signum: int) -> None:
         stop.set()
-        timer = threading.Timer(grace_s, force_exit, (signum,))
-        timer.daemon = True
-        timer.start()
+        if armed.acquire(blocking=False):  # one timer, from whichever path sees the signal first
+            timer = threading.Timer(grace_s, force_exit, (signum,))
+            timer.daemon = True
+            timer.start()
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        arm(signum)
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
+    # Python runs `on_signal` on the main thread between bytecodes: a main thread stuck in a
+    # native call (a blocking put to a router that vanished) would never run it, and the
+    # process would ignore SIGTERM. The C-level handler also writes the signal number to a
+    # wake-up pipe; a thread of ours reads it and arms the forced exit regardless.
+    r, w = os.pipe()
+    os.set_blocking(w, False)
+    signal.set_wakeup_fd(w, warn_on_full_buffer=False)
+
+    def watch_wakeups() -> None:
+        while True:
+            data = os.read(r, 64)
+            for signum in data:
+                if signum in (signal.SIGINT, signal.SIGTERM):
+                    arm(signum)
+
+    threading.Thread(target=watch_wakeups, name="signal-wakeup", daemon=True).start()
 
 
 def clip(text: str, limit: int = 200) -> str:

@@ -14,7 +14,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from services.store.records import SafetyEvent
+from services.core import messages as m
+from services.store.records import RigEventRecord, SafetyEvent
 
 DEVICES = ("actuation", "eyes")
 
@@ -32,7 +33,7 @@ class RigWatch:
     _seen: dict[str, int] = field(default_factory=dict)  # device → time of its last state
     _estop: str | None = None
     _safe_since: int | None = None
-    _pending: list[SafetyEvent] = field(default_factory=list)
+    _pending: list[SafetyEvent | RigEventRecord] = field(default_factory=list)
     _break: str | None = None  # the first new stop since the trial began
 
     def device_state(self, device: str, safe_stop: bool, reason: str, now_ns: int) -> None:
@@ -107,7 +108,16 @@ class RigWatch:
         parts += [f"no state from {d}" for d in missing]
         return "; ".join(parts) or "settling"
 
-    def take_events(self) -> list[SafetyEvent]:
+    def rig_event(self, now_ns: int, msg: m.RigEvent) -> None:
+        """A launcher's event (a service restarted, given up…): kept with the session's events."""
+        self._pending.append(
+            RigEventRecord(
+                self.trial, self.attempt, now_ns, msg.host, msg.service, msg.kind, msg.code,
+                msg.text,
+            )
+        )
+
+    def take_events(self) -> list[SafetyEvent | RigEventRecord]:
         """The events not stored yet (they go with the next trial, interruption or session end)."""
         out, self._pending = self._pending, []
         return out

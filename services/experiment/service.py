@@ -86,6 +86,7 @@ class Conductor:
         node.subscribe("eyes/state", self.on_eyes)
         node.subscribe("safety/estop", self.on_estop)
         node.subscribe("safety/release", self.on_estop)
+        node.subscribe("rig/event", lambda msg: self.rig.rig_event(self._now_ns(), msg))
         for service in REQUIRED:
             node.watch_liveliness(service, lambda a, s=service: self._liveliness(s, a))
         # The gaze keep-alive runs on its own thread: the operator's counter prompt blocks the

@@ -57,10 +57,11 @@ class Role:
 ROLES: dict[str, Role] = {
     r.name: r
     for r in (
-        Role("control", ("experiment", "monitor", "estop", "run", "record")),
-        Role("camera", ("vision", "sim"), queryables=("vision/layout",)),
-        Role("arm", ("decision", "actuation")),
-        Role("eyes", ("eyes",)),
+        # Every host runs a launcher (`nod up`): its heartbeats and events are the host's too.
+        Role("control", ("experiment", "monitor", "estop", "run", "record", "launcher")),
+        Role("camera", ("vision", "sim", "launcher"), queryables=("vision/layout",)),
+        Role("arm", ("decision", "actuation", "launcher")),
+        Role("eyes", ("eyes", "launcher")),
     )
 }
 

@@ -36,7 +36,10 @@ class ParticipantParams:
     agent: AgentParams = field(default_factory=lambda: AgentParams(gamma=3.0))  # γ_h > 0: follow
     preference_mean: float = 2.6  # |b_h| of the private preference, drawn per trial
     preference_sd: float = 0.6
-    gaze_gain: float = 7.0  # b_h pull per radian of gaze yaw, times trust
+    gaze_gain: float = 7.0  # b_h pull per radian of gaze yaw, times trust (the cohort's median)
+    # Person-to-person spread of gaze_gain (sd of its log): people differ a lot in how much they
+    # use the eyes (the paper's Q2, "did you use the hints", has sd 3.8 on a 1-10 scale).
+    gaze_gain_spread: float = 0.5
     trust0: float = 0.9  # trust in the gaze at trial 4
     trust_step: float = 0.25  # trust gained after a consensus trial that followed the gaze
     perception_delay_s: float = 0.25  # how late the participant sees the arm's heading
@@ -54,8 +57,10 @@ class ParticipantParams:
     rule_breaking: float = 0.05  # probability per trial of ignoring the commit-line rule
     hand_radius: float = 0.03  # landmark spread around the centre
     # Tracker jitter (sd, normalised units; 1 px = 1/640 in x, 1/480 in y). A tracker's error is
-    # mostly common to the whole hand (it shifts the fitted hand) plus a little per landmark;
-    # measured on the aruco tracker, see docs/observer.md.
+    # mostly common to the whole hand (it shifts the fitted hand) plus a little per landmark.
+    # benchmarks/tracker_jitter.py measures the aruco tracker at ≈ 0.2 px on a still hand
+    # through a cheap camera (mostly the hand's own tremor); ≈ 2 px is a MediaPipe-class
+    # tracker's (1-3 px), the harsher case the observer must survive: see docs/observer.md.
     common_noise: float = 0.003  # the whole hand, frame to frame (≈ 2 px at 640×480)
     landmark_noise: float = 0.001  # each landmark on top (≈ 0.6 px)
     start: Point = (0.5, 0.85)  # rest position of the hand, participant's side of the table
@@ -64,6 +69,8 @@ class ParticipantParams:
         for name in ("speed", "accel", "full_conviction", "hand_radius"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ParticipantParams.{name} must be > 0")
+        if not self.gaze_gain_spread >= 0:
+            raise ValueError("ParticipantParams.gaze_gain_spread must be >= 0")
         for name in ("rule_breaking", "control_switch_prob", "min_conviction"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"ParticipantParams.{name} must be in [0, 1]")
@@ -249,6 +256,7 @@ def jittered(base: ParticipantParams, rng: np.random.Generator) -> ParticipantPa
         base,
         preference_mean=max(0.5, rng.normal(base.preference_mean, 0.4)),
         trust0=max(0.1, rng.normal(base.trust0, 0.25)),
+        gaze_gain=base.gaze_gain * math.exp(rng.normal(0.0, base.gaze_gain_spread)),
         reaction_s=max(0.1, rng.normal(base.reaction_s, 0.06)),
         speed=max(0.2, rng.normal(base.speed, 0.06)),
         perception_delay_s=max(0.1, rng.normal(base.perception_delay_s, 0.05)),

@@ -307,6 +307,14 @@ class RerunBridge:
         )
         self.rec.log(ENTITIES["log_result"], rr.TextLog(text, level="INFO"))
 
+    def _on_rig_event(self, topic: str, msg: m.RigEvent) -> None:
+        level = {"gave_up": "ERROR", "restarting": "WARN", "exited": "WARN"}.get(msg.kind, "INFO")
+        if msg.kind == "exited" and msg.code == 0:
+            level = "INFO"
+        where = f"{msg.host}: " if msg.host else ""
+        text = f"{where}{msg.service} {msg.kind.replace('_', ' ')}: {msg.text}"
+        self.rec.log(ENTITIES["log_services"], rr.TextLog(text, level=level))
+
     def _on_estop(self, topic: str, msg: m.Estop) -> None:
         who = f" by {msg.source}" if msg.source else ""
         why = f": {msg.reason}" if msg.reason else ""

@@ -47,6 +47,7 @@ TRAITS: tuple[Trait, ...] = (
     Trait("control_switch_prob", 0.0, 1.0),
     Trait("preference_mean", 0.5, 5.0),
     Trait("gaze_gain", 1.0, 15.0),
+    Trait("gaze_gain_spread", 0.0, 1.5),
     Trait("trust0", 0.0, 2.0),
     Trait("trust_step", 0.0, 0.6),
     Trait("speed", 0.2, 0.6),

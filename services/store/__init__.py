@@ -3,6 +3,7 @@
 from services.store.records import (
     Interruption,
     QuestionnaireRecord,
+    RigEventRecord,
     SafetyEvent,
     Sample,
     TrialRecord,
@@ -12,6 +13,7 @@ from services.store.store import Store, StoreError
 __all__ = [
     "Interruption",
     "QuestionnaireRecord",
+    "RigEventRecord",
     "SafetyEvent",
     "Sample",
     "Store",

@@ -74,6 +74,20 @@ class SafetyEvent:
 
 
 @dataclass(frozen=True, slots=True)
+class RigEventRecord:
+    """A launcher's event (a service started, died, restarted, given up) seen during a session."""
+
+    trial: int
+    attempt: int
+    t_ns: int
+    host: str
+    service: str
+    kind: str  # "started", "exited", "restarting", "gave_up", "stopped"
+    code: int | None  # exit code; negative: the signal that killed it
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
 class Interruption:
     """One start of a trial that a safe stop or an e-stop broke."""
 

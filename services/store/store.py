@@ -19,6 +19,7 @@ from typing import Any
 from services.store.records import (
     Interruption,
     QuestionnaireRecord,
+    RigEventRecord,
     SafetyEvent,
     Sample,
     TrialRecord,
@@ -67,6 +68,18 @@ CREATE TABLE IF NOT EXISTS safety_events (
     reason  TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS safety_events_by_trial ON safety_events (session, trial, t_ns);
+CREATE TABLE IF NOT EXISTS rig_events (
+    session TEXT NOT NULL,
+    trial   INTEGER NOT NULL,
+    attempt INTEGER NOT NULL,
+    t_ns    INTEGER NOT NULL,
+    host    TEXT NOT NULL,
+    service TEXT NOT NULL,
+    kind    TEXT NOT NULL,
+    code    INTEGER,
+    text    TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS rig_events_by_trial ON rig_events (session, trial, t_ns);
 CREATE TABLE IF NOT EXISTS interruptions (
     session    TEXT NOT NULL,
     trial      INTEGER NOT NULL,
@@ -210,7 +223,7 @@ class Store:
         session: str,
         rec: TrialRecord,
         samples: Iterable[Sample],
-        events: Iterable[SafetyEvent] = (),
+        events: Iterable[SafetyEvent | RigEventRecord] = (),
     ) -> None:
         """Store one trial, its samples and the safety events since the last write atomically."""
         with self.db:
@@ -247,7 +260,7 @@ class Store:
             )
 
     def write_interruption(
-        self, session: str, rec: Interruption, events: Iterable[SafetyEvent] = ()
+        self, session: str, rec: Interruption, events: Iterable[SafetyEvent | RigEventRecord] = ()
     ) -> None:
         """Store a broken start of a trial with the safety events that broke it, atomically."""
         with self.db:
@@ -258,17 +271,33 @@ class Store:
             )
             self._events(session, events)
 
-    def write_events(self, session: str, events: Iterable[SafetyEvent]) -> None:
+    def write_events(
+        self, session: str, events: Iterable[SafetyEvent | RigEventRecord]
+    ) -> None:
         """Store safety events on their own (those after the last trial of a session)."""
         with self.db:
             self.db.execute("BEGIN")
             self._events(session, events)
 
-    def _events(self, session: str, events: Iterable[SafetyEvent]) -> None:
+    def _events(self, session: str, events: Iterable[SafetyEvent | RigEventRecord]) -> None:
+        events = list(events)
         self.db.executemany(
             "INSERT INTO safety_events VALUES (?, ?, ?, ?, ?, ?, ?)",
-            [(session, *astuple_record(e)) for e in events],
+            [(session, *astuple_record(e)) for e in events if isinstance(e, SafetyEvent)],
         )
+        self.db.executemany(
+            "INSERT INTO rig_events VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            [(session, *astuple_record(e)) for e in events if isinstance(e, RigEventRecord)],
+        )
+
+    def rig_events(self, session: str) -> list[RigEventRecord]:
+        """A session's launcher events (restarts and the like) in time order."""
+        cur = self.db.execute(
+            "SELECT trial, attempt, t_ns, host, service, kind, code, text FROM rig_events "
+            "WHERE session = ? ORDER BY t_ns",
+            (session,),
+        )
+        return [RigEventRecord(*row) for row in cur]
 
     def safety_events(self, session: str) -> list[SafetyEvent]:
         """A session's safety events in time order."""

@@ -1,0 +1,264 @@
+"""The rig file: one TOML file that says what a lab's rig is made of and where each part runs.
+
+    [rig]
+    name = "rig1"                          # scopes every key: nod/rig1/...
+    router = "tcp/192.168.10.1:7447"       # the endpoint every service connects to
+    params = "params.toml"                 # experiment parameters (optional)
+    tls = "/etc/nod/tls"                   # `nod lab secure` output (optional): mutual TLS + ACL
+
+    [hosts.control]                        # one table per host; the name is the --host of `nod up`
+    router = true                          # this host runs the router (listening on rig.router)
+    role = "control"                       # its certificate under rig.tls (default: the name)
+    services = ["monitor"]
+
+    [hosts.arm]
+    services = ["decision", "actuation", "eyes"]
+
+    [vision]   source = "0"; tracker = "aruco"; calibration = "table.toml"
+    [actuation] driver = "feetech"; port = "/dev/ttyUSB0"; config = "arm.toml"
+    [eyes]     driver = "maestro"; port = "/dev/ttyACM0"; config = "eyes.toml"
+    [monitor]  args = ["--serve-web"]
+
+Relative paths are relative to the rig file. `load_rig` validates everything that can be
+checked without touching a device (unknown keys, a service on two hosts or none, one router,
+drivers, endpoints) and raises `RigFileError` with one line naming the file and the key.
+`command(rig, service)` is the command line that starts a service: `nod up` runs it under
+supervision, a systemd unit runs it through `nod up --exec` with systemd as the supervisor.
+"""
+
+from __future__ import annotations
+
+import sys
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from services.core.keys import check_rig
+
+# Services a rig file may place on a host. The conductor (`nod experiment`) is not one: the
+# operator starts it per participant; `sim` stands in for vision (a rig without a camera).
+SERVICES = ("decision", "actuation", "eyes", "vision", "sim", "monitor")
+# What a rig cannot run a trial without (vision or the sim that stands in for it).
+REQUIRED = ("decision", "actuation", "eyes", "vision")
+ARM_DRIVERS = ("sim", "feetech")
+EYES_DRIVERS = ("sim", "maestro", "arduino")
+TRACKERS = ("aruco", "mediapipe", "sim")
+
+
+class RigFileError(ValueError):
+    """The rig file is unusable; the text names the file and the key."""
+
+
+@dataclass(frozen=True)
+class Host:
+    """One machine of the rig."""
+
+    name: str
+    services: tuple[str, ...]
+    router: bool = False
+    role: str = ""  # certificate identity under rig.tls (default: the host's name)
+    address: str = ""  # informational (docs, status)
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A validated rig file."""
+
+    path: Path
+    name: str
+    router: str
+    hosts: dict[str, Host]
+    params: Path | None = None
+    tls: Path | None = None
+    sections: dict[str, dict[str, Any]] = field(default_factory=dict)  # per-service settings
+
+    def host_of(self, service: str) -> Host:
+        """The host that runs a service."""
+        for host in self.hosts.values():
+            if service in host.services:
+                return host
+        raise KeyError(service)
+
+    @property
+    def services(self) -> tuple[str, ...]:
+        """Every service of the rig, in host order."""
+        return tuple(s for h in self.hosts.values() for s in h.services)
+
+    @property
+    def required(self) -> tuple[str, ...]:
+        """The services a trial needs (the sim counts as vision)."""
+        return REQUIRED
+
+    def router_host(self) -> Host | None:
+        """The host that runs the router, if the rig runs its own."""
+        return next((h for h in self.hosts.values() if h.router), None)
+
+
+_RIG_KEYS = {"name", "router", "params", "tls"}
+_HOST_KEYS = {"services", "router", "role", "address"}
+_SECTION_KEYS: dict[str, set[str]] = {
+    "decision": {"args"},
+    "actuation": {"driver", "port", "config", "stale_ms", "args"},
+    "eyes": {"driver", "port", "config", "trims", "stale_ms", "args"},
+    "vision": {"source", "tracker", "calibration", "args"},
+    "sim": {"seed", "args"},
+    "monitor": {"args"},
+}
+
+
+def load_rig(path: str | Path) -> Rig:
+    """Read and validate a rig file (see the module doc)."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise RigFileError(f"cannot read the rig file {path}: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise RigFileError(f"{path}: not valid TOML: {exc}") from None
+    where = str(path)
+
+    def fail(key: str, why: str) -> RigFileError:
+        return RigFileError(f"{where}: {key}: {why}")
+
+    unknown = set(doc) - {"rig", "hosts", *_SECTION_KEYS}
+    if unknown:
+        raise fail(sorted(unknown)[0], f"unknown table; known: rig, hosts, {', '.join(SERVICES)}")
+    rig = doc.get("rig")
+    if not isinstance(rig, dict):
+        raise fail("[rig]", "missing")
+    extra = set(rig) - _RIG_KEYS
+    if extra:
+        raise fail(f"rig.{sorted(extra)[0]}", f"unknown key; known: {', '.join(sorted(_RIG_KEYS))}")
+    name = rig.get("name", "rig1")
+    try:
+        check_rig(name if isinstance(name, str) else "")
+    except ValueError as exc:
+        raise fail("rig.name", str(exc)) from None
+    router = rig.get("router")
+    if not isinstance(router, str) or "/" not in router:
+        raise fail("rig.router", "an endpoint such as tcp/192.168.10.1:7447 is required")
+    base = path.parent
+
+    def file(value: Any, key: str) -> Path:
+        if not isinstance(value, str) or not value:
+            raise fail(key, "must be a path")
+        p = Path(value).expanduser()
+        return p if p.is_absolute() else (base / p)
+
+    hosts_doc = doc.get("hosts")
+    if not isinstance(hosts_doc, dict) or not hosts_doc:
+        raise fail("[hosts]", "at least one host is required")
+    hosts: dict[str, Host] = {}
+    placed: dict[str, str] = {}
+    for hname, h in hosts_doc.items():
+        key = f"hosts.{hname}"
+        if not isinstance(h, dict):
+            raise fail(key, "must be a table")
+        extra = set(h) - _HOST_KEYS
+        if extra:
+            known = ", ".join(sorted(_HOST_KEYS))
+            raise fail(f"{key}.{sorted(extra)[0]}", f"unknown key; known: {known}")
+        services = h.get("services", [])
+        if not isinstance(services, list) or not all(isinstance(s, str) for s in services):
+            raise fail(f"{key}.services", "must be a list of service names")
+        for s in services:
+            if s not in SERVICES:
+                known = ", ".join(SERVICES)
+                raise fail(f"{key}.services", f"unknown service {s!r}; known: {known}")
+            if s in placed:
+                raise fail(f"{key}.services", f"{s} already runs on host {placed[s]!r}")
+            placed[s] = hname
+        is_router = h.get("router", False)
+        if not isinstance(is_router, bool):
+            raise fail(f"{key}.router", "must be true or false")
+        role, address = h.get("role", hname), h.get("address", "")
+        if not isinstance(role, str) or not isinstance(address, str):
+            raise fail(key, "role and address must be strings")
+        hosts[hname] = Host(hname, tuple(services), is_router, role, address)
+    routers = [h.name for h in hosts.values() if h.router]
+    if len(routers) > 1:
+        raise fail("hosts", f"only one host may run the router, not {', '.join(routers)}")
+    if "vision" in placed and "sim" in placed:
+        raise fail("hosts", "vision and sim both publish the hand: a rig runs one of them")
+    sections: dict[str, dict[str, Any]] = {}
+    for service, allowed in _SECTION_KEYS.items():
+        sec = doc.get(service, {})
+        if not isinstance(sec, dict):
+            raise fail(f"[{service}]", "must be a table")
+        extra = set(sec) - allowed
+        if extra:
+            known = ", ".join(sorted(allowed))
+            raise fail(f"{service}.{sorted(extra)[0]}", f"unknown key; known: {known}")
+        args = sec.get("args", [])
+        if not isinstance(args, list) or not all(isinstance(a, str) for a in args):
+            raise fail(f"{service}.args", "must be a list of strings")
+        sections[service] = dict(sec)
+    for service, key, allowed in (
+        ("actuation", "driver", ARM_DRIVERS), ("eyes", "driver", EYES_DRIVERS),
+        ("vision", "tracker", TRACKERS),
+    ):
+        value = sections[service].get(key)
+        if value is not None and value not in allowed:
+            raise fail(f"{service}.{key}", f"{value!r} is not one of {', '.join(allowed)}")
+    for service, key in (
+        ("actuation", "config"), ("eyes", "config"), ("eyes", "trims"), ("vision", "calibration"),
+    ):
+        if key in sections[service]:
+            sections[service][key] = file(sections[service][key], f"{service}.{key}")
+    for service in ("actuation", "eyes"):
+        if sections[service].get("driver", "sim") != "sim" and "port" not in sections[service]:
+            raise fail(f"{service}.port", f"the {sections[service]['driver']} driver needs a port")
+    return Rig(
+        path=path,
+        name=name,
+        router=router,
+        hosts=hosts,
+        params=file(rig["params"], "rig.params") if "params" in rig else None,
+        tls=file(rig["tls"], "rig.tls") if "tls" in rig else None,
+        sections=sections,
+    )
+
+
+def session_flags(rig: Rig, host: Host, connect: str | None = None) -> list[str]:
+    """The session flags of a service on `host`: its rig and how it reaches the router."""
+    if rig.tls is not None:
+        identity = rig.tls / (host.role or host.name) / "zenoh.json5"
+        return ["--config", str(identity), "--rig", rig.name]
+    return ["--connect", connect or rig.router, "--rig", rig.name]
+
+
+def command(
+    rig: Rig, service: str, *, sim_hardware: bool = False, connect: str | None = None
+) -> list[str]:
+    """The command line that starts `service` as the rig file says.
+
+    `sim_hardware` swaps every device for its simulation: sim arm and eyes drivers, and the sim
+    participant in place of the camera (a whole rig on one machine, no hardware).
+    """
+    host = rig.host_of(service)
+    sec = rig.sections.get(service, {})
+    name = "sim" if (sim_hardware and service == "vision") else service
+    cmd = [sys.executable, "-m", "services.cli", name, *session_flags(rig, host, connect)]
+    if rig.params is not None and name != "monitor":
+        cmd += ["--params", str(rig.params)]
+    if service in ("actuation", "eyes"):
+        prefix = "arm" if service == "actuation" else "eyes"
+        driver = "sim" if sim_hardware else sec.get("driver", "sim")
+        cmd += ["--driver", driver]
+        if driver != "sim":
+            cmd += ["--port", sec["port"]]
+        if "config" in sec:
+            cmd += [f"--{prefix}-config", str(sec["config"])]
+        if "trims" in sec and not sim_hardware:
+            cmd += ["--trims", str(sec["trims"])]
+        if "stale_ms" in sec:
+            cmd += ["--stale-ms", repr(float(sec["stale_ms"]))]
+    elif name == "vision":
+        cmd += ["--source", str(sec.get("source", "0")), "--tracker", sec.get("tracker", "aruco")]
+        if "calibration" in sec:
+            cmd += ["--calibration", str(sec["calibration"])]
+    elif name == "sim" and "seed" in sec:
+        cmd += ["--seed", str(int(sec["seed"]))]
+    cmd += list(sec.get("args", []))
+    return cmd

@@ -1,0 +1,1 @@
+"""Launching a rig: the rig file, supervised service processes, `nod up`."""

@@ -1,0 +1,158 @@
+"""`nod up RIG.toml`: start this host's part of a rig (or the whole rig) under supervision.
+
+    nod up rig.toml --host arm        # on the arm controller: its services, as the file says
+    nod up rig.toml                   # every host's services on this machine
+    nod up rig.toml --sim-hardware    # the same with simulated arm, eyes and participant
+    nod up rig.toml --host arm --exec actuation   # exec one service (systemd supervises)
+
+With the router on this host (`router = true`, or the whole rig here) the router runs inside
+this process. Every service is a child process under a `Supervisor`: restarted with backoff
+when it dies, given up (and reported) when it keeps dying; each event is printed and published
+on rig/event. Ctrl-C or SIGTERM stops everything cleanly (arm holds, eyes neutral) and exits 0;
+a service given up on makes the exit code 1. `nod status --connect ROUTER` shows the rig.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from services.core.cli import Parser
+from services.core.clock import Clock
+from services.core.config import load_params
+from services.core.keys import Keys
+from services.core.rigfile import Rig, RigFileError, command, load_rig
+from services.core.session import make_config, open_session
+from services.launch.events import RigEvents
+from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
+
+log = logging.getLogger("nod.up")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of `nod up`."""
+    p = Parser(prog="nod up", description=__doc__.splitlines()[0])
+    p.add_argument("rig_file", type=Path, metavar="RIG.toml", help="the rig file")
+    p.add_argument("--host", default=None, help="run this host's services (default: all here)")
+    p.add_argument(
+        "--sim-hardware",
+        action="store_true",
+        help="simulate arm, eyes and the participant (no devices, no camera)",
+    )
+    p.add_argument(
+        "--listen",
+        default=None,
+        help="router endpoint to listen on and connect to, overriding rig.router (e.g. to run a "
+        "LAN rig file on one machine: tcp/127.0.0.1:7447)",
+    )
+    p.add_argument("--logs", type=Path, default=None, help="folder for service logs")
+    p.add_argument(
+        "--exec",
+        dest="exec_service",
+        metavar="SERVICE",
+        default=None,
+        help="replace this process with one service of --host (for a systemd unit per service)",
+    )
+    p.add_argument("--max-restarts", type=int, default=5, help="per minute, before giving up (5)")
+    p.add_argument("--dry-run", action="store_true", help="print the commands; start nothing")
+    return p
+
+
+def plan(rig: Rig, host: str | None) -> tuple[list[str], bool]:
+    """The services to start here and whether this process runs the router."""
+    if host is None:
+        return list(rig.services), True  # the whole rig on one machine: router included
+    if host not in rig.hosts:
+        raise RigFileError(f"{rig.path}: no host {host!r}; hosts: {', '.join(rig.hosts)}")
+    h = rig.hosts[host]
+    return list(h.services), h.router
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Start, supervise, stop."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        rig = load_rig(args.rig_file)
+        services, with_router = plan(rig, args.host)
+        load_params(rig.params)  # a bad params file is one line here, not five dead services
+    except (RigFileError, ValueError, OSError) as exc:
+        print(f"nod up: {exc}", file=sys.stderr)
+        return 2
+    endpoint = args.listen or rig.router
+    if args.exec_service is not None:
+        if args.exec_service not in services:
+            here = ", ".join(services)
+            print(f"nod up: {args.exec_service!r} does not run here ({here})", file=sys.stderr)
+            return 2
+        cmd = command(rig, args.exec_service, sim_hardware=args.sim_hardware, connect=endpoint)
+        os.execv(cmd[0], cmd)
+    commands = {
+        s: command(rig, s, sim_hardware=args.sim_hardware, connect=endpoint) for s in services
+    }
+    if args.dry_run:
+        for s, cmd in commands.items():
+            print(f"{s}: {' '.join(cmd)}")
+        return 0
+    logs = args.logs or Path(f"nod-{rig.name}.logs")
+    try:
+        logs.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"nod up: cannot write logs to {logs}: {exc.strerror}", file=sys.stderr)
+        return 2
+    router = None
+    try:
+        if with_router:
+            cfg = make_config(mode="router", listen=[endpoint])
+        else:
+            cfg = make_config(mode="client", connect=[endpoint])
+        session = router = open_session(cfg)
+    except (ConnectionError, ValueError) as exc:
+        what = "listen on" if with_router else "reach the router at"
+        print(f"nod up: cannot {what} {endpoint}: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # zenoh.ZError: a malformed endpoint
+        print(f"nod up: bad endpoint {endpoint!r}: {exc}", file=sys.stderr)
+        return 2
+    keys = Keys(rig.name)
+    events = RigEvents(session, keys, Clock())
+    events.quiet_starts = False  # an operator starting a rig wants to see each service come up
+    policy = RestartPolicy(max_restarts=max(0, args.max_restarts))
+    supervisor = Supervisor(policy, on_event=events)
+    stopping = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stopping.set())
+    signal.signal(signal.SIGTERM, lambda *_: stopping.set())
+    where = f"host {args.host}" if args.host else "every host, on this machine"
+    router_note = f"router on {endpoint}" if with_router else f"router at {endpoint}"
+    print(f"rig {rig.name!r} ({where}): {', '.join(services)}; {router_note}; logs in {logs}/",
+          flush=True)
+    reported: set[str] = set()
+    try:
+        for s in services:
+            log_path = logs / f"{s}.log"
+            supervisor.start(ServiceSpec(s, commands[s], log=log_path))
+        while not stopping.is_set():
+            supervisor.poll()
+            for name in supervisor.failed():
+                if name not in reported:
+                    reported.add(name)
+                    print(f"nod up: {name} is down (given up); see {logs}/{name}.log",
+                          file=sys.stderr, flush=True)
+            stopping.wait(0.1)
+    finally:
+        supervisor.stop()
+        time.sleep(0.05)  # let the last rig events leave before the session closes
+        if router is not None:
+            router.close()
+    print("every service stopped", flush=True)
+    return 1 if supervisor.failed() else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

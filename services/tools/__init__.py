@@ -1,0 +1,1 @@
+"""Operator's tools that look at a rig without being part of it: `nod topic`, `nod ports`."""

@@ -1,0 +1,221 @@
+"""A rig as a lab runs it: `nod up` from a rig file, supervision under kill -9, `nod status`,
+`nod topic hz`, and `nod run --sim` surviving the death of its services (real processes)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from services.core import messages as m
+from services.core.session import make_config, open_session
+from services.store import Store
+
+from .conftest import ROOT, free_port
+
+pytestmark = pytest.mark.integration
+
+
+def nod(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "services.cli", *args], cwd=ROOT, capture_output=True, text=True,
+        timeout=timeout,
+    )
+
+
+def processes_mentioning(text: str) -> list[int]:
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and int(entry.name) != os.getpid():
+            try:
+                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+                state = (entry / "stat").read_text().split()[2]
+            except OSError:
+                continue
+            if text in cmd and state != "Z":
+                found.append(int(entry.name))
+    return found
+
+
+def status(endpoint: str, rig: str) -> tuple[int, dict]:
+    res = nod("status", "--connect", endpoint, "--rig", rig, "--json", "--duration", "1.5")
+    return res.returncode, (json.loads(res.stdout) if res.stdout.strip() else {})
+
+
+def wait_for(check, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = check()
+        if value:
+            return value
+        time.sleep(0.2)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+@pytest.fixture
+def rig_file(tmp_path: Path) -> tuple[Path, str]:
+    port = free_port()
+    path = tmp_path / "rig.toml"
+    path.write_text(
+        "[rig]\n"
+        'name = "rigx"\n'
+        f'router = "tcp/127.0.0.1:{port}"\n'
+        "[hosts.control]\nrouter = true\nservices = []\n"
+        '[hosts.camera]\nservices = ["vision"]\n'
+        '[hosts.arm]\nservices = ["decision", "actuation"]\n'
+        '[hosts.eyes]\nservices = ["eyes"]\n'
+        '[actuation]\ndriver = "feetech"\nport = "/dev/ttyUSB9"\n'
+        '[eyes]\ndriver = "maestro"\nport = "/dev/ttyACM9"\n'
+    )
+    return path, f"tcp/127.0.0.1:{port}"
+
+
+def test_nod_up_supervises_the_rig_and_status_and_topic_see_it(rig_file, tmp_path: Path) -> None:
+    path, endpoint = rig_file
+    up = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "up", str(path), "--sim-hardware",
+         "--logs", str(tmp_path / "logs")],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+    client = None
+    try:
+        # Every required service comes up (the sim stands in for the camera).
+        doc = wait_for(lambda: (lambda r: r[1] if r[0] == 0 else None)(status(endpoint, "rigx")),
+                       40, "every service alive")
+        by_name = {s["service"]: s for s in doc["services"]}
+        assert {"decision", "actuation", "eyes", "vision"} <= {
+            n for n, s in by_name.items() if s["alive"]
+        }
+        assert by_name["vision"].get("stands_in") == "sim"
+        assert all(by_name[s]["restarts"] == 0 for s in ("decision", "actuation", "eyes"))
+        assert abs(by_name["decision"]["clock_offset_ms"]) < 20  # one host: the same clock
+        assert doc["devices"]["actuation"]["safe_stop"] in (True, False)
+
+        # kill -9 a service: its launcher restarts it within 2 s and says so on rig/event.
+        client = open_session(make_config(mode="client", connect=[endpoint]))
+        started: list[tuple[float, m.RigEvent]] = []
+
+        def on_event(sample) -> None:
+            event = m.decode(m.RigEvent, sample.payload.to_bytes())
+            started.append((time.monotonic(), event))
+
+        sub = client.declare_subscriber("nod/rigx/rig/event", on_event)
+        victim = by_name["decision"]["pid"]
+        os.kill(victim, signal.SIGKILL)
+        t_kill = time.monotonic()
+        restarted = wait_for(
+            lambda: [t for t, e in started if e.service == "decision" and e.kind == "started"],
+            10, "decision restarted",
+        )
+        assert restarted[0] - t_kill < 2.0, f"restarted after {restarted[0] - t_kill:.2f} s"
+        kinds = [e.kind for _, e in started if e.service == "decision"]
+        assert kinds[:2] == ["restarting", "started"], kinds
+        sub.undeclare()
+
+        # `nod status` shows the restart, with the new process.
+        def restarted_once():
+            code, d = status(endpoint, "rigx")
+            row = {s["service"]: s for s in d.get("services", [])}.get("decision", {})
+            fresh = row.get("restarts") == 1 and row.get("pid") != victim
+            return d if code == 0 and fresh else None
+
+        wait_for(restarted_once, 20, "status to show the restart")
+
+        # `nod topic hz` on the camera key of the running rig.
+        hz = nod("topic", "hz", "nod/rigx/vision/hand", "--connect", endpoint, "--duration", "2")
+        assert hz.returncode == 0, hz.stdout + hz.stderr
+        rates = [float(w) for line in hz.stdout.splitlines() for w, u in
+                 zip(line.split(), line.split()[1:], strict=False) if u == "Hz"]
+        assert rates and 20.0 <= rates[-1] <= 40.0, hz.stdout  # the sim camera runs at 30 Hz
+    finally:
+        if client is not None:
+            client.close()
+        up.send_signal(signal.SIGTERM)
+        out, _ = up.communicate(timeout=30)
+    assert up.returncode == 0, out
+    assert "every service stopped" in out
+    assert not processes_mentioning(endpoint.split("/")[1]), "services left running"
+
+
+def test_nod_up_refuses_a_bad_rig_file_in_one_line(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[rig]\nrouter = "tcp/127.0.0.1:1"\n[hosts.a]\nservices = ["decision"]\n'
+                   '[hosts.b]\nservices = ["decision"]\n')
+    res = nod("up", str(bad))
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert "decision already runs on host 'a'" in res.stderr
+    res = nod("status", "--rig-file", str(bad))
+    assert res.returncode == 2 and "already runs" in res.stderr
+
+
+def test_status_exits_1_when_the_rig_is_down(tmp_path: Path) -> None:
+    port = free_port()
+    router = open_session(make_config(mode="router", listen=[f"tcp/127.0.0.1:{port}"]))
+    try:
+        code, doc = status(f"tcp/127.0.0.1:{port}", "nobody")
+        assert code == 1
+        assert set(doc["down"]) == {"decision", "actuation", "eyes", "vision"}
+    finally:
+        router.close()
+
+
+def test_run_sim_survives_kill9_of_its_services_and_stores_all_trials(tmp_path: Path) -> None:
+    """Kill decision, then actuation, mid-session: each is restarted, the trial under way is
+    repeated, and the session still stores its 8 trials, with the restarts recorded."""
+    db = tmp_path / "s.sqlite"
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "run", "--sim", "--speed", "4", "--db", str(db),
+         "--listen", f"tcp/127.0.0.1:{port}", "--stale-ms", "2000"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        def trials_done() -> int:
+            if not db.exists():
+                return 0
+            with sqlite3.connect(db) as con:
+                try:
+                    return con.execute("SELECT COUNT(*) FROM trials").fetchone()[0]
+                except sqlite3.OperationalError:
+                    return 0
+
+        for service, after in (("decision", 1), ("actuation", 3)):
+            wait_for(lambda after=after: trials_done() >= after, 120, f"trial {after} stored")
+            time.sleep(1.0)  # into the next trial
+            pids = [p for p in processes_mentioning(f"services.cli {service} --connect")
+                    if f"127.0.0.1:{port}" in (Path(f"/proc/{p}/cmdline").read_bytes()
+                                               .replace(b"\0", b" ").decode())]
+            assert len(pids) == 1, pids
+            os.kill(pids[0], signal.SIGKILL)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, out + err
+    assert "8 trials of 1 participant(s) stored" in out
+    assert "[decision] restarting: killed by SIGKILL" in err
+    assert "[actuation] restarting: killed by SIGKILL" in err
+    store = Store(db)
+    try:
+        (session, _), *_ = store.trials(None)
+        trials = [t for _, t in store.trials(session)]
+        events = store.rig_events(session)
+        interruptions = store.interruptions(session)
+    finally:
+        store.close()
+    assert [t.trial for t in trials] == list(range(1, 9))
+    assert all(t.robot is not None for t in trials)
+    kinds = {(e.service, e.kind) for e in events}
+    assert {("decision", "restarting"), ("decision", "started"),
+            ("actuation", "restarting"), ("actuation", "started")} <= kinds, events
+    # The trials under way when a service died were broken off and repeated.
+    assert len(interruptions) >= 1
+    assert not processes_mentioning(f"127.0.0.1:{port}")
