@@ -53,6 +53,11 @@ class ArmPoses:
         return self.press_red if colour == "red" else self.press_blue
 
 
+def pose_distance(a: Pose, b: Pose) -> int:
+    """The largest difference of one joint between two poses (servo steps, Chebyshev)."""
+    return max((abs(x - y) for x, y in zip(a, b, strict=True)), default=0)
+
+
 def _lerp(a: Pose, b: Pose, u: float) -> tuple[float, ...]:
     return tuple(x + (y - x) * u for x, y in zip(a, b, strict=True))
 

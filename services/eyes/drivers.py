@@ -6,6 +6,9 @@ settings of both controllers; only the section of the chosen driver is used:
     [calibration.left_pan]   trim_deg, direction, min_deg, max_deg, min_pulse_us, max_pulse_us
     [maestro]                channels, baudrate, speed, acceleration, [maestro.link]
     [arduino]                baudrate, boot_wait_s, [arduino.link]
+
+A trims file (`--trims`, written by `nod eyes calibrate`; see `services.eyes.trims`) is laid over
+whichever calibration is in effect and replaces only the servos' `trim_deg`.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from services.core.config import from_mapping, load_toml
 from services.eyes.arduino import ArduinoEyesConfig, ArduinoServoDriver
 from services.eyes.maestro import MaestroConfig, MaestroServoDriver
 from services.eyes.servos import ServoDriver, SimServoDriver
+from services.eyes.trims import load_and_apply
 from services.model.servos import EyesCalibration
 
 EYES_DRIVERS: tuple[str, ...] = ("sim", "maestro", "arduino")
@@ -45,16 +49,20 @@ def make_eyes_driver(
     config_path: Path | None,
     *,
     calibration: EyesCalibration | None = None,
+    trims: Path | None = None,
 ) -> ServoDriver:
     """An unconnected eyes driver of `kind` ("sim", "maestro" or "arduino").
 
     The calibration is the eyes file's `[calibration]` if it has one, else `calibration` (the
-    rig config's `[eyes]`), else the defaults. Real drivers need `port`.
+    rig config's `[eyes]`), else the defaults; the trims file `trims`, if given, then replaces
+    the servos' trims. Real drivers need `port`.
     """
     if kind not in EYES_DRIVERS:
         raise ValueError(f"unknown eyes driver {kind!r}; expected one of {EYES_DRIVERS}")
     hw = load_eyes_config(config_path)
     calib = hw.calibration if hw.calibration is not None else calibration
+    if trims is not None:
+        calib = load_and_apply(calib if calib is not None else EyesCalibration(), trims)
     if kind == "sim":
         return SimServoDriver(calib)
     if not port:

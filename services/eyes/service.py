@@ -26,7 +26,7 @@ from services.eyes.servos import ServoDriver
 from services.model.gaze import GazeCommand
 from services.model.params import NodConfig
 from services.model.safety import SafetyParams, Watchdog
-from services.model.servos import ServoTargets
+from services.model.servos import SERVO_NAMES, ServoTargets
 from services.safety.wiring import watch_safety_inputs
 
 log = logging.getLogger("nod.eyes")
@@ -106,7 +106,11 @@ class EyesService:
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod eyes`."""
     p = Parser(
-        prog="nod eyes", description="Drive the two servo eyes from gaze commands (Section 5)."
+        prog="nod eyes",
+        description="Drive the two servo eyes from gaze commands (Section 5).",
+        epilog="Bench tools on the eyes' host (no Zenoh; stop the service first): "
+        "`nod eyes point --yaw Y --pitch P …` looks at one gaze, "
+        "`nod eyes calibrate --out eyes_trims.toml …` centres the servos (see their --help).",
     )
     add_service_args(p)
     p.add_argument(
@@ -115,6 +119,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", default=None, help="serial port of the servo controller")
     p.add_argument(
         "--eyes-config", type=Path, default=None, help="eyes hardware file (channels, calibration)"
+    )
+    p.add_argument(
+        "--trims",
+        "--calibration",
+        dest="trims",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="trims file written by `nod eyes calibrate`, laid over the calibration",
     )
     p.add_argument("--stale-ms", type=float, default=None, help="gaze staleness bound (ms)")
     return p
@@ -130,24 +143,41 @@ def eyes_safety(cfg: NodConfig, stale_ms: float | None) -> SafetyParams:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the eyes service until SIGINT/SIGTERM."""
+    """Run the eyes service until SIGINT/SIGTERM (`point` and `calibrate` are bench tools)."""
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv[:1] == ["point"]:
+        from services.eyes.point import main as point
+
+        return point(argv[1:])
+    if argv[:1] == ["calibrate"]:
+        from services.eyes.calibrate import main as calibrate
+
+        return calibrate(argv[1:])
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
     try:
         cfg = load_params(args.params)
         safety = eyes_safety(cfg, args.stale_ms)
+        # Built (not connected) before the session: a bad eyes or trims file fails at once.
+        driver = make_eyes_driver(
+            args.driver, args.port, args.eyes_config, calibration=cfg.eyes, trims=args.trims
+        )
         node = Node("eyes", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod eyes: {exc}", file=sys.stderr)
         return 2
     log.info("effective config: %s", json.dumps(cfg.summary("eyes", "safety")))
     try:
-        driver = make_eyes_driver(args.driver, args.port, args.eyes_config, calibration=cfg.eyes)
         driver.connect()
     except (ValueError, OSError, ConnectionError) as exc:
         node.close()
         print(f"nod eyes: {exc}", file=sys.stderr)
         return 2
+    if args.trims is not None:
+        servos = driver.calibration.servos()
+        trims = {s: c.trim_deg for s, c in zip(SERVO_NAMES, servos, strict=True)}
+        log.info("servo trims from %s: %s", args.trims, json.dumps(trims))
     EyesService(node, driver, safety)
     node.on_forced_exit(driver.neutral)  # if a signal's clean stop hangs: eyes neutral, exit
     try:

@@ -102,9 +102,22 @@ class ServoTargets:
         }
 
 
+def requested_angle(angle_rad: float, c: ServoCalibration) -> float:
+    """The servo angle (deg) a gaze angle asks for, before clamping: may lie outside the limits.
+
+    math.degrees of a huge finite angle is ±inf; clamping handles it like any other overshoot.
+    """
+    return 90.0 + c.direction * math.degrees(angle_rad) + c.trim_deg
+
+
+def requested_angles(cmd: GazeCommand, calib: EyesCalibration) -> tuple[float, ...]:
+    """The four unclamped servo angles (deg) of a gaze, in `SERVO_NAMES` order (for reports)."""
+    gaze_angles = (cmd.yaw, cmd.pitch, cmd.yaw, cmd.pitch)  # pan ← yaw, tilt ← pitch
+    return tuple(requested_angle(g, c) for g, c in zip(gaze_angles, calib.servos(), strict=True))
+
+
 def _servo(angle_rad: float, c: ServoCalibration) -> tuple[float, float, bool]:
-    # math.degrees of a huge finite angle is ±inf; clamping handles it like any other overshoot.
-    raw = 90.0 + c.direction * math.degrees(angle_rad) + c.trim_deg
+    raw = requested_angle(angle_rad, c)
     angle = min(max(raw, c.min_deg), c.max_deg)
     return angle, c.pulse_us(angle), angle != raw
 

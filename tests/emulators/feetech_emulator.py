@@ -6,12 +6,14 @@ from `REGISTER_MAP`; PING, READ, WRITE and SYNC_WRITE are answered like a servo 
 "Response_Status_Level" 1 (status after every non-broadcast instruction). Packets with a bad
 checksum are ignored (no reply), as real servos do.
 
-Physics, kept minimal: with torque on, the present position jumps to the goal; with torque off
-it stays where `move_by_hand` puts it.
+Physics, kept minimal: with torque on, the present position jumps to the goal, clamped to the
+servo's angle limits (`min/max_position_limit`, EEPROM; factory 0–4095); with torque off it
+stays where `move_by_hand` puts it.
 
 Faults to inject: `silent` (nothing answers), `silent_ids` (those servos are unplugged),
 `corrupt_replies` (the next n status packets carry a wrong checksum), `error_bits` per id (set in
-every status packet of that servo, e.g. 0x20 overload).
+every status packet of that servo, e.g. 0x20 overload), `block(id)` (the horn is jammed: the
+present position no longer follows the goal).
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ REGISTER_MAP: dict[str, tuple[int, int, bool, int]] = {
     "model_number": (3, 2, False, 777),  # STS3215
     "id": (5, 1, True, 0),  # set per servo
     "response_status_level": (8, 1, True, 1),
+    "min_position_limit": (9, 2, True, 0),
+    "max_position_limit": (11, 2, True, 4095),
     "torque_enable": (0x28, 1, True, 0),
     "acceleration": (0x29, 1, True, 0),
     "goal_position": (0x2A, 2, True, 2048),
@@ -60,6 +64,7 @@ class Servo:
         self.mem[5] = servo_id
         self.set("present_position", position)
         self.set("goal_position", position)
+        self.blocked = False  # a jammed horn: the present position stays where it is
 
     def get(self, name: str) -> int:
         """A register's value."""
@@ -76,8 +81,10 @@ class Servo:
         for k, b in enumerate(data):
             if addr + k < 256 and addr + k not in READ_ONLY:
                 self.mem[addr + k] = b
-        if self.get("torque_enable"):
-            self.set("present_position", self.get("goal_position"))
+        if self.get("torque_enable") and not self.blocked:
+            lo, hi = self.get("min_position_limit"), self.get("max_position_limit")
+            goal = self.get("goal_position")
+            self.set("present_position", min(max(goal, lo), hi) if lo < hi else goal)
 
 
 class FeetechBusEmulator(PtyDevice):
@@ -101,6 +108,17 @@ class FeetechBusEmulator(PtyDevice):
     def move_by_hand(self, servo_id: int, position: int) -> None:
         """Move a servo with torque off (calibration)."""
         self.servos[servo_id].set("present_position", position)
+
+    def set_limits(self, servo_id: int, low: int, high: int) -> None:
+        """Write a servo's angle limits (as the Feetech software would, into EEPROM)."""
+        with self._lock:
+            self.servos[servo_id].set("min_position_limit", low)
+            self.servos[servo_id].set("max_position_limit", high)
+
+    def block(self, servo_id: int) -> None:
+        """Jam a servo's horn: it keeps its present position whatever the goal."""
+        with self._lock:
+            self.servos[servo_id].blocked = True
 
     def positions(self) -> dict[int, int]:
         """Present positions of all servos."""
