@@ -21,20 +21,18 @@ import sys
 import threading
 import time
 import uuid
-from collections import Counter
 from pathlib import Path
 
 import zenoh
 
-from services.core import messages as m
 from services.core.cli import Parser
 from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys, check_rig
-from services.core.node import clip
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
 from services.launch.events import RigEvents
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
+from services.launch.view import SessionView
 from services.store import Store, StoreError
 
 log = logging.getLogger("nod.run")
@@ -43,71 +41,6 @@ SERVICES = ("decision", "actuation", "eyes", "sim")  # and the conductor, "exper
 # time) and the gaze keep-alive (20 Hz) come too slowly; above 10x a 2-core host cannot carry
 # the message rates (30 Hz x speed poses, each answered three times) without late inputs.
 MIN_SPEED, MAX_SPEED = 0.5, 10.0
-
-
-class SessionView:
-    """Prints progress and the per-trial table from the conductor's events."""
-
-    def __init__(self, n_trials: int, stream=sys.stdout, compact: bool = False) -> None:
-        self.n = n_trials
-        self.compact = compact
-        self.participant = ""
-        self.total_trials = 0
-        self.out = stream
-        self.tty = stream.isatty()
-        self.lock = threading.Lock()
-        self.results: list[m.TrialResult] = []
-        self.finished = threading.Event()
-        self._header_done = False
-
-    def on_trial(self, ev: m.TrialEvent) -> None:
-        """A protocol step: update the progress line."""
-        with self.lock:
-            if ev.phase in ("session_end", "abort"):
-                self.finished.set()
-                return
-            label = {"setup": f"gaze {ev.text}", "countdown": ev.text, "go": "go!"}.get(
-                ev.phase, ev.phase
-            )
-            option = f" O={ev.option}" if ev.option else ""
-            who = f"{self.participant} " if self.compact else ""
-            line = f"{who}trial {ev.trial}/{self.n} [{ev.mode}{option}]: {label}"
-            if self.tty:
-                self.out.write("\r\033[K" + line)
-                self.out.flush()
-
-    def begin(self, participant: str) -> None:
-        """A new participant's session starts."""
-        with self.lock:
-            self.participant = participant
-            self.results = []
-
-    def on_result(self, r: m.TrialResult) -> None:
-        """A finished trial: a table row (one participant) or a participant's line (a study)."""
-        with self.lock:
-            self.results.append(r)
-            self.total_trials += 1
-            if self.tty:
-                self.out.write("\r\033[K")
-            if self.compact:
-                if len(self.results) == self.n:
-                    outcomes = " ".join(f"{x.outcome or '-':<2}" for x in self.results)
-                    score = sum(x.score for x in self.results)
-                    self.out.write(f"{self.participant}: {outcomes}  score {score:>3}\n")
-                self.out.flush()
-                return
-            if not self._header_done:
-                self.out.write(
-                    f"{'trial':>5} {'mode':<10} {'O':<5} {'robot':<6} {'human':<6} "
-                    f"{'outcome':<8} {'switch':>6} {'viol':>4} {'score':>5}\n"
-                )
-                self._header_done = True
-            self.out.write(
-                f"{r.trial:>5} {r.mode:<10} {r.option or '-':<5} {r.robot or '-':<6} "
-                f"{r.human or '-':<6} {r.outcome or '-':<8} {r.switches:>6} {r.violations:>4} "
-                f"{r.score:>5}\n"
-            )
-            self.out.flush()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -236,14 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     n_trials = len(load_params(args.params).protocol.trials)
     view = SessionView(n_trials, compact=args.participants > 1)
     keys = Keys(args.rig)
-    subs = [
-        router.declare_subscriber(
-            keys.topic("experiment/trial"), lambda s: _decoded(m.TrialEvent, s, view.on_trial)
-        ),
-        router.declare_subscriber(
-            keys.topic("experiment/result"), lambda s: _decoded(m.TrialResult, s, view.on_result)
-        ),
-    ]
+    subs = view.subscribe(router, keys)
     epoch_ns = time.time_ns()
     print(
         f"router listening on {args.listen}; rig {args.rig!r}; speed {args.speed}x; "
@@ -378,19 +304,6 @@ def _spec(
     log_path = logs / f"{service}{suffix}.log"
     log_path.write_text("")  # a fresh log per run; restarts append to it
     return ServiceSpec(service, cmd, log=log_path, restart_argv=resume)
-
-
-_BAD = Counter()
-
-
-def _decoded(cls, sample, handler) -> None:
-    try:
-        handler(m.decode(cls, sample.payload.to_bytes()))
-    except m.MessageError as exc:
-        _BAD[cls] += 1
-        n = _BAD[cls]
-        if n <= 10 or n % 1000 == 0:  # a hostile peer must not flood the console or the log
-            log.warning("bad message #%d on %s: %s", n, sample.key_expr, clip(str(exc)))
 
 
 def _supervise(supervisor: Supervisor, stopping: threading.Event) -> int:

@@ -123,13 +123,15 @@ _TOPICS = (
         "`estop`, `estop_id`",
     ),
     Topic(
-        "experiment/trial", m.TrialEvent, ("experiment",), ("decision", "actuation", "sim", "run"),
+        "experiment/trial", m.TrialEvent, ("experiment",),
+        ("decision", "actuation", "sim", "run", "launcher"),
         "per event", CONTROL,
         "`phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, `mode`, "
         "`option`, `text`, `session`",
     ),
     Topic(
-        "experiment/result", m.TrialResult, ("experiment",), ("run",), "per trial", RELIABLE,
+        "experiment/result", m.TrialResult, ("experiment",), ("run", "launcher"), "per trial",
+        RELIABLE,
         "`trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, `violations`, "
         "`score`, `session`, `interrupted`",
     ),

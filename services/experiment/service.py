@@ -27,6 +27,7 @@ from services.core.cli import Parser, add_service_args
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
+from services.experiment.console import SessionConsole, make_console
 from services.experiment.recorder import TrialRecorder
 from services.experiment.rig_watch import RigWatch
 from services.model.geometry import Colour
@@ -48,9 +49,15 @@ class Conductor:
     """Runs the protocol over the fabric; callbacks fill the current trial's recorder."""
 
     def __init__(
-        self, node: Node, cfg: NodConfig, store: Store, clicks: Callable[[int], int | None]
+        self,
+        node: Node,
+        cfg: NodConfig,
+        store: Store,
+        clicks: Callable[[int], int | None],
+        console: SessionConsole | None = None,
     ):
         self.node = node
+        self.console = console or SessionConsole()
         self.cfg = cfg
         self.proto = cfg.protocol
         self.layout = cfg.layout
@@ -124,6 +131,7 @@ class Conductor:
             self.recorder.on_hand(pose, self.layout)
 
     def _scalar(self, name: str, msg: m.Scalar) -> None:
+        self.console.value(name, msg.value)
         if self.recorder is not None:
             self.recorder.on_scalar(name, msg, self._hands.get(msg.src_seq))
 
@@ -131,6 +139,7 @@ class Conductor:
         """The arm's end effector for the samples, and its safety state."""
         self.rig.device_state("actuation", msg.safe_stop, msg.safety_reason, self._now_ns())
         self._arm = (msg.trial, msg.phase, msg.target)
+        self.console.robot(msg.phase, msg.target)
         if self.robot_press is None and self._pending_presses:
             for press in self._pending_presses.values():
                 if press.trial == self.trial and self._confirms(self._arm, press):
@@ -214,6 +223,7 @@ class Conductor:
         self.session = session
         self.records = []
         protocol = self.protocol = SessionProtocol(self.proto, first_trial)
+        self.console.start(session, participant, len(self.proto.trials))
         status = "aborted"
         try:
             self._wait_for_a_safe_rig()
@@ -255,6 +265,7 @@ class Conductor:
                 session=session,
                 text=status,
             )
+            self.console.stop()
         return self.records
 
     def _wait_for_a_safe_rig(self) -> None:
@@ -274,6 +285,7 @@ class Conductor:
         if self.rig.safe(self._now_ns()):
             if self._held:
                 log.info("rig safe again: the session goes on")
+                self.console.note("rig safe again: the session goes on")
                 self._held = False
             return True
         if not self._held:
@@ -306,6 +318,8 @@ class Conductor:
             if spec is None:  # session_end: run_session publishes it once the store is closed
                 continue
             ev = {"trial": spec.index, "mode": spec.mode, "option": spec.option}
+            if cue.kind in ("setup", "countdown", "go", "end", "interrupted"):
+                self.console.cue(cue.kind, spec.index, spec.mode, spec.option, cue.text)
             if cue.kind == "gaze" and cue.gaze is not None:
                 with self.node.lock:
                     self.gaze_msg = {
@@ -379,7 +393,8 @@ class Conductor:
         self.pub_trial.put(
             phase="end", trial=spec.index, mode=spec.mode, option=spec.option, session=self.session
         )
-        self._store_trial(spec, protocol, rec, robot, self.clicks(spec.index), protocol.end.reason)
+        clicks = self.console.ask(lambda: self.clicks(spec.index))
+        self._store_trial(spec, protocol, rec, robot, clicks, protocol.end.reason)
 
     def _store_trial(
         self,
@@ -421,6 +436,8 @@ class Conductor:
         samples = rec.samples(SAMPLE_HZ) if rec is not None else []
         self.store.write_trial(self.session, record, samples, events)
         self.records.append(record)
+        self.console.result(spec.index, spec.mode, spec.option, j.robot, j.human, j.outcome,
+                            j.score, interrupted)
         self.pub_result.put(
             trial=spec.index,
             mode=spec.mode,
@@ -475,6 +492,13 @@ def build_parser() -> argparse.ArgumentParser:
         "after each trial), or 'none' (not entered)",
     )
     p.add_argument("--wait-services", type=float, default=30.0, help="seconds to wait for peers")
+    p.add_argument(
+        "--console",
+        default="auto",
+        choices=("auto", "live", "lines", "off"),
+        help="the operator's view: a live panel (a terminal), one line per step (a pipe), or "
+        "none (default auto)",
+    )
     return p
 
 
@@ -529,7 +553,7 @@ def main(argv: list[str] | None = None) -> int:
         store.close()
         print(f"nod experiment: {exc}", file=sys.stderr)
         return 2
-    conductor = Conductor(node, cfg, store, clicks)
+    conductor = Conductor(node, cfg, store, clicks, make_console(args.console))
     node.ready()
     session = args.resume or args.session or uuid.uuid4().hex[:12]
     try:

@@ -31,6 +31,7 @@ from services.core.rigfile import Rig, RigFileError, command, load_rig
 from services.core.session import make_config, open_session
 from services.launch.events import RigEvents
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
+from services.launch.view import SessionView
 
 log = logging.getLogger("nod.up")
 
@@ -57,7 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
         dest="exec_service",
         metavar="SERVICE",
         default=None,
-        help="replace this process with one service of --host (for a systemd unit per service)",
+        help="replace this process with one service of --host, or `router` (a systemd unit per "
+        "service: systemd supervises it)",
     )
     p.add_argument("--max-restarts", type=int, default=5, help="per minute, before giving up (5)")
     p.add_argument("--dry-run", action="store_true", help="print the commands; start nothing")
@@ -74,6 +76,14 @@ def plan(rig: Rig, host: str | None) -> tuple[list[str], bool]:
     return list(h.services), h.router
 
 
+def router_command(rig: Rig, listen: str | None = None) -> list[str]:
+    """`nod router` as the rig file says: mutual TLS with rig.tls, else plain on rig.router."""
+    cmd = [sys.executable, "-m", "services.cli", "router"]
+    if rig.tls is not None and listen is None:
+        return [*cmd, "--config", str(rig.tls / "control" / "router.json5")]
+    return [*cmd, "--listen", listen or rig.router]
+
+
 def main(argv: list[str] | None = None) -> int:
     """Start, supervise, stop."""
     args = build_parser().parse_args(argv)
@@ -86,6 +96,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nod up: {exc}", file=sys.stderr)
         return 2
     endpoint = args.listen or rig.router
+    if args.exec_service == "router":
+        if not with_router:
+            print("nod up: the router runs on the host with `router = true`", file=sys.stderr)
+            return 2
+        cmd = router_command(rig, endpoint if args.listen else None)
+        os.execv(cmd[0], cmd)
     if args.exec_service is not None:
         if args.exec_service not in services:
             here = ", ".join(services)
@@ -108,8 +124,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     router = None
     try:
-        if with_router:
+        tls = rig.tls if not args.listen else None
+        if with_router and tls is not None:
+            cfg = make_config(mode="router", config_file=tls / "control" / "router.json5")
+        elif with_router:
             cfg = make_config(mode="router", listen=[endpoint])
+        elif tls is not None:  # the launcher speaks as its host's role (its heartbeats, events)
+            role = rig.hosts[args.host].role if args.host else "control"
+            cfg = make_config(mode="client", config_file=tls / role / "zenoh.json5")
         else:
             cfg = make_config(mode="client", connect=[endpoint])
         session = router = open_session(cfg)
@@ -132,6 +154,9 @@ def main(argv: list[str] | None = None) -> int:
     router_note = f"router on {endpoint}" if with_router else f"router at {endpoint}"
     print(f"rig {rig.name!r} ({where}): {', '.join(services)}; {router_note}; logs in {logs}/",
           flush=True)
+    # The operator sees the session's trials here too, whoever runs the conductor.
+    view = SessionView(len(load_params(rig.params).protocol.trials))
+    subs = view.subscribe(session, keys)
     reported: set[str] = set()
     try:
         for s in services:
@@ -147,6 +172,8 @@ def main(argv: list[str] | None = None) -> int:
             stopping.wait(0.1)
     finally:
         supervisor.stop()
+        for sub in subs:
+            sub.undeclare()
         time.sleep(0.05)  # let the last rig events leave before the session closes
         if router is not None:
             router.close()

@@ -16,14 +16,54 @@ def test_zenoh_configs_parse(name):
     assert int(conf.get_json("transport/link/rx/max_message_size")) == 1 << 20
 
 
-def test_systemd_units_use_known_roles():
+def _unit(name: str) -> dict[str, dict[str, str]]:
+    """A systemd unit's [Section] key=value pairs (comments dropped)."""
+    sections: dict[str, dict[str, str]] = {}
+    current = ""
+    for line in (DEPLOY / "systemd" / name).read_text().splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        if line.startswith("["):
+            current = line.strip("[]")
+            sections[current] = {}
+        else:
+            key, _, value = line.partition("=")
+            sections[current][key] = value
+    return sections
+
+
+@pytest.mark.parametrize("name", ["nod@.service", "nod-router.service"])
+def test_systemd_units_run_the_rig_file_as_a_non_root_user(name):
+    unit = _unit(name)
+    svc = unit["Service"]
+    assert svc["User"] == "nod" and svc["Group"] == "nod"
+    assert svc["Restart"] == "on-failure"
+    assert "/etc/nod/rig.toml --host ${NOD_HOST} --exec" in svc["ExecStart"]
+    assert "setup-env" not in svc["ExecStart"] and "pip" not in svc["ExecStart"]  # no install
+    assert unit["Unit"]["StartLimitBurst"] == "5"  # a crash loop is left down, not hidden
+    assert int(svc["TimeoutStopSec"]) >= 3  # services stop within 2 s of SIGTERM
+    if name == "nod@.service":
+        assert set(svc["SupplementaryGroups"].split()) == {"dialout", "video"}
+
+
+def test_the_example_rig_file_plans_every_host():
+    from services.core.rigfile import load_rig
+    from services.launch.up import plan, router_command
+
+    rig = load_rig(DEPLOY / "rig.example.toml")
+    assert set(rig.services) == {"vision", "decision", "actuation", "eyes", "monitor"}
+    placed = [s for h in rig.hosts for s in plan(rig, h)[0]]
+    assert sorted(placed) == sorted(rig.services)  # every service on exactly one host
+    assert [h for h in rig.hosts if plan(rig, h)[1]] == ["control"]
+    assert router_command(rig)[-2:] == ["--listen", rig.router]
+    assert (DEPLOY / rig.sections["actuation"]["config"].relative_to(DEPLOY)).exists()
+
+
+def test_launch_script_uses_the_rig_file():
     launch = (DEPLOY / "lab" / "launch").read_text()
-    units = sorted((DEPLOY / "systemd").glob("nod-*.service"))
-    assert len(units) == 4
-    for unit in units:
-        role = unit.stem.removeprefix("nod-")
-        assert f"  {role})" in launch
-        assert f"launch {role}" in unit.read_text()
+    assert 'up "${NOD_RIG_FILE:-/etc/nod/rig.toml}" --host "$host"' in launch
+    assert "setup-env\n" not in launch.replace('run $home/scripts/setup-env first', '')
 
 
 def test_example_params_load_and_match_the_defaults():

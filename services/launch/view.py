@@ -1,0 +1,111 @@
+"""What a launcher's console shows of a session: a progress line and one row per trial.
+
+`nod run` and `nod up` subscribe to experiment/trial and experiment/result and feed them here:
+the operator sees every trial's outcome in the launcher's terminal, whoever runs the conductor.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+from collections import Counter
+from typing import Any
+
+import zenoh
+
+from services.core import messages as m
+from services.core.keys import Keys
+from services.core.node import clip
+
+log = logging.getLogger("nod.launch")
+
+
+class SessionView:
+    """Prints progress and the per-trial table from the conductor's events."""
+
+    def __init__(self, n_trials: int, stream=sys.stdout, compact: bool = False) -> None:
+        self.n = n_trials
+        self.compact = compact
+        self.participant = ""
+        self.total_trials = 0
+        self.out = stream
+        self.tty = stream.isatty()
+        self.lock = threading.Lock()
+        self.results: list[m.TrialResult] = []
+        self.finished = threading.Event()
+        self._header_done = False
+
+    def on_trial(self, ev: m.TrialEvent) -> None:
+        """A protocol step: update the progress line."""
+        with self.lock:
+            if ev.phase in ("session_end", "abort"):
+                self.finished.set()
+                return
+            label = {"setup": f"gaze {ev.text}", "countdown": ev.text, "go": "go!"}.get(
+                ev.phase, ev.phase
+            )
+            option = f" O={ev.option}" if ev.option else ""
+            who = f"{self.participant} " if self.compact else ""
+            line = f"{who}trial {ev.trial}/{self.n} [{ev.mode}{option}]: {label}"
+            if self.tty:
+                self.out.write("\r\033[K" + line)
+                self.out.flush()
+
+    def begin(self, participant: str) -> None:
+        """A new participant's session starts."""
+        with self.lock:
+            self.participant = participant
+            self.results = []
+
+    def on_result(self, r: m.TrialResult) -> None:
+        """A finished trial: a table row (one participant) or a participant's line (a study)."""
+        with self.lock:
+            self.results.append(r)
+            self.total_trials += 1
+            if self.tty:
+                self.out.write("\r\033[K")
+            if self.compact:
+                if len(self.results) == self.n:
+                    outcomes = " ".join(f"{x.outcome or '-':<2}" for x in self.results)
+                    score = sum(x.score for x in self.results)
+                    self.out.write(f"{self.participant}: {outcomes}  score {score:>3}\n")
+                self.out.flush()
+                return
+            if not self._header_done:
+                self.out.write(
+                    f"{'trial':>5} {'mode':<10} {'O':<5} {'robot':<6} {'human':<6} "
+                    f"{'outcome':<8} {'switch':>6} {'viol':>4} {'score':>5}\n"
+                )
+                self._header_done = True
+            self.out.write(
+                f"{r.trial:>5} {r.mode:<10} {r.option or '-':<5} {r.robot or '-':<6} "
+                f"{r.human or '-':<6} {r.outcome or '-':<8} {r.switches:>6} {r.violations:>4} "
+                f"{r.score:>5}\n"
+            )
+            self.out.flush()
+
+    def subscribe(self, session: zenoh.Session, keys: Keys) -> list[Any]:
+        """Follow the rig's conductor: its trial events and results (undeclare them when done)."""
+        bad: Counter[str] = Counter()
+
+        def decoded(cls: type[m.Message], handler: Any) -> Any:
+            def on_sample(sample: zenoh.Sample) -> None:
+                try:
+                    handler(m.decode(cls, sample.payload.to_bytes()))
+                except m.MessageError as exc:
+                    key = str(sample.key_expr)
+                    bad[key] += 1
+                    if bad[key] <= 10 or bad[key] % 1000 == 0:  # never a flood from a bad peer
+                        log.warning("bad message #%d on %s: %s", bad[key], key, clip(str(exc)))
+
+            return on_sample
+
+        return [
+            session.declare_subscriber(
+                keys.topic("experiment/trial"), decoded(m.TrialEvent, self.on_trial)
+            ),
+            session.declare_subscriber(
+                keys.topic("experiment/result"), decoded(m.TrialResult, self.on_result)
+            ),
+        ]

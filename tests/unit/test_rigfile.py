@@ -1,0 +1,110 @@
+"""The rig file: what it accepts, the one line it gives for what it does not, the commands."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+from services.core.rigfile import RigFileError, command, load_rig
+
+GOOD = """
+[rig]
+name = "lab2"
+router = "tcp/10.0.0.1:7447"
+params = "p.toml"
+[hosts.control]
+router = true
+services = ["monitor"]
+[hosts.cam]
+services = ["vision"]
+[hosts.arm]
+role = "arm"
+services = ["decision", "actuation", "eyes"]
+[vision]
+source = "rtsp://cam/stream"
+tracker = "mediapipe"
+calibration = "table.toml"
+[actuation]
+driver = "feetech"
+port = "/dev/ttyUSB0"
+config = "/etc/nod/arm.toml"
+stale_ms = 300
+[eyes]
+driver = "arduino"
+port = "/dev/ttyACM0"
+trims = "trims.toml"
+[monitor]
+args = ["--serve-web"]
+"""
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "rig.toml"
+    p.write_text(text)
+    return p
+
+
+def test_a_good_rig_file(tmp_path: Path) -> None:
+    rig = load_rig(write(tmp_path, GOOD))
+    assert rig.name == "lab2" and rig.router == "tcp/10.0.0.1:7447"
+    assert rig.params == tmp_path / "p.toml"  # relative to the rig file
+    assert rig.host_of("actuation").name == "arm" and rig.router_host().name == "control"
+    act = command(rig, "actuation")
+    assert act[:4] == [sys.executable, "-m", "services.cli", "actuation"]
+    assert act[act.index("--connect") + 1] == "tcp/10.0.0.1:7447"
+    assert act[act.index("--port") + 1] == "/dev/ttyUSB0"
+    assert act[act.index("--arm-config") + 1] == "/etc/nod/arm.toml"  # absolute stays
+    assert act[act.index("--stale-ms") + 1] == "300.0"
+    eyes = command(rig, "eyes")
+    assert eyes[eyes.index("--trims") + 1] == str(tmp_path / "trims.toml")
+    vision = command(rig, "vision")
+    assert vision[vision.index("--source") + 1] == "rtsp://cam/stream"
+    assert vision[vision.index("--calibration") + 1] == str(tmp_path / "table.toml")
+    assert command(rig, "monitor")[-1] == "--serve-web"
+    assert "--params" not in command(rig, "monitor")
+    # Simulated hardware: no devices, the sim participant in place of the camera.
+    sim = command(rig, "actuation", sim_hardware=True, connect="tcp/127.0.0.1:9")
+    assert sim[sim.index("--driver") + 1] == "sim" and "--port" not in sim
+    assert sim[sim.index("--connect") + 1] == "tcp/127.0.0.1:9"
+    assert command(rig, "vision", sim_hardware=True)[3] == "sim"
+
+
+def test_tls_rigs_use_each_host_identity(tmp_path: Path) -> None:
+    rig = load_rig(write(tmp_path, GOOD.replace('params = "p.toml"', 'tls = "/etc/nod/tls"')))
+    cmd = command(rig, "decision")
+    assert cmd[cmd.index("--config") + 1] == "/etc/nod/tls/arm/zenoh.json5"
+    assert "--connect" not in cmd
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (("[rig]", "[rigg]"), "rigg: unknown table"),
+        (('name = "lab2"', 'name = "lab 2"'), "rig.name"),
+        (('router = "tcp/10.0.0.1:7447"', "router = 7447"), "rig.router"),
+        (('services = ["monitor"]', 'services = ["monitor", "decision"]'), "already runs"),
+        (('services = ["vision"]', 'services = ["camera"]'), "unknown service 'camera'"),
+        (('[hosts.cam]', '[hosts.cam]\nrouter = true'), "only one host may run the router"),
+        (('tracker = "mediapipe"', 'tracker = "yolo"'), "vision.tracker"),
+        (('driver = "feetech"', 'driver = "dynamixel"'), "actuation.driver"),
+        (('port = "/dev/ttyUSB0"\n', ""), "actuation.port"),
+        (('stale_ms = 300', 'stale = 300'), "actuation.stale: unknown key"),
+        (('args = ["--serve-web"]', 'args = "--serve-web"'), "monitor.args"),
+        (('role = "arm"', 'role = "arm"\ncolour = "red"'), "hosts.arm.colour"),
+    ],
+)
+def test_bad_rig_files_say_which_key(tmp_path: Path, change: tuple[str, str], message: str) -> None:
+    old, new = change
+    assert old in GOOD
+    with pytest.raises(RigFileError, match=message) as info:
+        load_rig(write(tmp_path, GOOD.replace(old, new, 1)))
+    assert "\n" not in str(info.value) and str(tmp_path) in str(info.value)
+
+
+def test_unreadable_and_malformed_files(tmp_path: Path) -> None:
+    with pytest.raises(RigFileError, match="cannot read"):
+        load_rig(tmp_path / "missing.toml")
+    with pytest.raises(RigFileError, match="not valid TOML"):
+        load_rig(write(tmp_path, "[rig\nname="))
