@@ -219,3 +219,32 @@ def test_run_sim_survives_kill9_of_its_services_and_stores_all_trials(tmp_path: 
     # The trials under way when a service died were broken off and repeated.
     assert len(interruptions) >= 1
     assert not processes_mentioning(f"127.0.0.1:{port}")
+
+
+@pytest.mark.parametrize("service", ["sim", "decision", "actuation"])
+def test_sigterm_stops_a_service_within_2_s_when_its_router_is_gone(
+    service: str, tmp_path: Path
+) -> None:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    router = open_session(make_config(mode="router", listen=[endpoint]))
+    log = (tmp_path / f"{service}.log").open("w")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", service, "--connect", endpoint, "--rig", "gone"],
+        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
+    )
+    try:
+        wait_for(lambda: "up on rig" in (tmp_path / f"{service}.log").read_text(), 20,
+                 f"{service} up")
+        time.sleep(1.0)  # publishing (the sim's camera, the arm's state) into the router
+        router.close()
+        time.sleep(1.0)  # the router is gone; the service is mid-publish or reconnecting
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(10)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert took < 2.5, f"{service} took {took:.2f} s to stop after SIGTERM"
