@@ -23,7 +23,7 @@ def _pose(seq: int, t_ns: int, x: float, y: float) -> bytes:
 def test_decision_survives_garbage_and_keeps_publishing(client, spawn):
     proc = spawn("decision")
     z_r = Collector(client, KEYS.topic("decision/z_r"), m.Scalar)
-    z_h = Collector(client, KEYS.topic("decision/z_h"), m.Scalar)
+    z_h = Collector(client, KEYS.topic("decision/z_h"), m.Observed)
     # BLOCK: the 100 kB garbage must not make the test's own valid poses droppable en route.
     hand = client.declare_publisher(
         KEYS.topic("vision/hand"), congestion_control=zenoh.CongestionControl.BLOCK
