@@ -33,6 +33,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("services.experiment.export", "write a session database as CSV"),
     "monitor": ("services.monitor.service", "live view of every key in Rerun"),
     "topic": ("services.tools.topic", "list, echo and measure the rig's keys"),
+    "record": ("services.recording.record", "record every key of a rig into an MCAP file"),
+    "replay": ("services.recording.replay", "replay a recording, or re-run decision on it"),
     "ports": ("services.tools.ports", "serial devices with their USB ids"),
     "lab": ("services.lab.cli", "lab deployment tools: `nod lab secure` (mutual TLS, ACL)"),
 }

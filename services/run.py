@@ -83,6 +83,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
     p.add_argument("--stale-ms", type=float, default=None, help="safety staleness bound (ms)")
     p.add_argument("--logs", type=Path, default=None, help="folder for service logs")
+    p.add_argument(
+        "--record",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="record each session's keys to DIR/<session>.mcap (`nod experiment --record`)",
+    )
     hw = p.add_argument_group("bench-testing real hardware with the sim participant")
     hw.add_argument("--arm-driver", default="sim", help="sim | feetech (default sim)")
     hw.add_argument("--arm-port", default=None, help="serial port of the arm")
@@ -149,6 +156,8 @@ def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list
         ]
         if getattr(args, "session", None):
             cmd += ["--session", args.session]
+        if getattr(args, "record", None) is not None:
+            cmd += ["--record", str(args.record)]
     return cmd
 
 
@@ -239,7 +248,23 @@ def _start_monitor(args: argparse.Namespace, router, keys: Keys, logs: Path) -> 
             break
         time.sleep(0.1)
     print(f"monitor: nod monitor {args.monitor} (log in {logs}/monitor.log)", flush=True)
+    for line in monitor_lines(logs / "monitor.log"):  # e.g. the web viewer's URL, the .rrd
+        print(f"monitor: {line}", flush=True)
     return proc
+
+
+def monitor_lines(log: Path) -> list[str]:
+    """What `nod monitor` said at start (its sinks: web viewer URL, recording, or an error).
+
+    It prints these before it declares its liveliness token, so they are in its log by the
+    time `_start_monitor` sees the monitor up.
+    """
+    try:
+        text = log.read_text(errors="replace")
+    except OSError:
+        return []
+    prefix = "nod monitor: "
+    return [line[len(prefix) :] for line in text.splitlines() if line.startswith(prefix)]
 
 
 def _check_args(args: argparse.Namespace) -> str | None:

@@ -53,7 +53,7 @@ class DecisionService:
                     pose.seq, ahead / 1e6, self.future,
                 )
             return
-        if self.model.t_ns is not None and pose.t_ns <= self.model.t_ns:
+        if not self.model.accepts(pose.t_ns):
             self.out_of_order += 1  # stale or reordered pose: time never runs backwards
             if self.out_of_order <= 10 or self.out_of_order % 100 == 0:
                 log.warning("hand pose seq %d is not newer than the last one; ignored", pose.seq)
@@ -78,10 +78,10 @@ class DecisionService:
 
     def on_trial(self, ev: m.TrialEvent) -> None:
         """Reset at setup and at "go": opinions form from the cue on (Algorithm 1 trigger)."""
-        if ev.phase in ("setup", "go"):
-            option = ev.option if ev.mode == "consensus" else None
-            self.model.reset(ev.mode, option)
-            log.info("trial %d %s: mode=%s O=%s", ev.trial, ev.phase, ev.mode, option)
+        if self.model.on_trial(ev.phase, ev.mode, ev.option):
+            log.info(
+                "trial %d %s: mode=%s O=%s", ev.trial, ev.phase, ev.mode, self.model.option
+            )
 
 
 def build_parser() -> argparse.ArgumentParser:

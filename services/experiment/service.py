@@ -29,6 +29,7 @@ from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.experiment.console import SessionConsole, make_console
 from services.experiment.recorder import TrialRecorder
+from services.experiment.recording import RecorderProcess, recorder_command, recording_path
 from services.experiment.rig_watch import RigWatch
 from services.model.geometry import Colour
 from services.model.outcome import OutcomeTracker, judge_trial
@@ -43,6 +44,7 @@ SAMPLE_HZ = 60.0  # stored samples are decimated to this rate (a 30 Hz camera pa
 # The gaze is repeated this often: the eyes' watchdog holds them neutral when it goes stale
 # (250 ms), so the keep-alive runs 5x faster than that bound, with room for a busy host.
 GAZE_KEEPALIVE_NS = 50_000_000
+RECORDER_READY_S = 30.0  # wall seconds for `nod record` to start and subscribe
 
 
 class Conductor:
@@ -80,6 +82,7 @@ class Conductor:
         self._pending_presses: dict[str, m.PressMsg] = {}  # unconfirmed, per colour, this trial
         self.refused_presses = 0
         self._held = False  # the session waits for the rig
+        self.recording: tuple[Path, int] | None = None  # (file, started_ns) of `--record`
         self.pub_trial = node.publisher("experiment/trial")
         self.pub_result = node.publisher("experiment/result")
         self.pub_gaze = node.publisher("eyes/cmd")
@@ -220,6 +223,8 @@ class Conductor:
             self.store.begin_session(
                 session, participant, self.node.keys.rig, seed, started, self.cfg.summary()
             )
+        if self.recording is not None:
+            self.store.add_recording(session, *self.recording)
         self.session = session
         self.records = []
         protocol = self.protocol = SessionProtocol(self.proto, first_trial)
@@ -499,6 +504,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="the operator's view: a live panel (a terminal), one line per step (a pipe), or "
         "none (default auto)",
     )
+    p.add_argument(
+        "--record",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="record the session's keys to DIR/<session>.mcap (a `nod record` child, stopped "
+        "at the session's end; linked to the session in the store)",
+    )
     return p
 
 
@@ -556,6 +569,14 @@ def main(argv: list[str] | None = None) -> int:
     conductor = Conductor(node, cfg, store, clicks, make_console(args.console))
     node.ready()
     session = args.resume or args.session or uuid.uuid4().hex[:12]
+    recorder = None
+    if args.record is not None:
+        recorder = _start_recorder(args, session)
+        if recorder is None:
+            node.close()
+            store.close()
+            return 2
+        conductor.recording = (recorder.path, node.clock.now_ns())
     try:
         conductor.wait_for_services(args.wait_services)
         log.info(
@@ -570,10 +591,31 @@ def main(argv: list[str] | None = None) -> int:
         log.warning("session %s interrupted", session)
         return 130
     finally:
+        if recorder is not None:
+            code = recorder.stop()
+            log.info("recording %s (recorder exit %s)", recorder.path, code)
         node.close()
         store.close()
     log.info("session %s complete: %s", session, json.dumps(str(args.db)))
     return 0
+
+
+def _start_recorder(args: argparse.Namespace, session: str) -> RecorderProcess | None:
+    """Start `nod record` for the session and wait until it listens; None (said why) if not."""
+    try:
+        args.record.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"nod experiment: cannot record to {args.record}: {exc}", file=sys.stderr)
+        return None
+    path = recording_path(args.record, session)
+    recorder = RecorderProcess(recorder_command(args, path, session), path)
+    if not recorder.wait_ready(RECORDER_READY_S):
+        recorder.stop(tail_s=0.0)
+        print(f"nod experiment: the recorder did not start (writing {path}); see the log above",
+              file=sys.stderr)
+        return None
+    log.info("recording the session to %s", path)
+    return recorder
 
 
 if __name__ == "__main__":

@@ -145,6 +145,22 @@ class DecisionModel:
         else:
             self._sigma = self._beta = 0.0
 
+    def on_trial(self, phase: str, mode: Mode, option: Colour | None) -> bool:
+        """A protocol event: reset at "setup" and at "go" (opinions form from the cue on).
+
+        O is taken in consensus trials only. True if the event reset the state. The decision
+        service and offline re-runs of a recording (`nod replay --through decision`) both call
+        this, so they reset alike.
+        """
+        if phase not in ("setup", "go"):
+            return False
+        self.reset(mode, option if mode == "consensus" else None)
+        return True
+
+    def accepts(self, t_ns: int) -> bool:
+        """True if a pose stamped `t_ns` would advance the state (newer than the last one)."""
+        return self._t_ns is None or t_ns > self._t_ns
+
     def set_layout(self, layout: TableLayout) -> None:
         """Use a new table layout for later poses (state and ẑ_h are kept)."""
         self._observer.layout = layout

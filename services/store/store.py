@@ -1,6 +1,9 @@
 """The session store: one SQLite file (WAL) with sessions, trials, samples and questionnaires.
 
-Samples are decimated; questionnaires hold the post-session answers Q1-Q5 of paper Sec 8.
+Samples are decimated; questionnaires hold the post-session answers Q1-Q5 of paper Sec 8;
+recordings link a session to the MCAP files `nod record` wrote of it (`nod experiment --record`).
+A table added by a later version is created when an older file is opened (`CREATE TABLE IF NOT
+EXISTS`); a column added to an existing table is added by `_migrate`.
 
 Each trial is written in one transaction together with its samples, so a crash mid-trial loses
 at most that trial's unfinished samples; a session left 'running' is reported when the store is
@@ -114,6 +117,12 @@ CREATE TABLE IF NOT EXISTS questionnaires (
     q5          INTEGER NOT NULL CHECK (q5 BETWEEN 1 AND 10),
     entered_ns  INTEGER NOT NULL,
     source      TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS recordings (
+    session    TEXT NOT NULL REFERENCES sessions(session),
+    path       TEXT NOT NULL,
+    started_ns INTEGER NOT NULL,
+    PRIMARY KEY (session, path)
 );
 """
 
@@ -385,6 +394,23 @@ class Store:
             "SELECT participant, q1, q2, q3, q4, q5 FROM questionnaires ORDER BY participant"
         )
         return [QuestionnaireRecord(*row) for row in cur]
+
+    def add_recording(self, session: str, path: str | Path, started_ns: int) -> None:
+        """Link a recording (an MCAP file) to a stored session; the path is stored absolute."""
+        with self.db:
+            self.db.execute("BEGIN")
+            self.db.execute(
+                "INSERT OR REPLACE INTO recordings VALUES (?, ?, ?)",
+                (session, str(Path(path).resolve()), started_ns),
+            )
+
+    def recordings(self, session: str) -> list[tuple[str, int]]:
+        """A session's recordings as (path, started_ns), oldest first."""
+        cur = self.db.execute(
+            "SELECT path, started_ns FROM recordings WHERE session = ? ORDER BY started_ns, path",
+            (session,),
+        )
+        return [(str(p), int(t)) for p, t in cur]
 
     def samples(self, session: str, trial: int) -> Sequence[Sample]:
         """A trial's samples in time order."""

@@ -13,7 +13,7 @@ KEY is a full key (`nod/rig1/vision/hand`) or one relative to `--rig` (`vision/h
 also takes wildcards (`safety/*`, `**`). The tool only subscribes: it declares no liveliness token
 and publishes nothing. Zenoh's thread only stamps the arrival time and queues the bytes (bounded;
 what overflows is counted, never blocks the network), and decoding and printing happen on the
-main thread, so a slow terminal cannot slow the rig.
+main thread, so a slow terminal cannot slow the rig (`services.core.tap.Tap`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import queue
 import re
 import sys
 import threading
@@ -40,10 +39,9 @@ from services.core.contract import TOPICS
 from services.core.keys import check_rig
 from services.core.node import clip, install_signal_handlers
 from services.core.session import Fabric, add_zenoh_args, open_session
+from services.core.tap import POLL_S, QUEUE_MAX, Arrival, Tap  # noqa: F401 (re-exported)
 
 PROG = "nod topic"
-QUEUE_MAX = 10_000  # samples waiting for the main thread; more are dropped and counted
-POLL_S = 0.1  # the main loop wakes at least this often (signals, deadlines)
 REPORT_S = 1.0  # `hz` prints once per second
 
 
@@ -123,54 +121,6 @@ def clean(text: str) -> str:
         text = inner.group(1)
     text = re.sub(r"\s*\bat \S+\.rs:\d+\.?", "", text)
     return clip(text, 300)
-
-
-# --- samples ------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Arrival:
-    """One sample as zenoh handed it over."""
-
-    t: float  # time.monotonic() at arrival
-    key: str
-    payload: bytes
-
-
-class Tap:
-    """A subscription whose samples wait in a bounded queue for the main thread."""
-
-    def __init__(self, session: zenoh.Session, expr: str, maxsize: int = QUEUE_MAX) -> None:
-        self.items: queue.Queue[Arrival] = queue.Queue(maxsize)
-        self.dropped = 0
-        # On zenoh's thread, no hand-off queue: stamping at arrival keeps `hz` honest.
-        callback = zenoh.handlers.Callback(self._on_sample, indirect=False)
-        self._sub: Any = session.declare_subscriber(expr, callback)
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        if sample.kind != zenoh.SampleKind.PUT:
-            return
-        item = Arrival(time.monotonic(), str(sample.key_expr), sample.payload.to_bytes())
-        try:
-            self.items.put_nowait(item)
-        except queue.Full:  # the output fell behind: never block zenoh's thread
-            self.dropped += 1
-
-    def next(self, until: float | None = None) -> Arrival | None:
-        """The next sample, waiting at most POLL_S and never past `until` (monotonic)."""
-        timeout = POLL_S if until is None else min(POLL_S, until - time.monotonic())
-        try:
-            if timeout <= 0:
-                return self.items.get_nowait()
-            return self.items.get(timeout=timeout)
-        except queue.Empty:
-            return None
-
-    def close(self) -> None:
-        """Stop receiving (what is queued stays readable)."""
-        if self._sub is not None:
-            self._sub.undeclare()
-            self._sub = None
 
 
 # --- rates --------------------------------------------------------------------------------------

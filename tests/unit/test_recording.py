@@ -1,0 +1,195 @@
+"""The recording format, the recorder's validation, the replay's key choice, the store's links.
+
+Whole sessions recorded and replayed over a real router: tests/integration/test_record_replay.py.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import sqlite3
+
+import pytest
+from mcap.reader import make_reader
+
+from services.core import messages as m
+from services.core.contract import TOPICS
+from services.model.decision import DecisionModel
+from services.recording.mcap_io import FILE_METADATA, McapIn, McapOut, topic_of
+from services.recording.record import Recorder
+from services.recording.replay import input_topics, select_topics, through_decision
+from services.store import Store
+
+JPEG = b"\xff\xd8\xff\xe0" + b"\x00" * 60
+
+
+def _pose(seq: int, t_ns: int, x: float = 0.5, y: float = 0.8) -> m.HandPose:
+    pts = ((x - 0.01, y), (x + 0.01, y), (x, y - 0.02))
+    return m.HandPose(seq=seq, t_ns=t_ns, detected=True, center=(x, y - 0.0067), landmarks=pts)
+
+
+def test_inputs_are_what_the_services_under_test_need_from_outside():
+    assert input_topics() == ("vision/hand", "vision/layout")
+    every = set(TOPICS)
+    assert select_topics(every, None, True) == {"vision/hand", "vision/layout"}
+    # a whole replay leaves the e-stop release out unless it is named
+    assert "safety/release" not in select_topics(every, None, False)
+    assert "safety/estop" in select_topics(every, None, False)
+    assert select_topics(every, ["safety/*"], False) == {"safety/estop", "safety/release"}
+    assert select_topics(every, ["nod/rigX/vision/hand"], False) == {"vision/hand"}
+    assert select_topics(every, ["vision/hand"], True) == {"vision/hand"}
+    with pytest.raises(ValueError, match="not a key expression"):
+        select_topics(every, ["vi*/hand"], False)
+
+
+def test_the_recorder_writes_original_bytes_per_key_and_keeps_invalid_payloads_apart(tmp_path):
+    path = tmp_path / "r.mcap"
+    out = McapOut(path)
+    out.metadata(FILE_METADATA, {"rig": "rig1", "params": {"a": 1}})
+    rec = Recorder(out, images=True)
+    pose = m.encode(_pose(7, 1_000))
+    rec.add("nod/rig1/vision/hand", pose, 5_000)
+    event = m.encode(m.TrialEvent(seq=0, t_ns=2_000, phase="setup", trial=1, session="s1"))
+    rec.add("nod/rig1/experiment/trial", event, 6_000)
+    rec.add("nod/rig1/experiment/trial", event, 6_500)  # the session is noted once
+    rec.add("nod/rig1/vision/hand", b"\xc1garbage", 7_000)
+    rec.add("nod/rig1/not/a/key", pose, 8_000)
+    frame = m.VisionFrame(seq=3, t_ns=3_000, jpeg=JPEG, width=64, height=48)
+    rec.add("nod/rig1/vision/frame", m.encode(frame), 9_000)
+    out.finish()
+    assert rec.sessions == ["s1"]
+    assert rec.invalid == {"nod/rig1/vision/hand": 1, "nod/rig1/not/a/key": 1}
+
+    with path.open("rb") as fh:
+        reader = make_reader(fh)
+        rows = [(c.topic, c, s, msg) for s, c, msg in reader.iter_messages()]
+        meta = [(md.name, md.metadata) for md in reader.iter_metadata()]
+    valid = [(t, msg) for t, c, _s, msg in rows if c.message_encoding == "msgpack"]
+    assert [(t, msg.data, msg.log_time, msg.publish_time, msg.sequence) for t, msg in valid] == [
+        ("nod/rig1/vision/hand", pose, 5_000, 1_000, 7),
+        ("nod/rig1/experiment/trial", event, 6_000, 2_000, 0),
+        ("nod/rig1/experiment/trial", event, 6_500, 2_000, 0),
+        ("nod/rig1/vision/frame", m.encode(frame), 9_000, 3_000, 3),
+    ]
+    schemas = {t: s.name for t, c, s, _ in rows if s is not None}
+    assert schemas["nod/rig1/vision/hand"] == "HandPose"
+    assert schemas["nod/rig1/vision/frame/image"] == "foxglove.CompressedImage"
+    invalid = [(t, c.metadata["invalid"], msg.publish_time, msg.log_time)
+               for t, c, s, msg in rows if "invalid" in c.metadata]
+    assert invalid[0][0] == "nod/rig1/vision/hand" and "not valid msgpack" in invalid[0][1]
+    assert invalid[0][2] == invalid[0][3] == 7_000  # publish_time = log_time
+    assert invalid[1][:2] == ("nod/rig1/not/a/key", "not a key of the contract")
+    (image,) = [msg for t, c, s, msg in rows if t.endswith("/image")]
+    body = json.loads(image.data)
+    assert base64.b64decode(body["data"]) == JPEG and body["format"] == "jpeg"
+    assert body["timestamp"] == {"sec": 0, "nsec": 3_000}
+    assert [name for name, _ in meta] == ["nod", "nod.session"]
+    assert json.loads(meta[0][1]["params"]) == {"a": 1}
+    # the players read only the contract's messages
+    assert [e.key for e in McapIn(path) if e.valid] == [t for t, _ in valid]
+
+
+def test_a_file_cut_short_reads_up_to_its_last_complete_chunk(tmp_path):
+    path = tmp_path / "full.mcap"
+    out = McapOut(path)
+    out.metadata(FILE_METADATA, {"rig": "rig1"})
+    sizes: list[int] = []
+    for i in range(300):
+        out.write(out.channel("nod/rig1/vision/hand"), 10_000 + i, i, m.encode(_pose(i, i)), i)
+        if i % 100 == 99:
+            out.flush()  # three chunks
+            sizes.append(out.size())
+    out.finish()
+    whole = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole[: sizes[1] + 100])  # the third chunk is cut short
+    read = McapIn(cut)
+    seqs = [m.decode(m.HandPose, e.message.data).seq for e in read]
+    assert seqs == list(range(200)) and not read.complete and read.truncated
+    assert read.file_metadata() == {"rig": "rig1"}
+    full = McapIn(path)
+    assert sum(1 for _ in full) == 300 and full.complete and full.truncated is None
+
+
+def test_through_decision_recomputes_what_the_model_says(tmp_path):
+    src = tmp_path / "src.mcap"
+    out = McapOut(src)
+    out.metadata(FILE_METADATA, {"rig": "rig1"})
+    t0 = 1_000_000_000
+    events = [
+        (0, m.TrialEvent(seq=0, t_ns=t0, phase="setup", trial=1, mode="consensus",
+                         option="red")),
+        (1, m.TrialEvent(seq=1, t_ns=t0 + 10_000_000, phase="go", trial=1, mode="consensus",
+                         option="red")),
+    ]
+    for i, ev in events:
+        out.write(out.channel("nod/rig1/experiment/trial"), i, ev.t_ns, m.encode(ev))
+    poses = [_pose(i, t0 + 20_000_000 + i * 33_000_000, x=0.5 - 0.01 * i, y=0.8 - 0.02 * i)
+             for i in range(20)]
+    for i, pose in enumerate(poses):
+        out.write(out.channel("nod/rig1/vision/hand"), 10 + i, pose.t_ns, m.encode(pose))
+        bogus = m.Scalar(seq=i, t_ns=pose.t_ns, value=99.0, src_seq=pose.seq)
+        out.write(out.channel("nod/rig1/decision/z_r"), 10 + i, pose.t_ns, m.encode(bogus))
+    out.finish()
+
+    res = through_decision(src, tmp_path / "out.mcap", None)
+    model = DecisionModel()
+    model.on_trial("go", "consensus", "red")
+    expected = [model.on_hand(p.t_ns, p.landmarks).z_r for p in poses]
+    got = [m.decode(m.Scalar, e.message.data) for e in McapIn(tmp_path / "out.mcap")
+           if topic_of(e.key) == "decision/z_r"]
+    assert [s.value for s in got] == expected  # the recorded 99.0 are gone
+    assert [s.src_seq for s in got] == [p.seq for p in poses]
+    assert res.poses == 20 and res.left_out == 20 and res.recomputed == 60
+    (trial,) = res.trials
+    assert trial.final()[1] == (expected[-1], model.b_r)
+    assert "trial 1 consensus O=red" in trial.line()
+
+
+def test_the_store_links_recordings_to_sessions_and_adds_the_table_to_old_files(tmp_path):
+    db = tmp_path / "s.sqlite"
+    store = Store(db)
+    store.begin_session("s1", "P01", "rig1", 1, 10, {})
+    store.add_recording("s1", tmp_path / "a.mcap", 20)
+    store.add_recording("s1", tmp_path / "a-2.mcap", 30)
+    assert store.recordings("s1") == [(str(tmp_path / "a.mcap"), 20),
+                                      (str(tmp_path / "a-2.mcap"), 30)]
+    assert store.recordings("nope") == []
+    with pytest.raises(sqlite3.IntegrityError):  # a recording belongs to a stored session
+        store.add_recording("unknown", tmp_path / "b.mcap", 40)
+    store.db.execute("DROP TABLE recordings")  # as a file written before the table existed
+    store.close()
+    store = Store(db)
+    assert store.recordings("s1") == []
+    store.close()
+
+
+def test_the_decision_model_resets_on_setup_and_go_only():
+    model = DecisionModel()
+    assert model.on_trial("setup", "consensus", "blue") and model.option == "blue"
+    assert not model.on_trial("countdown", "dissensus", None) and model.mode == "consensus"
+    assert model.on_trial("go", "dissensus", "red") and model.option is None
+    assert model.accepts(5)
+    model.on_hand(5, None)
+    assert not model.accepts(5) and model.accepts(6)
+
+
+def test_the_recorder_subscribes_to_the_rig_or_the_only_keys():
+    from services.recording.record import key_exprs, one_line
+
+    assert key_exprs(None, "rig2") == ["nod/rig2/**"]
+    assert key_exprs(["vision/hand", "nod/rig9/safety/*"], "rig2") == [
+        "nod/rig2/vision/hand", "nod/rig9/safety/*"]
+    with pytest.raises(ValueError, match="not a key expression"):
+        key_exprs(["vi*/hand"], "rig1")
+    assert one_line("no router\n  at /root/x/orchestrator.rs:447.") == "no router"
+
+
+def test_excluded_keys_are_matched_by_expression():
+    from services.recording.record import Excluder
+
+    excluded = Excluder(["nod/rig1/sim/camera", "nod/rig1/rig/*"])
+    assert excluded("nod/rig1/sim/camera") and excluded("nod/rig1/rig/status")
+    assert not excluded("nod/rig1/vision/hand") and not excluded("nod/rig2/sim/camera")
+    assert excluded.count == 2
+    assert not Excluder([])("nod/rig1/sim/camera")
