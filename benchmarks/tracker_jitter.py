@@ -2,7 +2,7 @@
 
     python benchmarks/tracker_jitter.py                       # rendered camera, aruco
     python benchmarks/tracker_jitter.py --video still.mp4     # a real recording of a still hand
-    python benchmarks/tracker_jitter.py --tracker mediapipe --video still.mp4   (camera-box env)
+    python benchmarks/tracker_jitter.py --tracker mediapipe --video still.mp4   # mediapipe extra
 
 Without `--video` the frames come from the synthetic overhead camera (`services.scene`) made
 as unkind as a cheap USB camera: Gaussian sensor noise, a slight defocus blur, MJPEG

@@ -5,8 +5,8 @@ then measures, on this machine and in this run:
 
 - **Baseline**: bare decode, `cv2.VideoCapture(file).read()` in a loop.
 - **In-process**: decode + `tracker.track(frame)` for every available tracker (aruco, sim, and
-  mediapipe where its environment exists), with the share of frames whose centre is within 0.01
-  of the rendered truth.
+  mediapipe where the `mediapipe` extra is installed), with the share of frames whose centre is
+  within 0.01 of the rendered truth.
 - **End to end**: the real service, `python -m services.cli vision --source FILE --tracker T`,
   against a router on a free loopback port; a subscriber counts the hand poses and times the
   first to the last arrival (capture thread, tracking, encoding, publishing, delivery).
@@ -15,7 +15,7 @@ Prints every rate and its ratio to the decode rate. Goal (issue 5): end to end â
 (twice a 30 fps camera) for each tracker except mediapipe, which is reported; exits 1 if missed.
 
     .venv/bin/python benchmarks/vision_fps.py [--frames 600] [--repeat 3]
-    .venv-vision/bin/python benchmarks/vision_fps.py   # with mediapipe (camera-box env)
+    (mediapipe is included once `scripts/setup-env --mediapipe` has installed the extra)
 """
 
 from __future__ import annotations

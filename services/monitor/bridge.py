@@ -8,10 +8,14 @@ it out live here too, so the paths are written once:
 
     opinion/{z_h,z_r,b_r}     time series of ẑ_h, z_r, b_r (one view)
     table/{buzzers,commit_line,hand,arm}   the table: boxes, commit line, hand centre, end effector
+    table/{arm_link,gaze}     the arm as a segment from its base, the gaze as arrows from the eyes
     eyes/gaze/{yaw,pitch}     the commanded gaze (rad);  eyes/servos: the servo targets (deg)
     state/{trial,arm,gaze}    protocol phase, arm phase and gaze level as state lanes
     log/{trial,result,arm,safety,services}   text log: events, countdown, outcomes, safety
-    camera/frame              the vision service's low-rate JPEG frames
+    camera/frame              the vision service's low-rate JPEG frames, all at FRAME_SIZE
+
+Not shown: `sim/camera`, the rendered 30 Hz camera that `nod sim --render` feeds to `nod vision`
+(full-size JPEGs at camera rate); the camera view shows vision's annotated `vision/frame` only.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
@@ -31,9 +36,23 @@ APPLICATION_ID = "nod_hri"
 TIMELINE = "time"  # the message's source timestamp, `t_ns`
 TRIAL_TIMELINE = "trial"  # the trial number (0 before the first trial)
 TRAIL_S = 3.0  # seconds of hand / end-effector path shown on the table
+LIVE_S = 0.1  # the arm segment and the gaze arrows: only the last 0.1 s (≥ 2 samples of each)
+# Keys the monitor does not record: the raw rendered camera is vision's input (30 Hz, full size);
+# the camera view shows vision's own low-rate annotated frames (`vision/frame`).
+NOT_SHOWN: frozenset[str] = frozenset({"sim/camera"})
+FRAME_SIZE = (320, 240)  # (width, height) of every camera/frame image; others are letterboxed
+FRAME_QUALITY = 80  # JPEG quality of a frame the bridge had to resize
+
+# Where the robot is drawn on the table (normalised image coordinates, x right, y down). The
+# robot sits across the table from the participant, at the middle of the image's top edge
+# (services/model/arm.py: the simulated arm's home pose (0.5, 0.08) is just in front of it).
+ARM_BASE = (0.5, 0.0)  # where the arm is mounted: its segment runs from here to the end effector
+EYES = ((0.45, 0.0), (0.55, 0.0))  # the two eyes, either side of the arm's base
+GAZE_LENGTH = 0.25  # length of a gaze arrow (normalised)
 
 RED = (220, 50, 47)
 BLUE = (38, 110, 220)
+GAZE_COLOUR = (200, 120, 255)
 SCALAR_STYLE: dict[str, tuple[str, tuple[int, int, int]]] = {
     "decision/z_h": ("ẑ_h (human, observed)", (230, 140, 20)),
     "decision/z_r": ("z_r (robot)", (20, 150, 90)),
@@ -48,6 +67,8 @@ ENTITIES: dict[str, str] = {
     "buzzers": "table/buzzers",
     "commit_line": "table/commit_line",
     "arm": "table/arm",
+    "arm_link": "table/arm_link",
+    "gaze": "table/gaze",
     "gaze_yaw": "eyes/gaze/yaw",
     "gaze_pitch": "eyes/gaze/pitch",
     "servos": "eyes/servos",
@@ -79,15 +100,27 @@ def blueprint() -> rrb.Blueprint:
         rrb.StateTimelineView(origin="state", name="trial · arm · gaze"),
         row_shares=[3, 2, 1],
     )
+    live = rrb.VisibleTimeRanges(
+        timeline=TIMELINE,
+        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_S),
+        end=rrb.TimeRangeBoundary.cursor_relative(),
+    )
+    width, height = FRAME_SIZE
     right = rrb.Vertical(
         rrb.Horizontal(
             rrb.Spatial2DView(
                 origin="table",
-                name="table: buzzers, commit line, hand and arm",
+                name="table: buzzers, commit line, hand, arm and gaze",
                 visual_bounds=rrb.VisualBounds2D(x_range=[0.0, 1.0], y_range=[0.0, 1.0]),
                 time_ranges=trail,
+                # the arm and the gaze as they are now, not a 3 s fan of old segments and arrows
+                overrides={ENTITIES["arm_link"]: live, ENTITIES["gaze"]: live},
             ),
-            rrb.Spatial2DView(origin="camera", name="camera"),
+            rrb.Spatial2DView(
+                origin="camera",
+                name="camera",
+                visual_bounds=rrb.VisualBounds2D(x_range=[0.0, width], y_range=[0.0, height]),
+            ),
         ),
         rrb.TextLogView(origin="log", name="events, outcomes, safety"),
         row_shares=[3, 2],
@@ -106,6 +139,39 @@ def _opt(value: str | None) -> str:
     return value if value else "-"
 
 
+def gaze_arrows(yaw: float, length: float = GAZE_LENGTH) -> tuple[np.ndarray, np.ndarray]:
+    """Origins and vectors of the gaze arrows on the table: from each eye, toward the yaw.
+
+    The robot faces the participant (+y, down the image); yaw ψ turns the eyes toward red for
+    ψ > 0, which is +x in the image (red's box is on the right), so the direction is (sin ψ, cos ψ).
+    """
+    vector = (length * np.sin(yaw), length * np.cos(yaw))
+    return np.array(EYES, dtype=np.float32), np.array([vector] * len(EYES), dtype=np.float32)
+
+
+def fit_frame(jpeg: bytes, size: tuple[int, int] = FRAME_SIZE) -> bytes | None:
+    """The JPEG at exactly `size` (width, height), or None if it does not decode.
+
+    A frame of that size is passed through untouched; another is scaled to fit (aspect kept),
+    centred on black and encoded again, so the camera view never changes size.
+    """
+    img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+    if img is None:
+        return None
+    width, height = size
+    h, w = img.shape[:2]
+    if (w, h) == size:
+        return jpeg
+    scale = min(width / w, height / h)
+    fw, fh = max(1, round(w * scale)), max(1, round(h * scale))
+    interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
+    out = np.zeros((height, width, 3), np.uint8)
+    x0, y0 = (width - fw) // 2, (height - fh) // 2
+    out[y0 : y0 + fh, x0 : x0 + fw] = cv2.resize(img, (fw, fh), interpolation=interp)
+    ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, FRAME_QUALITY])
+    return buf.tobytes() if ok else None
+
+
 class RerunBridge:
     """Logs the messages of one rig to one Rerun recording (call from one thread)."""
 
@@ -119,6 +185,7 @@ class RerunBridge:
         self._eyes: dict[str, Any] = {}
         self._cmd: tuple[Any, ...] | None = None
         self._gaze_state: str | None = None
+        self.frames_dropped = 0  # vision frames that did not decode
 
     def log_styles(self) -> None:
         """Static names and colours of the series (once, before any data)."""
@@ -132,13 +199,16 @@ class RerunBridge:
         self.rec.log(ENTITIES["hand"], hand, static=True)
         arm = rr.Points2D.from_fields(radii=0.008, labels=["arm"], show_labels=True)
         self.rec.log(ENTITIES["arm"], arm, static=True)
+        self.rec.log(ENTITIES["arm_link"], rr.LineStrips2D.from_fields(radii=0.004), static=True)
+        gaze = rr.Arrows2D.from_fields(radii=0.003, colors=GAZE_COLOUR)
+        self.rec.log(ENTITIES["gaze"], gaze, static=True)
 
     # -- dispatch ------------------------------------------------------------------------------
 
     def log(self, topic: str, msg: m.Message) -> None:
         """Log one decoded message of `topic` (e.g. "vision/hand") at its own timestamp."""
         handler = getattr(self, f"_on_{msg.KIND}", None)
-        if handler is None:
+        if handler is None or topic in NOT_SHOWN:
             return
         if isinstance(msg, m.TrialEvent | m.TrialResult):
             self.trial = msg.trial  # before stamping: an event belongs to its own trial
@@ -191,7 +261,13 @@ class RerunBridge:
         )
 
     def _on_frame(self, topic: str, msg: Any) -> None:
-        self.rec.log(ENTITIES["frame"], rr.EncodedImage(contents=msg.jpeg, media_type="image/jpeg"))
+        jpeg = fit_frame(msg.jpeg)
+        if jpeg is None:
+            self.frames_dropped += 1
+            if self.frames_dropped == 1:
+                self.note(f"a frame on {topic} is not a JPEG: not shown", "WARN")
+            return
+        self.rec.log(ENTITIES["frame"], rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
 
     # -- decision ------------------------------------------------------------------------------
 
@@ -210,7 +286,9 @@ class RerunBridge:
         if prev.get("safe_stop") != msg.safe_stop:  # red while safe-stopped
             colour = (230, 60, 60) if msg.safe_stop else (90, 200, 250)
             self.rec.log(ENTITIES["arm"], rr.Points2D.from_fields(colors=colour))
+            self.rec.log(ENTITIES["arm_link"], rr.LineStrips2D.from_fields(colors=colour))
         self.rec.log(ENTITIES["arm"], rr.Points2D([msg.ee]))
+        self.rec.log(ENTITIES["arm_link"], rr.LineStrips2D([[ARM_BASE, msg.ee]]))
         if prev.get("phase") != msg.phase:
             self.rec.log(ENTITIES["state_arm"], rr.StateChange(state=msg.phase))
         self._safety("arm", prev, msg.safe_stop, msg.safety_reason, msg.fault)
@@ -244,6 +322,8 @@ class RerunBridge:
     def _on_gaze(self, topic: str, msg: m.GazeMsg) -> None:
         self.rec.log(ENTITIES["gaze_yaw"], rr.Scalars(msg.yaw))
         self.rec.log(ENTITIES["gaze_pitch"], rr.Scalars(msg.pitch))
+        origins, vectors = gaze_arrows(msg.yaw)
+        self.rec.log(ENTITIES["gaze"], rr.Arrows2D(origins=origins, vectors=vectors))
         state = f"{msg.level} + gesture" if msg.gesture else msg.level
         if state != self._gaze_state:
             self._gaze_state = state

@@ -1,7 +1,8 @@
 """`nod monitor`: every key of a rig, live in Rerun (native viewer, web viewer or `.rrd` file).
 
 One Zenoh subscriber on `nod/<rig>/**` copies each sample's bytes into a bounded `Inbox` (never
-blocking Zenoh's delivery thread); one logger thread decodes them with the contract and hands
+blocking Zenoh's delivery thread; the keys in `bridge.NOT_SHOWN`, the simulated camera, are
+skipped there without a copy); one logger thread decodes them with the contract and hands
 them to the `RerunBridge`. Hand poses and camera frames are dropped (oldest first) when the
 viewer falls behind; scalars and events have a large queue and are counted if they ever drop. The
 monitor is its own process and only subscribes, so it cannot slow the control loop.
@@ -33,7 +34,7 @@ from services.core.contract import TOPICS
 from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
 from services.core.session import Fabric, add_zenoh_args, open_session
-from services.monitor.bridge import APPLICATION_ID, RerunBridge
+from services.monitor.bridge import APPLICATION_ID, NOT_SHOWN, RerunBridge
 from services.monitor.inbox import Inbox, Item, lane_of
 from services.monitor.sinks import ViewerWatch, open_sinks
 
@@ -55,6 +56,7 @@ class Monitor:
         self.types: dict[str, type[m.Message]] = {name: t.message for name, t in TOPICS.items()}
         self.bad: Counter[str] = Counter()
         self.unknown: Counter[str] = Counter()
+        self.skipped: Counter[str] = Counter()  # samples of keys not shown (NOT_SHOWN)
         self.errors = 0
         self._prefix = f"nod/{keys.rig}/"
         self._alive_prefix = f"nod/{keys.rig}/alive/"
@@ -81,6 +83,9 @@ class Monitor:
         """Zenoh thread: copy the payload into the inbox and return at once."""
         key = str(sample.key_expr)
         topic = key[len(self._prefix) :]
+        if topic in NOT_SHOWN:  # e.g. sim/camera: 30 Hz full-size JPEGs, vision's input only
+            self.skipped[topic] += 1
+            return
         self.inbox.put(lane_of(topic), Item(topic, sample.payload.to_bytes()))
 
     def _on_alive(self, sample: zenoh.Sample) -> None:

@@ -72,13 +72,26 @@ def open_sinks(rec: rr.RecordingStream, args: argparse.Namespace) -> Sinks:
     rec.set_sinks(*sinks, default_blueprint=blueprint())
     if server is not None:
         rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=server.uri)
-        host = socket.gethostname()
-        grpc = server.uri.replace("0.0.0.0", host)  # an address a lab PC's browser can reach
+        host = socket.gethostname()  # an address a lab PC's browser can reach
+        out.lines.append(f"web viewer: {web_viewer_url(server.uri, args.web_port, host)}")
         out.lines.append(
-            f"web viewer: http://{host}:{args.web_port}/?url={quote(grpc, safe='')} "
-            f"(gRPC {grpc}; or use this host's IP address)"
+            "web viewer on this machine: "
+            f"{web_viewer_url(server.uri, args.web_port, '127.0.0.1')} (from another machine, "
+            f"if {host!r} does not resolve there, put this host's IP address in its place)"
         )
     return out
+
+
+def web_viewer_url(grpc_uri: str, web_port: int, host: str) -> str:
+    """The URL that opens the served web viewer on the served gRPC stream, both on `host`.
+
+    The Rerun SDK (0.41) returns no URL from `serve_web_viewer`; its viewer takes the stream's
+    address in `?url=`. The server binds 0.0.0.0, which a browser cannot connect to, so the
+    host is put in its place.
+    """
+    parts = urlsplit(grpc_uri)
+    grpc = grpc_uri.replace(parts.netloc, f"{host}:{parts.port}", 1)
+    return f"http://{host}:{web_port}/?url={quote(grpc, safe='')}"
 
 
 class ViewerWatch:

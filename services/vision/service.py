@@ -26,6 +26,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import zenoh
@@ -280,6 +281,23 @@ def _opener(node: Node | None, params: CaptureParams):
     return open_zenoh
 
 
+def quiet_opencv(cv: Any = cv2) -> None:
+    """Let OpenCV print errors only, on any OpenCV this project meets.
+
+    OpenCV 5 (opencv-python-headless here) has `cv2.utils.logging.setLogLevel`; OpenCV 4.x (the
+    camera-box environment's opencv-contrib-python < 4.12) has no `cv2.utils.logging`, only the
+    top-level `cv2.setLogLevel` taking the same numbers (cv::utils::logging, 2 = ERROR).
+    """
+    logging_module = getattr(getattr(cv, "utils", None), "logging", None)
+    if logging_module is not None:
+        logging_module.setLogLevel(logging_module.LOG_LEVEL_ERROR)
+    elif hasattr(cv, "setLogLevel"):
+        cv.setLogLevel(_CV_LOG_LEVEL_ERROR)
+
+
+_CV_LOG_LEVEL_ERROR = 2  # cv::utils::logging::LOG_LEVEL_ERROR, in OpenCV 4 and 5 alike
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run `nod vision` (or `nod vision calibrate …`); 0 at a file's end or on a signal."""
     args_list = list(sys.argv[1:] if argv is None else argv)
@@ -290,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(args_list)
     setup_logging(args.verbose)
     if not args.verbose:  # OpenCV's own warnings repeat on every reopen attempt; ours say it all
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        quiet_opencv()
     try:
         if not 0 <= args.frames_key_hz <= 30:
             raise ValueError(f"--frames-key-hz must be in [0, 30], got {args.frames_key_hz}")

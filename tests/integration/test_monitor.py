@@ -1,8 +1,12 @@
 """`nod monitor --save`: a real monitor process on a real router records a synthetic stream."""
 
 import signal
+import socket
 import time
+import urllib.request
 
+import cv2
+import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
@@ -15,6 +19,7 @@ from .conftest import wait_for
 pytestmark = pytest.mark.integration
 
 N_POSES = 120  # one second of a 120 Hz camera
+N_CAMERA = 30  # one second of the simulated 30 Hz camera
 
 
 def _alive(session, keys: Keys, service: str) -> bool:
@@ -48,6 +53,12 @@ def _publish_session(client, keys: Keys) -> dict[str, int]:
         if i % 10 == 0:
             put("actuation/state", m.ArmStateMsg, t, ee=(0.5, 0.1), phase="move", moving=True)
         time.sleep(1 / N_POSES)
+    # `nod run --render`: the sim's 30 Hz camera (vision's input) and vision's 2 Hz frames
+    for i in range(N_CAMERA):
+        t = t0 + 10_000_000 + i * 33_333_333
+        put("sim/camera", m.VisionFrame, t, jpeg=_jpeg(640, 480), width=640, height=480)
+        if i % 15 == 0:
+            put("vision/frame", m.VisionFrame, t, jpeg=_jpeg(320, 240), width=320, height=240)
     t_end = t0 + 2_000_000_000
     put("safety/estop", m.Estop, t_end, engaged=True, reason="test", source="pytest")
     put("experiment/trial", m.TrialEvent, t_end, phase="end", trial=1)
@@ -55,8 +66,14 @@ def _publish_session(client, keys: Keys) -> dict[str, int]:
     return seqs
 
 
+def _jpeg(width: int, height: int) -> bytes:
+    return cv2.imencode(".jpg", np.full((height, width, 3), 90, np.uint8))[1].tobytes()
+
+
 def keys_used() -> tuple[str, ...]:
     return (
+        "sim/camera",
+        "vision/frame",
         "vision/layout",
         "vision/hand",
         "decision/z_h",
@@ -94,6 +111,33 @@ def test_monitor_records_a_stream_and_closes_the_rrd_on_sigterm(client, spawn, t
     assert rows["/log/result"] == 1
     assert rows["/log/safety"] == 1  # the estop
     assert static["/table/buzzers"] == 1 and static["/table/commit_line"] == 1
+    # only vision's frames: the simulated camera is not recorded
+    assert rows["/camera/frame"] == sent["vision/frame"] == 2 and sent["sim/camera"] == N_CAMERA
     reader = RrdReader(rrd)
     assert len(reader.blueprints()) == 1
     assert reader.store() is not None  # the footer was written: a clean close
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_monitor_serving_the_web_viewer_prints_urls_that_open_it(client, spawn):
+    keys = Keys("rig1")
+    web, grpc = _free_port(), _free_port()
+    proc = spawn("monitor", "--serve-web", "--web-port", str(web), "--grpc-port", str(grpc))
+    wait_for(lambda: _alive(client, keys, "monitor") or proc.poll() is not None, 15, "monitor")
+    assert proc.poll() is None, proc.log_path.read_text()
+    lines = [ln for ln in proc.log_path.read_text().splitlines() if "web viewer" in ln]
+    local = next(ln for ln in lines if "on this machine" in ln).split(": ", 2)[2].split(" ")[0]
+    grpc_url = f"rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy"
+    assert local == f"http://127.0.0.1:{web}/?url={grpc_url}"
+    assert any(ln.startswith("nod monitor: web viewer: http://") for ln in lines)
+    with urllib.request.urlopen(local, timeout=10) as page:  # the viewer's page is served
+        assert page.status == 200 and b"<html" in page.read().lower()
+    with socket.create_connection(("127.0.0.1", grpc), timeout=5):
+        pass  # and the stream it connects to listens
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(15) == 0, proc.log_path.read_text()

@@ -154,12 +154,30 @@ def test_bad_run_arguments_are_one_line_errors():
 
 
 def test_full_session_through_the_rendered_camera_path(tmp_path):
-    """`nod run --sim --render`: sim frames → nod vision (aruco) → the loop, unchanged."""
+    """`nod run --sim --render`: sim frames → nod vision (aruco) → the loop, unchanged; the
+    monitor records vision's low-rate frames, not the sim's 30 Hz camera."""
     import sqlite3
 
-    db = tmp_path / "render.sqlite"
-    run = _run_sim(db, "--render", speed="3")
+    import cv2
+    import numpy as np
+    from rerun.chunk import RrdReader
+
+    from services.monitor.bridge import rrd_rows
+
+    db, rrd = tmp_path / "render.sqlite", tmp_path / "render.rrd"
+    run = _run_sim(db, "--render", f"--monitor=--save {rrd}", speed="3")
     assert run.returncode == 0, run.stdout + run.stderr
+    rows, _ = rrd_rows(rrd)
+    # vision publishes 2 frames/s, the sim's camera 30 (and the hand is drawn at 30 Hz)
+    assert 0 < rows["/camera/frame"] < rows["/table/hand"] / 5
+    shapes = set()
+    for chunk in RrdReader(rrd).stream():
+        if chunk.entity_path == "/camera/frame" and not chunk.is_static:
+            batch = chunk.to_record_batch()
+            for blob in batch.column(batch.schema.get_field_index("EncodedImage:blob")).to_pylist():
+                img = cv2.imdecode(np.asarray(blob[0], np.uint8), cv2.IMREAD_COLOR)
+                shapes.add(img.shape)
+    assert shapes == {(240, 320, 3)}
     vision_log = (db.with_suffix(".logs") / "vision.log").read_text()
     assert "hand poses published" in vision_log
     con = sqlite3.connect(db)
@@ -180,6 +198,7 @@ def test_a_sim_session_recorded_by_the_monitor_reads_back(tmp_path):
     db, rrd = tmp_path / "m.sqlite", tmp_path / "session.rrd"
     run = _run_sim(db, f"--monitor=--save {rrd}")
     assert run.returncode == 0, run.stdout + run.stderr
+    assert f"monitor: recording to {rrd}" in run.stdout  # what the monitor said, shown by nod run
     rows, static = rrd_rows(rrd)
     n_results = sqlite3.connect(db).execute("SELECT COUNT(*) FROM trials").fetchone()[0]
     assert rows["/log/result"] == n_results == 8

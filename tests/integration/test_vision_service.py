@@ -4,6 +4,7 @@ import math
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -126,3 +127,41 @@ def test_a_truncated_file_ends_the_service_with_a_clear_error(router, endpoint, 
     assert proc.returncode == 1
     assert "is truncated or damaged: decoded" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+HAND_JPG = Path(ROOT) / "tests" / "fixtures" / "hand" / "hand_on_table.jpg"
+
+
+def test_vision_with_mediapipe_tracks_a_real_hand_from_a_video_file(client, spawn, tmp_path):
+    """`nod vision --tracker mediapipe` (no -v: the OpenCV log-level call runs) on a real hand."""
+    pytest.importorskip(
+        "mediapipe", reason="the mediapipe extra is not installed (scripts/setup-env --mediapipe)"
+    )
+    photo = cv2.imread(str(HAND_JPG))
+    table = SceneRenderer(width=640, height=480, noise=2.0).render(None)
+    shown = [True] * 6 + [False] * 4 + [True] * 6  # the hand, gone, back
+    video = tmp_path / "hand.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (640, 480))
+    for hand in shown:
+        writer.write(photo if hand else table)
+    writer.release()
+    hands, _, frames = _subscribe(client)
+    proc = spawn(
+        "vision",
+        *("--source", str(video), "--tracker", "mediapipe", "--model-complexity", "0"),
+        *("--wait-for-subscriber", "10", "--frames-key-hz", "20"),
+    )
+    assert proc.wait(60) == 0, proc.log_path.read_text()
+    log = proc.log_path.read_text()
+    assert "Traceback" not in log and "AttributeError" not in log, log
+    wait_for(lambda: len(hands.items) >= len(shown), 5, "every hand pose")
+    poses = hands.messages
+    assert [p.seq for p in poses] == list(range(len(shown)))
+    assert {p.source for p in poses} == {"mediapipe"}
+    assert [p.detected for p in poses] == shown
+    for pose in poses:
+        if pose.detected:
+            assert len(pose.landmarks) == 21
+            # the hand's box in the photo (tests/fixtures/hand/SOURCE.md): x 0-549, y 0-454 px
+            assert 0.0 <= pose.center[0] <= 550 / 640 and 0.0 <= pose.center[1] <= 455 / 480
+    assert frames.items and frames.bad == 0  # the monitor JPEGs, with the landmarks drawn

@@ -2,16 +2,24 @@
 
 import socket
 import uuid
+from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
 from services.core import messages as m
+from services.core.keys import Keys
 from services.monitor.bridge import (
     APPLICATION_ID,
+    ARM_BASE,
     ENTITIES,
+    EYES,
+    FRAME_SIZE,
+    GAZE_LENGTH,
+    NOT_SHOWN,
     TIMELINE,
     TRIAL_TIMELINE,
     RerunBridge,
@@ -19,11 +27,20 @@ from services.monitor.bridge import (
     rrd_rows,
 )
 from services.monitor.inbox import Inbox, Item, lane_of
+from services.monitor.service import Monitor
 from services.monitor.sinks import ViewerWatch
 
 T0 = 1_795_448_811_000_000_000
 LANDMARKS = ((0.5, 0.7), (0.52, 0.71), (0.51, 0.69))
-JPEG = b"\xff\xd8\xff\xe0" + b"\x00" * 32 + b"\xff\xd9"
+
+
+def _jpeg(width: int, height: int, value: int = 90) -> bytes:
+    img = np.full((height, width, 3), value, np.uint8)
+    cv2.rectangle(img, (width // 4, height // 4), (width // 2, height // 2), (0, 0, 255), -1)
+    return cv2.imencode(".jpg", img)[1].tobytes()
+
+
+JPEG = _jpeg(*FRAME_SIZE)
 
 
 def _record(tmp_path, messages, name="b.rrd"):
@@ -135,7 +152,7 @@ def test_every_message_type_reaches_its_entities(tmp_path):
         ("safety/estop", m.Estop(seq=1, t_ns=T0 + 1, engaged=False)),
     ]
     if hasattr(m, "VisionFrame"):  # the vision service's frames, where the contract has them
-        msgs.append(("vision/frame", m.VisionFrame(seq=0, t_ns=T0, jpeg=JPEG, width=8, height=8)))
+        msgs.append(("vision/frame", _frame(0, JPEG, *FRAME_SIZE)))
     path, bridge = _record(tmp_path, msgs)
     rows, static = rrd_rows(path)
     assert bridge.logged == len(msgs)
@@ -165,6 +182,108 @@ def test_every_message_type_reaches_its_entities(tmp_path):
     if hasattr(m, "VisionFrame"):
         assert rows["/camera/frame"] == 1
         assert _column(path, "/camera/frame", "EncodedImage:media_type") == [["image/jpeg"]]
+
+
+def _frame(seq, jpeg, width, height, t_ns=T0):
+    return m.VisionFrame(seq=seq, t_ns=t_ns + seq, jpeg=jpeg, width=width, height=height)
+
+
+def _images(path):
+    """Every camera/frame image of the recording, decoded."""
+    out = []
+    for blob in _values(path, "/camera/frame", "EncodedImage:blob"):
+        data = np.asarray(blob[0], dtype=np.uint8)
+        out.append(cv2.imdecode(data, cv2.IMREAD_COLOR))
+    return out
+
+
+def test_only_visions_frames_are_recorded_not_the_simulated_camera(tmp_path):
+    """`nod run --render`: the sim's 30 Hz full-size camera is vision's input, not the monitor's."""
+    msgs = []
+    for i in range(30):
+        msgs.append(("sim/camera", _frame(i, _jpeg(640, 480), 640, 480)))
+        if i % 15 == 0:  # vision's low-rate annotated frames
+            msgs.append(("vision/frame", _frame(i, JPEG, *FRAME_SIZE)))
+    path, bridge = _record(tmp_path, msgs)
+    rows, static = rrd_rows(path)
+    assert rows["/camera/frame"] == 2
+    assert bridge.logged == 2  # the sim/camera messages are not even counted
+    image_entities = {
+        chunk.entity_path
+        for chunk in RrdReader(path).stream()
+        if any("Image" in field.name for field in chunk.to_record_batch().schema)
+    }
+    assert image_entities == {"/camera/frame"}
+    assert [img.shape for img in _images(path)] == [(240, 320, 3)] * 2
+
+
+def test_frames_are_logged_at_one_size_whatever_size_they_come_in(tmp_path):
+    sizes = [FRAME_SIZE, (640, 480), (160, 90), (400, 300), (240, 320), FRAME_SIZE]
+    msgs = [("vision/frame", _frame(i, _jpeg(w, h), w, h)) for i, (w, h) in enumerate(sizes)]
+    broken = b"\xff\xd8\xff\xe0" + b"\x00" * 32 + b"\xff\xd9"  # a JPEG's header, no image
+    msgs.append(("vision/frame", _frame(9, broken, 320, 240)))
+    path, bridge = _record(tmp_path, msgs)
+    images = _images(path)
+    assert [img.shape for img in images] == [(240, 320, 3)] * len(sizes)  # the broken one: gone
+    assert bridge.frames_dropped == 1
+    blobs = _values(path, "/camera/frame", "EncodedImage:blob")
+    assert bytes(blobs[0][0]) == JPEG  # already the right size: the very same bytes
+    # 640x480 is scaled to fill 320x240; 16:9 is letterboxed: black bands above and below
+    wide = images[2]
+    assert wide[:20].max() < 10 and wide[-20:].max() < 10 and wide[120, 40:280].mean() > 60
+    tall = images[4]  # 3:4, pillarboxed: black bands left and right
+    assert tall[:, :60].max() < 10 and tall[:, -60:].max() < 10
+    assert "not a JPEG" in _column(path, "/log/services", "TextLog:text")[0][0]
+
+
+def test_the_arm_is_a_segment_from_its_base_and_the_gaze_arrows_from_the_eyes(tmp_path):
+    msgs = [
+        ("actuation/state", m.ArmStateMsg(seq=0, t_ns=T0, ee=(0.79, 0.19), phase="move")),
+        ("actuation/state", m.ArmStateMsg(seq=1, t_ns=T0 + 1, ee=(0.5, 0.08), safe_stop=True)),
+        ("eyes/cmd", m.GazeMsg(seq=0, t_ns=T0, yaw=0.0, level="neutral")),
+        ("eyes/cmd", m.GazeMsg(seq=1, t_ns=T0 + 1, yaw=0.53, pitch=-0.53, level="low")),
+        ("eyes/cmd", m.GazeMsg(seq=2, t_ns=T0 + 2, yaw=-0.72, pitch=0.72, level="significant")),
+    ]
+    path, _ = _record(tmp_path, msgs)
+    rows, static = rrd_rows(path)
+    assert static["/table/arm_link"] == 1 and static["/table/gaze"] == 1  # their styles
+    strips = _values(path, "/table/arm_link", "LineStrips2D:strips")
+    assert np.allclose(strips[0], [[ARM_BASE, (0.79, 0.19)]])
+    assert np.allclose(strips[1], [[ARM_BASE, (0.5, 0.08)]])
+    assert ARM_BASE == (0.5, 0.0)  # the middle of the robot's (top) edge of the table
+    colours = _values(path, "/table/arm_link", "LineStrips2D:colors")
+    assert len(colours) == 2  # normal, then red while safe-stopped: like the end effector
+    origins = _values(path, "/table/gaze", "Arrows2D:origins")
+    vectors = [np.array(v) for v in _values(path, "/table/gaze", "Arrows2D:vectors")]
+    assert len(origins) == len(vectors) == 3
+    for o in origins:
+        assert np.allclose(o, EYES)  # one arrow from each eye
+    straight, red, blue = vectors
+    assert np.allclose(straight, [(0.0, GAZE_LENGTH)] * 2)  # yaw 0: at the participant (+y)
+    # yaw +0.53 (toward red, the right of the image): x > 0; -0.72 (toward blue): x < 0
+    assert np.allclose(red, [(GAZE_LENGTH * np.sin(0.53), GAZE_LENGTH * np.cos(0.53))] * 2)
+    assert np.allclose(blue, [(GAZE_LENGTH * np.sin(-0.72), GAZE_LENGTH * np.cos(-0.72))] * 2)
+    assert red[0][0] > 0 > blue[0][0]
+    # an eye 0.05 off the middle, looking at red, points into red's box's column (x 0.72-0.86)
+    tip = np.array(EYES[1]) + red[1] * (0.19 / red[1][1])
+    assert 0.6 < tip[0] < 0.9
+
+
+def test_the_table_view_shows_only_the_live_arm_and_gaze():
+    """The table keeps a 3 s trail of hand and end effector, but not of segments and arrows."""
+    views = []
+
+    def walk(node):
+        for child in getattr(node, "contents", []) or []:
+            walk(child)
+        if hasattr(node, "visualizer_overrides"):
+            views.append(node)
+
+    walk(blueprint().root_container)
+    table = next(v for v in views if str(v.origin) == "table")
+    assert set(table.visualizer_overrides) == {ENTITIES["arm_link"], ENTITIES["gaze"]}
+    camera = next(v for v in views if str(v.origin) == "camera")
+    assert camera is not None
 
 
 def test_recording_carries_the_blueprint(tmp_path):
@@ -218,6 +337,23 @@ def test_events_come_before_hand_poses_and_close_wakes_the_consumer():
     box.close()
     assert box.get_batch(5.0) == []  # returns at once: closed and empty
     assert not box.put("events", Item("decision/z_h", b"late"))
+
+
+def test_the_monitor_skips_the_simulated_camera_before_queueing_it():
+    class Sample:
+        def __init__(self, key, payload):
+            self.key_expr = key
+            self.payload = SimpleNamespace(to_bytes=lambda: payload)
+
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
+    monitor = Monitor(None, Keys("rig1"), RerunBridge(rec), Inbox())
+    frame = m.encode(_frame(0, JPEG, *FRAME_SIZE))
+    for _ in range(30):
+        monitor._on_sample(Sample("nod/rig1/sim/camera", frame))
+    monitor._on_sample(Sample("nod/rig1/vision/frame", frame))
+    assert [it.topic for it in monitor.inbox.get_batch(0)] == ["vision/frame"]
+    assert monitor.skipped == {"sim/camera": 30}
+    assert "sim/camera" in NOT_SHOWN
 
 
 def test_capacity_must_be_positive():

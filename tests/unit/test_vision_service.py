@@ -1,13 +1,12 @@
 """`nod vision` start-up: the layout it publishes and its one-line errors (no Zenoh needed)."""
 
-import importlib.util
-
-import pytest
+import sys
+import types
 
 from services.model.geometry import Box, TableLayout
 from services.scene.render import SceneRenderer, demo_path, write_video
 from services.vision.calibration import dump_calibration
-from services.vision.service import load_layout, main
+from services.vision.service import load_layout, main, quiet_opencv
 
 
 def test_layout_comes_from_calibration_then_params_then_spec(tmp_path):
@@ -42,14 +41,39 @@ def test_bad_options_fail_in_one_line(tmp_path, capsys):
     _fails(capsys, ["--source", "sim", "--calibration", str(tmp_path / "x.toml")], "not found")
 
 
-@pytest.mark.skipif(
-    importlib.util.find_spec("mediapipe") is not None, reason="mediapipe is installed here"
-)
-def test_the_mediapipe_tracker_without_its_environment_fails_in_one_line(tmp_path, capsys):
+def test_the_mediapipe_tracker_without_its_extra_fails_in_one_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "mediapipe", None)  # `import mediapipe` fails, as without it
     video = tmp_path / "v.avi"
     write_video(video, SceneRenderer(width=160, height=120), demo_path(), fps=2.0)
     _fails(
         capsys,
         ["--source", str(video), "--tracker", "mediapipe"],
-        "deploy/vision-mediapipe-env.sh",
+        "scripts/setup-env --mediapipe",
     )
+
+
+class _OpenCV4:
+    """The log-level API of OpenCV 4.x: `cv2.utils` without `logging`, `cv2.setLogLevel`."""
+
+    def __init__(self) -> None:
+        self.utils = types.SimpleNamespace()  # 4.11 has cv2.utils, but no cv2.utils.logging
+        self.levels: list[int] = []
+
+    def setLogLevel(self, level: int) -> None:
+        self.levels.append(level)
+
+
+def test_opencv_is_quietened_on_opencv_4_and_5():
+    """The camera-box env's OpenCV 4 has no cv2.utils.logging (the start-up crash of issue 14)."""
+    old = _OpenCV4()
+    quiet_opencv(old)
+    assert old.levels == [2]  # cv::utils::logging::LOG_LEVEL_ERROR
+    import cv2  # the installed one: 5.x here, 4.x in the camera-box fallback environment
+
+    api = getattr(cv2.utils, "logging", cv2)
+    before = api.getLogLevel()
+    try:
+        quiet_opencv(cv2)
+        assert api.getLogLevel() == 2
+    finally:
+        api.setLogLevel(before)

