@@ -1,13 +1,16 @@
 """`nod export`: a session database as CSV files that pandas and R read directly.
 
-Writes sessions.csv, trials.csv, samples.csv, questionnaires.csv, safety_events.csv and
-interruptions.csv into one directory, each with a header row of the database's column names
-(the per-session tables gain a `participant` column after `session` for convenience). A trial
-with `interrupted` = 1 was broken by a safe stop or an e-stop and never scored. Conventions,
-chosen so that `pandas.read_csv(path)` and R's `read.csv(path)` need no options:
+Writes sessions.csv, trials.csv, samples.csv, questionnaires.csv, safety_events.csv,
+rig_events.csv and interruptions.csv into one directory, each with a header row of the
+database's column names (the per-session tables gain a `participant` column after `session`
+for convenience). A trial with `interrupted` = 1 was broken by a safe stop or an e-stop and
+never scored. Conventions, chosen so that `pandas.read_csv(path)` and R's `read.csv(path)`
+need no options:
 
 - UTF-8, comma separated, LF line ends, fields quoted only when needed (the sessions'
   `config` column is JSON text and gets quoted);
+- a sample's `landmarks` (the tracker's points) is one field "x1 y1 x2 y2 …" (space
+  separated, float32 precision);
 - a missing value (SQL NULL: a timeout's outcome, an undetected hand) is written `NA`, which
   both read as missing in numeric and text columns alike (an empty field would come back as
   the empty string in R's text columns);
@@ -29,6 +32,7 @@ from typing import Any
 
 from services.core.cli import Parser
 from services.store import Store
+from services.store.records import unpack_landmarks
 
 PROG = "nod export"
 MISSING = "NA"  # how a SQL NULL is written
@@ -43,7 +47,7 @@ QUERIES: dict[str, str] = {
     ),
     "samples": (
         "SELECT m.session, s.participant, m.trial, m.t_ns, m.detected, m.hand_x, m.hand_y, "
-        "m.z_h, m.z_r, m.b_r, m.ee_x, m.ee_y, m.theta, m.distance FROM samples m "
+        "m.z_h, m.z_r, m.b_r, m.ee_x, m.ee_y, m.theta, m.distance, m.landmarks FROM samples m "
         "LEFT JOIN sessions s ON s.session = m.session "
         "ORDER BY s.started_ns, m.session, m.trial, m.t_ns"
     ),
@@ -51,6 +55,11 @@ QUERIES: dict[str, str] = {
     "safety_events": (
         "SELECT e.session, s.participant, e.trial, e.attempt, e.t_ns, e.device, e.event, "
         "e.reason FROM safety_events e LEFT JOIN sessions s ON s.session = e.session "
+        "ORDER BY s.started_ns, e.session, e.t_ns"
+    ),
+    "rig_events": (
+        "SELECT e.session, s.participant, e.trial, e.attempt, e.t_ns, e.host, e.service, e.kind, "
+        "e.code, e.text FROM rig_events e LEFT JOIN sessions s ON s.session = e.session "
         "ORDER BY s.started_ns, e.session, e.t_ns"
     ),
     "interruptions": (
@@ -65,6 +74,8 @@ def _field(value: Any) -> Any:
     """A SQLite value as a CSV field: NULL → NA, float → shortest round-trip text."""
     if value is None:
         return MISSING
+    if isinstance(value, bytes):  # landmarks: "x1 y1 x2 y2 …" (float32 precision)
+        return " ".join(f"{c:.7g}" for p in unpack_landmarks(value) for c in p)
     if isinstance(value, float):
         if math.isnan(value):
             return "NaN"

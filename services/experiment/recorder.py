@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 from services.model.geometry import Colour, TableLayout
 from services.model.outcome import OutcomeTracker
-from services.store.records import Sample
+from services.store.records import Sample, pack_landmarks
 
 if TYPE_CHECKING:  # the recorder reads decoded messages; it needs no codec
     from services.core import messages as m
@@ -24,6 +24,7 @@ class _Row:
     hand: tuple[float, float] | None
     values: dict[str, float | None] = field(default_factory=dict)
     ee: tuple[float, float] | None = None
+    landmarks: bytes | None = None
 
 
 class TrialRecorder:
@@ -41,7 +42,11 @@ class TrialRecorder:
         """Record a pose; the first landmark inside a box is the human's press."""
         if pose.t_ns < self.t_go_ns:
             return
-        self._rows.setdefault(pose.seq, _Row(pose.t_ns, pose.detected, pose.center, ee=self._ee))
+        row = self._rows.setdefault(
+            pose.seq, _Row(pose.t_ns, pose.detected, pose.center, ee=self._ee)
+        )
+        if pose.detected and row.landmarks is None:
+            row.landmarks = pack_landmarks(pose.landmarks)
         if self.human is None and pose.detected:
             pressed = layout.pressed(pose.landmarks)
             if pressed is not None:
@@ -56,6 +61,8 @@ class TrialRecorder:
             if pose is None:
                 return  # its pose was never seen (dropped): nothing to join it with
             row = self._rows.setdefault(msg.src_seq, _Row(pose.t_ns, pose.detected, pose.center))
+            if pose.detected:
+                row.landmarks = pack_landmarks(pose.landmarks)
         row.values[name] = msg.value
         if name == "z_h":
             row.values["theta"] = getattr(msg, "theta", None)
@@ -92,6 +99,7 @@ class TrialRecorder:
                     ey,
                     r.values.get("theta"),
                     r.values.get("distance"),
+                    r.landmarks,
                 )
             )
         return out

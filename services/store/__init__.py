@@ -7,6 +7,8 @@ from services.store.records import (
     SafetyEvent,
     Sample,
     TrialRecord,
+    pack_landmarks,
+    unpack_landmarks,
 )
 from services.store.store import Store, StoreError
 
@@ -19,4 +21,6 @@ __all__ = [
     "Store",
     "StoreError",
     "TrialRecord",
+    "pack_landmarks",
+    "unpack_landmarks",
 ]

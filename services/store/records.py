@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 
@@ -44,6 +46,24 @@ class Sample:
     ee_y: float | None
     theta: float | None = None  # eq 7's θ (rad) when this pose set ẑ_h
     distance: float | None = None  # eq 7's d when this pose set ẑ_h
+    # The tracker's landmarks of this pose (`pack_landmarks`: float32 x, y pairs), so a session
+    # can be re-analysed — another observer, another hand centre — without its recording.
+    landmarks: bytes | None = None
+
+
+def pack_landmarks(points: Sequence[tuple[float, float]]) -> bytes:
+    """Landmarks (x, y) as 8 bytes each (float32 x then y), in order."""
+    return struct.pack(f"<{2 * len(points)}f", *(c for p in points for c in p))
+
+
+def unpack_landmarks(blob: bytes | None) -> tuple[tuple[float, float], ...]:
+    """The landmarks `pack_landmarks` stored; () for None. ValueError for a torn blob."""
+    if not blob:
+        return ()
+    if len(blob) % 8:
+        raise ValueError(f"landmark blob of {len(blob)} bytes is not a whole number of points")
+    values = struct.unpack(f"<{len(blob) // 4}f", blob)
+    return tuple(zip(values[0::2], values[1::2], strict=True))
 
 
 @dataclass(frozen=True, slots=True)

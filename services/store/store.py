@@ -105,7 +105,8 @@ CREATE TABLE IF NOT EXISTS samples (
     ee_x     REAL,
     ee_y     REAL,
     theta    REAL,
-    distance REAL
+    distance REAL,
+    landmarks BLOB
 );
 CREATE INDEX IF NOT EXISTS samples_by_trial ON samples (session, trial, t_ns);
 CREATE TABLE IF NOT EXISTS questionnaires (
@@ -161,6 +162,7 @@ class Store:
             ("trials", "attempts", "INTEGER NOT NULL DEFAULT 1"),
             ("samples", "theta", "REAL"),
             ("samples", "distance", "REAL"),
+            ("samples", "landmarks", "BLOB"),
         ):
             have = {row[1] for row in self.db.execute(f"PRAGMA table_info({table})")}
             if column not in have:
@@ -247,7 +249,7 @@ class Store:
                 "DELETE FROM samples WHERE session = ? AND trial = ?", (session, rec.trial)
             )
             self.db.executemany(
-                "INSERT INTO samples VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "INSERT INTO samples VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 [
                     (
                         session,
@@ -263,6 +265,7 @@ class Store:
                         s.ee_y,
                         s.theta,
                         s.distance,
+                        s.landmarks,
                     )
                     for s in samples
                 ],
@@ -415,8 +418,8 @@ class Store:
     def samples(self, session: str, trial: int) -> Sequence[Sample]:
         """A trial's samples in time order."""
         cur = self.db.execute(
-            "SELECT t_ns, detected, hand_x, hand_y, z_h, z_r, b_r, ee_x, ee_y, theta, distance "
-            "FROM samples "
+            "SELECT t_ns, detected, hand_x, hand_y, z_h, z_r, b_r, ee_x, ee_y, theta, distance, "
+            "landmarks FROM samples "
             "WHERE session = ? AND trial = ? ORDER BY t_ns",
             (session, trial),
         )

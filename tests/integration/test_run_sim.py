@@ -94,6 +94,11 @@ def test_full_session_on_the_simulator(tmp_path):
     assert con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     n_samples = dict(con.execute("SELECT trial, COUNT(*) FROM samples GROUP BY trial").fetchall())
     assert all(n_samples.get(t["trial"], 0) >= 20 for t in pressed)
+    # Every detected hand keeps its 21 landmarks (8 bytes each), for re-analysis without a
+    # recording; θ and d ride along where the pose set ẑ_h.
+    blobs = con.execute("SELECT landmarks FROM samples WHERE detected = 1").fetchall()
+    assert blobs and all(b is not None and len(b) == 21 * 8 for (b,) in blobs)
+    assert con.execute("SELECT COUNT(*) FROM samples WHERE theta IS NOT NULL").fetchone()[0] > 0
     status = con.execute("SELECT status FROM sessions").fetchall()
     assert status == [("complete",)]
 

@@ -138,3 +138,38 @@ def test_errors_are_one_line(tmp_path: Path) -> None:
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "--out" in res.stderr
     assert main(["--db", str(tmp_path / "missing.db"), "--out", str(tmp_path)]) == 2
     assert not (tmp_path / "missing.db").exists()
+
+
+@given(
+    st.lists(
+        st.tuples(st.floats(-0.5, 1.5, width=32), st.floats(-0.5, 1.5, width=32)), max_size=64
+    )
+)
+def test_landmarks_pack_and_unpack_exactly(points):
+    from services.store import pack_landmarks, unpack_landmarks
+
+    blob = pack_landmarks(points)
+    assert len(blob) == 8 * len(points)
+    assert unpack_landmarks(blob) == tuple(points)  # float32 values survive bit for bit
+
+
+def test_landmarks_are_stored_and_exported(tmp_path):
+    from services.store import pack_landmarks, unpack_landmarks
+
+    hand = [(0.25, 0.75), (0.5, 0.125)]
+    db = tmp_path / "l.sqlite"
+    _build(db, [Sample(1, True, 0.375, 0.4375, None, None, None, None, None, 0.5, 0.25,
+                       pack_landmarks(hand)), Sample(2, False, None, None, None, None, None,
+                                                     None, None)])
+    store = Store(db)
+    try:
+        got = store.samples("a", 1)
+    finally:
+        store.close()
+    assert unpack_landmarks(got[0].landmarks) == tuple(hand) and got[1].landmarks is None
+    out = tmp_path / "csv"
+    assert main(["--db", str(db), "--out", str(out)]) == 0
+    rows = [r for r in csv.DictReader((out / "samples.csv").open()) if r["session"] == "a"]
+    assert rows[0]["landmarks"] == "0.25 0.75 0.5 0.125" and rows[1]["landmarks"] == "NA"
+    with pytest.raises(ValueError, match="whole number of points"):
+        unpack_landmarks(b"\x00" * 12)
