@@ -41,6 +41,8 @@ from services.core.keys import check_rig
 SERVICES = ("decision", "actuation", "eyes", "vision", "sim", "monitor")
 # What a rig cannot run a trial without (vision or the sim that stands in for it).
 REQUIRED = ("decision", "actuation", "eyes", "vision")
+# The choices each service accepts. The rig file is read below the services (on any host, by
+# any tool), so it cannot import them; tests/unit/test_rigfile.py holds these equal to theirs.
 ARM_DRIVERS = ("sim", "feetech")
 EYES_DRIVERS = ("sim", "maestro", "arduino")
 TRACKERS = ("aruco", "mediapipe", "sim")

@@ -21,14 +21,13 @@ import signal
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from pathlib import Path
 from types import FrameType
 
 from services.core.cli import add_params_arg
 from services.core.config import load_params
 from services.core.serial_link import LinkError
 from services.eyes.arduino import ArduinoServoDriver
-from services.eyes.drivers import EYES_DRIVERS, make_eyes_driver
+from services.eyes.drivers import add_driver_args, make_eyes_driver
 from services.eyes.maestro import MaestroServoDriver, quarter_us
 from services.eyes.serial_servo import SerialServoDriver
 from services.eyes.servos import ServoDriver
@@ -45,24 +44,9 @@ class BenchError(RuntimeError):
     """A bench tool cannot go on; the message is one line for the operator."""
 
 
-def add_driver_args(p: argparse.ArgumentParser) -> None:
-    """The flags that choose and calibrate the eyes driver, as `nod eyes` has them."""
-    p.add_argument(
-        "--driver", choices=EYES_DRIVERS, default="sim", help="servo driver (default sim)"
-    )
-    p.add_argument("--port", default=None, help="serial port of the servo controller")
-    p.add_argument(
-        "--eyes-config", type=Path, default=None, help="eyes hardware file (channels, calibration)"
-    )
-    p.add_argument(
-        "--trims",
-        "--calibration",
-        dest="trims",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="trims file written by `nod eyes calibrate`, laid over the calibration",
-    )
+def add_bench_args(p: argparse.ArgumentParser) -> None:
+    """A bench tool's flags: the eyes driver as `nod eyes` takes it, and `--params`."""
+    add_driver_args(p)
     add_params_arg(p)
 
 

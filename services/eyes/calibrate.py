@@ -40,7 +40,7 @@ from services.core.cli import Parser
 from services.core.config import ConfigError
 from services.eyes.bench import (
     BenchError,
-    add_driver_args,
+    add_bench_args,
     describe,
     open_driver,
     settle,
@@ -255,7 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--trims` loads. Interactive on a terminal; --set or keys on stdin for scripts.",
         epilog=HELP,
     )
-    add_driver_args(p)
+    add_bench_args(p)
     p.add_argument("--out", type=Path, required=True, help="trims file to write (TOML)")
     p.add_argument(
         "--set",

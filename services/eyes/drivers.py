@@ -13,6 +13,7 @@ whichever calibration is in effect and replaces only the servos' `trim_deg`.
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,6 +25,26 @@ from services.eyes.trims import load_and_apply
 from services.model.servos import EyesCalibration
 
 EYES_DRIVERS: tuple[str, ...] = ("sim", "maestro", "arduino")
+
+
+def add_driver_args(p: argparse.ArgumentParser) -> None:
+    """The flags that choose and calibrate the eyes driver (the service and its bench tools)."""
+    p.add_argument(
+        "--driver", choices=EYES_DRIVERS, default="sim", help="servo driver (default sim)"
+    )
+    p.add_argument("--port", default=None, help="serial port of the servo controller")
+    p.add_argument(
+        "--eyes-config", type=Path, default=None, help="eyes hardware file (channels, calibration)"
+    )
+    p.add_argument(
+        "--trims",
+        "--calibration",
+        dest="trims",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="trims file written by `nod eyes calibrate`, laid over the calibration",
+    )
 
 
 @dataclass(frozen=True, slots=True)

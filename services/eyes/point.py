@@ -24,7 +24,7 @@ import time
 from services.core.cli import Parser
 from services.eyes.bench import (
     BenchError,
-    add_driver_args,
+    add_bench_args,
     describe,
     open_driver,
     settle,
@@ -65,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--yaw", type=_finite, required=True, help="rad; positive looks toward red (e.g. 0.53)"
     )
     p.add_argument("--pitch", type=_finite, default=0.0, help="rad (default 0)")
-    add_driver_args(p)
+    add_bench_args(p)
     p.add_argument(
         "--hold",
         type=_seconds,

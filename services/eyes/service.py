@@ -14,14 +14,13 @@ import json
 import logging
 import math
 import sys
-from pathlib import Path
 
 from services.core import messages as m
 from services.core.cli import Parser, add_service_args
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
-from services.eyes.drivers import EYES_DRIVERS, make_eyes_driver
+from services.eyes.drivers import add_driver_args, make_eyes_driver
 from services.eyes.servos import ServoDriver
 from services.model.gaze import GazeCommand
 from services.model.params import NodConfig
@@ -113,22 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
         "`nod eyes calibrate --out eyes_trims.toml …` centres the servos (see their --help).",
     )
     add_service_args(p)
-    p.add_argument(
-        "--driver", choices=EYES_DRIVERS, default="sim", help="servo driver (default sim)"
-    )
-    p.add_argument("--port", default=None, help="serial port of the servo controller")
-    p.add_argument(
-        "--eyes-config", type=Path, default=None, help="eyes hardware file (channels, calibration)"
-    )
-    p.add_argument(
-        "--trims",
-        "--calibration",
-        dest="trims",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="trims file written by `nod eyes calibrate`, laid over the calibration",
-    )
+    add_driver_args(p)
     p.add_argument("--stale-ms", type=float, default=None, help="gaze staleness bound (ms)")
     return p
 

@@ -172,14 +172,13 @@ def hand_center(landmarks: Sequence[Point]) -> Point:
     return (sx / n, sy / n)
 
 
-class HumanObserver:
-    """Algorithm 1 as printed (the "paper" mode): feed it one hand pose per camera frame."""
+class ObserverBase:
+    """What both readings of eq 7 share: parameters, table layout, ẑ_h, the latest observation."""
 
     def __init__(self, params: ObserverParams | None = None, layout: TableLayout | None = None):
         self._params = params if params is not None else ObserverParams()
         self._layout = layout if layout is not None else TableLayout()
         self._z_hat = 0.0
-        self._reference: Point | None = None  # where the next M is measured from
         self._last: Observation | None = None
 
     @property
@@ -189,23 +188,31 @@ class HumanObserver:
 
     @property
     def layout(self) -> TableLayout:
-        """The table layout used for mirroring and distances."""
+        """The table layout: mirroring, the boxes' bearings and distances."""
         return self._layout
 
     @layout.setter
     def layout(self, layout: TableLayout) -> None:
-        # Keeps ẑ_h and the reference centre: the layout only changes how later poses read.
+        # Keeps ẑ_h and the motion history: the layout only changes how later poses read.
         self._layout = layout
 
     @property
     def z_hat(self) -> float:
-        """The current observed opinion ẑ_h (0 before any movement)."""
+        """The current observed opinion ẑ_h (0 before any movement it could read)."""
         return self._z_hat
 
     @property
     def last(self) -> Observation | None:
         """The observation returned by the latest `update`, or None after `reset`."""
         return self._last
+
+
+class HumanObserver(ObserverBase):
+    """Algorithm 1 as printed (the "paper" mode): feed it one hand pose per camera frame."""
+
+    def __init__(self, params: ObserverParams | None = None, layout: TableLayout | None = None):
+        super().__init__(params, layout)
+        self._reference: Point | None = None  # where the next M is measured from
 
     def reset(self) -> None:
         """Forget all history: ẑ_h = 0 and the next pose is a first frame."""

@@ -31,43 +31,24 @@ from collections import deque
 from collections.abc import Sequence
 
 from services.model.geometry import COLOURS, Colour, Point, TableLayout, colour_sign
-from services.model.observer import HumanObserver, Observation, ObserverParams, hand_center
+from services.model.observer import (
+    HumanObserver,
+    Observation,
+    ObserverBase,
+    ObserverParams,
+    hand_center,
+)
 
 _NOTHING = Observation(0.0, None, None, None, None, None, False, False)
 
 
-class RobustObserver:
+class RobustObserver(ObserverBase):
     """Eq 7 on a smoothed, windowed movement against the boxes' bearings (see module doc)."""
 
     def __init__(self, params: ObserverParams | None = None, layout: TableLayout | None = None):
-        self._params = params if params is not None else ObserverParams()
-        self._layout = layout if layout is not None else TableLayout()
+        super().__init__(params, layout)
         self._cos_min = math.cos(math.radians(self._params.max_angle_deg))
         self.reset()
-
-    @property
-    def params(self) -> ObserverParams:
-        """The observer's parameters."""
-        return self._params
-
-    @property
-    def layout(self) -> TableLayout:
-        """The table layout whose boxes the bearings point at."""
-        return self._layout
-
-    @layout.setter
-    def layout(self, layout: TableLayout) -> None:
-        self._layout = layout
-
-    @property
-    def z_hat(self) -> float:
-        """The current observed opinion ẑ_h (0 before any readable movement)."""
-        return self._z_hat
-
-    @property
-    def last(self) -> Observation | None:
-        """The observation returned by the latest `update`, or None after `reset`."""
-        return self._last
 
     def reset(self) -> None:
         """Forget all history: ẑ_h = 0, no smoothed centre, an empty window."""

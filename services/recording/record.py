@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import os
 import re
 import socket
@@ -35,7 +34,7 @@ from pathlib import Path
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser, add_params_arg
+from services.core.cli import Parser, add_params_arg, positive_float
 from services.core.config import load_params
 from services.core.contract import TOPICS
 from services.core.keys import Keys
@@ -176,16 +175,6 @@ def _meta_item(text: str) -> str:
     return text
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (value > 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod record`."""
     p = Parser(
@@ -204,20 +193,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--exclude", action="append", default=None, metavar="KEY",
         help="leave this key out (e.g. sim/camera: ~1 MB/s of rendered frames); repeatable",
     )
-    p.add_argument("--duration", type=_positive, default=None, metavar="S",
+    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C/SIGTERM)")
     add_params_arg(p)
     p.add_argument(
         "--meta", action="append", default=None, metavar="KEY=VALUE", type=_meta_item,
         help="an extra entry of the file's `nod` metadata (e.g. session=...); repeatable",
     )
-    p.add_argument("--flush-s", type=_positive, default=1.0, metavar="S",
+    p.add_argument("--flush-s", type=positive_float, default=1.0, metavar="S",
                    help="close a chunk and flush it to the OS at least this often (1 s)")
-    p.add_argument("--chunk-kb", type=_positive, default=1024, metavar="KB",
+    p.add_argument("--chunk-kb", type=positive_float, default=1024, metavar="KB",
                    help="close a chunk when it holds this much (1024 kB)")
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
                    help="chunk compression (zstd)")
-    p.add_argument("--queue-mb", type=_positive, default=64, metavar="MB",
+    p.add_argument("--queue-mb", type=positive_float, default=64, metavar="MB",
                    help="payload bytes waiting to be written at most; more are dropped (64)")
     p.add_argument(
         "--images", action="store_true",

@@ -57,7 +57,7 @@ import msgspec
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser, add_params_arg
+from services.core.cli import Parser, add_params_arg, positive_float
 from services.core.clock import Clock
 from services.core.config import from_mapping, load_toml
 from services.core.contract import TOPICS
@@ -673,16 +673,6 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
 # --- the command line -----------------------------------------------------------------------------
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (value > 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod replay`."""
     p = Parser(
@@ -693,7 +683,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", type=Path, metavar="FILE.mcap", help="the recording")
     add_zenoh_args(p)
     p.set_defaults(rig=None)
-    p.add_argument("--speed", type=_positive, default=1.0, metavar="X",
+    p.add_argument("--speed", type=positive_float, default=1.0, metavar="X",
                    help="play X times as fast as recorded (plain replays; default 1)")
     p.add_argument("--only", action="append", default=None, metavar="KEY",
                    help="replay only this key (e.g. vision/hand, 'vision/*'); repeatable")
@@ -707,10 +697,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--follow", action="store_true",
                    help="follow the live conductor: meet it at each trial's setup and go "
                    "(implies --restamp)")
-    p.add_argument("--follow-timeout", type=_positive, default=60.0, metavar="S",
+    p.add_argument("--follow-timeout", type=positive_float, default=60.0, metavar="S",
                    help="how long to wait for the live conductor at a trial event (60 s)")
     clock = p.add_argument_group("the live rig's clock (--restamp, --follow)")
-    clock.add_argument("--clock-speed", type=_positive, default=1.0, metavar="S",
+    clock.add_argument("--clock-speed", type=positive_float, default=1.0, metavar="S",
                        help="the rig's simulated seconds per wall second (its services' --speed)")
     clock.add_argument("--epoch-ns", type=int, default=None,
                        help="the rig's clock epoch (its services' --epoch-ns)")

@@ -34,7 +34,7 @@ import msgspec
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser
+from services.core.cli import Parser, positive_float
 from services.core.contract import TOPICS
 from services.core.keys import check_rig
 from services.core.node import clip, install_signal_handlers
@@ -215,16 +215,6 @@ class Rate:
 # --- the command line ---------------------------------------------------------------------------
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (value > 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
-    return value
-
-
 def _int_at_least(low: int) -> Callable[[str], int]:
     def parse(text: str) -> int:
         try:
@@ -260,7 +250,7 @@ def build_parser() -> Parser:
         "publishers), the contract's keys that stayed silent, and the services alive.",
     )
     ls.add_argument(
-        "--duration", type=_positive_float, default=2.0, metavar="S",
+        "--duration", type=positive_float, default=2.0, metavar="S",
         help="seconds to listen (2)",
     )
     ls.add_argument("--json", action="store_true", help="print one JSON object")
@@ -281,7 +271,7 @@ def build_parser() -> Parser:
         help="stop after N valid messages",
     )
     echo.add_argument(
-        "--duration", type=_positive_float, default=None, metavar="S",
+        "--duration", type=positive_float, default=None, metavar="S",
         help="stop after S seconds",
     )
     echo.set_defaults(run=run_echo)
@@ -296,7 +286,7 @@ def build_parser() -> Parser:
     )
     hz.add_argument("key", metavar="KEY", help="one key, e.g. vision/hand")
     hz.add_argument(
-        "--duration", type=_positive_float, default=None, metavar="S",
+        "--duration", type=positive_float, default=None, metavar="S",
         help="stop after S seconds (default: Ctrl-C)",
     )
     hz.add_argument(

@@ -20,7 +20,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from services.actuation.arm_path import ArmPoses
 from tests.emulators.pty_device import PtyDevice
+
+# The arm the Feetech tests drive: three servos and five distinct, reachable poses.
+IDS = (1, 2, 3)
+POSES = ArmPoses(
+    home=(2048, 2048, 2048),
+    above_red=(2448, 2148, 1948),
+    press_red=(2448, 2348, 1848),
+    above_blue=(1648, 2148, 1948),
+    press_blue=(1648, 2348, 1848),
+)
 
 # name: (address, size, writable, initial value)
 REGISTER_MAP: dict[str, tuple[int, int, bool, int]] = {

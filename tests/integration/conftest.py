@@ -16,6 +16,22 @@ from services.core import messages as m
 from services.core.session import make_config, open_session
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+# A three-trial protocol (one control trial, two consensus ones): whole sessions in seconds.
+SHORT = """
+[[protocol.trials]]
+index = 1
+mode = "dissensus"
+[[protocol.trials]]
+index = 2
+mode = "consensus"
+option = "red"
+gaze_level = "low"
+[[protocol.trials]]
+index = 3
+mode = "consensus"
+option = "blue"
+gaze_level = "significant"
+"""
 
 
 def free_port() -> int:

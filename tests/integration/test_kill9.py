@@ -21,26 +21,11 @@ from services.core import messages as m
 from services.core.keys import Keys
 from services.store import Store
 
-from .conftest import ROOT, Collector, wait_for
+from .conftest import ROOT, SHORT, Collector, wait_for
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
 STALE_MS = 250.0
-SHORT = """
-[[protocol.trials]]
-index = 1
-mode = "dissensus"
-[[protocol.trials]]
-index = 2
-mode = "consensus"
-option = "red"
-gaze_level = "low"
-[[protocol.trials]]
-index = 3
-mode = "consensus"
-option = "blue"
-gaze_level = "significant"
-"""
 
 
 class Rig:

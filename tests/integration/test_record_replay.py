@@ -29,24 +29,9 @@ from services.core.contract import TOPICS
 from services.recording.mcap_io import McapIn, topic_of
 from services.store import Store
 
-from .conftest import ROOT, free_port
+from .conftest import ROOT, SHORT, free_port
 
 pytestmark = pytest.mark.integration
-SHORT = """
-[[protocol.trials]]
-index = 1
-mode = "dissensus"
-[[protocol.trials]]
-index = 2
-mode = "consensus"
-option = "red"
-gaze_level = "low"
-[[protocol.trials]]
-index = 3
-mode = "consensus"
-option = "blue"
-gaze_level = "significant"
-"""
 SPEED = "4"
 
 

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 
-from services.actuation.arm_path import ArmPoses
 from services.actuation.calibrate import (
     DUPLICATE_STEPS,
     REACH_STEPS,
@@ -23,18 +22,10 @@ from services.actuation.feetech import FeetechBus
 from services.actuation.feetech_arm import FeetechArmConfig
 from services.core.config import from_mapping, load_toml
 from services.core.serial_link import SerialLink
-from tests.emulators.feetech_emulator import FeetechBusEmulator
+from tests.emulators.feetech_emulator import IDS, POSES, FeetechBusEmulator
 from tests.emulators.links import LINK
 
 ROOT = Path(__file__).resolve().parents[2]
-IDS = (1, 2, 3)
-POSES = ArmPoses(
-    home=(2048, 2048, 2048),
-    above_red=(2448, 2148, 1948),
-    press_red=(2448, 2348, 1848),
-    above_blue=(1648, 2148, 1948),
-    press_blue=(1648, 2348, 1848),
-)
 ORDER = ("home", "above_red", "press_red", "above_blue", "press_blue")
 BASE = FeetechArmConfig(ids=IDS, link=LINK)
 

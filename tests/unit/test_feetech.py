@@ -23,19 +23,11 @@ from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
 from services.core.config import ConfigError, from_mapping, load_toml
 from services.model.behaviour import ArmCommand
 from services.model.geometry import TableLayout
-from tests.emulators.feetech_emulator import FeetechBusEmulator
+from tests.emulators.feetech_emulator import IDS, POSES, FeetechBusEmulator
 from tests.emulators.links import FAST, LINK
 from tests.emulators.pty_device import eventually
 
 ROOT = Path(__file__).resolve().parents[2]
-IDS = (1, 2, 3)
-POSES = ArmPoses(
-    home=(2048, 2048, 2048),
-    above_red=(2448, 2148, 1948),
-    press_red=(2448, 2348, 1848),
-    above_blue=(1648, 2148, 1948),
-    press_blue=(1648, 2348, 1848),
-)
 CFG = FeetechArmConfig(
     ids=IDS,
     move_time_s=2.0,

@@ -108,3 +108,14 @@ def test_unreadable_and_malformed_files(tmp_path: Path) -> None:
         load_rig(tmp_path / "missing.toml")
     with pytest.raises(RigFileError, match="not valid TOML"):
         load_rig(write(tmp_path, "[rig\nname="))
+
+
+def test_the_rig_file_accepts_exactly_what_the_services_accept() -> None:
+    from services.actuation.drivers import ARM_DRIVERS
+    from services.core import rigfile
+    from services.eyes.drivers import EYES_DRIVERS
+    from services.vision.trackers import TRACKERS
+
+    assert rigfile.ARM_DRIVERS == ARM_DRIVERS
+    assert rigfile.EYES_DRIVERS == EYES_DRIVERS
+    assert set(rigfile.TRACKERS) == set(TRACKERS)
