@@ -413,6 +413,8 @@ class Conductor:
     ) -> None:
         tracker = rec.tracker if rec is not None else OutcomeTracker(self.cfg.debounce)
         human = rec.human if rec is not None else None
+        if protocol.end is not None:
+            human = protocol.end.counted_press(human)
         j = judge_trial(tracker, human, robot, clicks, self.proto.target_clicks)
         if interrupted:  # never scored: no outcome, no points
             j = dataclasses.replace(j, outcome=None, score=0)

@@ -115,14 +115,15 @@ class _Loop:
     def _judge(self, t: float, index: int, mode: str, option: Colour | None) -> None:
         self.person.trial_ended(self.robot)
         assert self.tracker is not None  # set at "go", which precedes every "end"
-        j = judge_trial(
-            self.tracker, self.human, self.robot, self.clicks, self.cfg.protocol.target_clicks
-        )
+        end = self.protocol.end
+        human = self.human if end is None else end.counted_press(self.human)
+        target = self.cfg.protocol.target_clicks
+        j = judge_trial(self.tracker, human, self.robot, self.clicks, target)
         self.results.append(
             OfflineTrial(
                 index, mode, option, j.human, j.robot, j.outcome, j.switches, j.violations,
                 j.score, t - self.t_go,
-                None if self.t_press is None else self.t_press - self.t_go,
+                None if self.t_press is None or human is None else self.t_press - self.t_go,
                 tuple(self.samples),
             )
         )

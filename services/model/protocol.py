@@ -219,6 +219,14 @@ class TrialEnd:
     robot_pressed: bool  # False: the robot did not press within `robot_wait_s`
     t: float  # when the "end" cue was given
 
+    def counted_press(self, human: Colour | None) -> Colour | None:
+        """The human's press as the trial counts it: none when the timeout ended their part.
+
+        The arm goes on to press after the timeout, and a hand that reaches a box meanwhile is
+        seen; that late press is not the person's choice in time, so the trial is a timeout.
+        """
+        return human if self.human_pressed else None
+
     @property
     def reason(self) -> str:
         """One line for the store: what ended the trial."""

@@ -32,6 +32,7 @@ from services.model.outcome import OUTCOMES
 from services.model.params import NodConfig
 
 CATEGORIES = (*OUTCOMES, "none")
+SIMPLEX_STEP = 0.15  # Nelder–Mead's first steps, as a share of each trait's range
 
 
 @dataclass(frozen=True)
@@ -50,6 +51,7 @@ TRAITS: tuple[Trait, ...] = (
     Trait("gaze_gain_spread", 0.0, 1.5),
     Trait("trust0", 0.0, 2.0),
     Trait("trust_step", 0.0, 0.6),
+    Trait("gaze_over_robot", 0.0, 5.0),
     Trait("speed", 0.2, 0.6),
     Trait("full_conviction", 0.1, 1.0),
     Trait("min_conviction", 0.0, 1.0),
@@ -134,14 +136,27 @@ def calibrate(
     """Fit the traits; return the best values and the shares of their cohort."""
     with ProcessPoolExecutor(max_workers=workers) as pool:
         objective = Objective(cfg, target, n, seed, pool)
+        # The base traits (e.g. the last fit, given as --params) are candidate 0, so a refit after
+        # a change to the participant model starts from what already worked.
+        base = np.array([
+            (getattr(cfg.participant, t.name) - t.low) / (t.high - t.low) for t in TRAITS
+        ]).clip(0.0, 1.0)
         sampler = qmc.LatinHypercube(d=len(TRAITS), seed=seed)
-        candidates = sampler.random(starts)
+        candidates = np.vstack([base, sampler.random(starts)])
         scores = [objective(c) for c in candidates]
         best = candidates[int(np.argmin(scores))]
-        log(f"  {starts} seeded candidates: best Σ TVD {min(scores):.3f}")
+        log(f"  the base traits: Σ TVD {scores[0]:.3f}; {starts} seeded candidates: best Σ TVD "
+            f"{min(scores[1:]):.3f}")
         if iterations > 0:
+            # scipy's default first simplex moves each trait by 5 % of its value (a trait at 0
+            # never moves): too small to see past the cohort's sampling noise. Steps of
+            # SIMPLEX_STEP of each range, toward the middle of the range, explore instead.
+            simplex = np.tile(best, (len(best) + 1, 1))
+            for i, x in enumerate(best):
+                simplex[i + 1, i] = x + SIMPLEX_STEP if x <= 0.5 else x - SIMPLEX_STEP
             minimize(objective, best, method="Nelder-Mead",
-                     options={"maxfev": iterations, "xatol": 0.01, "fatol": 0.005})
+                     options={"maxfev": iterations, "xatol": 0.01, "fatol": 0.005,
+                              "initial_simplex": simplex})
         assert objective.best is not None
         score, values, got = objective.best
         log(f"  {objective.evaluations} cohorts of {n}: best Σ TVD {score:.3f}")
@@ -175,7 +190,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog="nod calibrate-cohort", description=__doc__.splitlines()[0])
     p.add_argument("--target", type=Path, required=True, help="per-trial shares (JSON)")
     p.add_argument("--out", type=Path, default=None, help="write the fitted traits here (TOML)")
-    p.add_argument("--params", type=Path, default=None, help="base parameters (TOML)")
+    p.add_argument(
+        "--params", type=Path, default=None,
+        help="base parameters (TOML); its traits are also the search's first candidate",
+    )
     p.add_argument("--participants", type=int, default=60, help="cohort size per candidate (60)")
     p.add_argument("--seed", type=int, default=1, help="first seed of the cohort (1)")
     p.add_argument("--starts", type=int, default=24, help="seeded candidates (24)")

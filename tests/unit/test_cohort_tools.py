@@ -10,7 +10,7 @@ import pytest
 from services.analysis.power import TESTS, p_values, power, wilson
 from services.model.closed_loop import run_offline_session
 from services.model.params import NodConfig
-from services.sim.calibrate import CATEGORIES, load_target, shares, tvd
+from services.sim.calibrate import CATEGORIES, calibrate, evaluate, load_target, shares, tvd
 from services.sim.cohort import main as cohort_main
 from services.store import Store
 
@@ -46,6 +46,20 @@ def test_tvd_and_shares():
     assert got[1]["C"] == 0.5 and got[2]["none"] == 0.5
     assert all(abs(sum(v.values()) - 1) < 1e-12 for v in got.values())
     assert set(got[1]) == set(CATEGORIES)
+
+
+def test_a_refit_starts_from_the_base_traits():
+    # The base cohort's own shares as the target: the base traits fit it exactly (Σ TVD 0), so a
+    # search that tries them first must return them, whatever its random candidates do.
+    cfg = NodConfig()
+    target = evaluate(cfg, 3, 7, workers=1)
+    logged: list[str] = []
+    values, got = calibrate(cfg, target, 3, 7, starts=1, iterations=0, workers=1,
+                            log=logged.append)
+    assert sum(tvd(got[k], w) for k, w in target.items()) == 0.0
+    for name, value in values.items():
+        assert value == pytest.approx(getattr(cfg.participant, name), abs=1e-9)
+    assert "the base traits: Σ TVD 0.000" in logged[0]
 
 
 def test_the_paper_target_loads_and_adds_up(tmp_path):

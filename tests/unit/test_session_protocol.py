@@ -94,6 +94,27 @@ def test_timeout_then_robot_wait_end_the_trial_without_presses():
     assert protocol.end is not None and protocol.end.reason == "timeout; robot did not press"
 
 
+
+def test_a_press_after_the_timeout_does_not_count_as_the_humans():
+    protocol = SessionProtocol(P)
+    protocol.start(0.0)
+    go = trial_timeline(P.trials[0], 0.0, P).go_t
+    protocol.advance(go + P.trial_timeout_s)  # the timeout: the arm goes to press
+    protocol.advance(go + P.trial_timeout_s + 0.5, human_pressed=True)  # a hand arrives late
+    protocol.advance(go + P.trial_timeout_s + 1.0, human_pressed=True, robot_pressed=True)
+    end = protocol.end
+    assert end is not None and not end.human_pressed and end.reason == "timeout"
+    assert end.counted_press("red") is None
+
+
+def test_a_press_in_time_counts():
+    protocol = SessionProtocol(P)
+    protocol.start(0.0)
+    go = trial_timeline(P.trials[0], 0.0, P).go_t
+    protocol.advance(go + 2.0, human_pressed=True)
+    protocol.advance(go + 3.0, human_pressed=True, robot_pressed=True)
+    assert protocol.end is not None and protocol.end.counted_press("blue") == "blue"
+
 def test_the_next_trial_waits_for_judged_then_rests():
     protocol = SessionProtocol(P)
     protocol.start(0.0)
