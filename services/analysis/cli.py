@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from services.core.cli import Parser
+from services.core.cli import Parser, finite_float, positive_float
 from services.model.dynamics import PairParams
 
 PROG = "nod analyze"
@@ -23,23 +22,6 @@ PROG = "nod analyze"
 
 class UsageError(Exception):
     """A bad input found after parsing; reported as one line with exit code 2."""
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
-def _positive(text: str) -> float:
-    value = _finite(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
-    return value
 
 
 def _formats(text: str) -> tuple[str, ...]:
@@ -115,7 +97,8 @@ def _build_parser() -> Parser:
     )
     p.add_argument("--grid", type=_grid_size, default=121, metavar="N", help="N×N grid (121)")
     p.add_argument(
-        "--range", type=_positive, default=6.0, metavar="R", help="biases in linspace(-R, R, N) (6)"
+        "--range", type=positive_float, default=6.0, metavar="R",
+        help="biases in linspace(-R, R, N) (6)",
     )
     p.add_argument("--out", required=True, metavar="FILE.npz", help="where to write the arrays")
     p.add_argument("--png", metavar="FILE.png", help="also draw the map")
@@ -129,8 +112,8 @@ def _build_parser() -> Parser:
         description="Every equilibrium of eqs 1-2 at fixed biases, with the "
         "Jacobian's eigenvalues (eq 3) as [re, im] pairs.",
     )
-    p.add_argument("--br", type=_finite, required=True, help="robot bias b_r")
-    p.add_argument("--bh", type=_finite, required=True, help="human bias b_h")
+    p.add_argument("--br", type=finite_float, required=True, help="robot bias b_r")
+    p.add_argument("--bh", type=finite_float, required=True, help="human bias b_h")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument("--png", metavar="FILE.png", help="draw the nullclines Δ1 = 0, Δ2 = 0")
 
@@ -154,7 +137,9 @@ def _build_parser() -> Parser:
         "at b_r = b_h = +(u_r + OFFSET) (panel a) and −(u_r + OFFSET) (panel b). The file's "
         "suffix picks the format (.png, .pdf, .svg).",
     )
-    p.add_argument("--offset", type=_finite, default=1.0, help="bias beyond u_r (1, as Fig 3b)")
+    p.add_argument(
+        "--offset", type=finite_float, default=1.0, help="bias beyond u_r (1, as Fig 3b)"
+    )
     p.add_argument("--out", required=True, metavar="FILE", help="figure to write (.png/.pdf/.svg)")
 
     p = sub.add_parser(
@@ -165,7 +150,7 @@ def _build_parser() -> Parser:
         "with a computed sweep from the same initial condition as `sweep`.",
     )
     p.add_argument("--grid", type=_grid_size, default=121, metavar="N")
-    p.add_argument("--range", type=_positive, default=6.0, metavar="R")
+    p.add_argument("--range", type=positive_float, default=6.0, metavar="R")
     p.add_argument("--json", action="store_true", help="print JSON instead of a summary")
 
     p = sub.add_parser(
@@ -189,7 +174,7 @@ def _build_parser() -> Parser:
         "decision model, Algorithm 2, simulated arm; both options, several jitter seeds).",
     )
     p.add_argument(
-        "--press-s", type=_positive, default=2.2, help="the fastest press to cover (2.2 s)"
+        "--press-s", type=positive_float, default=2.2, help="the fastest press to cover (2.2 s)"
     )
     p.add_argument("--seeds", type=int, default=5, help="jitter draws per option (5)")
     p.add_argument("--params", metavar="FILE.toml", help="rig parameters (default: SPEC)")
@@ -222,7 +207,7 @@ def _build_parser() -> Parser:
     p.add_argument("--participants", default="20,40,60", help="study sizes, e.g. 20,40,60")
     p.add_argument("--runs", type=int, default=100, help="drawn studies per size (100)")
     p.add_argument("--population", type=int, default=400, help="simulated people (400)")
-    p.add_argument("--alpha", type=_positive, default=0.05, help="significance level (0.05)")
+    p.add_argument("--alpha", type=positive_float, default=0.05, help="significance level (0.05)")
     p.add_argument("--seed", type=int, default=1, help="seed of the population and the draws")
     p.add_argument("--params", metavar="FILE.toml", help="cohort parameters (calibrated traits)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: cores)")

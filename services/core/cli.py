@@ -16,6 +16,17 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
 
 
+def finite_float(text: str) -> float:
+    """An argparse type: a finite number (biases, angles)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
 def positive_float(text: str) -> float:
     """An argparse type: a finite number > 0 (durations, rates, speeds)."""
     try:

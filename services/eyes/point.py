@@ -17,11 +17,10 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
-import math
 import sys
 import time
 
-from services.core.cli import Parser
+from services.core.cli import Parser, finite_float
 from services.eyes.bench import (
     BenchError,
     add_bench_args,
@@ -38,18 +37,8 @@ from services.model.servos import SERVO_NAMES, requested_angles, servo_targets
 PROG = "nod eyes point"
 
 
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
-    return value
-
-
 def _seconds(text: str) -> float:
-    value = _finite(text)
+    value = finite_float(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
     return value
@@ -62,9 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Point both eyes at one gaze (radians) through the eyes driver, on the bench.",
     )
     p.add_argument(
-        "--yaw", type=_finite, required=True, help="rad; positive looks toward red (e.g. 0.53)"
+        "--yaw", type=finite_float, required=True, help="rad; positive looks toward red (e.g. 0.53)"
     )
-    p.add_argument("--pitch", type=_finite, default=0.0, help="rad (default 0)")
+    p.add_argument("--pitch", type=finite_float, default=0.0, help="rad (default 0)")
     add_bench_args(p)
     p.add_argument(
         "--hold",
