@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -14,6 +13,7 @@ import pytest
 
 from services.core import messages as m
 from services.core.session import make_config, open_session
+from tests.processes import stop_all
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 # A three-trial protocol (one control trial, two consensus ones): whole sessions in seconds.
@@ -82,14 +82,7 @@ def spawn(endpoint, tmp_path) -> Iterator[Callable[..., subprocess.Popen]]:
         return proc
 
     yield start
-    for proc in procs:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-    for proc in procs:
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+    stop_all(procs)
 
 
 class Collector:

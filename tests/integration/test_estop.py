@@ -7,24 +7,19 @@ import sqlite3
 import subprocess
 import sys
 import time
+from functools import partial
 
 import pytest
 
 from services.store import Store
+from tests.processes import run_nod
 
 from .conftest import ROOT, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 
 
-def _nod(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "services.cli", *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
+_nod = partial(run_nod, timeout=60)
 
 
 def test_estop_with_nobody_listening_fails_and_says_so(router, endpoint):

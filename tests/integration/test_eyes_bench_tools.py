@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
+from functools import partial
 
 import pytest
 
 from services.eyes.trims import load_trims
 from tests.emulators.maestro_emulator import MaestroEmulator
 from tests.emulators.pty_device import eventually
-
-from .conftest import ROOT
+from tests.processes import run_nod
 
 pytestmark = pytest.mark.integration
 
@@ -24,14 +22,7 @@ timeout_s = 0.5
 """
 
 
-def nod(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "services.cli", *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
+nod = partial(run_nod, timeout=30)
 
 
 def test_the_service_loads_calibrated_trims_and_owns_the_port(router, spawn, tmp_path):

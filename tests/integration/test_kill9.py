@@ -20,6 +20,7 @@ import pytest
 from services.core import messages as m
 from services.core.keys import Keys
 from services.store import Store
+from tests.processes import stop_all
 
 from .conftest import ROOT, SHORT, Collector, wait_for
 
@@ -54,14 +55,7 @@ class Rig:
         return t
 
     def stop(self) -> None:
-        for proc in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        for proc in self.procs.values():
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+        stop_all(self.procs.values())
 
 
 class FakeConductor:

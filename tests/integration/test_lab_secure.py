@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import time
@@ -13,6 +12,7 @@ import zenoh
 from services.core.keys import Keys
 from services.core.session import make_config
 from services.store import Store
+from tests.processes import stop_all
 
 from .conftest import ROOT, free_port, wait_for
 
@@ -68,14 +68,7 @@ def lab(tmp_path):
         return proc
 
     yield port, session, start, tmp_path
-    for proc in reversed(procs):
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-    for proc in procs:
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+    stop_all(reversed(procs))
 
 
 def test_without_a_certificate_nobody_connects(lab):

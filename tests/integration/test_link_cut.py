@@ -6,13 +6,14 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import time
 from datetime import datetime
 
 import pytest
+
+from tests.processes import stop_all
 
 from .conftest import ROOT
 
@@ -74,14 +75,7 @@ class TwoHosts:
         return (self.tmp / f"{name}.log").read_text()
 
     def close(self) -> None:
-        for proc in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        for proc in self.procs.values():
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+        stop_all(self.procs.values())
         for ns in (self.a, self.b):
             _ip("netns", "del", ns)
 

@@ -16,6 +16,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -28,6 +29,7 @@ from services.core import messages as m
 from services.core.contract import TOPICS
 from services.recording.mcap_io import McapIn, topic_of
 from services.store import Store
+from tests.processes import run_nod
 
 from .conftest import ROOT, SHORT, free_port
 
@@ -35,11 +37,7 @@ pytestmark = pytest.mark.integration
 SPEED = "4"
 
 
-def _nod(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "services.cli", *args],
-        cwd=ROOT, capture_output=True, text=True, timeout=timeout,
-    )
+_nod = partial(run_nod, timeout=120)
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -17,17 +18,14 @@ import pytest
 from services.core import messages as m
 from services.core.session import make_config, open_session
 from services.store import Store
+from tests.processes import run_nod
 
 from .conftest import ROOT, free_port
 
 pytestmark = pytest.mark.integration
 
 
-def nod(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "services.cli", *args], cwd=ROOT, capture_output=True, text=True,
-        timeout=timeout,
-    )
+nod = partial(run_nod, timeout=60)
 
 
 def processes_mentioning(text: str) -> list[int]:

@@ -11,20 +11,14 @@ from pathlib import Path
 import pytest
 
 from services.model.protocol import default_schedule
+from tests.processes import run_nod
 
 from .conftest import ROOT, free_port
 
 pytestmark = pytest.mark.integration
 
 
-def _nod(*args: str, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "services.cli", *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        **kw,
-    )
+_nod = run_nod
 
 
 def _run_sim(db: Path, *extra: str, speed: str = "8", port: int | None = None):

@@ -10,12 +10,14 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from functools import partial
 
 import pytest
 
 from services.core import messages as m
 from services.core.contract import TOPICS
 from services.core.node import declare_publisher
+from tests.processes import run_nod
 
 from .conftest import ROOT
 
@@ -26,14 +28,7 @@ HAND = f"nod/{RIG}/vision/hand"
 RATE_HZ = 50.0
 
 
-def _nod(*args: str, timeout: float = 20) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "services.cli", *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
+_nod = partial(run_nod, timeout=20)
 
 
 def _pose(i: int) -> bytes:

@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -32,6 +33,7 @@ from tests.emulators.arduino_emulator import ArduinoEyesEmulator, crc8_smbus
 from tests.emulators.links import LINK
 from tests.emulators.maestro_emulator import SET_TARGET, MaestroEmulator
 from tests.emulators.pty_device import eventually
+from tests.processes import run_nod
 
 ROOT = Path(__file__).resolve().parents[2]
 NAMES = ("left_pan", "left_tilt", "right_pan", "right_tilt")
@@ -114,15 +116,7 @@ def board(tmp_path):
         yield emu
 
 
-def nod(*args: str, timeout: float = 30, **kw) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "services.cli", *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        **kw,
-    )
+nod = partial(run_nod, timeout=30)
 
 
 def one_line_error(err: str) -> str:
