@@ -21,6 +21,7 @@ from services.core.cli import Parser
 from services.core.config import load_params
 from services.model.closed_loop import OfflineTrial, run_offline_session
 from services.model.params import NodConfig
+from services.model.protocol import TrialSpec
 from services.store import Sample, Store, StoreError, TrialRecord
 
 SESSION_SPACING_NS = 10**12  # each session's clock starts 1000 s after the previous one
@@ -41,6 +42,28 @@ def simulate(job: Job) -> tuple[int, list[OfflineTrial]]:
     return job.index, run_offline_session(job.cfg, job.seed, cohort=True, record=job.record)
 
 
+def offline_record(t: OfflineTrial, spec: TrialSpec, t_go_ns: int) -> TrialRecord:
+    """The store's record of one simulated trial whose "go" was at t_go_ns."""
+    return TrialRecord(
+        trial=t.trial,
+        mode=t.mode,
+        option=t.option,
+        gaze_level=spec.gaze_level,
+        yaw=spec.gaze.yaw,
+        pitch=spec.gaze.pitch,
+        t_go_ns=t_go_ns,
+        t_end_ns=t_go_ns + round(t.duration_s * 1e9),
+        human=t.human,
+        robot=t.robot,
+        outcome=t.outcome,
+        switches=t.switches,
+        violations=t.violations,
+        clicks=10,
+        score=t.score,
+        end_reason="human pressed" if t.human else "timeout",
+    )
+
+
 def store_session(store: Store, job: Job, trials: list[OfflineTrial], prefix: str) -> None:
     """Write one simulated session the way the conductor writes a real one."""
     session = f"{prefix}-{job.seed}"
@@ -53,24 +76,7 @@ def store_session(store: Store, job: Job, trials: list[OfflineTrial], prefix: st
         shift = base + t.trial * 60 * 10**9  # the trial's go, on the session's clock
         samples = [Sample(s.t_ns + base, True, *s[1:]) for s in t.samples]
         t_go = samples[0].t_ns if samples else shift
-        record = TrialRecord(
-            trial=t.trial,
-            mode=t.mode,
-            option=t.option,
-            gaze_level=spec.gaze_level,
-            yaw=spec.gaze.yaw,
-            pitch=spec.gaze.pitch,
-            t_go_ns=t_go,
-            t_end_ns=t_go + round(t.duration_s * 1e9),
-            human=t.human,
-            robot=t.robot,
-            outcome=t.outcome,
-            switches=t.switches,
-            violations=t.violations,
-            clicks=10,
-            score=t.score,
-            end_reason="human pressed" if t.human else "timeout",
-        )
+        record = offline_record(t, spec, t_go)
         store.write_trial(session, record, samples)
     store.finish_session(session, base + 59 * 60 * 10**9, "complete")
 

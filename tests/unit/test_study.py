@@ -28,6 +28,7 @@ from services.analysis.study import (
 )
 from services.model.closed_loop import OfflineTrial, run_offline_session
 from services.model.params import NodConfig
+from services.sim.cohort import offline_record
 from services.store import QuestionnaireRecord, Sample, Store, TrialRecord
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -39,25 +40,7 @@ def _simulate(seed: int) -> list[OfflineTrial]:
 
 
 def _record(t: OfflineTrial, cfg: NodConfig) -> TrialRecord:
-    spec = cfg.protocol.trials[t.trial - 1]
-    return TrialRecord(
-        trial=t.trial,
-        mode=t.mode,
-        option=t.option,
-        gaze_level=spec.gaze_level,
-        yaw=spec.yaw,
-        pitch=spec.pitch,
-        t_go_ns=t.trial * 10**10,
-        t_end_ns=t.trial * 10**10 + int(t.duration_s * 1e9),
-        human=t.human,
-        robot=t.robot,
-        outcome=t.outcome,
-        switches=t.switches,
-        violations=t.violations,
-        clicks=10,
-        score=t.score,
-        end_reason="human pressed" if t.human else "timeout",
-    )
+    return offline_record(t, cfg.protocol.trials[t.trial - 1], t.trial * 10**10)
 
 
 @pytest.fixture(scope="module")
