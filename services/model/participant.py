@@ -45,7 +45,7 @@ class ParticipantParams:
     # How much a person who trusts the eyes discounts an arm heading against them: the arm's
     # pull is divided by (1 + gaze_over_robot · trust) while it contradicts the gaze. 0 = the arm
     # is believed whatever the eyes say. Without it, people heading where the eyes look followed
-    # the robot's first move the other way (before its bias won) and ended DH in 9-12 % of
+    # the robot's first move the other way (before its bias won) and ended DH in 9-16 % of
     # consensus trials, where the paper saw 0-2 %.
     gaze_over_robot: float = 0.0
     perception_delay_s: float = 0.25  # how late the participant sees the arm's heading
@@ -72,13 +72,12 @@ class ParticipantParams:
     start: Point = (0.5, 0.85)  # rest position of the hand, participant's side of the table
 
     def __post_init__(self) -> None:
-        if not self.gaze_over_robot >= 0:
-            raise ValueError("ParticipantParams.gaze_over_robot must be >= 0")
         for name in ("speed", "accel", "full_conviction", "hand_radius"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ParticipantParams.{name} must be > 0")
-        if not self.gaze_gain_spread >= 0:
-            raise ValueError("ParticipantParams.gaze_gain_spread must be >= 0")
+        for name in ("gaze_gain_spread", "gaze_over_robot"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"ParticipantParams.{name} must be >= 0")
         for name in ("rule_breaking", "control_switch_prob", "min_conviction"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"ParticipantParams.{name} must be in [0, 1]")
