@@ -27,6 +27,7 @@ from services.model.arm import ArmDriver
 from services.model.behaviour import ArmCommand, RobotBehaviour
 from services.model.params import NodConfig
 from services.model.safety import SafetyParams, Watchdog
+from services.safety.latch_file import LatchFile, add_state_dir_arg, default_state_dir
 from services.safety.wiring import watch_safety_inputs
 
 log = logging.getLogger("nod.actuation")
@@ -36,7 +37,14 @@ NS = 1e-9
 class ActuationService:
     """Wires Algorithm 2, an arm driver and the safety watchdog to the rig's keys."""
 
-    def __init__(self, node: Node, cfg: NodConfig, arm: ArmDriver, safety: SafetyParams) -> None:
+    def __init__(
+        self,
+        node: Node,
+        cfg: NodConfig,
+        arm: ArmDriver,
+        safety: SafetyParams,
+        latch_file: LatchFile | None,
+    ) -> None:
         self.node = node
         self.layout = cfg.layout
         self.arm = arm
@@ -59,7 +67,9 @@ class ActuationService:
         node.subscribe("vision/hand", self.on_hand)
         node.subscribe("vision/layout", self.on_layout)
         node.subscribe("experiment/trial", self.on_trial)
-        watch_safety_inputs(node, self.watchdog, self.tick, also_watch=("experiment",))
+        watch_safety_inputs(
+            node, self.watchdog, self.tick, latch_file, also_watch=("experiment",)
+        )
         node.every(0.02, self.tick)
 
     # -- inputs --------------------------------------------------------------------------------
@@ -142,6 +152,9 @@ class ActuationService:
 
     def tick(self, now_ns: int) -> None:
         """Periodic: safety gate, timers of Algorithm 2, arm state and the robot's press."""
+        # A faulted bus (silent, garbled, unplugged) is a safety stop like a stale input: the
+        # conductor sees it on the state key and interrupts the trial.
+        self.watchdog.set_fault(self.arm.state(self._now()).fault)
         status = self.watchdog.check(self.node.arrival_ns())
         if status.safe_stop and not self.safe_stop:
             log.warning("SAFE STOP: %s", status.reason)
@@ -187,6 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--arm-config", type=Path, default=None, help="arm file with calibrated poses (feetech)"
     )
     p.add_argument("--stale-ms", type=float, default=None, help="input staleness bound (ms)")
+    add_state_dir_arg(p)
     return p
 
 
@@ -205,6 +219,8 @@ def main(argv: list[str] | None = None) -> int:
         safety = cfg.safety
         if args.stale_ms is not None:
             safety = dataclasses.replace(safety, stale_ms=args.stale_ms)
+        latch_file = LatchFile(args.state_dir or default_state_dir(), args.rig, "actuation")
+        latch_file.check_writable()  # an arm whose e-stop cannot survive a restart does not start
         node = Node("actuation", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod actuation: {exc}", file=sys.stderr)
@@ -224,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
         node.close()
         print(f"nod actuation: {exc}", file=sys.stderr)
         return 2
-    ActuationService(node, cfg, arm, safety)
+    ActuationService(node, cfg, arm, safety, latch_file)
     node.on_forced_exit(arm.hold)  # if a signal's clean stop hangs: hold the arm, then exit
     try:
         node.run()

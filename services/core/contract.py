@@ -54,6 +54,9 @@ class Topic:
     rate: str
     qos: QoS
     fields: str  # the payload's own fields (besides v, seq, t_ns), for the README
+    # Nothing is published on it: its publishers answer queries (`Node.answer`), so it is never
+    # in a recording and never "silent".
+    queried_only: bool = False
 
     def field_names(self) -> tuple[str, ...]:
         """The message's own field names, in order."""
@@ -158,6 +161,14 @@ _TOPICS = (
         SAFETY,
         "release only (`engaged` false), a key of its own so an ACL can let every host engage "
         "and only the control station release: `engaged`, `reason`, `source`, `id`",
+    ),
+    Topic(
+        "safety/latch", m.LatchMsg, ("actuation", "eyes"), ("actuation", "eyes", "experiment"),
+        "queryable (asked at start)", RELIABLE,
+        "each device answers with its e-stop latch: `service`, `engaged`, `reason`, `source`, "
+        "`id`, `seen` (recent command ids, which can never release it again); a device that "
+        "starts is engaged if any is",
+        queried_only=True,
     ),
 )
 TOPICS: dict[str, Topic] = {t.name: t for t in _TOPICS}

@@ -55,6 +55,7 @@ Opinion = _num(-1e6, 1e6)  # ẑ_h, z_r, b_r: finite, far beyond any value the m
 Radians = _num(-math.pi, math.pi)
 Table = _num(-1, 2)  # the arm's end effector, table coordinates with a margin
 Box4: TypeAlias = tuple[Unit, Unit, Unit, Unit]
+ServiceName = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
 
 
 class Message(
@@ -280,9 +281,24 @@ class Estop(Message, frozen=True, kw_only=True):
     id: Text = ""  # the command's id, echoed as `estop_id` on the state keys of each device obeying
 
 
-# --- the rig: service status and the launchers' events ------------------------------------------
+class LatchMsg(Message, frozen=True, kw_only=True):
+    """A device's e-stop latch, in reply to a query on safety/latch (a starting device asks).
 
-ServiceName = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
+    `seen` holds the ids of the recent commands the device obeyed: none of them may release a
+    latch again (`services.model.latch`).
+    """
+
+    KIND: ClassVar[str] = "latch"
+    service: ServiceName = "actuation"
+    engaged: bool = True
+    reason: Text = ""
+    source: Text = ""
+    id: Text = ""
+    seen: Annotated[tuple[Annotated[str, msgspec.Meta(max_length=64)], ...],
+                    msgspec.Meta(max_length=64)] = ()
+
+
+# --- the rig: service status and the launchers' events ------------------------------------------
 
 
 class NodeStatus(Message, frozen=True, kw_only=True):

@@ -150,6 +150,47 @@ class Node:
         callback = zenoh.handlers.Callback(on_sample, indirect=False)
         self._handles.append(self.session.declare_subscriber(key, callback))
 
+    def answer(self, topic: str, reply: Callable[[], m.Message]) -> None:
+        """Answer every query on `topic` with `reply()`, built under the lock (a publisher's right).
+
+        For state a peer asks for when it starts (the e-stop latch): a query needs no history.
+        """
+        check_publisher(topic, self.service)
+        key = self.keys.topic(topic)
+
+        def on_query(query: zenoh.Query) -> None:
+            try:
+                with self.lock:
+                    payload = m.encode(reply())
+                query.reply(key, payload)
+            except Exception:  # an answer that fails must not kill zenoh's delivery thread
+                log.exception("%s: answering a query on %s failed", self.service, topic)
+
+        self._handles.append(self.session.declare_queryable(key, on_query))
+
+    def ask(self, topic: str, timeout_s: float) -> list[Any]:
+        """Query every answerer of `topic` (a declared subscriber); the valid replies.
+
+        Blocks up to `timeout_s` (wall): zenoh ends the query early once every answerer it knows
+        of has replied. Bad replies are dropped like bad samples.
+        """
+        cls: type[m.Message] = check_subscriber(topic, self.service).message
+        replies = self.session.get(
+            self.keys.topic(topic),
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=timeout_s,
+        )
+        out: list[Any] = []
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            try:
+                out.append(m.decode(cls, reply.ok.payload.to_bytes()))
+            except m.MessageError as exc:
+                self._drop(topic, str(exc))
+        return out
+
     def _drop(self, topic: str, why: str) -> None:
         self.bad[topic] += 1
         n = self.bad[topic]
@@ -170,6 +211,11 @@ class Node:
             self.keys.alive(service), on_sample, history=True
         )
         self._handles.append(sub)
+
+    def peer_alive(self, service: str, timeout_s: float = 0.3) -> bool:
+        """Whether some process holds `service`'s liveliness token on this rig right now."""
+        replies = self.session.liveliness().get(self.keys.alive(service), timeout=timeout_s)
+        return any(r.ok is not None for r in replies)
 
     def on_forced_exit(self, hook: Callable[[], None]) -> None:
         """Run `hook` (e.g. hold the arm) if a signal's clean stop does not finish in time."""

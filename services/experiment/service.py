@@ -34,7 +34,7 @@ from services.experiment.rig_watch import RigWatch
 from services.model.geometry import Colour
 from services.model.outcome import OutcomeTracker, judge_trial
 from services.model.params import NodConfig
-from services.model.protocol import Cue, SessionProtocol, TrialSpec
+from services.model.protocol import Cue, SessionProtocol, TrialEnd, TrialSpec
 from services.store import Interruption, Store, TrialRecord
 
 log = logging.getLogger("nod.experiment")
@@ -57,7 +57,14 @@ class Conductor:
         store: Store,
         clicks: Callable[[int], int | None],
         console: SessionConsole | None = None,
+        resume_at: tuple[int, int] | None = None,
     ):
+        """The conductor of one session on `node`'s rig, storing into `store`.
+
+        `resume_at`: the (trial, attempt) a resumed session is in — the one a lost conductor
+        left open, or the last one stored — so the safety events seen before its next trial
+        starts (a device's safe stop while no conductor ran) are filed under it, not trial 0.
+        """
         self.node = node
         self.console = console or SessionConsole()
         self.cfg = cfg
@@ -73,6 +80,8 @@ class Conductor:
         self.session = ""
         self.records: list[TrialRecord] = []
         self.rig = RigWatch()
+        if resume_at is not None:
+            self.rig.begin(*resume_at)
         self.protocol: SessionProtocol | None = None
         self._trial_start_ns = 0
         self._hands: OrderedDict[int, m.HandPose] = OrderedDict()
@@ -99,6 +108,13 @@ class Conductor:
         node.subscribe("rig/event", lambda msg: self.rig.rig_event(self._now_ns(), msg))
         for service in REQUIRED:
             node.watch_liveliness(service, lambda a, s=service: self._liveliness(s, a))
+        # An e-stop engaged while no conductor ran (or before this one started) holds the session
+        # from the start: the devices answer with their latches.
+        for latch in node.ask("safety/latch", 1.0):
+            if latch.engaged:
+                with node.lock:
+                    self.rig.estop(True, latch.reason, latch.source or latch.service,
+                                   self._now_ns())
         # The gaze keep-alive runs on its own thread: the operator's counter prompt blocks the
         # main thread, and the eyes must not drop to neutral while the operator types.
         self._keepalive = threading.Thread(target=self._keep_gaze_alive, daemon=True)
@@ -212,11 +228,14 @@ class Conductor:
         seed: int | None,
         first_trial: int = 1,
         resume: bool = False,
+        lost: tuple[int, int, int] | None = None,
     ) -> list[TrialRecord]:
         """Run the schedule from `first_trial` through the protocol machine; store the records.
 
         A trial broken by a safe stop or an e-stop is stored as interrupted; the session waits
         until the rig is safe again, then repeats it (or moves on, as the protocol says).
+        `lost` is the attempt (trial, attempt, t_start_ns) a previous conductor of this session
+        left open when it died: stored as an interruption, then repeated or moved past alike.
         """
         started = self.node.clock.now_ns()
         if not resume:
@@ -227,10 +246,16 @@ class Conductor:
             self.store.add_recording(session, *self.recording)
         self.session = session
         self.records = []
-        protocol = self.protocol = SessionProtocol(self.proto, first_trial)
+        attempts_before = 0
+        if lost is not None:
+            first_trial, attempts_before = self._file_lost_attempt(*lost)
         self.console.start(session, participant, len(self.proto.trials))
         status = "aborted"
         try:
+            if first_trial > len(self.proto.trials):  # the lost attempt was the last one's last
+                status = "complete"
+                return self.records
+            protocol = self.protocol = SessionProtocol(self.proto, first_trial, attempts_before)
             self._wait_for_a_safe_rig()
             with self.node.lock:
                 cues = protocol.start(self._now_s())
@@ -272,6 +297,26 @@ class Conductor:
             )
             self.console.stop()
         return self.records
+
+    def _file_lost_attempt(self, trial: int, attempt: int, t_start_ns: int) -> tuple[int, int]:
+        """Store the attempt a dead conductor left open; (first trial to run, its attempts so far).
+
+        Like any interruption: the trial is repeated while it has attempts left, else stored
+        interrupted (never scored) and the session goes on at the next one.
+        """
+        why = "conductor lost (it died mid-trial; the session was resumed)"
+        with self.node.lock:
+            events = self.rig.take_events()
+        log.warning("trial %d (attempt %d) INTERRUPTED: %s", trial, attempt, why)
+        self.store.write_interruption(
+            self.session, Interruption(trial, attempt, t_start_ns, self._now_ns(), why), events
+        )
+        if self.proto.repeat_interrupted and attempt < self.proto.max_attempts:
+            return trial, attempt
+        spec = self.proto.trials[trial - 1]
+        self._store_trial(spec, attempt, None, None, None, None, f"interrupted: {why}",
+                          interrupted=True)
+        return trial + 1, 0
 
     def _wait_for_a_safe_rig(self) -> None:
         """Before the first trial: eyes neutral (kept alive), then wait until the rig is safe.
@@ -336,6 +381,10 @@ class Conductor:
                     }
                     self.pub_gaze.put(**self.gaze_msg)
             elif cue.kind == "setup":
+                # On record before anything moves: a conductor killed from here on leaves this
+                # attempt open, and the resumed session stores it as interrupted.
+                started = self._now_ns()
+                self.store.begin_attempt(self.session, spec.index, protocol.attempt, started)
                 with self.node.lock:
                     self.trial = spec.index
                     self.robot_press = None
@@ -343,7 +392,7 @@ class Conductor:
                     self.recorder = None
                     self.rig.begin(spec.index, protocol.attempt)
                     self._seq_regressions = 0
-                    self._trial_start_ns = self._now_ns()
+                    self._trial_start_ns = started
                     self.pub_trial.put(phase="setup", text=cue.text, session=self.session, **ev)
             elif cue.kind == "countdown":
                 self.pub_trial.put(phase="countdown", text=cue.text, session=self.session, **ev)
@@ -386,7 +435,8 @@ class Conductor:
         )
         if last_chance:  # not repeated: stored as an interrupted trial, never scored
             self._store_trial(
-                spec, protocol, None, None, None, f"interrupted: {why}", interrupted=True
+                spec, protocol.attempt, None, None, None, None, f"interrupted: {why}",
+                interrupted=True,
             )
 
     def _end_trial(self, spec: TrialSpec, protocol: SessionProtocol) -> None:
@@ -399,12 +449,15 @@ class Conductor:
             phase="end", trial=spec.index, mode=spec.mode, option=spec.option, session=self.session
         )
         clicks = self.console.ask(lambda: self.clicks(spec.index))
-        self._store_trial(spec, protocol, rec, robot, clicks, protocol.end.reason)
+        self._store_trial(
+            spec, protocol.attempt, protocol.end, rec, robot, clicks, protocol.end.reason
+        )
 
     def _store_trial(
         self,
         spec: TrialSpec,
-        protocol: SessionProtocol,
+        attempt: int,
+        end: TrialEnd | None,
         rec: TrialRecorder | None,
         robot: Colour | None,
         clicks: int | None,
@@ -413,8 +466,8 @@ class Conductor:
     ) -> None:
         tracker = rec.tracker if rec is not None else OutcomeTracker(self.cfg.debounce)
         human = rec.human if rec is not None else None
-        if protocol.end is not None:
-            human = protocol.end.counted_press(human)
+        if end is not None:
+            human = end.counted_press(human)
         j = judge_trial(tracker, human, robot, clicks, self.proto.target_clicks)
         if interrupted:  # never scored: no outcome, no points
             j = dataclasses.replace(j, outcome=None, score=0)
@@ -438,7 +491,7 @@ class Conductor:
             score=j.score,
             end_reason=reason[:400],
             interrupted=interrupted,
-            attempts=protocol.attempt,
+            attempts=attempt,
         )
         samples = rec.samples(SAMPLE_HZ) if rec is not None else []
         self.store.write_trial(self.session, record, samples, events)
@@ -540,6 +593,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nod experiment: {exc}", file=sys.stderr)
         return 2
     participant, seed, first = args.participant, args.seed, 1
+    lost: tuple[int, int, int] | None = None
+    resume_at: tuple[int, int] | None = None
     if args.resume is not None:
         try:
             participant, seed, done = store.resume_session(args.resume)
@@ -547,7 +602,9 @@ def main(argv: list[str] | None = None) -> int:
             store.close()
             print(f"nod experiment: {exc}", file=sys.stderr)
             return 2
-        if done >= len(cfg.protocol.trials):
+        lost = store.open_attempt(args.resume)
+        resume_at = (lost[0], lost[1]) if lost is not None else (done, 1)
+        if done >= len(cfg.protocol.trials) and lost is None:
             store.finish_session(args.resume, time.time_ns(), "complete")
             store.close()
             print(f"nod experiment: session {args.resume} has all {done} trials; nothing to do")
@@ -568,7 +625,19 @@ def main(argv: list[str] | None = None) -> int:
         store.close()
         print(f"nod experiment: {exc}", file=sys.stderr)
         return 2
-    conductor = Conductor(node, cfg, store, clicks, make_console(args.console))
+    if _another_conductor(node):
+        node.close()
+        store.close()
+        print(
+            f"nod experiment: another conductor is running on rig {node.keys.rig!r} (its "
+            f"liveliness {node.keys.alive('experiment')} is held): one rig, one conductor — stop "
+            "it first, or use another --rig",
+            file=sys.stderr,
+        )
+        return 2
+    conductor = Conductor(
+        node, cfg, store, clicks, make_console(args.console), resume_at=resume_at
+    )
     node.ready()
     session = args.resume or args.session or uuid.uuid4().hex[:12]
     recorder = None
@@ -585,7 +654,9 @@ def main(argv: list[str] | None = None) -> int:
             "session %s (%s): all services alive; trials %d-%d",
             session, participant, first, len(cfg.protocol.trials),
         )
-        conductor.run_session(session, participant, seed, first, resume=args.resume is not None)
+        conductor.run_session(
+            session, participant, seed, first, resume=args.resume is not None, lost=lost
+        )
     except TimeoutError as exc:
         print(f"nod experiment: {exc}", file=sys.stderr)
         return 1
@@ -600,6 +671,23 @@ def main(argv: list[str] | None = None) -> int:
         store.close()
     log.info("session %s complete: %s", session, json.dumps(str(args.db)))
     return 0
+
+
+CONDUCTOR_GONE_S = 2.0  # how long a conductor that just died may still look alive (wall)
+
+
+def _another_conductor(node: Node) -> bool:
+    """Whether another conductor holds this rig's `experiment` liveliness.
+
+    Two would both run the protocol and store the same trials under different participants. A
+    conductor killed a moment ago may still hold it while the router notices; one that is
+    still there after CONDUCTOR_GONE_S is running.
+    """
+    deadline = time.monotonic() + CONDUCTOR_GONE_S
+    while node.peer_alive("experiment"):
+        if time.monotonic() > deadline or node.stop.wait(0.1):
+            return True
+    return False
 
 
 def _start_recorder(args: argparse.Namespace, session: str) -> RecorderProcess | None:

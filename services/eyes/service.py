@@ -26,6 +26,7 @@ from services.model.gaze import GazeCommand
 from services.model.params import NodConfig
 from services.model.safety import SafetyParams, Watchdog
 from services.model.servos import SERVO_NAMES, ServoTargets
+from services.safety.latch_file import LatchFile, add_state_dir_arg, default_state_dir
 from services.safety.wiring import watch_safety_inputs
 
 log = logging.getLogger("nod.eyes")
@@ -34,7 +35,13 @@ log = logging.getLogger("nod.eyes")
 class EyesService:
     """Wires gaze commands and the watchdog to a servo driver."""
 
-    def __init__(self, node: Node, driver: ServoDriver, safety: SafetyParams) -> None:
+    def __init__(
+        self,
+        node: Node,
+        driver: ServoDriver,
+        safety: SafetyParams,
+        latch_file: LatchFile | None,
+    ) -> None:
         self.node = node
         self.driver = driver
         self.watchdog = Watchdog(safety, ("gaze",))
@@ -46,7 +53,7 @@ class EyesService:
         self.reason = ""
         self.pub_state = node.publisher("eyes/state")
         node.subscribe("eyes/cmd", self.on_gaze)
-        watch_safety_inputs(node, self.watchdog, self.tick)
+        watch_safety_inputs(node, self.watchdog, self.tick, latch_file)
         node.every(0.02, self.tick)
 
     def on_gaze(self, msg: m.GazeMsg) -> None:
@@ -73,6 +80,13 @@ class EyesService:
 
     def tick(self, now_ns: int) -> None:
         """Apply the current gaze (or neutral when unsafe) and publish the state."""
+        poll = getattr(self.driver, "poll", None)  # serial drivers reconnect and re-send here
+        if poll is not None:
+            poll()
+        # A silent or unplugged servo controller is a safety stop: neutral is commanded (it
+        # lands once the controller answers again) and the conductor interrupts the trial.
+        fault = getattr(self.driver, "fault", None)
+        self.watchdog.set_fault(fault)
         status = self.watchdog.check(self.node.arrival_ns())
         if status.safe_stop != self.safe_stop:
             (log.warning if status.safe_stop else log.info)(
@@ -82,9 +96,6 @@ class EyesService:
             )
         self.safe_stop, self.reason = status.safe_stop, status.reason
         cmd = GazeCommand() if self.safe_stop else self.gaze
-        poll = getattr(self.driver, "poll", None)  # serial drivers reconnect and re-send here
-        if poll is not None:
-            poll()
         if cmd != self._last_cmd:  # servos hold their target: send changes only
             self.applied = self.driver.look(cmd)
             self._last_cmd = cmd
@@ -96,7 +107,7 @@ class EyesService:
             clamped=self.applied.clamped,
             safe_stop=self.safe_stop,
             safety_reason=self.reason[:400],
-            fault=(getattr(self.driver, "fault", None) or "")[:400],
+            fault=(fault or "")[:400],
             estop=self.watchdog.estopped,
             estop_id=self.watchdog.estop_id,
         )
@@ -114,6 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_service_args(p)
     add_driver_args(p)
     p.add_argument("--stale-ms", type=float, default=None, help="gaze staleness bound (ms)")
+    add_state_dir_arg(p)
     return p
 
 
@@ -147,6 +159,8 @@ def main(argv: list[str] | None = None) -> int:
         driver = make_eyes_driver(
             args.driver, args.port, args.eyes_config, calibration=cfg.eyes, trims=args.trims
         )
+        latch_file = LatchFile(args.state_dir or default_state_dir(), args.rig, "eyes")
+        latch_file.check_writable()  # eyes whose e-stop cannot survive a restart do not start
         node = Node("eyes", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod eyes: {exc}", file=sys.stderr)
@@ -162,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         servos = driver.calibration.servos()
         trims = {s: c.trim_deg for s, c in zip(SERVO_NAMES, servos, strict=True)}
         log.info("servo trims from %s: %s", args.trims, json.dumps(trims))
-    EyesService(node, driver, safety)
+    EyesService(node, driver, safety, latch_file)
     node.on_forced_exit(driver.neutral)  # if a signal's clean stop hangs: eyes neutral, exit
     try:
         node.run()

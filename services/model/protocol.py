@@ -28,6 +28,22 @@ from services.model.geometry import Colour
 
 Mode: TypeAlias = Literal["dissensus", "consensus"]
 MODES: tuple[Mode, Mode] = ("dissensus", "consensus")
+# Upper bounds of the protocol's times (s). Each is far beyond any sensible setting and below
+# what its default becomes when typed in milliseconds (0.75 -> 750, 10 -> 10000, 1 -> 1000,
+# 5 -> 5000): a unit slip or an overflow (rest_s = 1e12) is refused at start, not a session that
+# waits for hours while looking healthy. rest_s: 10 minutes is more than any rest between two
+# trials (a longer break is a stopped session, resumed with `nod experiment --resume`).
+MAX_S = {
+    "countdown_interval_s": 10.0,  # one spoken word to the next
+    "trial_timeout_s": 120.0,  # the person's time to press (the robot presses at it too)
+    "gaze_lead_s": 60.0,
+    "robot_wait_s": 60.0,  # the arm needs 1-3 s
+    "rest_s": 600.0,
+}
+MAX_ATTEMPTS = 10  # starts of one trial: a trial interrupted 10 times is a rig fault to fix
+MAX_TARGET_CLICKS = 1000
+MAX_TRIALS = 10_000  # the wire's trial number (services.core.messages.Trial) goes no higher
+MAX_GAZE_RAD = math.pi  # the wire's gaze angles (messages.Radians): beyond, the eyes refuse it
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,8 +83,12 @@ class TrialSpec:
             object.__setattr__(self, "yaw", table.yaw)
         if self.pitch is None:
             object.__setattr__(self, "pitch", table.pitch)
-        if not (math.isfinite(self.yaw) and math.isfinite(self.pitch)):  # type: ignore[arg-type]
-            raise ValueError(f"trial {self.index}: gaze yaw/pitch must be finite")
+        for name in ("yaw", "pitch"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and abs(value) <= MAX_GAZE_RAD):
+                raise ValueError(
+                    f"trial {self.index}: gaze {name} must be in [-pi, pi] rad, got {value!r}"
+                )
 
     @property
     def gaze(self) -> GazeCommand:
@@ -129,20 +149,23 @@ class ProtocolParams:
     def __post_init__(self) -> None:
         if not self.countdown or not all(isinstance(w, str) and w for w in self.countdown):
             raise ValueError("ProtocolParams.countdown needs at least one non-empty word")
-        for name in ("countdown_interval_s", "trial_timeout_s", "robot_wait_s"):
+        for name, top in MAX_S.items():
             value = getattr(self, name)
-            if not math.isfinite(value) or value <= 0:
-                raise ValueError(f"ProtocolParams.{name} must be finite and > 0, got {value}")
-        for name in ("gaze_lead_s", "rest_s"):
+            zero_ok = name in ("gaze_lead_s", "rest_s")  # the others must be > 0
+            above = value >= 0 if zero_ok else value > 0
+            if not (math.isfinite(value) and above and value <= top):
+                low = "[0" if zero_ok else "(0"
+                raise ValueError(
+                    f"ProtocolParams.{name} must be in {low}, {top:g}] s, got {value!r}"
+                )
+        for name, top in (("target_clicks", MAX_TARGET_CLICKS), ("max_attempts", MAX_ATTEMPTS)):
             value = getattr(self, name)
-            if not math.isfinite(value) or value < 0:
-                raise ValueError(f"ProtocolParams.{name} must be finite and >= 0, got {value}")
-        for name in ("target_clicks", "max_attempts"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"ProtocolParams.{name} must be an integer >= 1, got {value!r}")
-        if not self.trials:
-            raise ValueError("ProtocolParams.trials must hold at least one trial")
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= top:
+                raise ValueError(
+                    f"ProtocolParams.{name} must be an integer in [1, {top}], got {value!r}"
+                )
+        if not 1 <= len(self.trials) <= MAX_TRIALS:
+            raise ValueError(f"ProtocolParams.trials must hold 1 to {MAX_TRIALS} trials")
         indices = [t.index for t in self.trials]
         if indices != list(range(1, len(indices) + 1)):
             raise ValueError(f"ProtocolParams.trials must be numbered 1..n in order, got {indices}")
@@ -247,11 +270,21 @@ class SessionProtocol:
     (the operator types the counter value) without eating into the rest before the next trial.
     """
 
-    def __init__(self, params: ProtocolParams, first_trial: int = 1) -> None:
-        """A session over `params.trials`, starting at trial `first_trial` (resume: > 1)."""
+    def __init__(
+        self, params: ProtocolParams, first_trial: int = 1, attempts_before: int = 0
+    ) -> None:
+        """A session over `params.trials`, starting at trial `first_trial` (resume: > 1).
+
+        `attempts_before`: starts of `first_trial` already made and lost (a resumed session
+        whose conductor died mid-trial); the first start counts on from them.
+        """
         if not 1 <= first_trial <= len(params.trials):
             raise ValueError(
                 f"first_trial must be in 1..{len(params.trials)}, got {first_trial!r}"
+            )
+        if not 0 <= attempts_before < params.max_attempts:
+            raise ValueError(
+                f"attempts_before must be in 0..{params.max_attempts - 1}, got {attempts_before!r}"
             )
         self.params = params
         self._next_index = first_trial - 1
@@ -263,7 +296,7 @@ class SessionProtocol:
         self._human_pressed = False
         self._rest_until = math.inf
         self._end: TrialEnd | None = None
-        self._attempt = 0  # attempts of the current trial so far (1 = its first start)
+        self._attempt = attempts_before  # attempts of the current trial so far (1 = its first)
 
     # -- read-only state -------------------------------------------------------------------
 
@@ -321,7 +354,7 @@ class SessionProtocol:
         if self._phase != "idle":
             raise RuntimeError(f"start() in phase {self._phase!r}: a session starts once")
         out: list[Cue] = []
-        self._begin_trial(t, out)
+        self._begin_trial(t, out, repeat=self._attempt > 0)
         return out + self.advance(t)
 
     def advance(

@@ -12,15 +12,23 @@ and e-stop messages, and asks `check(now_ns)` on the same monotonic clock.
   stray message among good ones does not.
 - A required service counts as alive only once its liveliness token has been seen, and stops
   counting the moment it goes.
-- An e-stop latches until an explicit release; staleness and lost liveliness clear by
-  themselves when fresh inputs (or the token) come back, because they describe the present
-  state of the inputs, not an operator's decision.
+- An e-stop latches until an explicit release with a fresh id (`services.model.latch`); the
+  shell persists the latch and asks its peers for theirs at start, and until it has done so
+  (`adopt`) the device stays stopped: a restarted device never moves before it knows whether
+  the rig's e-stop is engaged.
+- A device fault (a silent, garbled or unplugged bus) stops the device like a stale input, and
+  clears when the driver reports the device healthy again.
+- Staleness, lost liveliness and faults clear by themselves when fresh inputs (the token, a
+  healthy device) come back, because they describe the present state of the rig, not an
+  operator's decision.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
+from services.model.latch import Latch, Verdict, merge
 
 MAX_STALE_MS = 10_000.0  # a bound longer than this is no safety bound
 MAX_SKEW_MS = 60_000.0
@@ -79,8 +87,12 @@ class Watchdog:
     _alive: dict[str, bool] = field(default_factory=dict)
     _required: set[str] = field(default_factory=set)  # required now beyond params.require_alive
     _skew: dict[str, tuple[int, float]] = field(default_factory=dict)  # input → (arrival, ms)
-    _estop: str | None = None
-    estop_id: str = ""  # the last e-stop command obeyed (engage or release), for acknowledgements
+    latch: Latch = field(default_factory=Latch)  # the e-stop latch
+    # Whether the latch is the rig's (its file read and the peers asked): a device that does
+    # not know yet stays stopped, whatever its inputs.
+    latch_known: bool = False
+    latch_warning: str = ""  # e.g. the latch could not be saved (its host's disk is full)
+    fault: str | None = None  # the device driver's fault, while it has one
     clock_faults: int = 0  # messages refused for their timestamp
 
     def feed(self, name: str, arrival_ns: int, offset_ns: float | None = None) -> bool:
@@ -109,15 +121,33 @@ class Watchdog:
         else:
             self._required.discard(service)
 
-    def estop(self, engaged: bool, reason: str = "", command_id: str = "") -> None:
-        """Engage (latched) or release the e-stop; `command_id` is acknowledged on state keys."""
-        self._estop = (reason or "e-stop") if engaged else None
-        self.estop_id = command_id
+    def command(self, engaged: bool, reason: str, source: str, command_id: str) -> Verdict:
+        """An e-stop command (engage or release): obeyed, a repeat, or refused (a stale release)."""
+        self.latch, verdict = self.latch.command(engaged, reason, source, command_id)
+        return verdict
+
+    def estop(self, engaged: bool, reason: str = "", command_id: str = "") -> Verdict:
+        """Engage or release the e-stop (`command` without a source)."""
+        return self.command(engaged, reason, "", command_id)
+
+    def adopt(self, *holders: Latch) -> None:
+        """The latch is known now: this device's, engaged if any other holder's is."""
+        self.latch = merge(self.latch, holders)
+        self.latch_known = True
+
+    def set_fault(self, fault: str | None) -> None:
+        """The device driver's fault (None: healthy)."""
+        self.fault = fault or None
 
     @property
     def estopped(self) -> bool:
         """Whether the e-stop is engaged."""
-        return self._estop is not None
+        return self.latch.engaged
+
+    @property
+    def estop_id(self) -> str:
+        """The last e-stop command obeyed (engage or release), for acknowledgements."""
+        return self.latch.id
 
     def required(self) -> tuple[str, ...]:
         """Every service whose liveliness is needed now."""
@@ -128,8 +158,14 @@ class Watchdog:
         """Every reason to be stopped now (none → may run); `now_ns` on the arrival clock."""
         reasons: list[str] = []
         warnings: list[str] = []
-        if self._estop is not None:
-            reasons.append(f"e-stop: {self._estop}")
+        if self.latch.engaged:
+            reasons.append(f"e-stop: {self.latch.reason or 'engaged'}")
+        if not self.latch_known:
+            reasons.append("e-stop state not known yet")
+        if self.fault is not None:
+            reasons.append(f"device fault: {self.fault}")
+        if self.latch_warning:
+            warnings.append(self.latch_warning)
         for service in self.required():
             if not self._alive.get(service, False):
                 reasons.append(f"{service} not alive")

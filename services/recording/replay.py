@@ -107,7 +107,7 @@ def input_topics() -> tuple[str, ...]:
 
 def select_topics(available: Iterable[str], only: list[str] | None, inputs: bool) -> set[str]:
     """The contract topics to replay among those in the file."""
-    topics = set(available)
+    topics = {t for t in available if not (t in TOPICS and TOPICS[t].queried_only)}
     if inputs:
         topics &= set(input_topics())
     if only:

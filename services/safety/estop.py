@@ -103,15 +103,10 @@ def main(argv: list[str] | None = None) -> int:
             # route being set up, still gets it. Devices treat repeats of one id as one command.
             pub.put(engaged=engaged, reason=args.reason, source=source, id=acks.command_id)
             acks.done.wait(0.05)
-        alive = {d for d in expected if _alive(node, d)}
+        alive = {d for d in expected if node.peer_alive(d)}
     finally:
         node.close()
     return _report(acks, expected, alive, engaged, args.rig, pub_key=f"nod/{args.rig}")
-
-
-def _alive(node: Node, device: str) -> bool:
-    replies = node.session.liveliness().get(node.keys.alive(device), timeout=0.3)
-    return any(r.ok is not None for r in replies)
 
 
 def _report(

@@ -1,4 +1,4 @@
-"""Connect a Watchdog to the fabric: the e-stop key and the needed services' liveliness.
+"""Connect a Watchdog to the fabric: the e-stop latch, the e-stop keys, the needed liveliness.
 
 Actuation and eyes both gate their outputs this way; this is the one place that wiring lives.
 """
@@ -10,35 +10,85 @@ from collections.abc import Callable
 
 from services.core import messages as m
 from services.core.node import Node
+from services.model.latch import Latch
 from services.model.safety import Watchdog
+from services.safety.latch_file import LatchFile
 
 log = logging.getLogger("nod.safety")
+ASK_PEERS_S = 1.0  # how long a starting device waits for the other devices' latches (wall)
 
 
 def watch_safety_inputs(
     node: Node,
     watchdog: Watchdog,
     act_now: Callable[[int], None],
+    latch_file: LatchFile | None,
     also_watch: tuple[str, ...] = (),
 ) -> None:
-    """Feed `watchdog` with e-stops and liveliness changes; call `act_now(now_ns)` on an e-stop.
+    """Feed `watchdog` with the latch, e-stops and liveliness; `act_now(now_ns)` on an e-stop.
 
-    Liveliness is watched for every service in the watchdog's `require_alive` and in
-    `also_watch` (services it requires only at times, e.g. the conductor during a trial); an
-    e-stop (or its release) is acted on at once rather than at the next periodic tick.
+    The latch comes from `latch_file` (None: kept in memory only, for in-process tests) merged
+    with what the rig's other devices answer on `safety/latch`; until both are in, the watchdog
+    keeps the device stopped. Every e-stop command obeyed is saved to the file before the device
+    acts on it (and so before it acknowledges it). Liveliness is watched for every service in the
+    watchdog's `require_alive` and in `also_watch` (services it requires only at times, e.g. the
+    conductor during a trial); an e-stop (or its release) is acted on at once rather than at the
+    next periodic tick.
     """
+    with node.lock:
+        if latch_file is not None:
+            watchdog.latch = latch_file.load()
+            if watchdog.latch.engaged:
+                log.warning("%s: e-stop ENGAGED (latched in %s): %s", node.service,
+                            latch_file.path, watchdog.latch.reason)
+
+    def save() -> None:
+        if latch_file is None:
+            return
+        try:
+            latch_file.save(watchdog.latch)
+            watchdog.latch_warning = ""
+        except OSError as exc:
+            watchdog.latch_warning = f"e-stop latch not saved: {exc}"
+            log.error("%s: %s", node.service, watchdog.latch_warning)
 
     def on_command(msg: m.Estop, engage: bool) -> None:
         if msg.engaged != engage:  # each key carries one direction (an ACL may guard release)
             raise ValueError(f"an e-stop {'release' if engage else 'engage'} on the wrong key")
-        if watchdog.estopped == engage and watchdog.estop_id == msg.id:
-            return  # a repeat of the command just obeyed
-        watchdog.estop(engage, msg.reason or msg.source, msg.id)
+        verdict = watchdog.command(engage, msg.reason or msg.source, msg.source, msg.id)
+        if verdict == "repeat":
+            return  # `nod estop` repeats a command until every device has acknowledged it
+        if verdict == "refused":
+            raise ValueError(f"a release without a fresh id ({msg.id!r}: replayed?) is refused")
+        save()
         state = "ENGAGED" if engage else "released"
         log.warning("%s: e-stop %s by %s: %s", node.service, state, msg.source or "?", msg.reason)
         act_now(node.clock.now_ns())
 
+    def latch_msg() -> m.LatchMsg:
+        latch = watchdog.latch
+        return m.LatchMsg(
+            seq=0, t_ns=node.clock.now_ns(), service=node.service, engaged=latch.engaged,
+            reason=latch.reason, source=latch.source, id=latch.id, seen=latch.seen,
+        )
+
     node.subscribe("safety/estop", lambda msg: on_command(msg, True))
     node.subscribe("safety/release", lambda msg: on_command(msg, False))
+    node.answer("safety/latch", latch_msg)
+    peers = [
+        Latch(r.engaged, r.reason, r.source, r.id, r.seen)
+        for r in node.ask("safety/latch", ASK_PEERS_S)
+        if r.service != node.service
+    ]
+    with node.lock:
+        before = watchdog.latch
+        watchdog.adopt(*peers)
+        if watchdog.latch != before:
+            save()
+        if watchdog.latch.engaged and not before.engaged:
+            log.warning("%s: e-stop ENGAGED (held by a peer device): %s", node.service,
+                        watchdog.latch.reason)
+        log.info("%s: e-stop state known (%s, %d peer(s) asked)", node.service,
+                 "ENGAGED" if watchdog.latch.engaged else "released", len(peers))
     for service in dict.fromkeys((*watchdog.params.require_alive, *also_watch)):
         node.watch_liveliness(service, lambda alive, s=service: watchdog.set_alive(s, alive))

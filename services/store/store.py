@@ -7,7 +7,9 @@ EXISTS`); a column added to an existing table is added by `_migrate`.
 
 Each trial is written in one transaction together with its samples, so a crash mid-trial loses
 at most that trial's unfinished samples; a session left 'running' is reported when the store is
-opened again.
+opened again. A trial's start is committed on its own (`open_attempts`) and closed by the
+transaction that stores the trial or its interruption: an attempt still open when a session is
+resumed was lost with its conductor, and `nod experiment --resume` stores it as interrupted.
 """
 
 from __future__ import annotations
@@ -91,6 +93,12 @@ CREATE TABLE IF NOT EXISTS interruptions (
     t_ns       INTEGER NOT NULL,
     reason     TEXT NOT NULL,
     PRIMARY KEY (session, trial, attempt)
+);
+CREATE TABLE IF NOT EXISTS open_attempts (
+    session    TEXT PRIMARY KEY REFERENCES sessions(session),
+    trial      INTEGER NOT NULL,
+    attempt    INTEGER NOT NULL,
+    t_start_ns INTEGER NOT NULL
 );
 CREATE TABLE IF NOT EXISTS samples (
     session  TEXT NOT NULL,
@@ -229,6 +237,27 @@ class Store:
                 (finished_ns, status, session),
             )
 
+    def begin_attempt(self, session: str, trial: int, attempt: int, t_start_ns: int) -> None:
+        """A trial's attempt has started (committed at once: a crash leaves it on record)."""
+        with self.db:
+            self.db.execute("BEGIN")
+            self.db.execute(
+                "INSERT OR REPLACE INTO open_attempts VALUES (?, ?, ?, ?)",
+                (session, trial, attempt, t_start_ns),
+            )
+
+    def open_attempt(self, session: str) -> tuple[int, int, int] | None:
+        """The attempt a crash left open, as (trial, attempt, t_start_ns), or None."""
+        row = self.db.execute(
+            "SELECT trial, attempt, t_start_ns FROM open_attempts WHERE session = ?", (session,)
+        ).fetchone()
+        return None if row is None else (int(row[0]), int(row[1]), int(row[2]))
+
+    def _close_attempt(self, session: str, trial: int) -> None:
+        self.db.execute(
+            "DELETE FROM open_attempts WHERE session = ? AND trial = ?", (session, trial)
+        )
+
     def write_trial(
         self,
         session: str,
@@ -245,6 +274,7 @@ class Store:
                 (session, *astuple_record(rec)),
             )
             self._events(session, events)
+            self._close_attempt(session, rec.trial)
             self.db.execute(
                 "DELETE FROM samples WHERE session = ? AND trial = ?", (session, rec.trial)
             )
@@ -282,6 +312,7 @@ class Store:
                 (session, *astuple_record(rec)),
             )
             self._events(session, events)
+            self._close_attempt(session, rec.trial)
 
     def write_events(
         self, session: str, events: Iterable[SafetyEvent | RigEventRecord]

@@ -392,6 +392,8 @@ def list_report(
     rows: list[dict[str, Any]] = []
     for name, spec in TOPICS.items():
         key = f"nod/{rig}/{name}"
+        if spec.queried_only and key not in seen:  # answers queries; nothing to hear on it
+            continue
         rows.append(_row(key, name, seen.get(key), elapsed) | {
             "message": spec.message.__name__,
             "publishers": list(spec.publishers),

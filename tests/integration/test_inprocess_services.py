@@ -75,7 +75,7 @@ def test_eyes_follow_gaze_commands_and_go_neutral_when_they_stop(router, endpoin
     driver.connect()
     eyes = Node("eyes", fabric)
     safety = SafetyParams(stale_ms=150.0, require_alive=("experiment",))
-    service = EyesService(eyes, driver, safety)
+    service = EyesService(eyes, driver, safety, None)
     runner = threading.Thread(target=eyes.run, daemon=True)
     runner.start()
     conductor = Node("experiment", fabric)
@@ -98,7 +98,11 @@ def test_eyes_follow_gaze_commands_and_go_neutral_when_they_stop(router, endpoin
         pump.join()
         wait_for(lambda: service.safe_stop, 2.0, "a safe stop once the gaze goes stale")
         wait_for(lambda: driver.last.angles_deg == (90.0, 90.0, 90.0, 90.0), 2.0, "neutral")
-        assert any(s.safe_stop and "gaze stale" in s.safety_reason for s in state.messages)
+        wait_for(
+            lambda: any(s.safe_stop and "gaze stale" in s.safety_reason for s in state.messages),
+            2.0,
+            "the stale gaze on eyes/state",
+        )
     finally:
         eyes.stop.set()
         runner.join(5)
@@ -118,7 +122,7 @@ def test_a_silent_arduino_never_holds_up_the_eyes_safety(router, endpoint, clien
         fabric = Fabric(connect=(endpoint,))
         eyes = Node("eyes", fabric)
         safety = SafetyParams(stale_ms=250.0, require_alive=("experiment",))
-        EyesService(eyes, driver, safety)
+        EyesService(eyes, driver, safety, None)
         runner = threading.Thread(target=eyes.run, daemon=True)
         runner.start()
         conductor = Node("experiment", fabric)
@@ -181,7 +185,7 @@ def test_a_silent_arm_bus_never_holds_up_the_actuation_safety(router, endpoint, 
         fabric = Fabric(connect=(endpoint,))
         node = Node("actuation", fabric)
         safety = SafetyParams(stale_ms=250.0, require_alive=("decision",))
-        ActuationService(node, NodConfig(), arm, safety)
+        ActuationService(node, NodConfig(), arm, safety, None)
         runner = threading.Thread(target=node.run, daemon=True)
         runner.start()
         peer = Node("decision", fabric)

@@ -54,7 +54,13 @@ def test_the_code_publishes_what_the_contract_says():
     node = (ROOT / "services/core/node.py").read_text()
     assert 'self.publisher("rig/status")' in node
     heartbeats = {(s, "rig/status") for s in SERVICES}
-    assert _calls("publisher") | {("vision", "vision/hand")} | heartbeats == declared
+    # Answering queries is publishing: actuation and eyes answer for their e-stop latch
+    # through the shared safety wiring.
+    wiring = (ROOT / "services/safety/wiring.py").read_text()
+    assert 'answer("safety/latch"' in wiring
+    latches = {("actuation", "safety/latch"), ("eyes", "safety/latch")}
+    code = _calls("publisher") | _calls("answer") | {("vision", "vision/hand")}
+    assert code | heartbeats | latches == declared
 
 
 def test_the_code_subscribes_to_what_the_contract_says():
@@ -63,14 +69,16 @@ def test_the_code_subscribes_to_what_the_contract_says():
     # actuation and eyes take the e-stop through the shared safety wiring.
     wiring = (ROOT / "services/safety/wiring.py").read_text()
     assert 'subscribe("safety/estop"' in wiring and 'subscribe("safety/release"' in wiring
+    assert 'ask("safety/latch"' in wiring  # asking is subscribing: a starting device asks
     gated = {
         (service, topic)
         for service in SERVICES
         if "watch_safety_inputs(" in (ROOT / "services" / service / "service.py").read_text()
-        for topic in ("safety/estop", "safety/release")
+        for topic in ("safety/estop", "safety/release", "safety/latch")
     }
     assert {service for service, _ in gated} == {"actuation", "eyes"}
-    assert _calls("subscribe") | {("vision", "sim/camera")} | gated == declared
+    code = _calls("subscribe") | _calls("ask") | {("vision", "sim/camera")}
+    assert code | gated == declared
 
 
 def test_undeclared_publishing_or_subscribing_is_refused():

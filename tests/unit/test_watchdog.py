@@ -9,6 +9,7 @@ MS = 1_000_000
 
 def make(stale_ms=250.0):
     wd = Watchdog(SafetyParams(stale_ms=stale_ms), ("z_r", "hand"))
+    wd.adopt()  # the e-stop state is known (no latch file, no peers: released)
     wd.set_alive("decision", True)
     wd.set_alive("vision", True)
     return wd
@@ -49,10 +50,12 @@ def test_estop_latches_until_released():
     wd = make()
     wd.feed("z_r", 0)
     wd.feed("hand", 0)
-    wd.estop(True, "operator")
+    wd.estop(True, "operator", "e1")
     wd.feed("z_r", 1)
     assert wd.check(1).safe_stop and "operator" in wd.check(1).reason
-    wd.estop(False)
+    assert wd.estop(False, "", "") == "refused"  # a release needs a fresh id
+    assert wd.check(1).safe_stop
+    assert wd.estop(False, "", "r1") == "obeyed"
     assert not wd.check(1).safe_stop
 
 
@@ -75,6 +78,7 @@ def test_a_required_service_never_seen_is_not_alive():
     # Liveliness is evidence of presence: a service that never declared its token (not started,
     # wrong rig, blocked by the network) must stop the device, not count as alive by default.
     wd = Watchdog(SafetyParams(stale_ms=250.0), ("z_r",))
+    wd.adopt()
     wd.feed("z_r", 0)
     status = wd.check(0)
     assert status.safe_stop
