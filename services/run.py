@@ -29,6 +29,7 @@ from services.core.cli import Parser
 from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys, check_rig
+from services.core.lifeline import nod_command
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
 from services.launch.events import RigEvents
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
@@ -106,10 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list[str]:
     """The command line of one child service."""
-    cmd = [
-        sys.executable,
-        "-m",
-        "services.cli",
+    cmd = nod_command(
         service,
         "--connect",
         args.listen,
@@ -119,7 +117,7 @@ def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list
         repr(args.speed),
         "--epoch-ns",
         str(epoch_ns),
-    ]
+    )
     if args.params is not None:
         cmd += ["--params", str(args.params)]
     if args.verbose:
@@ -226,17 +224,8 @@ def main(argv: list[str] | None = None) -> int:
 def _start_monitor(args: argparse.Namespace, router, keys: Keys, logs: Path) -> subprocess.Popen:
     """Start `nod monitor` and wait until it listens, so trial 1 is recorded from its setup."""
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "services.cli",
-            "monitor",
-            "--connect",
-            args.listen,
-            "--rig",
-            args.rig,
-            *shlex.split(args.monitor),
-        ],
+        nod_command("monitor", "--connect", args.listen, "--rig", args.rig,
+                    *shlex.split(args.monitor)),
         stdout=(logs / "monitor.log").open("w"),
         stderr=subprocess.STDOUT,
         stdin=subprocess.DEVNULL,

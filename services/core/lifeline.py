@@ -7,6 +7,10 @@ holding a serial port, a sim publishing into a rig. The launcher puts its pid in
 Linux kernel for a SIGTERM when the parent dies (prctl PR_SET_PDEATHSIG) — the service's normal
 SIGTERM path then stops it cleanly, device to its safe state. If the parent is already gone
 (it died between fork and this call) the process exits at once.
+
+`nod_command(...)` is how every launcher writes a child's command line: this interpreter, with
+`-P` so that the working directory is not on the child's `sys.path` (a stray `serial.py` or
+`zenoh.py` where the launcher was started must not shadow the real package in a service).
 """
 
 from __future__ import annotations
@@ -18,6 +22,16 @@ import signal
 import sys
 
 PR_SET_PDEATHSIG = 1
+
+
+def nod_command(*args: str) -> list[str]:
+    """`nod ARGS…` as a child process: `python -P -m services.cli ARGS…`.
+
+    `-P` (Python >= 3.11) keeps the working directory off `sys.path` and changes nothing else:
+    the environment (NOD_*, PYTHONPATH, PYTHONUNBUFFERED…) and site-packages work as before. The
+    `nod` console script is safe already (its `sys.path[0]` is the venv's bin folder).
+    """
+    return [sys.executable, "-P", "-m", "services.cli", *args]
 
 
 def die_with_parent(sig: int = signal.SIGTERM) -> bool:

@@ -21,20 +21,28 @@
 
 Relative paths are relative to the rig file. `load_rig` validates everything that can be
 checked without touching a device (unknown keys, a service on two hosts or none, one router,
-drivers, endpoints) and raises `RigFileError` with one line naming the file and the key.
-`command(rig, service)` is the command line that starts a service: `nod up` runs it under
-supervision, a systemd unit runs it through `nod up --exec` with systemd as the supervisor.
+drivers, endpoints, the safety bound and the seed the services will be given) and raises
+`RigFileError` with one line naming the file and the key. `command(rig, service)` is the
+command line that starts a service: `nod up` runs it under supervision, a systemd unit runs it
+through `nod up --exec` with systemd as the supervisor.
+
+With `rig.tls`, every process speaks with its identity from `nod lab secure`
+(`services.lab.acl`): a service with its host's role (`<tls>/<role>/`), the monitor with the
+read-only `<tls>/monitor/`, `nod up` itself with its host's launcher (`<tls>/<role>/launcher/`,
+the only identity that may publish rig/event).
 """
 
 from __future__ import annotations
 
-import sys
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from services.core.keys import check_rig
+from services.core.lifeline import nod_command
+from services.model.safety import SafetyParams
 
 # Services a rig file may place on a host. The conductor (`nod experiment`) is not one: the
 # operator starts it per participant; `sim` stands in for vision (a rig without a camera).
@@ -46,10 +54,25 @@ REQUIRED = ("decision", "actuation", "eyes", "vision")
 ARM_DRIVERS = ("sim", "feetech")
 EYES_DRIVERS = ("sim", "maestro", "arduino")
 TRACKERS = ("aruco", "mediapipe", "sim")
+MAX_SEED = 2**63 - 1  # the sim's --seed: non-negative (numpy refuses < 0), an int64 everywhere
+WILDCARD_HOSTS = ("0.0.0.0", "::", "")  # "every interface": never where a router listens unasked
+_PORTED = ("tcp", "tls", "udp", "quic", "ws")  # endpoint schemes that take host:port
 
 
 class RigFileError(ValueError):
     """The rig file is unusable; the text names the file and the key."""
+
+
+def split_endpoint(endpoint: str) -> tuple[str, str, int]:
+    """A zenoh endpoint `proto/host:port[?…|#…]` as (proto, host, port); ValueError if not one."""
+    proto, slash, rest = endpoint.partition("/")
+    address = re.split(r"[?#]", rest, maxsplit=1)[0]
+    host, colon, port = address.rpartition(":")
+    if not (slash and proto and colon) or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"{endpoint!r} is not an endpoint such as tcp/192.168.10.1:7447")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    return proto, host, int(port)
 
 
 @dataclass(frozen=True)
@@ -140,6 +163,11 @@ def load_rig(path: str | Path) -> Rig:
     router = rig.get("router")
     if not isinstance(router, str) or "/" not in router:
         raise fail("rig.router", "an endpoint such as tcp/192.168.10.1:7447 is required")
+    if router.partition("/")[0] in _PORTED:
+        try:
+            split_endpoint(router)
+        except ValueError as exc:
+            raise fail("rig.router", f"{exc} (port 1-65535)") from None
     base = path.parent
 
     def file(value: Any, key: str) -> Path:
@@ -211,6 +239,21 @@ def load_rig(path: str | Path) -> Rig:
     for service in ("actuation", "eyes"):
         if sections[service].get("driver", "sim") != "sim" and "port" not in sections[service]:
             raise fail(f"{service}.port", f"the {sections[service]['driver']} driver needs a port")
+        if not isinstance(sections[service].get("port", ""), str):
+            raise fail(f"{service}.port", "must be a string such as /dev/ttyUSB0")
+        if "stale_ms" in sections[service]:
+            # The service checks its --stale-ms only when it starts: checked here, the preflight
+            # (`nod up --dry-run`, deploy/setup-host) refuses it before anything runs.
+            try:
+                SafetyParams(stale_ms=sections[service]["stale_ms"])
+            except ValueError as exc:
+                why = str(exc).removeprefix("safety.stale_ms ")
+                raise fail(f"{service}.stale_ms", why) from None
+    seed = sections["sim"].get("seed")
+    if seed is not None and (
+        isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED
+    ):
+        raise fail("sim.seed", f"must be an integer in [0, 2^63 - 1], got {seed!r}")
     return Rig(
         path=path,
         name=name,
@@ -222,11 +265,33 @@ def load_rig(path: str | Path) -> Rig:
     )
 
 
-def session_flags(rig: Rig, host: Host, connect: str | None = None) -> list[str]:
-    """The session flags of a service on `host`: its rig and how it reaches the router."""
+LAUNCHER = "launcher"  # the contract's name of `nod up` (services.lab.acl: its identity)
+MONITOR = "monitor"
+
+
+def identity(rig: Rig, process: str, host: Host | None = None) -> Path:
+    """The zenoh config `process` (a service, `launcher`) of `host` speaks with under rig.tls.
+
+    The monitor's is the read-only identity, whatever the host (`nod status` uses it too).
+    """
+    if rig.tls is None:
+        raise ValueError(f"{rig.path}: rig.tls is not set: no identities")
+    if process == MONITOR:
+        return rig.tls / MONITOR / "zenoh.json5"
+    if host is None:
+        raise ValueError(f"the identity of {process} depends on its host")
+    role = host.role or host.name
+    if process == LAUNCHER:
+        return rig.tls / role / LAUNCHER / "zenoh.json5"
+    return rig.tls / role / "zenoh.json5"
+
+
+def session_flags(
+    rig: Rig, host: Host, connect: str | None = None, service: str = ""
+) -> list[str]:
+    """The session flags of `service` on `host`: its rig and how it reaches the router."""
     if rig.tls is not None:
-        identity = rig.tls / (host.role or host.name) / "zenoh.json5"
-        return ["--config", str(identity), "--rig", rig.name]
+        return ["--config", str(identity(rig, service, host)), "--rig", rig.name]
     return ["--connect", connect or rig.router, "--rig", rig.name]
 
 
@@ -241,7 +306,7 @@ def command(
     host = rig.host_of(service)
     sec = rig.sections.get(service, {})
     name = "sim" if (sim_hardware and service == "vision") else service
-    cmd = [sys.executable, "-m", "services.cli", name, *session_flags(rig, host, connect)]
+    cmd = nod_command(name, *session_flags(rig, host, connect, service))
     if rig.params is not None and name != "monitor":
         cmd += ["--params", str(rig.params)]
     if service in ("actuation", "eyes"):

@@ -1,21 +1,28 @@
-"""`nod lab secure`: a lab network that only the rig can drive — mutual TLS and an ACL by host.
+"""`nod lab secure`: a lab network that only the rig can drive — mutual TLS and an ACL by identity.
 
-Makes a certificate authority, one certificate per host role (control station, camera box,
-arm controller, eyes controller; the common name is the role), and the Zenoh configurations:
-the control station's router listens on TLS, refuses any client without a certificate from this
-CA, and enforces an access-control list by certificate name, derived from the contract
-(`services.core.contract`): each role may publish only the keys its services publish and may
-declare only its own services' liveliness tokens. Every authenticated host may engage the
-e-stop (`safety/estop`); only the control station may release it (`safety/release`).
+Makes a certificate authority, the lab's identities (`services.lab.acl`: one per host role —
+control station, camera box, arm controller, eyes controller —, one launcher per host role for
+`nod up`, and the read-only monitor identity for monitors and lab screens; the common name is
+the identity) and the Zenoh configurations: the control station's router listens on TLS at one
+address, refuses any client without a certificate from this CA, and enforces an access-control
+list by certificate name derived from the contract: each identity may publish only the keys its
+services publish and declare only its own services' liveliness tokens; every host role may
+engage the e-stop (`safety/estop`), only the control station release it (`safety/release`);
+only the launchers publish rig events; the monitor publishes nothing but its heartbeat.
 
-    out/ca.pem, out/ca.key           the CA (keep ca.key offline: it mints identities)
-    out/<role>/cert.pem, key.pem     the host's identity (key readable by its owner only)
-    out/<role>/ca.pem                the CA certificate, to check the other side
-    out/<role>/zenoh.json5           the host's client config (`--config` of its services)
-    out/control/router.json5         the router's config (`nod router --config …`)
+    out/ca.pem, out/ca.key             the CA (keep ca.key offline: it mints identities)
+    out/<role>/cert.pem, key.pem       the host's identity (key readable by its owner only)
+    out/<role>/ca.pem                  the CA certificate, to check the other side
+    out/<role>/zenoh.json5             the host's client config (`--config` of its services)
+    out/<role>/launcher/…              the same four files for the host's `nod up`
+    out/monitor/…                      the read-only identity (monitors, `nod status`, screens)
+    out/control/router.json5           the router's config (`nod router --config …`)
 
-Copy `out/<role>/` to the same path on each host (the configs name their files by absolute
-path under `--install-dir`, default the absolute `--out`).
+Where the router listens: `--listen tls/HOST:PORT`, by default the address the hosts reach it
+by (`--router-host`, `--port`, or the rig file's `rig.router` with `--rig-file`), never every
+interface unless `--listen` says so. Copy `out/<role>/` to the same path on each host, and
+`out/monitor/` to the hosts and screens that run a monitor (the configs name their files by
+absolute path under `--install-dir`, default the absolute `--out`).
 """
 
 from __future__ import annotations
@@ -26,7 +33,6 @@ import ipaddress
 import json
 import os
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 from cryptography import x509
@@ -35,105 +41,10 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from services.core.cli import Parser
-from services.core.contract import TOPICS
 from services.core.keys import check_rig
+from services.core.rigfile import WILDCARD_HOSTS, RigFileError, load_rig, split_endpoint
 from services.core.session import MAX_MESSAGE_BYTES
-
-ALL_MESSAGES = (
-    "put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
-    "liveliness_token", "declare_liveliness_subscriber", "liveliness_query",
-)
-
-
-@dataclass(frozen=True)
-class Role:
-    """A host of the lab and the services it runs (what its certificate may do)."""
-
-    name: str
-    services: tuple[str, ...]
-    queryables: tuple[str, ...] = ()  # topics it answers queries on
-
-
-ROLES: dict[str, Role] = {
-    r.name: r
-    for r in (
-        # Every host runs a launcher (`nod up`): its heartbeats and events are the host's too.
-        Role("control", ("experiment", "monitor", "estop", "run", "record", "launcher")),
-        Role("camera", ("vision", "sim", "launcher"), queryables=("vision/layout",)),
-        Role("arm", ("decision", "actuation", "launcher")),
-        Role("eyes", ("eyes", "launcher")),
-    )
-}
-
-
-def acl(rig: str, roles: list[Role]) -> dict:
-    """The router's access_control section: deny by default, allow what each role needs."""
-    ns = f"nod/{rig}"
-    rules: list[dict] = [
-        {  # what the router may forward to any authenticated host: everything of the rig
-            "id": "deliver",
-            "permission": "allow",
-            "flows": ["egress"],
-            "messages": list(ALL_MESSAGES),
-            "key_exprs": [f"{ns}/**"],
-        },
-        {  # every host may listen, see who is alive, and query (the layout)
-            "id": "observe",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": [
-                "declare_subscriber", "declare_liveliness_subscriber", "liveliness_query",
-                "query",
-            ],
-            "key_exprs": [f"{ns}/**"],
-        },
-        {  # every host may stop the rig; releasing is the control station's (its role rule)
-            "id": "engage-estop",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["put"],
-            "key_exprs": [f"{ns}/safety/estop"],
-        },
-    ]
-    subjects, policies = [], []
-    for role in roles:
-        publishes = sorted(
-            t.name for t in TOPICS.values() if set(t.publishers) & set(role.services)
-        )
-        rules.append({
-            "id": f"{role.name}-publish",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["put"],
-            "key_exprs": [f"{ns}/{t}" for t in publishes] or [f"{ns}/-none-"],
-        })
-        rules.append({
-            "id": f"{role.name}-alive",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["liveliness_token"],
-            "key_exprs": [f"{ns}/alive/{s}" for s in role.services],
-        })
-        names = [f"{role.name}-publish", f"{role.name}-alive", "deliver", "observe",
-                 "engage-estop"]
-        if role.queryables:
-            rules.append({
-                "id": f"{role.name}-answer",
-                "permission": "allow",
-                "flows": ["ingress"],
-                "messages": ["declare_queryable", "reply"],
-                "key_exprs": [f"{ns}/{t}" for t in role.queryables],
-            })
-            names.append(f"{role.name}-answer")
-        subjects.append({"id": role.name, "cert_common_names": [role.name]})
-        policies.append({"id": role.name, "rules": names, "subjects": [role.name]})
-    return {
-        "enabled": True,
-        "default_permission": "deny",
-        "rules": rules,
-        "subjects": subjects,
-        "policies": policies,
-    }
+from services.lab.acl import HOSTS, Identity, acl, identities
 
 
 def _key() -> ec.EllipticCurvePrivateKey:
@@ -184,15 +95,15 @@ def make_ca(days: int) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
 
 
 def make_host(
-    role: str, hosts: list[str], ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate,
+    name: str, hosts: list[str], ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate,
     days: int,
 ) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
-    """A host's certificate: common name = its role (what the ACL matches), both TLS sides."""
+    """An identity's certificate: common name = its name (what the ACL matches), both TLS sides."""
     key = _key()
     now = datetime.datetime.now(datetime.UTC)
     builder = (
         x509.CertificateBuilder()
-        .subject_name(_name(role))
+        .subject_name(_name(name))
         .issuer_name(ca.subject)
         .public_key(key.public_key())
         .serial_number(x509.random_serial_number())
@@ -205,7 +116,7 @@ def make_host(
             ),
             critical=False,
         )
-        .add_extension(x509.SubjectAlternativeName(_alt_names([role, *hosts])), critical=False)
+        .add_extension(x509.SubjectAlternativeName(_alt_names([name, *hosts])), critical=False)
     )
     return key, builder.sign(ca_key, hashes.SHA256())
 
@@ -247,44 +158,54 @@ def _common(tls: dict) -> dict:
 
 
 def secure(
-    out: Path, roles: list[Role], rig: str, router_host: str, port: int, days: int,
-    install_dir: Path,
+    out: Path, roles: list[str], rig: str, router_host: str, port: int, days: int,
+    install_dir: Path, listen: str | None = None,
 ) -> list[Path]:
-    """Write the CA, each role's identity and configs, and the router's config; return them."""
+    """Write the CA, every identity with its client config, and the router's; return the files.
+
+    The router listens on `listen` (default `tls/<router_host>:<port>`); clients connect to
+    `tls/<router_host>:<port>`.
+    """
     out.mkdir(parents=True, exist_ok=True)
     ca_key, ca = make_ca(days)
     _write_pem(out / "ca.pem", _cert_pem(ca))
     _write_pem(out / "ca.key", _key_pem(ca_key), private=True)
     written = [out / "ca.pem", out / "ca.key"]
-    for role in roles:
-        folder = out / role.name
-        folder.mkdir(exist_ok=True)
-        hosts = [router_host, "localhost", "127.0.0.1"] if role.name == "control" else []
-        key, cert = make_host(role.name, hosts, ca_key, ca, days)
-        _write_pem(folder / "key.pem", _key_pem(key), private=True)
-        _write_pem(folder / "cert.pem", _cert_pem(cert))
-        _write_pem(folder / "ca.pem", _cert_pem(ca))
-        installed = install_dir / role.name
-        client = {
-            "mode": "client",
-            "connect": {"endpoints": [f"tls/{router_host}:{port}"]},
-            **_common(_tls(installed, listen=False)),
-        }
-        (folder / "zenoh.json5").write_text(_json5(client, f"{role.name}: client of the router"))
-        written += [folder / n for n in ("cert.pem", "key.pem", "ca.pem", "zenoh.json5")]
-    control = install_dir / "control"
+    ids = identities(roles)
+    for ident in ids:
+        written += _write_identity(out, install_dir, ident, router_host, port, ca_key, ca, days)
     router = {
         "mode": "router",
-        "listen": {"endpoints": [f"tls/0.0.0.0:{port}"]},
-        **_common(_tls(control, listen=True)),
-        "access_control": acl(rig, roles),
+        "listen": {"endpoints": [listen or f"tls/{router_host}:{port}"]},
+        **_common(_tls(install_dir / "control", listen=True)),
+        "access_control": acl(rig, ids),
     }
-    (out / "control").mkdir(exist_ok=True)
     (out / "control" / "router.json5").write_text(
-        _json5(router, "the control station's router: mutual TLS, access control by host")
+        _json5(router, "the control station's router: mutual TLS, access control by identity")
     )
     written.append(out / "control" / "router.json5")
     return written
+
+
+def _write_identity(
+    out: Path, install_dir: Path, ident: Identity, router_host: str, port: int,
+    ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate, days: int,
+) -> list[Path]:
+    folder = out / ident.folder
+    folder.mkdir(parents=True, exist_ok=True)
+    # The router speaks with the control station's certificate: it names the router's address.
+    hosts = [router_host, "localhost", "127.0.0.1"] if ident.name == "control" else []
+    key, cert = make_host(ident.name, hosts, ca_key, ca, days)
+    _write_pem(folder / "key.pem", _key_pem(key), private=True)
+    _write_pem(folder / "cert.pem", _cert_pem(cert))
+    _write_pem(folder / "ca.pem", _cert_pem(ca))
+    client = {
+        "mode": "client",
+        "connect": {"endpoints": [f"tls/{router_host}:{port}"]},
+        **_common(_tls(install_dir / ident.folder, listen=False)),
+    }
+    (folder / "zenoh.json5").write_text(_json5(client, f"{ident.name}: client of the router"))
+    return [folder / n for n in ("cert.pem", "key.pem", "ca.pem", "zenoh.json5")]
 
 
 def _json5(data: dict, what: str) -> str:
@@ -298,16 +219,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="folder to write into")
     p.add_argument(
         "--hosts",
-        default=",".join(ROLES),
-        help=f"roles to make identities for, comma separated (default {','.join(ROLES)})",
+        default=",".join(HOSTS),
+        help=f"host roles to make identities for, comma separated (default {','.join(HOSTS)}; "
+        "each gets its launcher's identity too, and the monitor's is always made)",
     )
-    p.add_argument("--rig", type=check_rig, default="rig1", help="rig name scoping every key")
+    p.add_argument(
+        "--rig-file",
+        type=Path,
+        default=None,
+        metavar="RIG.toml",
+        help="take the rig name, the router's address and port from this rig file (rig.name, "
+        "rig.router) instead of --rig, --router-host and --port",
+    )
+    p.add_argument("--rig", type=check_rig, default=None, help="rig name scoping every key (rig1)")
     p.add_argument(
         "--router-host",
-        default="localhost",
-        help="name or address the hosts reach the control station by (in its certificate)",
+        default=None,
+        help="name or address the hosts reach the control station by (in its certificate; the "
+        "router listens there; default localhost)",
     )
-    p.add_argument("--port", type=int, default=7447, help="the router's TLS port (7447)")
+    p.add_argument("--port", type=int, default=None, help="the router's TLS port (7447)")
+    p.add_argument(
+        "--listen",
+        default=None,
+        metavar="tls/ADDRESS:PORT",
+        help="where the router listens, when not at --router-host (e.g. tls/192.168.10.1:7447; "
+        "tls/0.0.0.0:PORT, every interface, only when said here)",
+    )
     p.add_argument("--days", type=int, default=825, help="validity of the certificates (825)")
     p.add_argument(
         "--install-dir",
@@ -318,35 +256,76 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def where(args: argparse.Namespace) -> tuple[str, str, int, str]:
+    """The rig, the router's host and port, and its listen endpoint; ValueError in one line."""
+    rig, host, port = args.rig, args.router_host, args.port
+    if args.rig_file is not None:
+        if (rig, host, port) != (None, None, None):
+            raise ValueError("--rig-file gives the rig, router host and port: leave out --rig, "
+                             "--router-host and --port")
+        try:
+            loaded = load_rig(args.rig_file)
+            _, host, port = split_endpoint(loaded.router)
+        except (RigFileError, ValueError) as exc:
+            raise ValueError(f"--rig-file: {exc}") from None
+        rig = loaded.name
+    rig, host, port = rig or "rig1", host or "localhost", 7447 if port is None else port
+    if not 1 <= port <= 65535:
+        raise ValueError(f"--port must be 1-65535, got {port}")
+    if host in WILDCARD_HOSTS:
+        raise ValueError(f"the router host {host!r} is every interface, not an address the "
+                         "hosts can reach: give its name or address (--listen for a wildcard)")
+    if args.listen is None:
+        return rig, host, port, f"tls/{host}:{port}"
+    try:
+        scheme, _, listen_port = split_endpoint(args.listen)
+    except ValueError as exc:
+        raise ValueError(f"--listen: {exc}") from None
+    if scheme != "tls":
+        raise ValueError(f"--listen must be a tls/ endpoint (anything else bypasses the "
+                         f"certificates), got {args.listen!r}")
+    if listen_port != port:
+        raise ValueError(f"--listen's port {listen_port} is not the port the hosts connect to "
+                         f"({port})")
+    return rig, host, port, args.listen
+
+
 def main(argv: list[str] | None = None) -> int:
     """Generate a lab's identities and configs."""
     args = build_parser().parse_args(argv)
     names = [n for n in args.hosts.split(",") if n]
-    unknown = [n for n in names if n not in ROLES]
+    unknown = [n for n in names if n not in HOSTS]
     if unknown or "control" not in names:
         print(
-            f"nod lab secure: --hosts takes roles among {', '.join(ROLES)} and needs control "
+            f"nod lab secure: --hosts takes roles among {', '.join(HOSTS)} and needs control "
             f"(the router); got {args.hosts!r}",
             file=sys.stderr,
         )
         return 2
-    if not (1 <= args.port <= 65535 and 1 <= args.days <= 3650):
-        print("nod lab secure: --port must be 1-65535 and --days 1-3650", file=sys.stderr)
+    if not 1 <= args.days <= 3650:
+        print("nod lab secure: --days must be 1-3650", file=sys.stderr)
+        return 2
+    try:
+        rig, host, port, listen = where(args)
+    except ValueError as exc:
+        print(f"nod lab secure: {exc}", file=sys.stderr)
         return 2
     install = (args.install_dir or args.out).absolute()
     try:
-        written = secure(
-            args.out, [ROLES[n] for n in names], args.rig, args.router_host, args.port,
-            args.days, install,
-        )
+        written = secure(args.out, names, rig, host, port, args.days, install, listen)
     except OSError as exc:
         print(f"nod lab secure: cannot write to {args.out}: {exc.strerror}", file=sys.stderr)
         return 2
-    print(f"wrote {len(written)} files to {args.out}/ (rig {args.rig!r}, router "
-          f"tls/{args.router_host}:{args.port}):")
+    print(f"wrote {len(written)} files to {args.out}/ (rig {rig!r}; hosts connect to "
+          f"tls/{host}:{port}; the router listens on {listen}):")
+    if split_endpoint(listen)[1] in WILDCARD_HOSTS:
+        print("  WARNING: the router listens on every interface of the control station "
+              "(--listen): any network it is on can reach it")
     print(f"  control station: nod router --config {install}/control/router.json5")
     for n in names:
-        print(f"  {n:<8} services: --config {install}/{n}/zenoh.json5")
+        print(f"  {n:<8} services: --config {install}/{n}/zenoh.json5; "
+              f"nod up: {install}/{n}/launcher/zenoh.json5")
+    print(f"  monitors, nod status, lab screens: --config {install}/monitor/zenoh.json5")
     print(f"  keep {args.out}/ca.key offline: whoever holds it can mint identities")
     return 0
 

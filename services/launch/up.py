@@ -10,11 +10,16 @@ this process. Every service is a child process under a `Supervisor`: restarted w
 when it dies, given up (and reported) when it keeps dying; each event is printed and published
 on rig/event. Ctrl-C or SIGTERM stops everything cleanly (arm holds, eyes neutral) and exits 0;
 a service given up on makes the exit code 1. `nod status --connect ROUTER` shows the rig.
+
+In a secured lab (`rig.tls`) this process speaks as its host's launcher identity, the only one
+the router lets publish rig/event (`services.lab.acl`), and each service as its own (the host's
+role, the monitor's); on the router's host it is the router itself.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import signal
@@ -27,7 +32,8 @@ from services.core.cli import Parser
 from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys
-from services.core.rigfile import Rig, RigFileError, command, load_rig
+from services.core.lifeline import nod_command
+from services.core.rigfile import LAUNCHER, Rig, RigFileError, command, identity, load_rig
 from services.core.session import make_config, open_session
 from services.launch.events import RigEvents
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
@@ -50,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--listen",
         default=None,
         help="router endpoint to listen on and connect to, overriding rig.router (e.g. to run a "
-        "LAN rig file on one machine: tcp/127.0.0.1:7447)",
+        "LAN rig file on one machine: tcp/127.0.0.1:7447); not with rig.tls",
     )
     p.add_argument("--logs", type=Path, default=None, help="folder for service logs")
     p.add_argument(
@@ -78,22 +84,38 @@ def plan(rig: Rig, host: str | None) -> tuple[list[str], bool]:
 
 def router_command(rig: Rig, listen: str | None = None) -> list[str]:
     """`nod router` as the rig file says: mutual TLS with rig.tls, else plain on rig.router."""
-    cmd = [sys.executable, "-m", "services.cli", "router"]
     if rig.tls is not None and listen is None:
-        return [*cmd, "--config", str(rig.tls / "control" / "router.json5")]
-    return [*cmd, "--listen", listen or rig.router]
+        return nod_command("router", "--config", str(rig.tls / "control" / "router.json5"))
+    return nod_command("router", "--listen", listen or rig.router)
+
+
+def router_listens(config: Path) -> str:
+    """Where a `nod lab secure` router config listens (for the start-up line)."""
+    try:
+        text = config.read_text()
+        doc = json.loads("\n".join(ln for ln in text.splitlines() if not ln.startswith("//")))
+        return ", ".join(doc["listen"]["endpoints"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return f"(as {config} says)"
 
 
 def main(argv: list[str] | None = None) -> int:
     """Start, supervise, stop."""
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    rig = None
     try:
         rig = load_rig(args.rig_file)
         services, with_router = plan(rig, args.host)
         load_params(rig.params)  # a bad params file is one line here, not five dead services
     except (RigFileError, ValueError, OSError) as exc:
-        print(f"nod up: {exc}", file=sys.stderr)
+        where = "" if rig is None or str(rig.params) in str(exc) else f"{rig.params}: "
+        print(f"nod up: {where}{exc}", file=sys.stderr)
+        return 2
+    if args.listen and rig.tls is not None:
+        # It would start a plain router while the services speak TLS to the one of rig.tls.
+        print(f"nod up: --listen runs a plain router, but {rig.path} has rig.tls: the secured "
+              "router listens where `nod lab secure --rig-file` put it", file=sys.stderr)
         return 2
     endpoint = args.listen or rig.router
     if args.exec_service == "router":
@@ -124,14 +146,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     router = None
     try:
-        tls = rig.tls if not args.listen else None
+        tls = rig.tls
         if with_router and tls is not None:
             cfg = make_config(mode="router", config_file=tls / "control" / "router.json5")
+            endpoint = router_listens(tls / "control" / "router.json5")
         elif with_router:
             cfg = make_config(mode="router", listen=[endpoint])
-        elif tls is not None:  # the launcher speaks as its host's role (its heartbeats, events)
-            role = rig.hosts[args.host].role if args.host else "control"
-            cfg = make_config(mode="client", config_file=tls / role / "zenoh.json5")
+        elif tls is not None:  # the launcher's own identity: rig events, nothing else
+            cfg = make_config(
+                mode="client", config_file=identity(rig, LAUNCHER, rig.hosts[args.host])
+            )
         else:
             cfg = make_config(mode="client", connect=[endpoint])
         session = router = open_session(cfg)

@@ -83,6 +83,10 @@ def gaze_level(name: str) -> GazeLevel:
         ) from None
 
 
+MAX_GESTURE_STEP_S = 10.0  # one pose of the attention gesture (the paper's is under a second)
+MAX_FLICKS = 20
+
+
 @dataclass(frozen=True, slots=True)
 class AttentionGestureParams:
     """The attention-grabbing move before trial 4: eyes near their limit toward red, then settle."""
@@ -104,13 +108,29 @@ class AttentionGestureParams:
         for name in ("limit_yaw", "limit_pitch", "hold_s", "flick_s"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"AttentionGestureParams.{name} must be finite")
-        if self.limit_yaw <= 0:
-            raise ValueError("AttentionGestureParams.limit_yaw must be > 0 (toward red)")
-        if self.hold_s <= 0 or self.flick_s <= 0:
-            raise ValueError("AttentionGestureParams.hold_s and flick_s must be > 0")
-        if isinstance(self.flicks, bool) or not isinstance(self.flicks, int) or self.flicks < 0:
+        # The poses travel as gaze messages, whose angles are in [-pi, pi] (beyond, the eyes
+        # refuse them); the times and the flicks are bounded so that a typo cannot stretch one
+        # gesture over minutes or build a billion poses (`attention_gesture` lists each one).
+        if not 0 < self.limit_yaw <= math.pi:
             raise ValueError(
-                f"AttentionGestureParams.flicks must be an integer >= 0, got {self.flicks!r}"
+                f"AttentionGestureParams.limit_yaw must be in (0, pi] (toward red), got "
+                f"{self.limit_yaw!r}"
+            )
+        if not abs(self.limit_pitch) <= math.pi:
+            raise ValueError(
+                f"AttentionGestureParams.limit_pitch must be in [-pi, pi], got {self.limit_pitch!r}"
+            )
+        for name in ("hold_s", "flick_s"):
+            if not 0 < getattr(self, name) <= MAX_GESTURE_STEP_S:
+                raise ValueError(
+                    f"AttentionGestureParams.{name} must be in (0, {MAX_GESTURE_STEP_S:g}] s, "
+                    f"got {getattr(self, name)!r}"
+                )
+        flicks = self.flicks
+        if isinstance(flicks, bool) or not isinstance(flicks, int) or not 0 <= flicks <= MAX_FLICKS:
+            raise ValueError(
+                f"AttentionGestureParams.flicks must be an integer in [0, {MAX_FLICKS}], got "
+                f"{flicks!r}"
             )
 
     @property

@@ -27,7 +27,7 @@ import zenoh
 from services.core import messages as m
 from services.core.cli import Parser
 from services.core.node import install_signal_handlers
-from services.core.rigfile import REQUIRED, RigFileError, load_rig
+from services.core.rigfile import MONITOR, REQUIRED, RigFileError, identity, load_rig
 from services.core.session import add_zenoh_args
 from services.tools.topic import Rate, Tap, ToolError, connect, decode
 
@@ -230,7 +230,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{PROG}: {exc}", file=sys.stderr)
             return 2
         args.rig = rig.name
-        if not (args.connect or args.config):
+        if not (args.connect or args.config) and rig.tls is not None:
+            args.config = identity(rig, MONITOR)  # read-only: a status never drives the rig
+        elif not (args.connect or args.config):
             args.connect = [rig.router]
         placed = {"vision" if s == "sim" else s for s in rig.services}
         required = tuple(sorted(placed - {"monitor"}))

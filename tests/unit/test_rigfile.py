@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from services.core.rigfile import RigFileError, command, load_rig
+from services.core.rigfile import RigFileError, command, identity, load_rig, split_endpoint
 
 GOOD = """
 [rig]
@@ -52,7 +52,9 @@ def test_a_good_rig_file(tmp_path: Path) -> None:
     assert rig.params == tmp_path / "p.toml"  # relative to the rig file
     assert rig.host_of("actuation").name == "arm" and rig.router_host().name == "control"
     act = command(rig, "actuation")
-    assert act[:4] == [sys.executable, "-m", "services.cli", "actuation"]
+    # -P: the working directory is not on the child's sys.path (tests/integration/
+    # test_child_isolation.py starts one from a folder with a poisoned serial.py and zenoh.py).
+    assert act[:5] == [sys.executable, "-P", "-m", "services.cli", "actuation"]
     assert act[act.index("--connect") + 1] == "tcp/10.0.0.1:7447"
     assert act[act.index("--port") + 1] == "/dev/ttyUSB0"
     assert act[act.index("--arm-config") + 1] == "/etc/nod/arm.toml"  # absolute stays
@@ -68,7 +70,7 @@ def test_a_good_rig_file(tmp_path: Path) -> None:
     sim = command(rig, "actuation", sim_hardware=True, connect="tcp/127.0.0.1:9")
     assert sim[sim.index("--driver") + 1] == "sim" and "--port" not in sim
     assert sim[sim.index("--connect") + 1] == "tcp/127.0.0.1:9"
-    assert command(rig, "vision", sim_hardware=True)[3] == "sim"
+    assert command(rig, "vision", sim_hardware=True)[4] == "sim"
 
 
 def test_tls_rigs_use_each_host_identity(tmp_path: Path) -> None:
@@ -76,6 +78,13 @@ def test_tls_rigs_use_each_host_identity(tmp_path: Path) -> None:
     cmd = command(rig, "decision")
     assert cmd[cmd.index("--config") + 1] == "/etc/nod/tls/arm/zenoh.json5"
     assert "--connect" not in cmd
+    # The monitor runs with the read-only identity, not its host's (control) one.
+    mon = command(rig, "monitor")
+    assert mon[mon.index("--config") + 1] == "/etc/nod/tls/monitor/zenoh.json5"
+    # `nod up` itself: the host's launcher identity, the only one that may put rig/event.
+    launcher = identity(rig, "launcher", rig.hosts["arm"])
+    assert launcher == Path("/etc/nod/tls/arm/launcher/zenoh.json5")
+    assert identity(rig, "monitor") == Path("/etc/nod/tls/monitor/zenoh.json5")
 
 
 @pytest.mark.parametrize(
@@ -93,6 +102,17 @@ def test_tls_rigs_use_each_host_identity(tmp_path: Path) -> None:
         (('stale_ms = 300', 'stale = 300'), "actuation.stale: unknown key"),
         (('args = ["--serve-web"]', 'args = "--serve-web"'), "monitor.args"),
         (('role = "arm"', 'role = "arm"\ncolour = "red"'), "hosts.arm.colour"),
+        # Values the services would refuse only once started (then restarted until given up):
+        (("stale_ms = 300", "stale_ms = -4"), r"actuation.stale_ms: must be in \(0, 10000\] ms"),
+        (("stale_ms = 300", "stale_ms = 1e9"), "actuation.stale_ms"),
+        (("stale_ms = 300", 'stale_ms = "fast"'), "actuation.stale_ms: must be a number"),
+        (("stale_ms = 300", "stale_ms = true"), "actuation.stale_ms: must be a number"),
+        (('trims = "trims.toml"', 'trims = "trims.toml"\nstale_ms = nan'), "eyes.stale_ms"),
+        (("args = [\"--serve-web\"]", 'args = ["--serve-web"]\n[sim]\nseed = -1'), "sim.seed"),
+        (("args = [\"--serve-web\"]", 'args = ["--serve-web"]\n[sim]\nseed = 1.5'), "sim.seed"),
+        (('port = "/dev/ttyUSB0"', "port = 0"), "actuation.port: must be a string"),
+        (('router = "tcp/10.0.0.1:7447"', 'router = "tcp/10.0.0.1:99999"'), "rig.router"),
+        (('router = "tcp/10.0.0.1:7447"', 'router = "tcp/10.0.0.1"'), "rig.router"),
     ],
 )
 def test_bad_rig_files_say_which_key(tmp_path: Path, change: tuple[str, str], message: str) -> None:
@@ -119,3 +139,12 @@ def test_the_rig_file_accepts_exactly_what_the_services_accept() -> None:
     assert rigfile.ARM_DRIVERS == ARM_DRIVERS
     assert rigfile.EYES_DRIVERS == EYES_DRIVERS
     assert set(rigfile.TRACKERS) == set(TRACKERS)
+
+
+def test_endpoints_split_into_scheme_host_and_port() -> None:
+    assert split_endpoint("tls/192.168.10.1:7447") == ("tls", "192.168.10.1", 7447)
+    assert split_endpoint("tcp/[::1]:7500#iface=lo") == ("tcp", "::1", 7500)
+    assert split_endpoint("tls/control.lab:7447?rel=1") == ("tls", "control.lab", 7447)
+    for bad in ("192.168.10.1:7447", "tcp/host", "tcp/host:0", "tcp/host:65536", "tcp/h:x"):
+        with pytest.raises(ValueError):
+            split_endpoint(bad)
