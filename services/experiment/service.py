@@ -246,9 +246,7 @@ class Conductor:
             self.store.add_recording(session, *self.recording)
         self.session = session
         self.records = []
-        attempts_before = 0
-        if lost is not None:
-            first_trial, attempts_before = self._file_lost_attempt(*lost)
+        first_trial, attempts_before = self._attempts_so_far(first_trial, lost)
         self.console.start(session, participant, len(self.proto.trials))
         status = "aborted"
         try:
@@ -298,25 +296,38 @@ class Conductor:
             self.console.stop()
         return self.records
 
-    def _file_lost_attempt(self, trial: int, attempt: int, t_start_ns: int) -> tuple[int, int]:
-        """Store the attempt a dead conductor left open; (first trial to run, its attempts so far).
+    def _attempts_so_far(
+        self, first_trial: int, lost: tuple[int, int, int] | None
+    ) -> tuple[int, int]:
+        """(first trial to run, its starts so far) for a session that starts or resumes.
 
-        Like any interruption: the trial is repeated while it has attempts left, else stored
-        interrupted (never scored) and the session goes on at the next one.
+        A resumed session counts the starts its trial already had: interruptions stored before
+        the crash, and the attempt a dead conductor left open (`lost`), which is stored now as
+        the interruption it was. Like any interruption, the trial is then repeated while it has
+        attempts left, else stored interrupted (never scored) and the session goes on.
         """
-        why = "conductor lost (it died mid-trial; the session was resumed)"
-        with self.node.lock:
-            events = self.rig.take_events()
-        log.warning("trial %d (attempt %d) INTERRUPTED: %s", trial, attempt, why)
-        self.store.write_interruption(
-            self.session, Interruption(trial, attempt, t_start_ns, self._now_ns(), why), events
-        )
-        if self.proto.repeat_interrupted and attempt < self.proto.max_attempts:
-            return trial, attempt
-        spec = self.proto.trials[trial - 1]
-        self._store_trial(spec, attempt, None, None, None, None, f"interrupted: {why}",
-                          interrupted=True)
-        return trial + 1, 0
+        n = len(self.proto.trials)
+        while first_trial <= n:
+            made = self.store.attempts_made(self.session, first_trial)
+            if lost is not None and lost[0] == first_trial:
+                trial, attempt, t_start_ns = lost
+                why = "conductor lost (it died mid-trial; the session was resumed)"
+                with self.node.lock:
+                    events = self.rig.take_events()
+                log.warning("trial %d (attempt %d) INTERRUPTED: %s", trial, attempt, why)
+                self.store.write_interruption(
+                    self.session, Interruption(trial, attempt, t_start_ns, self._now_ns(), why),
+                    events,
+                )
+                made = max(made, attempt)
+            if made == 0 or (self.proto.repeat_interrupted and made < self.proto.max_attempts):
+                return first_trial, made
+            spec = self.proto.trials[first_trial - 1]  # out of attempts: never scored
+            self._store_trial(spec, made, None, None, None, None,
+                              "interrupted: out of attempts before the session was resumed",
+                              interrupted=True)
+            first_trial += 1
+        return first_trial, 0
 
     def _wait_for_a_safe_rig(self) -> None:
         """Before the first trial: eyes neutral (kept alive), then wait until the rig is safe.
@@ -603,7 +614,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"nod experiment: {exc}", file=sys.stderr)
             return 2
         lost = store.open_attempt(args.resume)
-        resume_at = (lost[0], lost[1]) if lost is not None else (done, 1)
+        broken = store.attempts_made(args.resume, done + 1)
+        # Where the session stands: in the attempt a dead conductor left open, paused after an
+        # interrupted start of its next trial, or between trials (after trial `done`).
+        resume_at = (
+            (lost[0], lost[1]) if lost is not None else (done + 1, broken) if broken else (done, 1)
+        )
         if done >= len(cfg.protocol.trials) and lost is None:
             store.finish_session(args.resume, time.time_ns(), "complete")
             store.close()

@@ -5,8 +5,8 @@ fabric (`services/safety/latch_file.py`, `services/safety/wiring.py`); this modu
 
 - An engage is always obeyed, whatever its id: stopping is never the unsafe direction.
 - A release lifts the latch only if its id is fresh: not empty, neither the id of the engage
-  it lifts nor one of the recent commands this device obeyed. A replayed release (a recording played back
-  onto the fabric, a stuck repeater) cannot lift a later e-stop.
+  it lifts nor one of the recent commands this device obeyed. A replayed release (a recording
+  played back onto the fabric, a stuck repeater) cannot lift a later e-stop.
 - A repeat of the command just obeyed (`nod estop` repeats until acknowledged) changes nothing.
 - What several holders say is merged conservatively (`merge`): engaged if any holder is
   engaged. A device that comes back after being down through a release therefore stays

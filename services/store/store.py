@@ -253,6 +253,14 @@ class Store:
         ).fetchone()
         return None if row is None else (int(row[0]), int(row[1]), int(row[2]))
 
+    def attempts_made(self, session: str, trial: int) -> int:
+        """How many starts of a trial were interrupted and stored so far (0: none)."""
+        (n,) = self.db.execute(
+            "SELECT COALESCE(MAX(attempt), 0) FROM interruptions WHERE session = ? AND trial = ?",
+            (session, trial),
+        ).fetchone()
+        return int(n)
+
     def _close_attempt(self, session: str, trial: int) -> None:
         self.db.execute(
             "DELETE FROM open_attempts WHERE session = ? AND trial = ?", (session, trial)

@@ -137,6 +137,7 @@ def test_kill9_of_the_conductor_loses_nothing_and_the_session_resumes(
     db = tmp_path / "s.sqlite"
     rng = random.Random(11)
     delays = []
+    checked: list[bool] = []  # per kill: whether it hit a trial under way
     try:
         for run in range(3):
             session = f"k{run}"
@@ -156,8 +157,8 @@ def test_kill9_of_the_conductor_loses_nothing_and_the_session_resumes(
             finally:
                 store.close()
             # A trial under way: the arm must stop without its conductor, and never press.
-            before = [e.phase for t, e in events.items if t < t_kill]
-            in_trial = bool(before) and before[-1] in ("setup", "countdown", "go")
+            before = [e for t, e in events.items if t < t_kill and e.session == session]
+            in_trial = bool(before) and before[-1].phase in ("setup", "countdown", "go")
             time.sleep(1.0)
             stopped = _first_safe_stop_after(arm, t_kill)
             if in_trial:
@@ -170,11 +171,24 @@ def test_kill9_of_the_conductor_loses_nothing_and_the_session_resumes(
             assert resumed.wait(120) == 0, (tmp_path / "experiment.log").read_text()[-3000:]
             store = Store(db)
             try:
-                final = [t.trial for _, t in store.trials(session)]
+                final = {t.trial: t for _, t in store.trials(session)}
                 status = {s["session"]: s["status"] for s in store.sessions()}[session]
+                lost = [i for i in store.interruptions(session) if "conductor lost" in i.reason]
+                gap = [e for e in store.safety_events(session)
+                       if e.device == "actuation" and "experiment not alive" in e.reason]
             finally:
                 store.close()
-            assert final == [1, 2, 3] and status == "complete", (final, status)
+            assert sorted(final) == [1, 2, 3] and status == "complete", (final, status)
+            if in_trial:  # the lost attempt is on record, and the trial was repeated
+                broken = before[-1].trial
+                assert [(i.trial, i.attempt) for i in lost] == [(broken, 1)], lost
+                assert final[broken].attempts == 2 and not final[broken].interrupted
+                # The arm's safe stop while no conductor ran is filed under that trial.
+                assert gap and all(e.trial == broken and e.attempt == 1 for e in gap), gap
+            else:
+                assert not lost, lost
+            checked.append(in_trial)
+        assert len(checked) == 3 and any(checked), checked  # the mid-trial path was exercised
         shown = [round(d * 1e3) for d in delays]
         print(f"\narm safe stop after the conductor's kill -9 mid-trial: {shown} ms")
         assert all(d <= (STALE_MS + 100) / 1e3 for d in delays), delays

@@ -1,0 +1,140 @@
+"""A device fault is a safety event: a device's bus goes silent, then is unplugged, mid-trial.
+
+`nod run --sim` drives a real device driver (in its own service process) over a real pty: the
+arm's Feetech bus, or the eyes' Maestro controller, played by an emulator. Each fault must
+safe-stop that device within 300 ms, interrupt the trial (stored with the fault in
+`interruptions` and `safety_events`) and have it repeated, never scored; the session completes
+once the device is healthy again.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+from services.actuation.calibrate import config_toml
+from services.actuation.feetech_arm import FeetechArmConfig
+from services.core import messages as m
+from services.core.keys import Keys
+from services.core.session import make_config, open_session
+from services.store import Store
+from tests.emulators.feetech_emulator import IDS, POSES, FeetechBusEmulator
+from tests.emulators.links import FAST
+from tests.emulators.maestro_emulator import MaestroEmulator
+from tests.processes import stop_all
+
+from .conftest import ROOT, SHORT, Collector, free_port, wait_for
+
+pytestmark = pytest.mark.integration
+KEYS = Keys("rig1")
+FAULT_BOUND_S = 0.3
+
+
+def _connect(endpoint: str, timeout_s: float = 30.0):
+    """A client session on `nod run`'s router, once it listens."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return open_session(make_config(mode="client", connect=[endpoint]))
+        except Exception:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+def _go_of(events: Collector, trial: int, after: int = 0) -> bool:
+    return any(e.phase == "go" and e.trial == trial for e in events.messages[after:])
+
+
+def _fault_stop_after(states: Collector, t: float) -> float | None:
+    return next(
+        (at for at, s in states.items
+         if at >= t and s.safe_stop and "device fault" in s.safety_reason),
+        None,
+    )
+
+
+@pytest.mark.parametrize("device", ["actuation", "eyes"])
+def test_a_silent_and_an_unplugged_bus_interrupt_their_trials(tmp_path, device):
+    params = tmp_path / "short.toml"
+    params.write_text(SHORT)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    db = tmp_path / "s.sqlite"
+    if device == "actuation":
+        arm_file = tmp_path / "arm.toml"
+        arm_file.write_text(config_toml(FeetechArmConfig(ids=IDS, poses=POSES, link=FAST)))
+        emulator = FeetechBusEmulator({i: 2048 for i in IDS}, link_dir=tmp_path)
+        state_cls = m.ArmStateMsg
+        hardware = ["--arm-driver", "feetech", "--arm-port", emulator.port,
+                    "--arm-config", str(arm_file)]
+    else:
+        emulator = MaestroEmulator(link_dir=tmp_path)
+        state_cls = m.EyesStateMsg
+        hardware = ["--eyes-driver", "maestro", "--eyes-port", emulator.port]
+    with emulator as bus:
+        run = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "run", "--sim", "--speed", "2",
+             "--params", str(params), "--db", str(db), "--listen", endpoint,
+             "--logs", str(tmp_path / "logs"), *hardware],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        )
+        client = None
+        try:
+            client = _connect(endpoint)
+            events = Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
+            arm = Collector(client, KEYS.topic(f"{device}/state"), state_cls)
+            delays = {}
+            for trial, fault in ((2, "silent"), (3, "unplugged")):
+                wait_for(lambda t=trial: _go_of(events, t), 120, f"trial {trial} under way")
+                time.sleep(0.2)  # the arm is on its way
+                seen = len(events.messages)
+                t_fault = time.monotonic()
+                if fault == "silent":
+                    bus.silent = True
+                else:
+                    bus.unplug()
+                wait_for(lambda t=t_fault: _fault_stop_after(arm, t) is not None, 5,
+                         f"a safe stop for the {fault} bus")
+                delays[fault] = _fault_stop_after(arm, t_fault) - t_fault
+                wait_for(
+                    lambda t=trial, n=seen: any(
+                        e.phase == "interrupted" and e.trial == t for e in events.messages[n:]
+                    ),
+                    10,
+                    f"trial {trial} interrupted by the {fault} bus",
+                )
+                if fault == "silent":
+                    bus.silent = False
+                else:
+                    bus.replug()
+                wait_for(lambda t=trial, n=seen: _go_of(events, t, n), 60,
+                         f"trial {trial} repeated once the bus is back")
+            out, _ = run.communicate(timeout=180)
+        finally:
+            if client is not None:
+                client.close()
+            stop_all([run])
+    assert run.returncode == 0, out[-3000:]
+    print(f"\n{device} safe stop after the bus fault: "
+          f"{ {k: round(v * 1e3) for k, v in delays.items()} } ms")
+    assert all(d <= FAULT_BOUND_S for d in delays.values()), delays
+    store = Store(db)
+    try:
+        (session,) = [s["session"] for s in store.sessions()]
+        trials = {t.trial: t for _, t in store.trials(session)}
+        interruptions = store.interruptions(session)
+        faults = [e for e in store.safety_events(session)
+                  if e.device == device and "device fault" in e.reason]
+    finally:
+        store.close()
+    assert sorted(trials) == [1, 2, 3]
+    for trial in (2, 3):  # repeated, and the repeat scored like any trial
+        assert trials[trial].attempts == 2 and not trials[trial].interrupted
+        assert trials[trial].outcome is not None
+    broken = {i.trial: i.reason for i in interruptions}
+    assert set(broken) == {2, 3}, interruptions
+    assert all("device fault" in why for why in broken.values()), broken
+    assert {e.trial for e in faults} >= {2, 3}, faults

@@ -1,0 +1,272 @@
+"""An engaged e-stop survives kill -9 of every process of the rig; only a release lifts it.
+
+Real processes on a real router: the devices (actuation, eyes), their inputs (decision, the sim
+standing in for vision), the router itself, the launcher (`nod up`) and the conductor (`nod
+experiment`) are killed with SIGKILL while the e-stop is engaged — alone, and a device together
+with the conductor — and brought back as their supervisor would. From the engage to the release
+no state message of the arm or the eyes may say it is free to move, and no press may happen.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from services.core import messages as m
+from services.core.keys import Keys
+from services.core.session import make_config, open_session
+from services.store import Store
+from tests.processes import run_nod, stop_all
+
+from .conftest import ROOT, SHORT, Collector, free_port, wait_for
+
+pytestmark = pytest.mark.integration
+KEYS = Keys("rig1")
+
+
+class Procs:
+    """The rig's processes, each started (and restarted) as its supervisor would."""
+
+    def __init__(self, endpoint: str, tmp: Path, *common: str) -> None:
+        self.endpoint, self.tmp, self.common = endpoint, tmp, common
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.args: dict[str, tuple[str, ...]] = {}
+
+    def start(self, service: str, *extra: str) -> subprocess.Popen:
+        self.args.setdefault(service, extra)
+        log = (self.tmp / f"{service}.log").open("a")
+        if service == "router":
+            cmd = ["router", "--listen", self.endpoint]
+        else:
+            cmd = [service, "--connect", self.endpoint, *self.common, *self.args[service]]
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", *cmd], cwd=ROOT, stdout=log,
+            stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+        )
+        self.procs[service] = proc
+        return proc
+
+    def kill9(self, *services: str) -> None:
+        for s in services:
+            os.kill(self.procs[s].pid, signal.SIGKILL)
+        for s in services:
+            self.procs[s].wait(5)
+
+    def restart(self, *services: str, **extra: tuple[str, ...]) -> None:
+        for s in services:
+            self.start(s, *extra.get(s, ()))
+
+    def stop(self) -> None:
+        stop_all(self.procs.values())
+
+
+class Conductor:
+    """The conductor's liveliness and gaze keep-alive, which the eyes need to run at all."""
+
+    def __init__(self, session) -> None:
+        self.token = session.liveliness().declare_token(KEYS.alive("experiment"))
+        self.pub = session.declare_publisher(KEYS.topic("eyes/cmd"))
+        self.quit = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        seq = 0
+        while not self.quit.wait(0.05):
+            seq += 1
+            self.pub.put(m.encode(m.GazeMsg(seq=seq, t_ns=time.time_ns(), yaw=0.3, trial=1)))
+
+    def close(self) -> None:
+        self.quit.set()
+        self.thread.join()
+        self.token.undeclare()
+
+
+def _connect(endpoint: str):
+    deadline = time.monotonic() + 30
+    while True:
+        try:
+            return open_session(make_config(mode="client", connect=[endpoint]))
+        except ConnectionError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+def estop(endpoint: str, *extra: str) -> subprocess.CompletedProcess:
+    return run_nod("estop", "--connect", endpoint, "--timeout", "5", *extra, timeout=60)
+
+
+def states_since(collector: Collector, t: float) -> list[m.Message]:
+    return [s for at, s in collector.items if at >= t]
+
+
+def free_to_move(states: list[m.Message]) -> list[m.Message]:
+    """The states that would let a device move: any that is not e-stopped and safe-stopped."""
+    return [s for s in states if not (s.estop and s.safe_stop)]
+
+
+def test_an_estop_survives_kill9_of_devices_and_router_until_released(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rig = Procs(endpoint, tmp_path)
+    rig.start("router")
+    client = conductor = None
+    try:
+        client = _connect(endpoint)
+        for service in ("decision", "actuation", "eyes", "sim"):
+            rig.start(service)
+        conductor = Conductor(client)
+        arm = Collector(client, KEYS.topic("actuation/state"), m.ArmStateMsg)
+        eyes = Collector(client, KEYS.topic("eyes/state"), m.EyesStateMsg)
+        wait_for(lambda: arm.items and not arm.items[-1][1].safe_stop
+                 and eyes.items and not eyes.items[-1][1].safe_stop, 40, "a rig free to run")
+        engaged = estop(endpoint, "--reason", "fault test")
+        assert engaged.returncode == 0, engaged.stdout + engaged.stderr
+        t_engaged = time.monotonic()
+        wait_for(lambda: states_since(arm, t_engaged) and states_since(eyes, t_engaged), 5,
+                 "states after the e-stop")
+        checked = []
+        for victims in (("actuation",), ("eyes",), ("actuation", "eyes"), ("router",)):
+            rig.kill9(*victims)
+            t_kill = time.monotonic()
+            rig.restart(*victims)
+            # Back: each device has published states again, from a process that started after
+            # the kill (a restarted service, or the same ones reconnected to a new router).
+            for states in (arm, eyes):
+                wait_for(lambda s=states, t=t_kill: len(states_since(s, t)) >= 25, 40,
+                         f"states after kill -9 of {'+'.join(victims)}")
+            checked.append((victims, len(states_since(arm, t_kill)),
+                            len(states_since(eyes, t_kill))))
+        for device, states in (("actuation", arm), ("eyes", eyes)):
+            moving = free_to_move(states_since(states, t_engaged))
+            assert not moving, f"{device} reported free to move while e-stopped: {moving[:3]}"
+        assert all(s.safety_reason.startswith("e-stop") or "e-stop" in s.safety_reason
+                   for s in states_since(arm, t_engaged))
+        released = estop(endpoint, "--release", "--reason", "test over")
+        assert released.returncode == 0, released.stdout + released.stderr
+        t_release = time.monotonic()
+        wait_for(lambda: any(not s.safe_stop for s in states_since(arm, t_release)), 10,
+                 "the arm free to run after the release")
+        wait_for(lambda: any(not s.safe_stop for s in states_since(eyes, t_release)), 10,
+                 "the eyes free to run after the release")
+        print(f"\nstates checked after each restart (victims, arm, eyes): {checked}")
+    finally:
+        if conductor is not None:
+            conductor.close()
+        if client is not None:
+            client.close()
+        rig.stop()
+
+
+def test_an_estop_survives_kill9_of_the_launcher(tmp_path):
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    rig_file = tmp_path / "rig.toml"
+    rig_file.write_text(f'[rig]\nname = "rig1"\nrouter = "{endpoint}"\n'
+                        '[hosts.lab]\nrouter = true\nservices = ["decision", "actuation", '
+                        '"eyes", "vision"]\n')
+
+    def up() -> subprocess.Popen:
+        return subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "up", str(rig_file), "--sim-hardware",
+             "--logs", str(tmp_path / "logs")],
+            cwd=ROOT, stdout=(tmp_path / "up.log").open("a"), stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+        )
+
+    launcher = up()
+    client = None
+    try:
+        client = _connect(endpoint)
+        arm = Collector(client, KEYS.topic("actuation/state"), m.ArmStateMsg)
+        wait_for(lambda: arm.items and not arm.items[-1][1].safe_stop, 60, "the arm free to run")
+        engaged = estop(endpoint, "--devices", "actuation")
+        assert engaged.returncode == 0, engaged.stdout + engaged.stderr
+        t_engaged = time.monotonic()
+        os.kill(launcher.pid, signal.SIGKILL)  # its router and its children go with it
+        launcher.wait(5)
+        t_kill = time.monotonic()
+        launcher = up()  # what systemd's Restart= does
+        wait_for(lambda: len(states_since(arm, t_kill)) >= 50, 60,
+                 "the relaunched arm's states")
+        moving = free_to_move(states_since(arm, t_engaged))
+        assert not moving, f"the arm reported free to move while e-stopped: {moving[:3]}"
+        released = estop(endpoint, "--release", "--devices", "actuation")
+        assert released.returncode == 0, released.stdout + released.stderr
+        t_release = time.monotonic()
+        wait_for(lambda: any(not s.safe_stop for s in states_since(arm, t_release)), 10,
+                 "the arm free to run after the release")
+    finally:
+        if client is not None:
+            client.close()
+        stop_all([launcher])
+
+
+def test_an_estop_survives_kill9_of_a_device_and_the_conductor_together(tmp_path):
+    params = tmp_path / "short.toml"
+    params.write_text(SHORT)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    epoch = str(time.time_ns())
+    rig = Procs(endpoint, tmp_path, "--speed", "4", "--epoch-ns", epoch, "--params", str(params))
+    rig.start("router")
+    db = tmp_path / "s.sqlite"
+    client = None
+    try:
+        client = _connect(endpoint)
+        for service in ("decision", "actuation", "eyes", "sim"):
+            rig.start(service)
+        events = Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
+        arm = Collector(client, KEYS.topic("actuation/state"), m.ArmStateMsg)
+        presses = Collector(client, KEYS.topic("actuation/press"), m.PressMsg)
+        rig.start("experiment", "--db", str(db), "--session", "s1", "--clicks", "10")
+        wait_for(lambda: any(e.phase == "go" and e.trial == 2 for e in events.messages), 120,
+                 "trial 2 under way")
+        engaged = estop(endpoint)
+        assert engaged.returncode == 0, engaged.stdout + engaged.stderr
+        t_engaged = time.monotonic()
+        rig.kill9("actuation", "experiment")
+        rig.restart("actuation")
+        resumed = rig.procs["experiment"] = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "experiment", "--connect", endpoint,
+             "--speed", "4", "--epoch-ns", epoch, "--params", str(params), "--db", str(db),
+             "--resume", "s1", "--clicks", "10", "--console", "lines"],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        )
+        lines: list[str] = []
+        reader = threading.Thread(
+            target=lambda: lines.extend(iter(resumed.stdout.readline, "")), daemon=True
+        )
+        reader.start()
+        # The resumed conductor finds the e-stop and holds the session: no trial starts.
+        wait_for(lambda: any("session held" in ln and "e-stop" in ln for ln in lines), 30,
+                 "the resumed session held by the e-stop")
+        wait_for(lambda: len(states_since(arm, t_engaged)) >= 100, 30, "arm states")
+        assert not free_to_move(states_since(arm, t_engaged))
+        assert not [p for at, p in presses.items if at >= t_engaged]
+        released = estop(endpoint, "--release")
+        assert released.returncode == 0, released.stdout + released.stderr
+        assert resumed.wait(120) == 0, "".join(lines)[-3000:]
+        reader.join(5)
+    finally:
+        if client is not None:
+            client.close()
+        rig.stop()
+    store = Store(db)
+    try:
+        trials = {t.trial: t for _, t in store.trials("s1")}
+        interruptions = store.interruptions("s1")
+        status = {s["session"]: s["status"] for s in store.sessions()}["s1"]
+    finally:
+        store.close()
+    assert status == "complete" and sorted(trials) == [1, 2, 3]
+    broken = [(i.trial, i.attempt) for i in interruptions]
+    assert (2, 1) in broken, interruptions  # the attempt the e-stop broke is on record
+    assert trials[2].attempts >= 2 and not trials[2].interrupted
+    assert len(broken) == len(set(broken)), broken  # attempts count on across the resume
