@@ -18,6 +18,7 @@ import shlex
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import uuid
@@ -34,6 +35,7 @@ from services.core.session import DEFAULT_ROUTER, make_config, open_session
 from services.launch.events import RigEvents
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
 from services.launch.view import SessionView
+from services.safety.latch_file import STATE_DIR_ENV
 from services.store import Store, StoreError
 
 log = logging.getLogger("nod.run")
@@ -131,6 +133,9 @@ def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list
                 cmd += ["--port", getattr(args, f"{prefix}_port")]
             if getattr(args, f"{prefix}_config"):
                 cmd += [f"--{prefix}-config", str(getattr(args, f"{prefix}_config"))]
+    state_dir = getattr(args, "state_dir", None)
+    if service in ("actuation", "eyes") and state_dir is not None:
+        cmd += ["--state-dir", str(state_dir)]
     if service == "eyes" and getattr(args, "eyes_trims", None):
         cmd += ["--trims", str(args.eyes_trims)]
     if service == "vision":
@@ -168,6 +173,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nod run: {problem}", file=sys.stderr)
         return 2
     logs = args.logs or args.db.with_suffix(".logs")
+    # A simulated device is a new device every run: its e-stop latch lives in a folder of this
+    # run (still surviving the restarts of its service within the run). A real arm or real eyes
+    # keep theirs where they always do (`--state-dir`'s default), across runs too.
+    sim_state = None
+    if args.arm_driver == "sim" and args.eyes_driver == "sim" and not os.environ.get(
+        STATE_DIR_ENV
+    ):
+        sim_state = tempfile.TemporaryDirectory(prefix="nod-sim-state-")
+        args.state_dir = Path(sim_state.name)
     try:
         router = open_session(make_config(mode="router", listen=[args.listen]))
     except ConnectionError as exc:
@@ -210,6 +224,8 @@ def main(argv: list[str] | None = None) -> int:
         for sub in subs:
             sub.undeclare()
         router.close()
+        if sim_state is not None:
+            sim_state.cleanup()
     if code == 0:
         print(
             f"{view.total_trials} trials of {args.participants} participant(s) stored in {args.db}"

@@ -16,10 +16,11 @@ import logging
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
+
+from services.core.lifeline import nod_command
 
 log = logging.getLogger("nod.experiment")
 READY = "nod record: recording"  # the recorder's first line once subscribed
@@ -37,8 +38,7 @@ def recording_path(folder: Path, session: str) -> Path:
 
 def recorder_command(args: argparse.Namespace, path: Path, session: str) -> list[str]:
     """The recorder's command line: the conductor's session flags, the session in metadata."""
-    cmd = [sys.executable, "-m", "services.cli", "record", "--out", str(path),
-           "--rig", args.rig, "--mode", args.mode]
+    cmd = nod_command("record", "--out", str(path), "--rig", args.rig, "--mode", args.mode)
     for endpoint in args.connect or ():
         cmd += ["--connect", endpoint]
     if args.config is not None:
