@@ -209,7 +209,7 @@ def test_an_estop_survives_kill9_of_the_launcher(tmp_path):
         stop_all([launcher])
 
 
-def test_an_estop_survives_kill9_of_a_device_and_the_conductor_together(tmp_path):
+def test_an_estop_survives_kill9_of_the_conductor_alone_and_with_a_device(tmp_path):
     params = tmp_path / "short.toml"
     params.write_text(SHORT)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -218,6 +218,24 @@ def test_an_estop_survives_kill9_of_a_device_and_the_conductor_together(tmp_path
     rig.start("router")
     db = tmp_path / "s.sqlite"
     client = None
+    lines: list[str] = []
+
+    def resume() -> subprocess.Popen:
+        """`nod experiment --resume`, its output (the operator's lines and the log) read."""
+        lines.clear()
+        proc = rig.procs["experiment"] = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "experiment", "--connect", endpoint,
+             "--speed", "4", "--epoch-ns", epoch, "--params", str(params), "--db", str(db),
+             "--resume", "s1", "--clicks", "10", "--console", "lines"],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        )
+        threading.Thread(target=lambda: lines.extend(iter(proc.stdout.readline, "")),
+                         daemon=True).start()
+        # The resumed conductor finds the e-stop and holds the session: no trial starts.
+        wait_for(lambda: any("session held" in ln and "e-stop" in ln for ln in lines), 30,
+                 "the resumed session held by the e-stop")
+        return proc
+
     try:
         client = _connect(endpoint)
         for service in ("decision", "actuation", "eyes", "sim"):
@@ -231,29 +249,17 @@ def test_an_estop_survives_kill9_of_a_device_and_the_conductor_together(tmp_path
         engaged = estop(endpoint)
         assert engaged.returncode == 0, engaged.stdout + engaged.stderr
         t_engaged = time.monotonic()
-        rig.kill9("actuation", "experiment")
+        rig.kill9("experiment")  # the conductor alone
+        resume()
+        rig.kill9("actuation", "experiment")  # a device and the conductor together
         rig.restart("actuation")
-        resumed = rig.procs["experiment"] = subprocess.Popen(
-            [sys.executable, "-m", "services.cli", "experiment", "--connect", endpoint,
-             "--speed", "4", "--epoch-ns", epoch, "--params", str(params), "--db", str(db),
-             "--resume", "s1", "--clicks", "10", "--console", "lines"],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        )
-        lines: list[str] = []
-        reader = threading.Thread(
-            target=lambda: lines.extend(iter(resumed.stdout.readline, "")), daemon=True
-        )
-        reader.start()
-        # The resumed conductor finds the e-stop and holds the session: no trial starts.
-        wait_for(lambda: any("session held" in ln and "e-stop" in ln for ln in lines), 30,
-                 "the resumed session held by the e-stop")
+        resumed = resume()
         wait_for(lambda: len(states_since(arm, t_engaged)) >= 100, 30, "arm states")
         assert not free_to_move(states_since(arm, t_engaged))
         assert not [p for at, p in presses.items if at >= t_engaged]
         released = estop(endpoint, "--release")
         assert released.returncode == 0, released.stdout + released.stderr
         assert resumed.wait(120) == 0, "".join(lines)[-3000:]
-        reader.join(5)
     finally:
         if client is not None:
             client.close()
