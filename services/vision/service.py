@@ -284,9 +284,9 @@ def _opener(node: Node | None, params: CaptureParams):
 def quiet_opencv(cv: Any = cv2) -> None:
     """Let OpenCV print errors only, on any OpenCV this project meets.
 
-    OpenCV 5 (opencv-python-headless here) has `cv2.utils.logging.setLogLevel`; OpenCV 4.x (the
-    camera-box environment's opencv-contrib-python < 4.12) has no `cv2.utils.logging`, only the
-    top-level `cv2.setLogLevel` taking the same numbers (cv::utils::logging, 2 = ERROR).
+    OpenCV 5 (opencv-python-headless here) has `cv2.utils.logging.setLogLevel`; OpenCV 4.x (which
+    pyproject.toml still allows) has no `cv2.utils.logging`, only the top-level `cv2.setLogLevel`
+    taking the same numbers (cv::utils::logging, 2 = ERROR).
     """
     logging_module = getattr(getattr(cv, "utils", None), "logging", None)
     if logging_module is not None:

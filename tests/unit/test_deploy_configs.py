@@ -1,5 +1,6 @@
 """The deploy folder's Zenoh configs load, and every systemd unit points at a real role."""
 
+import re
 from pathlib import Path
 
 import pytest
@@ -64,6 +65,22 @@ def test_launch_script_uses_the_rig_file():
     launch = (DEPLOY / "lab" / "launch").read_text()
     assert 'up "${NOD_RIG_FILE:-/etc/nod/rig.toml}" --host "$host"' in launch
     assert "setup-env\n" not in launch.replace('run $home/scripts/setup-env first', '')
+
+
+def test_the_env_example_reads_the_same_in_systemd_and_bash():
+    """setup-host makes /etc/nod/nod.env from it: a unit's EnvironmentFile= keeps a trailing
+    `# …` in the value, so comments stand on lines of their own; it names what the deploy reads."""
+    names = set()
+    for line in (DEPLOY / "nod.env.example").read_text().splitlines():
+        if not line or line.startswith("#"):
+            continue
+        key, sep, value = line.partition("=")
+        assert sep and key.isidentifier() and "#" not in value and value == value.strip(), line
+        names.add(key)
+    readers = ("lab/launch", "setup-host", "systemd/nod@.service", "systemd/nod-router.service")
+    read = "".join((DEPLOY / name).read_text() for name in readers)
+    assert set(re.findall(r"\bNOD_[A-Z_]+", read)) - {"NOD_ENV"} <= names  # NOD_ENV: the file
+    assert "deploy/nod.env.example" in (DEPLOY / "setup-host").read_text()
 
 
 def test_example_params_load_and_match_the_defaults():

