@@ -24,8 +24,9 @@ from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.model.arm import ArmDriver
-from services.model.behaviour import ArmCommand, RobotBehaviour
+from services.model.behaviour import ArmCommand
 from services.model.params import NodConfig
+from services.model.robot import RobotTrial
 from services.model.safety import SafetyParams, Watchdog
 from services.safety.latch_file import LatchFile, add_state_dir_arg, default_state_dir
 from services.safety.wiring import watch_safety_inputs
@@ -49,11 +50,10 @@ class ActuationService:
         self.layout = cfg.layout
         self.arm = arm
         self.cfg = cfg
-        self.behaviour = RobotBehaviour(cfg.layout, cfg.behaviour, cfg.debounce)
+        self.robot = RobotTrial(
+            cfg.layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
+        )
         self.watchdog = Watchdog(safety, ("z_r", "hand"))
-        self.trial = 0
-        self.human_pressed: str | None = None
-        self.press_published = False
         self.safe_stop = False
         self.safety_reason = ""
         self.last_cmd: ArmCommand | None = None
@@ -83,8 +83,8 @@ class ActuationService:
         """Watch for the human's press: any landmark inside a buzzer box."""
         if not self.node.feed_watchdog(self.watchdog, "hand", pose.t_ns):
             return
-        if pose.detected and self.behaviour.t_go is not None and self.human_pressed is None:
-            self.human_pressed = self.layout.pressed(pose.landmarks)
+        if pose.detected:
+            self.robot.see_hand(pose.landmarks)
 
     def on_layout(self, msg: m.Layout) -> None:
         """Use the geometry vision (or the sim) published (takes effect next trial)."""
@@ -97,20 +97,16 @@ class ActuationService:
         it nobody records the trial, so the robot must not press.
         """
         if ev.phase == "setup":
-            self.trial = ev.trial
-            self.behaviour = RobotBehaviour(self.layout, self.cfg.behaviour, self.cfg.debounce)
-            self.human_pressed = None
-            self.press_published = False
+            self.robot.setup(ev.trial, self.layout)
             self.watchdog.require("experiment", True)
             self.arm.state(self._now())
             if not self.safe_stop:
                 self._send(self.arm.home())
-        elif ev.phase == "go" and ev.trial == self.trial:
-            timeout = self.cfg.protocol.trial_timeout_s
-            self._apply(self.behaviour.start(self._now(), timeout))
-        elif ev.phase == "interrupted" and ev.trial == self.trial:
+        elif ev.phase == "go" and ev.trial == self.robot.trial:
+            self._apply(self.robot.go(self._now()))
+        elif ev.phase == "interrupted" and ev.trial == self.robot.trial:
             # The trial is void: forget its moves, so clearing the stop does not resume them.
-            self.behaviour = RobotBehaviour(self.layout, self.cfg.behaviour, self.cfg.debounce)
+            self.robot.interrupted()
             self.watchdog.require("experiment", False)
         elif ev.phase in ("end", "abort", "session_end"):
             self.watchdog.require("experiment", False)
@@ -123,11 +119,12 @@ class ActuationService:
         return self._t
 
     def _step(self, z_r: float | None) -> None:
-        if self.behaviour.phase == "idle":
+        if not self.robot.running:
             return
         t = self._now()
-        state = self.arm.state(t)
-        self._apply(self.behaviour.step(t, z_r, self.human_pressed, state.ee))
+        cmd = self.robot.step(t, z_r, self.arm.state(t).ee)
+        if cmd is not None:
+            self._apply(cmd)
 
     def _apply(self, cmd: ArmCommand) -> None:
         """Send the behaviour's command unless the safety gate holds the arm."""
@@ -162,20 +159,18 @@ class ActuationService:
         elif not status.safe_stop and self.safe_stop:
             log.info("safety clear: resuming")
             self.last_cmd = None  # re-send the behaviour's current command
-            if self.behaviour.phase == "idle":  # between trials: back to the rest pose
+            if not self.robot.running:  # between trials: back to the rest pose
                 self._send(self.arm.home())
         self.safe_stop, self.safety_reason = status.safe_stop, status.reason
         if not self.safe_stop:
             self._step(None)
         state = self.arm.state(self._now())
-        if state.pressed is not None and not self.press_published and self.behaviour.t_go:
-            self.behaviour.complete()
-            self.press_published = True
-            self.pub_press.put(colour=state.pressed, trial=self.trial)
-            log.info("trial %d: robot pressed %s", self.trial, state.pressed)
+        if state.pressed is not None and self.robot.arm_pressed(state.pressed):
+            self.pub_press.put(colour=state.pressed, trial=self.robot.trial)
+            log.info("trial %d: robot pressed %s", self.robot.trial, state.pressed)
         self.pub_state.put(
             ee=state.ee,
-            phase=self.behaviour.phase,
+            phase=self.robot.machine.phase,
             moving=state.moving,
             target=state.target,
             safe_stop=self.safe_stop,
@@ -183,7 +178,7 @@ class ActuationService:
             fault=(state.fault or "")[:400],
             estop=self.watchdog.estopped,
             estop_id=self.watchdog.estop_id,
-            trial=self.trial,
+            trial=self.robot.trial,
         )
 
 

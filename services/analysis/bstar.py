@@ -23,10 +23,10 @@ import numpy as np
 
 from services.analysis.observer_eval import HAND_RADIUS, HEIGHT, WIDTH
 from services.model.arm import SimArm
-from services.model.behaviour import RobotBehaviour
 from services.model.decision import DecisionModel
 from services.model.geometry import HAND_TEMPLATE, Colour, TableLayout
 from services.model.params import NodConfig
+from services.model.robot import RobotTrial
 
 REACTION_S = 0.3  # from "go" to the hand's first movement
 
@@ -62,10 +62,11 @@ def agreement_time(
     layout: TableLayout = base.layout
     model = DecisionModel(params, layout)
     model.reset("consensus", option)
-    behaviour = RobotBehaviour(layout, base.behaviour, base.debounce)
+    robot = RobotTrial(layout, base.behaviour, base.debounce, base.protocol.trial_timeout_s)
     arm = SimArm(layout, base.sim_arm, t0=0.0)
     arm.connect()
-    behaviour.start(0.0, base.protocol.trial_timeout_s)
+    robot.setup(1)
+    robot.go(0.0)
     rng = np.random.default_rng(seed)
     start, goal = np.array((0.5, 0.85)), np.array(layout.box(option).center)
     scale = np.array([1.0 / WIDTH, 1.0 / HEIGHT])
@@ -79,7 +80,9 @@ def agreement_time(
         pts = centre + HAND_TEMPLATE * HAND_RADIUS + rng.normal(0, jitter_px, 2) * scale
         out = model.on_hand(round(t * 1e9), [(float(x), float(y)) for x, y in pts])
         state = arm.state(t)
-        arm.send(behaviour.step(t, out.z_r, None, state.ee))  # keep going past the press
+        cmd = robot.step(t, out.z_r, state.ee)  # no see_hand: it keeps going past the press
+        if cmd is not None:
+            arm.send(cmd)
         on_o = layout.nearest(arm.state(t).ee) == option
         agree = min(agree, t) if on_o else math.inf
     return Agreement(margin, reach_s, agree, press_s)

@@ -1,4 +1,4 @@
-"""One trial's recording: the human's press, the outcome tracker's inputs and the samples.
+"""One trial's recording: the samples, and the trial judge fed with the human's press and ẑ_h.
 
 Decision outputs are joined to the hand pose that produced them through `src_seq`, so the
 stored samples line up exactly even when messages arrive interleaved.
@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from services.model.geometry import Colour, TableLayout
-from services.model.outcome import OutcomeTracker
+from services.model.geometry import Colour
+from services.model.judge import TrialJudge
 from services.store.records import Sample, pack_landmarks
 
 if TYPE_CHECKING:  # the recorder reads decoded messages; it needs no codec
@@ -30,16 +30,19 @@ class _Row:
 class TrialRecorder:
     """Collects what happens between "go" and the end of one trial."""
 
-    def __init__(self, t_go_ns: int, tracker: OutcomeTracker) -> None:
+    def __init__(self, t_go_ns: int, judge: TrialJudge) -> None:
         self.t_go_ns = t_go_ns
-        self.tracker = tracker
-        self.human: Colour | None = None
-        self.t_press_ns: int | None = None
+        self.judge = judge  # its clock: the poses' and outputs' t_ns
         self._rows: dict[int, _Row] = {}
         self._ee: tuple[float, float] | None = None
 
-    def on_hand(self, pose: m.HandPose, layout: TableLayout) -> None:
-        """Record a pose; the first landmark inside a box is the human's press."""
+    @property
+    def human(self) -> Colour | None:
+        """The human's press so far (the judge's)."""
+        return self.judge.human
+
+    def on_hand(self, pose: m.HandPose) -> None:
+        """Record a pose; the judge looks for the human's press in it (on the trial's layout)."""
         if pose.t_ns < self.t_go_ns:
             return
         row = self._rows.setdefault(
@@ -47,10 +50,8 @@ class TrialRecorder:
         )
         if pose.detected and row.landmarks is None:
             row.landmarks = pack_landmarks(pose.landmarks)
-        if self.human is None and pose.detected:
-            pressed = layout.pressed(pose.landmarks)
-            if pressed is not None:
-                self.human, self.t_press_ns = pressed, pose.t_ns
+        if pose.detected:
+            self.judge.see_hand(pose.landmarks, pose.t_ns)
 
     def on_scalar(self, name: str, msg: m.Scalar, pose: m.HandPose | None) -> None:
         """A decision output for hand pose `msg.src_seq`; ẑ_h feeds the outcome until the press."""
@@ -67,8 +68,8 @@ class TrialRecorder:
         if name == "z_h":
             row.values["theta"] = getattr(msg, "theta", None)
             row.values["distance"] = getattr(msg, "distance", None)
-        if name == "z_h" and (self.t_press_ns is None or msg.t_ns <= self.t_press_ns):
-            self.tracker.add(msg.value, row.hand)
+        if name == "z_h":
+            self.judge.observe(msg.value, row.hand, msg.t_ns)
 
     def on_arm(self, msg: m.ArmStateMsg) -> None:
         """The latest end-effector position, attached to the following samples."""

@@ -10,7 +10,6 @@ judge it, store it with its samples in one SQLite transaction, and publish the r
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import logging
 import math
@@ -32,7 +31,7 @@ from services.experiment.recorder import TrialRecorder
 from services.experiment.recording import RecorderProcess, recorder_command, recording_path
 from services.experiment.rig_watch import RigWatch
 from services.model.geometry import Colour
-from services.model.outcome import OutcomeTracker, judge_trial
+from services.model.judge import TrialJudge
 from services.model.params import NodConfig
 from services.model.protocol import Cue, SessionProtocol, TrialEnd, TrialSpec
 from services.store import Interruption, Store, TrialRecord
@@ -147,7 +146,7 @@ class Conductor:
         while len(self._hands) > 256:
             self._hands.popitem(last=False)
         if self.recorder is not None:
-            self.recorder.on_hand(pose, self.layout)
+            self.recorder.on_hand(pose)
 
     def _scalar(self, name: str, msg: m.Scalar) -> None:
         self.console.value(name, msg.value)
@@ -412,12 +411,7 @@ class Conductor:
                     go = self.pub_trial.put(
                         phase="go", text=cue.text, session=self.session, **ev
                     )
-                    tracker = OutcomeTracker(
-                        self.cfg.debounce,
-                        self.layout.commit,
-                        self.cfg.decision.observer.switch_dead_band,
-                    )
-                    self.recorder = TrialRecorder(go.t_ns, tracker)
+                    self.recorder = TrialRecorder(go.t_ns, TrialJudge(self.cfg, self.layout))
             elif cue.kind == "end":
                 self._end_trial(spec, protocol)
                 cues.extend(protocol.judged(self._now_s()))
@@ -475,13 +469,10 @@ class Conductor:
         reason: str,
         interrupted: bool = False,
     ) -> None:
-        tracker = rec.tracker if rec is not None else OutcomeTracker(self.cfg.debounce)
-        human = rec.human if rec is not None else None
-        if end is not None:
-            human = end.counted_press(human)
-        j = judge_trial(tracker, human, robot, clicks, self.proto.target_clicks)
-        if interrupted:  # never scored: no outcome, no points
-            j = dataclasses.replace(j, outcome=None, score=0)
+        if interrupted or rec is None:  # never scored: no outcome, no points
+            j = TrialJudge.void()
+        else:
+            j = rec.judge.verdict(end, robot, clicks)
         with self.node.lock:
             events = self.rig.take_events()
         record = TrialRecord(

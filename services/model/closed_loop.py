@@ -11,19 +11,21 @@ differs.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
 from services.model.arm import SimArm
-from services.model.behaviour import RobotBehaviour
 from services.model.decision import DecisionModel
 from services.model.geometry import Colour, colour_sign
-from services.model.outcome import OutcomeTracker, judge_trial
+from services.model.judge import TrialJudge
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered
 from services.model.protocol import Cue, SessionProtocol
+from services.model.robot import RobotTrial
 
 
 class LoopSample(NamedTuple):
@@ -57,6 +59,8 @@ class OfflineTrial:
     duration_s: float  # from "go" to the end of the trial
     press_s: float | None = None  # from "go" to the human's press (None: never pressed)
     samples: tuple[LoopSample, ...] = ()  # every frame from "go" to the end (when recorded)
+    interrupted: bool = False  # broken by a safe stop and not repeated: never scored
+    attempts: int = 1  # starts of this trial, the interrupted ones included
 
 
 class _Loop:
@@ -71,18 +75,22 @@ class _Loop:
         self.clicks = clicks
         self.person = Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
         self.model = DecisionModel(cfg.decision, cfg.layout)
-        self.behaviour = RobotBehaviour(cfg.layout, cfg.behaviour, cfg.debounce)
+        self.robot = RobotTrial(
+            cfg.layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
+        )
         self.arm = SimArm(cfg.layout, cfg.sim_arm, t0=0.0)
         self.arm.connect()
         self.protocol = SessionProtocol(cfg.protocol)
-        self.tracker: OutcomeTracker | None = None  # recording from "go" to the human's press
-        self.human: Colour | None = None
-        self.robot: Colour | None = None
+        self.judge: TrialJudge | None = None  # from "go" to the trial's verdict
         self.t_go = 0.0
-        self.t_press: float | None = None
         self.record = record
         self.samples: list[LoopSample] = []
         self.results: list[OfflineTrial] = []
+
+    @property
+    def human(self) -> Colour | None:
+        """The human's press this trial (the judge's, the same one the robot sees)."""
+        return self.judge.human if self.judge is not None else None
 
     def on_cues(self, t: float, cues: list[Cue]) -> None:
         while cues:
@@ -92,41 +100,55 @@ class _Loop:
                 self.person.see_gaze(cue.gaze.yaw)
             elif cue.kind == "setup" and spec is not None:
                 self.model.reset(spec.mode, spec.consensus_option)
-                self.behaviour.reset()
+                self.robot.setup(spec.index)
                 self.arm.state(t)
                 self.arm.home()
                 self.person.new_trial(spec.option)
-                self.tracker, self.human, self.robot, self.t_press = None, None, None, None
+                self.judge = None
                 self.samples = []
             elif cue.kind == "go" and spec is not None:
                 self.model.reset(spec.mode, spec.consensus_option)
-                self.behaviour.start(t, self.cfg.protocol.trial_timeout_s)
+                self.robot.go(t)
                 self.person.go(t)
-                self.tracker = OutcomeTracker(
-                    self.cfg.debounce,
-                    self.cfg.layout.commit,
-                    self.cfg.decision.observer.switch_dead_band,
-                )
+                self.judge = TrialJudge(self.cfg, self.cfg.layout)
                 self.t_go = t
             elif cue.kind == "end" and spec is not None:
                 self._judge(t, spec.index, spec.mode, spec.option)
                 cues.extend(self.protocol.judged(t))
+            elif cue.kind == "interrupted" and spec is not None:
+                self._interrupted(t, spec.index, spec.mode, spec.option)
 
     def _judge(self, t: float, index: int, mode: str, option: Colour | None) -> None:
-        self.person.trial_ended(self.robot)
-        assert self.tracker is not None  # set at "go", which precedes every "end"
-        end = self.protocol.end
-        human = self.human if end is None else end.counted_press(self.human)
-        target = self.cfg.protocol.target_clicks
-        j = judge_trial(self.tracker, human, self.robot, self.clicks, target)
+        robot = self.robot.pressed
+        self.person.trial_ended(robot)
+        assert self.judge is not None  # set at "go", which precedes every "end"
+        j = self.judge.verdict(self.protocol.end, robot, self.clicks)
+        t_press = self.judge.t_press
         self.results.append(
             OfflineTrial(
                 index, mode, option, j.human, j.robot, j.outcome, j.switches, j.violations,
                 j.score, t - self.t_go,
-                None if self.t_press is None or human is None else self.t_press - self.t_go,
-                tuple(self.samples),
+                None if t_press is None or j.human is None else t_press - self.t_go,
+                tuple(self.samples), attempts=self.protocol.attempt,
             )
         )
+
+    def _interrupted(self, t: float, index: int, mode: str, option: Colour | None) -> None:
+        """A safe stop broke the trial: void it, and keep it if it is not repeated.
+
+        The conductor's rule: after `max_attempts`, stored interrupted and never scored.
+        """
+        self.robot.interrupted()
+        self.arm.hold()
+        self.judge = None
+        proto = self.cfg.protocol
+        if not proto.repeat_interrupted or self.protocol.attempt >= proto.max_attempts:
+            j = TrialJudge.void()
+            self.results.append(
+                OfflineTrial(index, mode, option, j.human, j.robot, j.outcome, j.switches,
+                             j.violations, j.score, t - self.t_go, None, (),
+                             interrupted=True, attempts=self.protocol.attempt)
+            )
 
     def frame(self, t: float) -> None:
         """One camera frame: the person moves, decision reads the pose, actuation steps."""
@@ -134,19 +156,20 @@ class _Loop:
         pts = self.person.landmarks()
         landmarks = [(float(x), float(y)) for x, y in pts]
         out = self.model.on_hand(int(round(t * 1e9)), landmarks)
-        if self.tracker is not None and self.human is None:
+        judge = self.judge
+        if judge is not None and judge.human is None:
             center = (float(pts[:, 0].mean()), float(pts[:, 1].mean()))
-            self.tracker.add(out.z_hat, center)
-            self.human = self.cfg.layout.pressed(landmarks)
-            if self.human is not None:
-                self.t_press = t
+            judge.observe(out.z_hat, center, t)
+            judge.see_hand(landmarks, t)
+        self.robot.see_hand(landmarks)
         state = self.arm.state(t)
-        if self.behaviour.phase != "idle":
-            self.arm.send(self.behaviour.step(t, out.z_r, self.human, state.ee))
+        cmd = self.robot.step(t, out.z_r, state.ee)
+        if cmd is not None:
+            self.arm.send(cmd)
             state = self.arm.state(t)
         heading = colour_sign(state.target) if state.target and state.moving else 0
         self.person.see_robot(t, heading)
-        if self.record and self.tracker is not None:
+        if self.record and judge is not None:
             cx, cy = float(pts[:, 0].mean()), float(pts[:, 1].mean())
             self.samples.append(
                 LoopSample(
@@ -154,9 +177,8 @@ class _Loop:
                     out.observation.theta, out.observation.distance,
                 )
             )
-        if state.pressed is not None and self.robot is None and self.behaviour.t_go is not None:
-            self.behaviour.complete()
-            self.robot = state.pressed
+        if state.pressed is not None:
+            self.robot.arm_pressed(state.pressed)
 
 
 def run_offline_session(
@@ -166,19 +188,43 @@ def run_offline_session(
     cohort: bool = False,
     clicks: int = 10,
     record: bool = False,
+    breaks: Mapping[tuple[int, int], float] | None = None,
+    safe_again_s: float = 1.0,
 ) -> list[OfflineTrial]:
-    """Simulate one participant's whole session; return each trial's outcome (and samples)."""
+    """Simulate one participant's whole session; return each trial's outcome (and samples).
+
+    `breaks` injects safety interruptions, as a rig's safe stops: (trial, attempt) → seconds
+    after that attempt's setup at which a safe stop breaks it. The session then pauses, as the
+    conductor's does, until the rig has been safe for `safe_again_s` (the stop's own length and
+    the conductor's settling time), and repeats the trial or moves on as the protocol says.
+    """
     loop = _Loop(cfg, seed, cohort, clicks, record)
+    breaks = dict(breaks or {})
     dt = 1.0 / rate_hz
     t = 0.0
+    t_setup = 0.0
+    broken_at: float | None = None
     loop.on_cues(t, loop.protocol.start(t))
     while not loop.protocol.done:
         t += dt
         loop.frame(t)
-        loop.on_cues(
-            t,
-            loop.protocol.advance(
-                t, human_pressed=loop.human is not None, robot_pressed=loop.robot is not None
-            ),
-        )
+        proto = loop.protocol
+        if proto.phase == "paused":
+            assert broken_at is not None
+            cues = proto.resume(t) if t - broken_at >= safe_again_s else []
+        elif (
+            proto.running_trial
+            and proto.trial is not None
+            and t - t_setup >= breaks.get((proto.trial.index, proto.attempt), math.inf)
+        ):
+            broken_at = t
+            cues = proto.interrupt(t, "simulated safe stop")
+        else:
+            cues = proto.advance(
+                t, human_pressed=loop.human is not None,
+                robot_pressed=loop.robot.pressed is not None,
+            )
+        if any(c.kind == "setup" for c in cues):
+            t_setup = t
+        loop.on_cues(t, cues)
     return loop.results

@@ -131,10 +131,11 @@ def test_a_silent_and_an_unplugged_bus_interrupt_their_trials(tmp_path, device):
     finally:
         store.close()
     assert sorted(trials) == [1, 2, 3]
-    for trial in (2, 3):  # repeated, and the repeat scored like any trial
-        assert trials[trial].attempts == 2 and not trials[trial].interrupted
-        assert trials[trial].outcome is not None
-    broken = {i.trial: i.reason for i in interruptions}
-    assert set(broken) == {2, 3}, interruptions
-    assert all("device fault" in why for why in broken.values()), broken
+    for trial in (2, 3):  # broken by the fault, repeated, and the repeat scored like any trial
+        # (a loaded machine may break an attempt more, by a late input: never fewer)
+        reasons = [i.reason for i in interruptions if i.trial == trial]
+        assert any(why.startswith(f"{device}: ") and "device fault" in why for why in reasons), (
+            trial, reasons)
+        assert trials[trial].attempts == len(reasons) + 1, (trials[trial], reasons)
+        assert not trials[trial].interrupted and trials[trial].outcome is not None
     assert {e.trial for e in faults} >= {2, 3}, faults
