@@ -1,0 +1,94 @@
+"""The two reactors every runner shares: the robot's trial (Algorithm 2 with its events) and the
+trial judge (the human's press, ẑ_h, the verdict), and the offline loop's interrupted trials."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from services.model.closed_loop import run_offline_session
+from services.model.judge import TrialJudge
+from services.model.params import NodConfig
+from services.model.protocol import TrialEnd
+from services.model.robot import RobotTrial
+
+CFG = NodConfig()
+LAYOUT = CFG.layout
+RED_IN = LAYOUT.box("red").center  # a landmark inside the red box
+BLUE_IN = LAYOUT.box("blue").center
+AWAY = (0.5, 0.9)  # the hand at rest, in no box
+
+
+def robot() -> RobotTrial:
+    return RobotTrial(LAYOUT, CFG.behaviour, CFG.debounce, CFG.protocol.trial_timeout_s)
+
+
+def test_the_robot_idles_until_go_and_sees_the_press_only_after_it():
+    r = robot()
+    r.setup(1)
+    assert r.step(0.0, 0.5, (0.5, 0.1)) is None  # no trial runs before "go"
+    assert r.see_hand([RED_IN]) is None  # a hand in a box before "go" is no press
+    r.go(1.0)
+    assert r.step(1.1, 0.5, (0.5, 0.1)).action == "move"
+    assert r.see_hand([AWAY]) is None
+    assert r.see_hand([BLUE_IN]) == "blue" and r.see_hand([RED_IN]) == "blue"  # the first
+    cmd = r.step(1.2, 0.5, LAYOUT.box("red").center)
+    assert cmd.action == "press" and cmd.target == "red"  # the buzzer nearest the arm
+
+
+def test_the_robots_press_counts_once_and_a_new_trial_forgets_everything():
+    r = robot()
+    r.setup(1)
+    assert not r.arm_pressed("red")  # a press before "go" is not the robot's choice
+    r.go(0.0)
+    assert r.arm_pressed("red") and not r.arm_pressed("red") and r.pressed == "red"
+    r.setup(2)
+    assert r.trial == 2 and r.pressed is None and r.human is None and not r.running
+
+
+def test_an_interrupted_trial_forgets_its_moves():
+    r = robot()
+    r.setup(3)
+    r.go(0.0)
+    r.step(0.1, -0.4, (0.5, 0.1))
+    assert r.running
+    r.interrupted()
+    assert not r.running and r.step(0.2, -0.4, (0.5, 0.1)) is None
+
+
+def test_the_judge_counts_z_hat_until_the_press_and_a_late_press_is_not_the_persons():
+    j = TrialJudge(CFG, LAYOUT)
+    for i, z in enumerate((0.3, 0.3, 0.3)):
+        j.observe(z, AWAY, t=float(i))
+    assert j.see_hand([RED_IN], t=2.0) == "red" and j.t_press == 2.0
+    for i, z in enumerate((-0.5,) * 10):  # after the press: never counted
+        j.observe(z, AWAY, t=3.0 + i)
+    assert j.tracker.switches == 0
+    v = j.verdict(TrialEnd(True, True, 5.0), "red", 10)
+    assert (v.human, v.robot, v.outcome, v.score) == ("red", "red", "C", 2)
+    late = j.verdict(TrialEnd(False, True, 5.0), "red", 10)  # pressed after the timeout
+    assert late.human is None and late.outcome is None
+
+
+def test_a_void_trial_has_no_presses_no_class_no_points():
+    v = TrialJudge.void()
+    assert (v.human, v.robot, v.outcome, v.switches, v.violations, v.score) == (
+        None, None, None, 0, 0, 0)
+
+
+def test_the_offline_loop_interrupts_repeats_and_gives_up_like_the_conductor():
+    trials = run_offline_session(CFG, 4, breaks={(2, 1): 1.0, (5, 1): 2.0})
+    by = {t.trial: t for t in trials}
+    assert sorted(by) == list(range(1, 9))
+    assert by[2].attempts == 2 and by[5].attempts == 2 and by[1].attempts == 1
+    assert not any(t.interrupted for t in trials)
+    # Out of attempts: stored interrupted, never classified or scored, and the session goes on.
+    cfg = replace(CFG, protocol=replace(CFG.protocol, max_attempts=2))
+    gave_up = run_offline_session(cfg, 4, breaks={(3, 1): 0.5, (3, 2): 0.5})
+    third = [t for t in gave_up if t.trial == 3]
+    assert len(third) == 1 and third[0].interrupted and third[0].attempts == 2
+    assert third[0].outcome is None and third[0].score == 0
+    assert [t.trial for t in gave_up] == list(range(1, 9))
+
+
+def test_without_breaks_the_loop_is_the_same_session():
+    assert run_offline_session(CFG, 6) == run_offline_session(CFG, 6, breaks={})
