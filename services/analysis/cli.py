@@ -1,7 +1,8 @@
 """`nod analyze …`: thin command-line shell over the analysis library.
 
-Subcommands: thresholds (Sec 4.3), sweep (Fig 3a), equilibria (Fig 3b), square-claim
-(Sec 4.4.1), stuart-maxwell (Secs 7-8), study (Secs 7-8, Fig 8). Every bad input ends with
+Subcommands: thresholds (Sec 4.3), sweep (Fig 3a), equilibria (Fig 3b), nullclines (Fig 3b, both
+panels), paper-claims and square-claim (Sec 4.4.1), stuart-maxwell (Secs 7-8), study (Secs 7-8,
+Fig 8), trial (Figs 6-7), power (study size), bstar (the b* margin). Every bad input ends with
 one line on stderr, `nod analyze <sub>: error: <what and how to fix>`, and exit code 2.
 """
 
@@ -244,7 +245,9 @@ def _cmd_thresholds(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from services.analysis.progress import ProgressBar
+    from rich.console import Console
+    from rich.progress import Progress
+
     from services.analysis.sweep import bias_grid, save_npz, sweep, sweep_rk4
 
     p = load_params(args.config)
@@ -252,13 +255,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise UsageError(f"--out: directory {str(out.parent)!r} does not exist")
     b = bias_grid(args.grid, args.range)
-    bar = ProgressBar(f"sweep {args.grid}×{args.grid}", enabled=False if args.no_progress else None)
+    console = Console(stderr=True)  # a bar only on a terminal: logs and pipes stay clean
     start = time.perf_counter()
     solver = sweep if args.method == "newton" else sweep_rk4
-    try:
-        result = solver(b, b, p, progress=bar)
-    finally:
-        bar.close()
+    with Progress(console=console, disable=args.no_progress or not console.is_terminal) as bar:
+        task = bar.add_task(f"sweep {args.grid}×{args.grid}", total=1.0)
+        result = solver(b, b, p, progress=lambda done: bar.update(task, completed=done))
     elapsed = time.perf_counter() - start
     try:
         save_npz(result, out, p)

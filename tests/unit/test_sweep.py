@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 
 from services.analysis.equilibria import find_equilibria
 from services.analysis.fields import is_stable, max_rate
-from services.analysis.progress import ProgressBar
 from services.analysis.square_claim import check_square_claim, square_claim
 from services.analysis.sweep import (
     DEFAULT_Z0,
@@ -146,20 +145,19 @@ def test_progress_is_reported_up_to_one() -> None:
     assert all(0.0 <= f <= 1.0 for f in seen)
 
 
-def test_progress_bar_draws_only_when_enabled(capsys) -> None:
-    import io
+def test_the_sweep_bar_is_drawn_on_stderr_only_on_a_terminal(capsys, monkeypatch, tmp_path):
+    from services.analysis.cli import main
 
-    buf = io.StringIO()
-    bar = ProgressBar("x", stream=buf, enabled=True, min_interval=0.0)
-    bar(0.5)
-    bar(1.0)
-    bar.close()
-    assert "50%" in buf.getvalue() and buf.getvalue().endswith("100%\n")
-    quiet = io.StringIO()
-    bar = ProgressBar("x", stream=quiet)  # StringIO is not a terminal: stays silent
-    bar(0.5)
-    bar.close()
-    assert quiet.getvalue() == ""
+    argv = ["sweep", "--grid", "5", "--out", str(tmp_path / "s.npz")]
+    assert main(argv) == 0
+    quiet = capsys.readouterr()  # captured: not a terminal, so no bar
+    assert quiet.err == "" and quiet.out.startswith("wrote ")
+    monkeypatch.setenv("TTY_COMPATIBLE", "1")  # rich: treat stderr as a terminal
+    assert main(argv) == 0
+    drawn = capsys.readouterr()
+    assert "sweep 5×5" in drawn.err and "100%" in drawn.err and "━" not in drawn.out
+    assert main([*argv, "--no-progress"]) == 0
+    assert capsys.readouterr().err == ""
 
 
 def test_square_claim_readings() -> None:
