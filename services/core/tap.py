@@ -81,11 +81,6 @@ class Tap:
             self._queued_bytes -= len(item.payload)
         return item
 
-    @property
-    def queued_bytes(self) -> int:
-        """Payload bytes waiting in the queue now."""
-        return self._queued_bytes
-
     def close(self) -> None:
         """Stop receiving (what is queued stays readable)."""
         for sub in self._subs:

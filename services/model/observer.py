@@ -207,7 +207,7 @@ class ObserverBase:
         return self._last
 
 
-class HumanObserver(ObserverBase):
+class PaperObserver(ObserverBase):
     """Algorithm 1 as printed (the "paper" mode): feed it one hand pose per camera frame."""
 
     def __init__(self, params: ObserverParams | None = None, layout: TableLayout | None = None):

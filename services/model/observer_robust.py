@@ -32,14 +32,12 @@ from collections.abc import Sequence
 
 from services.model.geometry import COLOURS, Colour, Point, TableLayout, colour_sign
 from services.model.observer import (
-    HumanObserver,
     Observation,
     ObserverBase,
     ObserverParams,
+    PaperObserver,
     hand_center,
 )
-
-_NOTHING = Observation(0.0, None, None, None, None, None, False, False)
 
 
 class RobustObserver(ObserverBase):
@@ -132,7 +130,7 @@ class RobustObserver(ObserverBase):
 
 def make_observer(
     params: ObserverParams | None = None, layout: TableLayout | None = None
-) -> HumanObserver | RobustObserver:
+) -> PaperObserver | RobustObserver:
     """The observer `params.mode` asks for; both take update(landmarks, t) and hold z_hat."""
     p = params if params is not None else ObserverParams()
-    return HumanObserver(p, layout) if p.mode == "paper" else RobustObserver(p, layout)
+    return PaperObserver(p, layout) if p.mode == "paper" else RobustObserver(p, layout)

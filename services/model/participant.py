@@ -241,11 +241,6 @@ class Participant:
         """The hand centre (x, y)."""
         return np.array((self._x, self._y))
 
-    @property
-    def vel(self) -> np.ndarray:
-        """The hand's velocity (units/s)."""
-        return np.array((self._vx, self._vy))
-
     # -- what the camera sees ---------------------------------------------------------------
 
     def landmarks(self, noise: bool = True) -> np.ndarray:

@@ -23,7 +23,6 @@ was killed (no summary, a chunk cut short) up to its last complete chunk, and sa
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -349,11 +348,3 @@ class McapIn:
     def sessions(self) -> list[str]:
         """The session ids the `nod.session` records name (after iterating)."""
         return [d["session"] for n, d in self.metadata if n == SESSION_METADATA and "session" in d]
-
-
-def file_size(path: str | Path) -> int:
-    """Size of a file in bytes (0 if absent)."""
-    try:
-        return os.path.getsize(path)
-    except OSError:
-        return 0

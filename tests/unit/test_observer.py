@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 
 from services.model.geometry import Box, TableLayout
 from services.model.observer import (
-    HumanObserver,
     ObserverParams,
+    PaperObserver,
     anchor_point,
     fold_theta,
     hand_center,
@@ -56,7 +56,7 @@ def test_heading_for_a_box_reads_its_sign(anchor, colour, data):
     start = data.draw(start_points(anchor))
     speed = data.draw(st.floats(0.003, 0.03))  # per frame, above the noise threshold
     target = anchor_point(LAYOUT, colour, anchor)
-    obs = HumanObserver(params, LAYOUT)
+    obs = PaperObserver(params, LAYOUT)
     obs.update(hand(start))
     p = start
     for _ in range(5):
@@ -143,14 +143,14 @@ def test_fold_theta_quadrants():
 
 
 def test_first_frame_gives_zero():
-    o = HumanObserver(PARAMS, LAYOUT).update(hand((0.5, 0.8)))
+    o = PaperObserver(PARAMS, LAYOUT).update(hand((0.5, 0.8)))
     assert o.z_hat == 0.0 and o.detected and not o.moved
     assert o.center == pytest.approx((0.5, 0.8))
     assert o.movement is None and o.theta is None
 
 
 def test_still_hand_keeps_previous_value():
-    obs = HumanObserver(PARAMS, LAYOUT)
+    obs = PaperObserver(PARAMS, LAYOUT)
     obs.update(hand((0.5, 0.8)))
     moved = obs.update(hand((0.52, 0.78)))
     assert moved.moved and moved.z_hat > 0
@@ -162,7 +162,7 @@ def test_still_hand_keeps_previous_value():
 
 
 def test_no_hand_keeps_value_and_flags_stale():
-    obs = HumanObserver(PARAMS, LAYOUT)
+    obs = PaperObserver(PARAMS, LAYOUT)
     obs.update(hand((0.5, 0.8)))
     z = obs.update(hand((0.52, 0.78))).z_hat
     for lost in (None, []):
@@ -176,8 +176,8 @@ def test_no_hand_keeps_value_and_flags_stale():
 
 def test_reference_accepted_accumulates_slow_motion():
     slow = [(0.5 + 0.001 * i, 0.8 - 0.001 * i) for i in range(6)]  # 0.0014 per frame
-    per_frame = HumanObserver(ObserverParams(reference="frame"), LAYOUT)
-    accumulated = HumanObserver(ObserverParams(reference="accepted"), LAYOUT)
+    per_frame = PaperObserver(ObserverParams(reference="frame"), LAYOUT)
+    accumulated = PaperObserver(ObserverParams(reference="accepted"), LAYOUT)
     for p in slow:
         a = per_frame.update([p])
         b = accumulated.update([p])
@@ -186,7 +186,7 @@ def test_reference_accepted_accumulates_slow_motion():
 
 
 def test_reset_forgets_history():
-    obs = HumanObserver(PARAMS, LAYOUT)
+    obs = PaperObserver(PARAMS, LAYOUT)
     obs.update([(0.5, 0.8)])
     obs.update([(0.55, 0.75)])
     obs.reset()

@@ -32,7 +32,7 @@ def test_the_paper_mode_is_what_the_paper_prints_and_fails_where_measured():
     # Kept for replication, and as the baseline the robust mode is judged against.
     s = evaluate(ObserverParams(mode="paper"), 30.0, seeds=1)
     assert s.wrong_frac > 0.05 and s.spurious_per_reach > 0.5
-    assert make_observer(ObserverParams(mode="paper")).__class__.__name__ == "HumanObserver"
+    assert make_observer(ObserverParams(mode="paper")).__class__.__name__ == "PaperObserver"
 
 
 def feed(obs: RobustObserver, points, hz: float = 30.0, t0: float = 0.0):
