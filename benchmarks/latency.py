@@ -2,7 +2,7 @@
 
 Both legs are paced at 120 Hz (a camera's rate, not a ping-pong loop: wake-ups count) through the
 same router in this run. Prints p50/p99 of each, the p50 ratio, and lost messages.
-Goal (issue 4): decision p50 ≤ 1.2 × echo p50, decision p99 ≤ 1 ms, nothing lost.
+Goal: decision p50 ≤ 1.2 × echo p50, decision p99 ≤ 1 ms, nothing lost.
 
     .venv/bin/python benchmarks/latency.py [--seconds 10] [--rate 120]
 """

@@ -11,7 +11,7 @@ then measures, on this machine and in this run:
   against a router on a free loopback port; a subscriber counts the hand poses and times the
   first to the last arrival (capture thread, tracking, encoding, publishing, delivery).
 
-Prints every rate and its ratio to the decode rate. Goal (issue 5): end to end ≥ 60 fps
+Prints every rate and its ratio to the decode rate. Goal: end to end ≥ 60 fps
 (twice a 30 fps camera) for each tracker except mediapipe, which is reported; exits 1 if missed.
 
     .venv/bin/python benchmarks/vision_fps.py [--frames 600] [--repeat 3]

@@ -50,7 +50,7 @@ def run(argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
 
 
 def test_the_poison_is_real_without_isolation(poisoned: Path) -> None:
-    """The old command line (no -P) imports the working directory's modules."""
+    """A command line without -P imports the working directory's modules."""
     plain = run([sys.executable, "-m", "services.cli", "actuation", "--help"], poisoned)
     assert plain.returncode != 0 and "POISONED" in plain.stderr
 

@@ -230,7 +230,7 @@ def test_the_router_listens_only_on_the_router_host(lab, tmp_path):
     config = (tmp_path / "lab" / "control" / "router.json5").read_text()
     assert f'"tls/127.0.0.1:{port}"' in config and "0.0.0.0" not in config
     # Bound to 127.0.0.1 only: another loopback address of this host has nobody listening
-    # (the old tls/0.0.0.0 answered on every address of the control station).
+    # (a tls/0.0.0.0 router would answer on every address of the control station).
     socket.create_connection(("127.0.0.1", port), timeout=2).close()
     with pytest.raises(ConnectionRefusedError):
         socket.create_connection(("127.0.0.2", port), timeout=2).close()

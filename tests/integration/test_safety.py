@@ -143,8 +143,9 @@ def test_stale_input_and_lost_liveliness_stop_the_arm(client, spawn):
 
 
 def test_future_stamps_cannot_hold_the_gate_open(client, spawn):
-    # Once fooled the old gate for good: a pose and a z_r stamped an hour ahead, then silence;
-    # and a z_r stamped 2^63-1 that froze actuation at 100% CPU. Freshness is judged by arrival.
+    # What would fool a gate that trusts stamps for good: a pose and a z_r stamped an hour ahead,
+    # then silence; and a z_r stamped 2^63-1 (actuation frozen at 100% CPU). Freshness is judged
+    # by arrival.
     state, feeder = _start_moving(client, spawn)
     try:
         feeder.running.clear()

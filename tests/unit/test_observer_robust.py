@@ -19,9 +19,10 @@ ROBUST = ObserverParams()
 
 @pytest.mark.parametrize("hz", [30.0, 60.0])
 def test_default_observer_meets_the_targets_on_realistic_paths(hz):
-    # Issue 12's targets, on paths made independently of the simulated participant, with 1-3 px
-    # of tracker jitter: wrong side ≤ 1% of frames, ≤ 0.1 spurious switches per reach, ≤ 150 ms
-    # of added latency. (benchmarks/observer_paths.py runs more seeds and prints the paper's.)
+    # The targets of docs/observer.md, on paths made independently of the simulated participant,
+    # with 1-3 px of tracker jitter: wrong side ≤ 1% of frames, ≤ 0.1 spurious switches per
+    # reach, ≤ 150 ms of added latency. (benchmarks/observer_paths.py runs more seeds and prints
+    # the paper's.)
     s = evaluate(ROBUST, hz, seeds=2)
     assert s.wrong_frac <= 0.01, s
     assert s.spurious_per_reach <= 0.1, s
