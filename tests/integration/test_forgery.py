@@ -100,7 +100,7 @@ def test_forged_robot_presses_are_refused(tmp_path):
     assert [t.trial for t in trials] == [1, 2, 3]
     # What the arm did, not what was forged.
     assert {t.trial: t.robot for t in trials} == real, (trials, context)
-    assert "refused unless the arm confirms it" in logs
+    assert "never confirmed by actuation/state" in logs and "refused" in logs
 
 
 def test_a_second_hand_stream_voids_the_trials_instead_of_scoring_them(tmp_path):

@@ -1,0 +1,483 @@
+"""The conductor of one participant's session on the fabric.
+
+It drives the protocol state machine (`services.model.protocol.SessionProtocol`, the same one
+the offline loop drives) and does what its cues say: command the gaze (the attention gesture's
+poses too), announce the setup (decision and actuation reset), count "1, 2, 3, go", record the
+streams, and at the end of a trial (the human's press or the timeout, then the robot's press)
+judge it (`services.model.judge.TrialJudge`), store it with its samples in one SQLite
+transaction, and publish the result. `nod experiment` (`services.experiment.service`) is its
+command line.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from pathlib import Path
+
+from services.core import messages as m
+from services.core.node import Node
+from services.experiment.console import SessionConsole
+from services.experiment.presses import RobotPresses
+from services.experiment.recorder import TrialRecorder
+from services.experiment.rig_watch import RigWatch
+from services.model.geometry import Colour
+from services.model.judge import TrialJudge
+from services.model.params import NodConfig
+from services.model.protocol import Cue, SessionProtocol, TrialEnd, TrialSpec
+from services.store import Interruption, Store, TrialRecord
+
+log = logging.getLogger("nod.experiment")
+NS = 1e-9
+REQUIRED = ("decision", "actuation", "eyes", "vision")
+SAMPLE_HZ = 60.0  # stored samples are decimated to this rate (a 30 Hz camera passes whole)
+# The gaze is repeated this often: the eyes' watchdog holds them neutral when it goes stale
+# (250 ms), so the keep-alive runs 5x faster than that bound, with room for a busy host.
+GAZE_KEEPALIVE_NS = 50_000_000
+
+
+class Conductor:
+    """Runs the protocol over the fabric; callbacks fill the current trial's recorder."""
+
+    def __init__(
+        self,
+        node: Node,
+        cfg: NodConfig,
+        store: Store,
+        clicks: Callable[[int], int | None],
+        console: SessionConsole | None = None,
+        resume_at: tuple[int, int] | None = None,
+    ):
+        """The conductor of one session on `node`'s rig, storing into `store`.
+
+        `resume_at`: the (trial, attempt) a resumed session is in — the one a lost conductor
+        left open, or the last one stored — so the safety events seen before its next trial
+        starts (a device's safe stop while no conductor ran) are filed under it, not trial 0.
+        """
+        self.node = node
+        self.console = console or SessionConsole()
+        self.cfg = cfg
+        self.proto = cfg.protocol
+        self.layout = cfg.layout
+        self.store = store
+        self.clicks = clicks
+        self.alive: dict[str, bool] = {}
+        self.recorder: TrialRecorder | None = None
+        self.presses = RobotPresses()
+        self.trial = 0
+        self.gaze_msg: dict[str, object] | None = None
+        self.session = ""
+        self.records: list[TrialRecord] = []
+        self.rig = RigWatch()
+        if resume_at is not None:
+            self.rig.begin(*resume_at)
+        self.protocol: SessionProtocol | None = None
+        self._trial_start_ns = 0
+        self._hands: OrderedDict[int, m.HandPose] = OrderedDict()
+        self._last_hand_seq: int | None = None
+        self._seq_regressions = 0  # in the current trial
+        self._held = False  # the session waits for the rig
+        self.recording: tuple[Path, int] | None = None  # (file, started_ns) of `--record`
+        self.pub_trial = node.publisher("experiment/trial")
+        self.pub_result = node.publisher("experiment/result")
+        self.pub_gaze = node.publisher("eyes/cmd")
+        node.subscribe("vision/hand", self.on_hand)
+        node.subscribe("vision/layout", lambda msg: setattr(self, "layout", m.layout_from_msg(msg)))
+        node.subscribe("decision/z_h", lambda msg: self._scalar("z_h", msg))
+        node.subscribe("decision/z_r", lambda msg: self._scalar("z_r", msg))
+        node.subscribe("decision/b_r", lambda msg: self._scalar("b_r", msg))
+        node.subscribe("actuation/state", self.on_arm)
+        node.subscribe("actuation/press", self.on_press)
+        node.subscribe("eyes/state", self.on_eyes)
+        node.subscribe("safety/estop", self.on_estop)
+        node.subscribe("safety/release", self.on_estop)
+        node.subscribe("rig/event", lambda msg: self.rig.rig_event(self._now_ns(), msg))
+        for service in REQUIRED:
+            node.watch_liveliness(service, lambda a, s=service: self._liveliness(s, a))
+        # An e-stop engaged while no conductor ran (or before this one started) holds the session
+        # from the start: the devices answer with their latches.
+        for latch in node.ask("safety/latch", 1.0):
+            if latch.engaged:
+                with node.lock:
+                    self.rig.estop(True, latch.reason, latch.source or latch.service,
+                                   self._now_ns())
+        # The gaze keep-alive runs on its own thread: the operator's counter prompt blocks the
+        # main thread, and the eyes must not drop to neutral while the operator types.
+        self._keepalive = threading.Thread(target=self._keep_gaze_alive, daemon=True)
+        self._keepalive.start()
+
+    # -- callbacks (under the node lock) ---------------------------------------------------
+
+    def _liveliness(self, service: str, alive: bool) -> None:
+        was = self.alive.get(service, False)
+        self.alive[service] = alive
+        if was and not alive:  # during a trial this breaks it; between trials it holds the next
+            self.rig.lost(service, self._now_ns())
+
+    def on_hand(self, pose: m.HandPose) -> None:
+        """Keep recent poses to join with decision outputs; detect the human's press.
+
+        One camera numbers its poses in order; a pose numbered at or below the last one means
+        a second publisher on the key (a restarted camera starts over once). Three in a trial
+        and the trial is interrupted: its press could be anyone's.
+        """
+        if self._last_hand_seq is not None and pose.seq <= self._last_hand_seq:
+            self._seq_regressions += 1
+            if self._seq_regressions == 3:
+                self.rig.compromised(
+                    "two publishers on vision/hand (its seq went backwards 3 times)",
+                    self._now_ns(),
+                )
+        self._last_hand_seq = pose.seq
+        self._hands[pose.seq] = pose
+        while len(self._hands) > 256:
+            self._hands.popitem(last=False)
+        if self.recorder is not None:
+            self.recorder.on_hand(pose)
+
+    def _scalar(self, name: str, msg: m.Scalar) -> None:
+        self.console.value(name, msg.value)
+        if self.recorder is not None:
+            self.recorder.on_scalar(name, msg, self._hands.get(msg.src_seq))
+
+    def on_arm(self, msg: m.ArmStateMsg) -> None:
+        """The arm's end effector for the samples, and its safety state."""
+        self.rig.device_state("actuation", msg.safe_stop, msg.safety_reason, self._now_ns())
+        self.presses.arm_state(msg.trial, msg.phase, msg.target)
+        self.console.robot(msg.phase, msg.target)
+        if self.recorder is not None:
+            self.recorder.on_arm(msg)
+
+    def on_eyes(self, msg: m.EyesStateMsg) -> None:
+        """The eyes' safety state."""
+        self.rig.device_state("eyes", msg.safe_stop, msg.safety_reason, self._now_ns())
+
+    def on_estop(self, msg: m.Estop) -> None:
+        """An e-stop command: it breaks a running trial and holds the session until released."""
+        self.rig.estop(msg.engaged, msg.reason, msg.source, self._now_ns())
+
+    def on_press(self, msg: m.PressMsg) -> None:
+        """The robot pressed a buzzer: taken once the arm's own state confirms it."""
+        self.presses.press(msg)
+
+    # -- the script (main thread) ----------------------------------------------------------
+
+    def _now_ns(self) -> int:
+        return self.node.clock.now_ns()
+
+    def _now_s(self) -> float:
+        return self.node.clock.now_ns() * NS
+
+    def wait_for_services(self, timeout_s: float) -> None:
+        """Block until every required service's liveliness token is seen (wall clock)."""
+        deadline = time.monotonic() + timeout_s
+        while not all(self.alive.get(s) for s in REQUIRED):
+            if time.monotonic() > deadline or self.node.stop.is_set():
+                missing = [s for s in REQUIRED if not self.alive.get(s)]
+                raise TimeoutError(f"services not alive after {timeout_s:.0f} s: {missing}")
+            time.sleep(0.02)
+
+    def run_session(
+        self,
+        session: str,
+        participant: str,
+        seed: int | None,
+        first_trial: int = 1,
+        resume: bool = False,
+        lost: tuple[int, int, int] | None = None,
+    ) -> list[TrialRecord]:
+        """Run the schedule from `first_trial` through the protocol machine; store the records.
+
+        A trial broken by a safe stop or an e-stop is stored as interrupted; the session waits
+        until the rig is safe again, then repeats it (or moves on, as the protocol says).
+        `lost` is the attempt (trial, attempt, t_start_ns) a previous conductor of this session
+        left open when it died: stored as an interruption, then repeated or moved past alike.
+        """
+        started = self.node.clock.now_ns()
+        if not resume:
+            self.store.begin_session(
+                session, participant, self.node.keys.rig, seed, started, self.cfg.summary()
+            )
+        if self.recording is not None:
+            self.store.add_recording(session, *self.recording)
+        self.session = session
+        self.records = []
+        first_trial, attempts_before = self._attempts_so_far(first_trial, lost)
+        self.console.start(session, participant, len(self.proto.trials))
+        status = "aborted"
+        try:
+            if first_trial > len(self.proto.trials):  # the lost attempt was the last one's last
+                status = "complete"
+                return self.records
+            protocol = self.protocol = SessionProtocol(self.proto, first_trial, attempts_before)
+            self._wait_for_a_safe_rig()
+            with self.node.lock:
+                cues = protocol.start(self._now_s())
+            while True:
+                self._perform(protocol, cues)
+                if protocol.done:
+                    break
+                self._wait(protocol.next_due())
+                with self.node.lock:
+                    why = self.rig.interruption(self._now_ns()) if protocol.running_trial else None
+                    if why is not None:
+                        cues = protocol.interrupt(self._now_s(), why)
+                        continue
+                    if protocol.phase == "paused":
+                        cues = protocol.resume(self._now_s()) if self._rig_ready() else []
+                        continue
+                    if protocol.phase == "rest" and not self._rig_ready():
+                        cues = []  # no new trial on an unsafe rig: the rest lasts until it is
+                        continue
+                    rec = self.recorder
+                    cues = protocol.advance(
+                        self._now_s(),
+                        human_pressed=rec is not None and rec.human is not None,
+                        robot_pressed=self.presses.confirmed is not None,
+                    )
+            status = "complete"
+        finally:
+            with self.node.lock:
+                events = self.rig.take_events()
+            self.store.write_events(session, events)
+            self.store.finish_session(session, self.node.clock.now_ns(), status)
+            with self.node.lock:
+                self.gaze_msg = None
+            self.pub_trial.put(
+                phase="session_end" if status == "complete" else "abort",
+                trial=self.trial,
+                session=session,
+                text=status,
+            )
+            self.console.stop()
+        return self.records
+
+    def _attempts_so_far(
+        self, first_trial: int, lost: tuple[int, int, int] | None
+    ) -> tuple[int, int]:
+        """(first trial to run, its starts so far) for a session that starts or resumes.
+
+        A resumed session counts the starts its trial already had: interruptions stored before
+        the crash, and the attempt a dead conductor left open (`lost`), which is stored now as
+        the interruption it was. Like any interruption, the trial is then repeated while it has
+        attempts left, else stored interrupted (never scored) and the session goes on.
+        """
+        n = len(self.proto.trials)
+        while first_trial <= n:
+            made = self.store.attempts_made(self.session, first_trial)
+            if lost is not None and lost[0] == first_trial:
+                trial, attempt, t_start_ns = lost
+                why = "conductor lost (it died mid-trial; the session was resumed)"
+                with self.node.lock:
+                    events = self.rig.take_events()
+                log.warning("trial %d (attempt %d) INTERRUPTED: %s", trial, attempt, why)
+                self.store.write_interruption(
+                    self.session, Interruption(trial, attempt, t_start_ns, self._now_ns(), why),
+                    events,
+                )
+                made = max(made, attempt)
+            if made == 0 or (self.proto.repeat_interrupted and made < self.proto.max_attempts):
+                return first_trial, made
+            spec = self.proto.trials[first_trial - 1]  # out of attempts: never scored
+            self._store_trial(spec, made, None, None, None, None,
+                              "interrupted: out of attempts before the session was resumed",
+                              interrupted=True)
+            first_trial += 1
+        return first_trial, 0
+
+    def _wait_for_a_safe_rig(self) -> None:
+        """Before the first trial: eyes neutral (kept alive), then wait until the rig is safe.
+
+        No trial starts on an unsafe rig; the first one too: a device still stopped from its
+        start-up (the eyes before any gaze) would otherwise break trial 1 as soon as it began.
+        """
+        with self.node.lock:
+            self.gaze_msg = {"yaw": 0.0, "pitch": 0.0, "level": "neutral", "trial": 0}
+            self.pub_gaze.put(**self.gaze_msg)
+        while not self._rig_ready():
+            self._wait(math.inf)
+
+    def _rig_ready(self) -> bool:
+        """Is the rig safe (and settled)? Says once when it is not, and when it is again."""
+        if self.rig.safe(self._now_ns()):
+            if self._held:
+                log.info("rig safe again: the session goes on")
+                self.console.note("rig safe again: the session goes on")
+                self._held = False
+            return True
+        if not self._held:
+            log.warning("session held: %s", self.rig.why_unsafe())
+            self._held = True
+        return False
+
+    def _keep_gaze_alive(self) -> None:
+        """Repeat the current gaze command every GAZE_KEEPALIVE_NS (rig clock) until closed."""
+        period_s = self.node.clock.wall_seconds(GAZE_KEEPALIVE_NS * NS)
+        while not self.node.stop.wait(period_s):
+            with self.node.lock:
+                if self.gaze_msg is not None and self.node.session is not None:
+                    self.pub_gaze.put(**self.gaze_msg)
+
+    def _wait(self, due_s: float) -> None:
+        """Sleep until the protocol's next deadline, or at most 5 ms (presses, safety)."""
+        now = self.node.clock.now_ns()
+        end_ns = now + 5_000_000
+        if math.isfinite(due_s):  # inf while paused or judging: poll
+            end_ns = min(int(due_s * 1e9), end_ns)
+        if self.node.stop.wait(max(0.0, self.node.clock.wall_seconds((end_ns - now) * NS))):
+            raise KeyboardInterrupt
+
+    def _perform(self, protocol: SessionProtocol, cues: list[Cue]) -> None:
+        """Do what the protocol asks, in order (an "end" cue may bring the next trial's cues)."""
+        while cues:
+            cue = cues.pop(0)
+            spec = cue.trial
+            if spec is None:  # session_end: run_session publishes it once the store is closed
+                continue
+            ev = {"trial": spec.index, "mode": spec.mode, "option": spec.option}
+            if cue.kind in ("setup", "countdown", "go", "end", "interrupted"):
+                self.console.cue(cue.kind, spec.index, spec.mode, spec.option, cue.text)
+            if cue.kind == "gaze" and cue.gaze is not None:
+                with self.node.lock:
+                    self.gaze_msg = {
+                        "yaw": cue.gaze.yaw,
+                        "pitch": cue.gaze.pitch,
+                        "level": spec.gaze_level,
+                        "gesture": cue.gesture,
+                        "trial": spec.index,
+                    }
+                    self.pub_gaze.put(**self.gaze_msg)
+            elif cue.kind == "setup":
+                # On record before anything moves: a conductor killed from here on leaves this
+                # attempt open, and the resumed session stores it as interrupted.
+                started = self._now_ns()
+                self.store.begin_attempt(self.session, spec.index, protocol.attempt, started)
+                with self.node.lock:
+                    self.trial = spec.index
+                    self.presses.begin(spec.index)
+                    self.recorder = None
+                    self.rig.begin(spec.index, protocol.attempt)
+                    self._seq_regressions = 0
+                    self._trial_start_ns = started
+                    self.pub_trial.put(phase="setup", text=cue.text, session=self.session, **ev)
+            elif cue.kind == "countdown":
+                self.pub_trial.put(phase="countdown", text=cue.text, session=self.session, **ev)
+            elif cue.kind == "go":
+                with self.node.lock:
+                    go = self.pub_trial.put(
+                        phase="go", text=cue.text, session=self.session, **ev
+                    )
+                    self.recorder = TrialRecorder(go.t_ns, TrialJudge(self.cfg, self.layout))
+            elif cue.kind == "end":
+                self._end_trial(spec, protocol)
+                cues.extend(protocol.judged(self._now_s()))
+            elif cue.kind == "interrupted":
+                self._interrupted(spec, protocol, cue.text)
+
+    def _interrupted(self, spec: TrialSpec, protocol: SessionProtocol, why: str) -> None:
+        """Store the broken start of a trial; the session pauses until the rig is safe."""
+        with self.node.lock:
+            self.recorder = None
+            events = self.rig.take_events()
+            now = self._now_ns()
+        log.warning("trial %d (attempt %d) INTERRUPTED: %s", spec.index, protocol.attempt, why)
+        self.pub_trial.put(
+            phase="interrupted",
+            trial=spec.index,
+            mode=spec.mode,
+            option=spec.option,
+            text=why[:400],
+            session=self.session,
+        )
+        record = Interruption(spec.index, protocol.attempt, self._trial_start_ns, now, why)
+        self.store.write_interruption(self.session, record, events)
+        last_chance = (
+            not self.proto.repeat_interrupted or protocol.attempt >= self.proto.max_attempts
+        )
+        if last_chance:  # not repeated: stored as an interrupted trial, never scored
+            self._store_trial(
+                spec, protocol.attempt, None, None, None, None, f"interrupted: {why}",
+                interrupted=True,
+            )
+
+    def _end_trial(self, spec: TrialSpec, protocol: SessionProtocol) -> None:
+        """Judge, store and publish the trial that just ended."""
+        with self.node.lock:
+            rec, self.recorder = self.recorder, None
+            robot = self.presses.confirmed
+            refused = self.presses.unconfirmed()
+            arm = self.presses.where()
+        for colour in refused:  # pressed on the key, never shown by the arm: not the robot's
+            log.warning(
+                "trial %d: a press of %s was never confirmed by actuation/state (last: trial %d, "
+                "%s, at %s): refused (forged, or a second actuation?)",
+                spec.index, colour, *arm,
+            )
+        assert rec is not None and protocol.end is not None  # "go" precedes every "end"
+        self.pub_trial.put(
+            phase="end", trial=spec.index, mode=spec.mode, option=spec.option, session=self.session
+        )
+        clicks = self.console.ask(lambda: self.clicks(spec.index))
+        self._store_trial(
+            spec, protocol.attempt, protocol.end, rec, robot, clicks, protocol.end.reason
+        )
+
+    def _store_trial(
+        self,
+        spec: TrialSpec,
+        attempt: int,
+        end: TrialEnd | None,
+        rec: TrialRecorder | None,
+        robot: Colour | None,
+        clicks: int | None,
+        reason: str,
+        interrupted: bool = False,
+    ) -> None:
+        if interrupted or rec is None:  # never scored: no outcome, no points
+            j = TrialJudge.void()
+        else:
+            j = rec.judge.verdict(end, robot, clicks)
+        with self.node.lock:
+            events = self.rig.take_events()
+        record = TrialRecord(
+            trial=spec.index,
+            mode=spec.mode,
+            option=spec.option,
+            gaze_level=spec.gaze_level,
+            yaw=spec.gaze.yaw,
+            pitch=spec.gaze.pitch,
+            t_go_ns=rec.t_go_ns if rec is not None else None,
+            t_end_ns=self._now_ns(),
+            human=j.human,
+            robot=j.robot,
+            outcome=j.outcome,
+            switches=j.switches,
+            violations=j.violations,
+            clicks=clicks,
+            score=j.score,
+            end_reason=reason[:400],
+            interrupted=interrupted,
+            attempts=attempt,
+        )
+        samples = rec.samples(SAMPLE_HZ) if rec is not None else []
+        self.store.write_trial(self.session, record, samples, events)
+        self.records.append(record)
+        self.console.result(spec.index, spec.mode, spec.option, j.robot, j.human, j.outcome,
+                            j.score, interrupted)
+        self.pub_result.put(
+            trial=spec.index,
+            mode=spec.mode,
+            option=spec.option,
+            robot=j.robot,
+            human=j.human,
+            outcome=j.outcome,
+            switches=j.switches,
+            violations=j.violations,
+            score=j.score,
+            session=self.session,
+            interrupted=interrupted,
+        )
