@@ -17,7 +17,8 @@ from services.core.contract import TOPICS
 from services.model.decision import DecisionModel
 from services.recording.mcap_io import FILE_METADATA, McapIn, McapOut, topic_of
 from services.recording.record import Recorder
-from services.recording.replay import input_topics, select_topics, through_decision
+from services.recording.selection import input_topics, select_topics
+from services.recording.through import through_decision
 from services.store import Store
 
 JPEG = b"\xff\xd8\xff\xe0" + b"\x00" * 60

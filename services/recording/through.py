@@ -1,0 +1,188 @@
+"""`nod replay --through decision`: the decision model re-run over a recording, offline.
+
+The recorded vision/hand, vision/layout and experiment/trial messages go in order through
+`DecisionModel` (reset on setup/go with `DecisionModel.on_trial`, like the decision service);
+the output file is the recording without its decision/* channels plus the recomputed ones.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from services.core import messages as m
+from services.core.config import from_mapping, load_toml
+from services.model.decision import DecisionModel
+from services.model.params import NodConfig
+from services.recording.mcap_io import (
+    END_METADATA,
+    FILE_METADATA,
+    SESSION_METADATA,
+    McapIn,
+    McapOut,
+    topic_of,
+)
+from services.recording.selection import decode_entry
+
+log = logging.getLogger("nod.replay")
+DECISION_TOPICS = ("decision/z_r", "decision/z_h", "decision/b_r")
+
+
+@dataclass
+class TrialComparison:
+    """One trial's decision outputs, recorded vs recomputed, at the last pose both answered."""
+
+    trial: int
+    mode: str = ""
+    option: str | None = None
+    recorded: dict[int, tuple[float, float]] = field(default_factory=dict)  # src_seq → (z_r, b_r)
+    recomputed: dict[int, tuple[float, float]] = field(default_factory=dict)
+    robot: str | None = None
+    human: str | None = None
+    outcome: str | None = None
+    closed: bool = False
+
+    def final(self) -> tuple[tuple[float, float] | None, tuple[float, float] | None]:
+        """(recorded, recomputed) (z_r, b_r) at the last pose of the trial both have."""
+        common = set(self.recorded) & set(self.recomputed)
+        if common:
+            seq = max(common)
+            return self.recorded[seq], self.recomputed[seq]
+        rec = self.recorded[max(self.recorded)] if self.recorded else None
+        new = self.recomputed[max(self.recomputed)] if self.recomputed else None
+        return rec, new
+
+    def line(self) -> str:
+        """`trial 5 consensus O=red: z_r +0.41 → -0.22 (red → blue), b_r ...; recorded: ...`."""
+        rec, new = self.final()
+
+        def fmt(v: tuple[float, float] | None, i: int) -> str:
+            return "—" if v is None else f"{v[i]:+.3f}"
+
+        def side(v: tuple[float, float] | None) -> str:
+            return "?" if v is None else ("red" if v[0] > 0 else "blue" if v[0] < 0 else "0")
+
+        option = f" O={self.option}" if self.option else ""
+        return (
+            f"trial {self.trial} {self.mode}{option}: z_r {fmt(rec, 0)} → {fmt(new, 0)} "
+            f"({side(rec)} → {side(new)}), b_r {fmt(rec, 1)} → {fmt(new, 1)}; recorded: robot "
+            f"{self.robot or '—'}, human {self.human or '—'}, outcome {self.outcome or '—'}"
+        )
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def decision_config(meta: dict[str, str], params: Path | None) -> NodConfig:
+    """The recording's parameters (its `params_toml`, if it has one), overridden by `params`."""
+    base: dict[str, Any] = {}
+    if meta.get("params_toml"):
+        base = tomllib.loads(meta["params_toml"])
+    over = load_toml(params) if params is not None else {}
+    return from_mapping(NodConfig, _merge(base, over))
+
+
+@dataclass
+class ThroughResult:
+    """What `--through decision` did."""
+
+    trials: list[TrialComparison]
+    poses: int
+    recomputed: int
+    left_out: int
+    messages: int
+
+
+def through_decision(src_path: Path, out_path: Path, params: Path | None) -> ThroughResult:
+    """Re-run the decision model on a recording; write it with the recomputed outputs."""
+    src = McapIn(src_path)
+    meta = src.file_metadata()
+    cfg = decision_config(meta, params)
+    model = DecisionModel(cfg.decision, cfg.layout)
+    out = McapOut(out_path)
+    derived = {**meta, "derived_from": str(src_path), "through": "decision"}
+    if params is not None:
+        derived["through_params_file"] = str(params)
+        derived["through_params_toml"] = Path(params).read_text(encoding="utf-8")
+    out.metadata(FILE_METADATA, derived)
+    seq = dict.fromkeys(DECISION_TOPICS, 0)
+    trials: dict[int, TrialComparison] = {}
+    current: TrialComparison | None = None
+    poses = recomputed = left_out = 0
+    try:
+        for e in src:
+            topic = topic_of(e.key)
+            if topic in DECISION_TOPICS:
+                left_out += 1
+                open_trial = current is not None and not current.closed
+                if e.valid and open_trial and topic != "decision/z_h":
+                    msg = decode_entry(topic, e)
+                    if msg is not None:
+                        z_r, b_r = current.recorded.get(msg.src_seq, (math.nan, math.nan))
+                        current.recorded[msg.src_seq] = (
+                            (msg.value, b_r) if topic == "decision/z_r" else (z_r, msg.value)
+                        )
+                continue
+            out.write(out.copy_channel(e.channel, e.schema), e.message.log_time,
+                      e.message.publish_time, e.message.data, e.message.sequence)
+            if topic is None or not e.valid:
+                continue
+            msg = decode_entry(topic, e)
+            if msg is None:
+                continue
+            if isinstance(msg, m.TrialEvent):
+                try:
+                    model.on_trial(msg.phase, msg.mode, msg.option)
+                except ValueError as exc:  # the decision service refuses such an event too
+                    log.warning("trial event refused: %s", exc)
+                if msg.phase == "setup":
+                    current = trials[msg.trial] = TrialComparison(msg.trial, msg.mode, msg.option)
+                elif msg.phase in ("end", "interrupted") and current is not None:
+                    current.closed = True
+            elif isinstance(msg, m.TrialResult) and msg.trial in trials:
+                t = trials[msg.trial]
+                t.robot, t.human, t.outcome = msg.robot, msg.human, msg.outcome
+            elif isinstance(msg, m.Layout):
+                try:
+                    model.set_layout(m.layout_from_msg(msg))
+                except ValueError as exc:
+                    log.warning("layout refused: %s", exc)
+            elif isinstance(msg, m.HandPose):
+                poses += 1
+                if not model.accepts(msg.t_ns):
+                    continue
+                res = model.on_hand(msg.t_ns, msg.landmarks if msg.detected else None)
+                prefix = e.key[: -len("vision/hand")]
+                obs = res.observation
+                for name, value in (
+                    ("decision/z_r", m.Scalar(seq=seq["decision/z_r"], t_ns=msg.t_ns,
+                                              value=res.z_r, src_seq=msg.seq)),
+                    ("decision/z_h", m.Observed(seq=seq["decision/z_h"], t_ns=msg.t_ns,
+                                                value=res.z_hat, src_seq=msg.seq,
+                                                theta=obs.theta, distance=obs.distance)),
+                    ("decision/b_r", m.Scalar(seq=seq["decision/b_r"], t_ns=msg.t_ns,
+                                              value=res.b_r, src_seq=msg.seq)),
+                ):
+                    seq[name] += 1
+                    out.write(out.channel(prefix + name), e.message.log_time, msg.t_ns,
+                              m.encode(value), value.seq)
+                    recomputed += 1
+                if current is not None and not current.closed:
+                    current.recomputed[msg.seq] = (res.z_r, res.b_r)
+        for name, data in src.metadata:
+            if name == SESSION_METADATA:
+                out.metadata(name, dict(data))
+        out.metadata(END_METADATA, {"messages": str(out.messages), "source_truncated":
+                                    src.truncated or ""})
+    finally:
+        out.finish()
+    return ThroughResult(sorted(trials.values(), key=lambda t: t.trial), poses, recomputed,
+                         left_out, out.messages)
