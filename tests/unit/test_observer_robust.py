@@ -4,14 +4,27 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from services.analysis.observer_eval import evaluate, paths, score
-from services.model.geometry import TableLayout
+from services.analysis.observer_eval import (
+    HAND_RADIUS,
+    HEIGHT,
+    WIDTH,
+    Leg,
+    Path,
+    evaluate,
+    frames,
+    paths,
+    score,
+)
+from services.model.debounce import DebounceParams
+from services.model.geometry import HAND_TEMPLATE, TableLayout
 from services.model.observer import ObserverParams
 from services.model.observer_robust import RobustObserver, make_observer
+from services.model.outcome import OutcomeTracker
 
 LAYOUT = TableLayout()
 ROBUST = ObserverParams()
@@ -108,3 +121,110 @@ def test_every_path_is_scored_both_ways():
     assert len(paths()) == 12 and sum(p.switches for p in paths()) == 2
     s = score(paths()[3], ROBUST, 30.0, 2.0, 0)  # the change of mind
     assert len(s.latencies) == 2 and all(math.isfinite(v) for v in s.latencies)
+
+
+REST = (0.5, 0.85)  # the hand's rest on the participant's edge, midway between the boxes
+
+
+def hand_at(x: float, y: float) -> list[tuple[float, float]]:
+    """The 21 landmarks of a hand whose centre is (x, y)."""
+    return [(float(a), float(b)) for a, b in np.array([x, y]) + HAND_TEMPLATE * HAND_RADIUS]
+
+
+def sign_changes(z_hats: list[float]) -> int:
+    """How often the reading changes side (zeros carry no side)."""
+    sides = [z > 0 for z in z_hats if z != 0]
+    return sum(a != b for a, b in zip(sides, sides[1:], strict=False))
+
+
+# The history gate. At "go" the observer is reset while the hand rests; the tracker's centre
+# wobbles by a pixel or two from frame to frame. With ≥ 0.5·window_s of history a wobble of up
+# to 1.5 px per axis moves the smoothed centre at most (1 − e^(−0.06/0.06))·3 px ≈ 1.9 px per
+# axis, i.e. 0.0049 in normalised units, under min_speed·0.06 s = 0.006: no reading. With a
+# shorter history (the mutant 0.05·window_s) the threshold min_speed·span shrinks with the span
+# and one frame's wobble reads a box before the hand has moved.
+@settings(max_examples=80, deadline=None)
+@example(hz=120.0, wobble=[(-1.5, 1.5), (1.5, -1.5)] + [(0.0, 0.0)] * 58)  # up-right: red
+@example(hz=60.0, wobble=[(1.5, 1.5), (-1.5, -1.5)] + [(0.0, 0.0)] * 58)  # up-left: blue
+@given(
+    hz=st.sampled_from([30.0, 60.0, 120.0, 240.0]),
+    wobble=st.lists(
+        st.tuples(st.floats(-1.5, 1.5), st.floats(-1.5, 1.5)), min_size=60, max_size=60
+    ),
+)
+def test_a_resting_hand_that_wobbles_reads_no_box(hz, wobble):
+    obs = RobustObserver(ROBUST, LAYOUT)
+    out = [
+        obs.update(hand_at(REST[0] + dx / WIDTH, REST[1] + dy / HEIGHT), i / hz)
+        for i, (dx, dy) in enumerate(wobble)
+    ]
+    assert all(o.z_hat == 0.0 and not o.moved for o in out), [o.z_hat for o in out]
+
+
+def test_a_wobble_in_the_first_frames_does_not_count_as_a_switch():
+    # A rest at "go", then a reach to blue; the first two frames wobble 3 px toward red (a
+    # tracker's frame-to-frame error). The outcome must see one direction (blue) and no switch:
+    # a reading taken on two frames of history would start red and then "switch" to blue.
+    hz = 120.0
+    reach = Path("reach to blue", REST, (Leg(None, 0.5), Leg(LAYOUT.blue.center, 1.2, "blue")))
+    wobble = {0: (-1.5, 1.5), 1: (1.5, -1.5)}  # px: left-down, then right-up
+    obs = RobustObserver(ROBUST, LAYOUT)
+    tracker = OutcomeTracker(DebounceParams(), LAYOUT.commit, ROBUST.switch_dead_band)
+    for i, (t, (x, y), _) in enumerate(reach.sample(hz)):
+        dx, dy = wobble.get(i, (0.0, 0.0))
+        o = obs.update(hand_at(x + dx / WIDTH, y + dy / HEIGHT), t)
+        tracker.add(o.z_hat, o.center)
+    result = tracker.result("blue", "blue")
+    assert (result.first_sign, result.switches, result.outcome) == (-1, 0, "C")
+
+
+# The switch margin. Straight up between the boxes their bearings are symmetric: a heading a
+# few degrees either side of the midline points at one box only slightly more directly than at
+# the other. Past the margin (0.15 in cos θ) the reading may move; within it, it must not.
+@settings(max_examples=60, deadline=None)
+@example(hz=60.0, speed=0.5, weave_deg=2.0, period=0.3, phase=0.0)
+@given(
+    hz=st.sampled_from([30.0, 60.0, 120.0]),
+    speed=st.floats(0.3, 0.8),  # units/s up the table
+    weave_deg=st.floats(0.5, 3.0),  # the heading's largest angle from straight up
+    period=st.floats(0.2, 0.5),  # s per weave
+    phase=st.floats(0.0, 2 * math.pi),
+)
+def test_a_reach_weaving_up_the_midline_keeps_its_first_reading(
+    hz, speed, weave_deg, period, phase
+):
+    # x = 0.5 + A·sin(2πt/T + φ) while y rises at `speed`: the heading stays within ±weave_deg
+    # of straight up, so (the boxes' bearings at most 60° from up while a box can be read) the
+    # other box's advantage is at most 2·sin 60°·sin(3° + 0.6°) ≈ 0.11 < switch_margin, the
+    # 0.6° allowing for the hand being up to A off the midline.
+    amp = speed * period * math.tan(math.radians(weave_deg)) / (2 * math.pi)
+    obs = RobustObserver(ROBUST, LAYOUT)
+    z_hats = []
+    for i in range(int((REST[1] - 0.3) / speed * hz) + 1):
+        t = i / hz
+        x = 0.5 + amp * (math.sin(2 * math.pi * t / period + phase) - math.sin(phase))
+        z_hats.append(obs.update(hand_at(x, REST[1] - speed * t), t).z_hat)
+    assert any(z != 0 for z in z_hats)  # the reach was read...
+    assert sign_changes(z_hats) == 0  # ...and kept its side
+
+
+def test_an_undecided_reach_up_the_middle_does_not_chatter():
+    # A minimum-jerk reach straight up between the boxes (the realistic paths' 1.2 s), with 1-2
+    # px of tracker jitter: the outcome counts no switch and the reading keeps its side. Without
+    # the margin this path switches about three times per reach.
+    undecided = Path("up the middle", REST, (Leg(None, 0.5), Leg((0.5, 0.3), 1.2), Leg(None, 0.3)))
+    changes = switches = 0
+    for hz in (30.0, 60.0, 120.0):
+        for jitter in (1.0, 2.0):
+            for seed in range(5):
+                obs = RobustObserver(ROBUST, LAYOUT)
+                tracker = OutcomeTracker(DebounceParams(), LAYOUT.commit, ROBUST.switch_dead_band)
+                z_hats = []
+                for t, landmarks, _ in frames(undecided, hz, jitter, np.random.default_rng(seed)):
+                    z = obs.update(landmarks, t).z_hat
+                    tracker.add(z, None)
+                    z_hats.append(z)
+                assert any(z != 0 for z in z_hats)
+                changes += sign_changes(z_hats)
+                switches += tracker.switches
+    assert (changes, switches) == (0, 0)
