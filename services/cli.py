@@ -11,6 +11,7 @@ import importlib
 import os
 import sys
 
+from services.core.cli import one_line
 from services.core.lifeline import die_with_parent
 
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -71,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # the last line of defence: one line, not a traceback
         if os.environ.get("NOD_TRACEBACK"):
             raise
-        text = " ".join(str(exc).split())[:300]
+        text = one_line(str(exc))
         hint = "(NOD_TRACEBACK=1 shows where)"
         print(f"nod {name}: {type(exc).__name__}: {text} {hint}", file=sys.stderr)
         return 1

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import zenoh
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys, check_rig
@@ -170,8 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     problem = _check_args(args) or _preflight(args)
     if problem:
-        print(f"nod run: {problem}", file=sys.stderr)
-        return 2
+        return fail("nod run", f"{problem}")
     logs = args.logs or args.db.with_suffix(".logs")
     # A simulated device is a new device every run: its e-stop latch lives in a folder of this
     # run (still surviving the restarts of its service within the run). A real arm or real eyes
@@ -185,8 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         router = open_session(make_config(mode="router", listen=[args.listen]))
     except ConnectionError as exc:
-        print(f"nod run: cannot listen on {args.listen}: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod run", f"cannot listen on {args.listen}: {exc}")
     n_trials = len(load_params(args.params).protocol.trials)
     view = SessionView(n_trials, compact=args.participants > 1)
     keys = Keys(args.rig)

@@ -26,7 +26,6 @@ import argparse
 import dataclasses
 import json
 import math
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -35,7 +34,7 @@ from typing import Any
 from services.actuation.arm_path import POSE_NAMES, ArmPoses, Pose, pose_distance
 from services.actuation.feetech import RESOLUTION, FeetechBus, Series
 from services.actuation.feetech_arm import FeetechArmConfig
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.config import ConfigError, from_mapping, load_toml
 from services.core.serial_link import LinkError, SerialLink
 
@@ -336,9 +335,7 @@ def main(argv: list[str] | None = None) -> int:
             args.port, args.out, base, verify=args.verify, verify_timeout_s=args.verify_timeout
         )
     except EOFError:
-        print("nod actuation calibrate: the input ended; nothing written", file=sys.stderr)
-        return 2
+        return fail("nod actuation calibrate", "the input ended; nothing written")
     except (ConfigError, ValueError, LinkError, CalibrationAbortedError) as exc:
-        print(f"nod actuation calibrate: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
+        return fail("nod actuation calibrate", exc)
     return 0

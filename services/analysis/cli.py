@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from services.core.cli import Parser, finite_float, positive_float
+from services.core.cli import Parser, fail, finite_float, positive_float
 from services.model.dynamics import PairParams
 
 PROG = "nod analyze"
@@ -525,8 +525,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _COMMANDS[args.command](args)
     except (UsageError, ConfigError, ValueError) as exc:
-        print(f"{PROG} {args.command}: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
+        return fail(f"{PROG} {args.command}", f"error: {exc}")
 
 
 if __name__ == "__main__":

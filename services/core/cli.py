@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
+import sys
 from pathlib import Path
 from typing import NoReturn
 
@@ -14,6 +16,21 @@ class Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         """Print `prog: error: message` on one line and exit 2."""
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
+def one_line(text: str, limit: int | None = 300) -> str:
+    """An error for one line of stderr: whitespace folded, zenoh's Rust locations gone, cut short.
+
+    `limit` characters at most (None: the whole text).
+    """
+    text = re.sub(r"\s*\bat \S+\.rs:\d+\.?", "", " ".join(text.split()))
+    return text if limit is None or len(text) <= limit else text[:limit] + "…"
+
+
+def fail(prog: str, message: object) -> int:
+    """Say what is wrong in one line on stderr, `prog: message`; return 2, a bad input's code."""
+    print(f"{prog}: {one_line(str(message), limit=None)}", file=sys.stderr)
+    return 2
 
 
 def finite_float(text: str) -> float:

@@ -14,6 +14,14 @@ from services.core.contract import TOPICS
 
 _RIG_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
+def topic_of(key: str) -> str | None:
+    """The contract topic of a full key of any rig (`nod/<rig>/<topic>`), or None."""
+    parts = key.split("/", 2)
+    if len(parts) == 3 and parts[0] == "nod" and parts[2] in TOPICS:
+        return parts[2]
+    return None
+
+
 def check_rig(rig: str) -> str:
     """Validate a rig name (it becomes one key chunk): letters, digits, '-' and '_'."""
     if not _RIG_RE.match(rig):

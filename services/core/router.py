@@ -6,11 +6,10 @@ package. Every service (`--mode client --connect <this endpoint>`) and any Zenoh
 
 from __future__ import annotations
 
-import sys
 import threading
 from pathlib import Path
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.node import install_signal_handlers
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
 
@@ -32,8 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         session = open_session(make_config(mode="router", listen=listen, config_file=args.config))
     except (ConnectionError, OSError) as exc:
-        print(f"nod router: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod router", exc)
     stop = threading.Event()
     install_signal_handlers(stop)
     print(f"nod router: listening on {', '.join(listen or ['(from config)'])}", flush=True)

@@ -11,10 +11,9 @@ import argparse
 import json
 import logging
 import math
-import sys
 
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args
+from services.core.cli import Parser, add_service_args, fail
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -103,8 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = load_params(args.params)
         node = Node("decision", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
-        print(f"nod decision: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod decision", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("decision")))
     DecisionService(node, DecisionModel(cfg.decision, cfg.layout), cfg.safety.skew_ms)
     node.run()

@@ -30,7 +30,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.store import Store
 from services.store.records import unpack_landmarks
 
@@ -124,18 +124,15 @@ def main(argv: list[str] | None = None) -> int:
     """Run `nod export`; returns the exit code (2 for bad input)."""
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     if not args.db.is_file():
-        print(f"{PROG}: error: no such database: {args.db}", file=sys.stderr)
-        return 2
+        return fail(PROG, f"error: no such database: {args.db}")
     try:
         store = Store(args.db)
     except (sqlite3.Error, OSError) as exc:
-        print(f"{PROG}: error: cannot open {args.db}: {exc}", file=sys.stderr)
-        return 2
+        return fail(PROG, f"error: cannot open {args.db}: {exc}")
     try:
         counts = export(store.db, args.out)
     except OSError as exc:
-        print(f"{PROG}: error: cannot write to {args.out}: {exc}", file=sys.stderr)
-        return 2
+        return fail(PROG, f"error: cannot write to {args.out}: {exc}")
     finally:
         store.close()
     for name, n in counts.items():

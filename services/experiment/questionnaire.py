@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.store import QuestionnaireRecord, Store
 
 PROG = "nod questionnaire"
@@ -238,11 +238,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _error(message: str) -> int:
-    print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)
-    return 2
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run `nod questionnaire`; returns the exit code (2 for bad input, 1 when aborted)."""
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
@@ -251,17 +246,17 @@ def main(argv: list[str] | None = None) -> int:
             with args.import_csv.open(newline="", encoding="utf-8-sig") as fh:
                 records = read_csv(fh, str(args.import_csv))
         except OSError as exc:
-            return _error(f"cannot read {args.import_csv}: {exc.strerror or exc}")
+            return fail(PROG, f"error: cannot read {args.import_csv}: {exc.strerror or exc}")
         except UnicodeDecodeError:
-            return _error(f"{args.import_csv}: not UTF-8 text; save the CSV as UTF-8")
+            return fail(PROG, f"error: {args.import_csv}: not UTF-8 text; save the CSV as UTF-8")
         except CsvError as exc:
-            return _error(f"{exc}; nothing stored")
+            return fail(PROG, f"error: {exc}; nothing stored")
         source = f"csv:{args.import_csv.name}"
     else:
         try:
             participant = parse_participant(args.participant)
         except ValueError as exc:
-            return _error(f"--participant: {exc}")
+            return fail(PROG, f"error: --participant: {exc}")
         try:
             record = prompt_answers(participant, sys.stdin.readline, sys.stdout.write)
         except (InputEndedError, KeyboardInterrupt) as exc:
@@ -273,12 +268,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         store = Store(args.db)
     except (sqlite3.Error, OSError) as exc:
-        return _error(f"cannot open {args.db}: {exc}")
+        return fail(PROG, f"error: cannot open {args.db}: {exc}")
     try:
         known = {s["participant"] for s in store.sessions()}
         store.write_questionnaires(records, time.time_ns(), source, args.replace)
     except ValueError as exc:
-        return _error(f"{exc}; nothing stored")
+        return fail(PROG, f"error: {exc}; nothing stored")
     finally:
         store.close()
     unknown = sorted(r.participant for r in records if r.participant not in known)

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.store import Store
 
 
@@ -24,8 +23,7 @@ def main(argv: list[str] | None = None) -> int:
     """Print one session's trials."""
     args = build_parser().parse_args(argv)
     if not args.db.is_file():
-        print(f"nod report: no such database: {args.db}", file=sys.stderr)
-        return 2
+        return fail("nod report", f"no such database: {args.db}")
     store = Store(args.db)
     try:
         trials = store.trials(args.session)
@@ -35,8 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         store.close()
     if args.session is not None and not trials:
-        print(f"nod report: no trials for session {args.session!r}", file=sys.stderr)
-        return 2
+        return fail("nod report", f"no trials for session {args.session!r}")
     rows = [
         {
             "session": session,

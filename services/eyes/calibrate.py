@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.config import ConfigError
 from services.eyes.bench import (
     BenchError,
@@ -327,14 +327,12 @@ def main(argv: list[str] | None = None) -> int:
         set_values = parse_set(args.set_spec) if args.set_spec is not None else None
         driver = open_driver(args)
     except (ValueError, BenchError) as exc:
-        print(f"{PROG}: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
+        return fail(PROG, exc)
     with sigterm_as_interrupt():
         try:
             trims = calibrate(driver, args.out, set_values, args.step)
         except (ValueError, CalibrationAbortedError) as exc:
-            print(f"{PROG}: {' '.join(str(exc).split())}", file=sys.stderr)
-            return 2
+            return fail(PROG, exc)
         except BenchError as exc:
             print(f"{PROG}: {exc}; nothing written", file=sys.stderr)
             return 1

@@ -20,7 +20,7 @@ import logging
 import sys
 import time
 
-from services.core.cli import Parser, finite_float
+from services.core.cli import Parser, fail, finite_float
 from services.eyes.bench import (
     BenchError,
     add_bench_args,
@@ -115,8 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         gaze = GazeCommand(args.yaw, args.pitch)
         driver = open_driver(args)
     except (ValueError, BenchError) as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
+        return fail(PROG, exc)
     with sigterm_as_interrupt():
         try:
             return point(driver, gaze, args.hold)

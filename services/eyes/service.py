@@ -16,7 +16,7 @@ import math
 import sys
 
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args
+from services.core.cli import Parser, add_service_args, fail
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -163,15 +163,13 @@ def main(argv: list[str] | None = None) -> int:
         latch_file.check_writable()  # eyes whose e-stop cannot survive a restart do not start
         node = Node("eyes", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
-        print(f"nod eyes: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod eyes", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("eyes", "safety")))
     try:
         driver.connect()
     except (ValueError, OSError, ConnectionError) as exc:
         node.close()
-        print(f"nod eyes: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod eyes", exc)
     if args.trims is not None:
         servos = driver.calibration.servos()
         trims = {s: c.trim_deg for s, c in zip(SERVO_NAMES, servos, strict=True)}

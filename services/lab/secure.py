@@ -40,7 +40,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.keys import check_rig
 from services.core.rigfile import WILDCARD_HOSTS, RigFileError, load_rig, split_endpoint
 from services.core.session import MAX_MESSAGE_BYTES
@@ -303,19 +303,16 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 2
     if not 1 <= args.days <= 3650:
-        print("nod lab secure: --days must be 1-3650", file=sys.stderr)
-        return 2
+        return fail("nod lab secure", "--days must be 1-3650")
     try:
         rig, host, port, listen = where(args)
     except ValueError as exc:
-        print(f"nod lab secure: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod lab secure", exc)
     install = (args.install_dir or args.out).absolute()
     try:
         written = secure(args.out, names, rig, host, port, args.days, install, listen)
     except OSError as exc:
-        print(f"nod lab secure: cannot write to {args.out}: {exc.strerror}", file=sys.stderr)
-        return 2
+        return fail("nod lab secure", f"cannot write to {args.out}: {exc.strerror}")
     print(f"wrote {len(written)} files to {args.out}/ (rig {rig!r}; hosts connect to "
           f"tls/{host}:{port}; the router listens on {listen}):")
     if split_endpoint(listen)[1] in WILDCARD_HOSTS:

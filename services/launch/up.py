@@ -28,7 +28,7 @@ import threading
 import time
 from pathlib import Path
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys
@@ -110,25 +110,21 @@ def main(argv: list[str] | None = None) -> int:
         load_params(rig.params)  # a bad params file is one line here, not five dead services
     except (RigFileError, ValueError, OSError) as exc:
         where = "" if rig is None or str(rig.params) in str(exc) else f"{rig.params}: "
-        print(f"nod up: {where}{exc}", file=sys.stderr)
-        return 2
+        return fail("nod up", f"{where}{exc}")
     if args.listen and rig.tls is not None:
         # It would start a plain router while the services speak TLS to the one of rig.tls.
-        print(f"nod up: --listen runs a plain router, but {rig.path} has rig.tls: the secured "
-              "router listens where `nod lab secure --rig-file` put it", file=sys.stderr)
-        return 2
+        return fail("nod up", f"--listen runs a plain router, but {rig.path} has rig.tls: the "
+                    "secured router listens where `nod lab secure --rig-file` put it")
     endpoint = args.listen or rig.router
     if args.exec_service == "router":
         if not with_router:
-            print("nod up: the router runs on the host with `router = true`", file=sys.stderr)
-            return 2
+            return fail("nod up", "the router runs on the host with `router = true`")
         cmd = router_command(rig, endpoint if args.listen else None)
         os.execv(cmd[0], cmd)
     if args.exec_service is not None:
         if args.exec_service not in services:
             here = ", ".join(services)
-            print(f"nod up: {args.exec_service!r} does not run here ({here})", file=sys.stderr)
-            return 2
+            return fail("nod up", f"{args.exec_service!r} does not run here ({here})")
         cmd = command(rig, args.exec_service, sim_hardware=args.sim_hardware, connect=endpoint)
         os.execv(cmd[0], cmd)
     commands = {
@@ -142,8 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         logs.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        print(f"nod up: cannot write logs to {logs}: {exc.strerror}", file=sys.stderr)
-        return 2
+        return fail("nod up", f"cannot write logs to {logs}: {exc.strerror}")
     router = None
     try:
         tls = rig.tls
@@ -161,11 +156,9 @@ def main(argv: list[str] | None = None) -> int:
         session = router = open_session(cfg)
     except (ConnectionError, ValueError) as exc:
         what = "listen on" if with_router else "reach the router at"
-        print(f"nod up: cannot {what} {endpoint}: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod up", f"cannot {what} {endpoint}: {exc}")
     except Exception as exc:  # zenoh.ZError: a malformed endpoint
-        print(f"nod up: bad endpoint {endpoint!r}: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod up", f"bad endpoint {endpoint!r}: {exc}")
     keys = Keys(rig.name)
     events = RigEvents(session, keys, Clock())
     events.quiet_starts = False  # an operator starting a rig wants to see each service come up

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import threading
 import time
 import uuid
@@ -29,7 +28,7 @@ import rerun as rr
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.contract import TOPICS
 from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
@@ -224,15 +223,13 @@ def main(argv: list[str] | None = None) -> int:
         inbox = Inbox(events=args.event_queue, hand=args.hand_queue)
         session = open_session(Fabric.from_args(args).zenoh_config())
     except (ValueError, OSError, ConnectionError) as exc:
-        print(f"nod monitor: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod monitor", exc)
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
     try:
         sinks = open_sinks(rec, args)
     except (RuntimeError, OSError, ValueError) as exc:  # no viewer binary, port taken, bad path
         session.close()
-        print(f"nod monitor: cannot open the Rerun sink: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod monitor", f"cannot open the Rerun sink: {exc}")
     for line in sinks.lines:
         print(f"nod monitor: {line}", flush=True)
     rec.send_recording_name(f"nod {keys.rig}")

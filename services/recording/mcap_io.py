@@ -36,6 +36,7 @@ from mcap.writer import CompressionType, Writer
 
 from services.core import messages as m
 from services.core.contract import TOPICS
+from services.core.keys import topic_of
 
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "msgpack"
@@ -63,14 +64,6 @@ _FOXGLOVE_IMAGE_SCHEMA = {
         "format": {"type": "string"},
     },
 }
-
-
-def topic_of(key: str) -> str | None:
-    """The contract topic of a full key of any rig (`nod/<rig>/<topic>`), or None."""
-    parts = key.split("/", 2)
-    if len(parts) == 3 and parts[0] == "nod" and parts[2] in TOPICS:
-        return parts[2]
-    return None
 
 
 def rig_of(key: str) -> str | None:

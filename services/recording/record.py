@@ -23,9 +23,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import re
 import socket
-import sys
 import threading
 import time
 from collections import Counter
@@ -34,10 +32,10 @@ from pathlib import Path
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser, add_params_arg, positive_float
+from services.core.cli import Parser, add_params_arg, fail, one_line, positive_float
 from services.core.config import load_params
 from services.core.contract import TOPICS
-from services.core.keys import Keys
+from services.core.keys import Keys, topic_of
 from services.core.node import install_signal_handlers, package_version, setup_logging
 from services.core.session import Fabric, add_zenoh_args, open_session
 from services.core.tap import QUEUE_MAX, Tap
@@ -46,7 +44,6 @@ from services.recording.mcap_io import (
     FILE_METADATA,
     SESSION_METADATA,
     McapOut,
-    topic_of,
 )
 
 PROG = "nod record"
@@ -163,12 +160,6 @@ def key_exprs(only: list[str] | None, rig: str) -> list[str]:
     return exprs
 
 
-def one_line(text: str, limit: int = 300) -> str:
-    """An error for one line of stderr: whitespace folded, zenoh's Rust source locations gone."""
-    text = re.sub(r"\s*\bat \S+\.rs:\d+\.?", "", " ".join(text.split()))
-    return text if len(text) <= limit else text[:limit] + "…"
-
-
 def _meta_item(text: str) -> str:
     if "=" not in text or not text.partition("=")[0]:
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
@@ -227,16 +218,14 @@ def main(argv: list[str] | None = None) -> int:
         fabric = Fabric.from_args(args)
         session = open_session(fabric.zenoh_config())
     except (ValueError, OSError, ConnectionError, zenoh.ZError) as exc:
-        print(f"{PROG}: {one_line(str(exc))}", file=sys.stderr)
-        return 2
+        return fail(PROG, one_line(str(exc)))
     try:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         out = McapOut(args.out, chunk_bytes=int(args.chunk_kb * 1024),
                       compression=args.compression)
     except OSError as exc:
         session.close()
-        print(f"{PROG}: cannot write {args.out}: {exc}", file=sys.stderr)
-        return 2
+        return fail(PROG, f"cannot write {args.out}: {exc}")
     try:
         return _record(args, session, out, exprs, meta)
     finally:

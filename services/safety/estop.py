@@ -16,7 +16,7 @@ import threading
 import time
 import uuid
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.node import Node
 from services.core.session import Fabric, add_zenoh_args
 
@@ -72,16 +72,13 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     expected = tuple(d for d in args.devices.split(",") if d)
     if not expected or any(d not in DEVICES for d in expected):
-        print(f"nod estop: --devices must name some of {', '.join(DEVICES)}", file=sys.stderr)
-        return 2
+        return fail("nod estop", f"--devices must name some of {', '.join(DEVICES)}")
     if not 0 < args.timeout <= 60:
-        print(f"nod estop: --timeout must be in (0, 60] s, got {args.timeout}", file=sys.stderr)
-        return 2
+        return fail("nod estop", f"--timeout must be in (0, 60] s, got {args.timeout}")
     try:
         node = Node("estop", Fabric.from_args(args))
     except (ConnectionError, OSError, ValueError) as exc:
-        print(f"nod estop: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod estop", exc)
     engaged = not args.release
     source = f"{getpass.getuser()}@{socket.gethostname()}"
     acks = Acks(uuid.uuid4().hex[:16], engaged, time.monotonic())

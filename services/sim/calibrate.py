@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -25,7 +24,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.stats import qmc
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.config import load_params
 from services.model.closed_loop import run_offline_session
 from services.model.outcome import OUTCOMES
@@ -220,14 +219,12 @@ def main(argv: list[str] | None = None) -> int:
     """Fit, print the per-trial fit, write the traits."""
     args = build_parser().parse_args(argv)
     if not (2 <= args.participants <= 10_000 and 1 <= args.starts <= 1000):
-        print("nod calibrate-cohort: --participants 2-10000, --starts 1-1000", file=sys.stderr)
-        return 2
+        return fail("nod calibrate-cohort", "--participants 2-10000, --starts 1-1000")
     try:
         cfg = load_params(args.params)
         target = load_target(args.target)
     except (ValueError, OSError) as exc:
-        print(f"nod calibrate-cohort: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod calibrate-cohort", exc)
     if args.evaluate:
         got = evaluate(cfg, args.participants, args.seed, args.workers)
         print(f"{args.participants} participants (seeds {args.seed}.."

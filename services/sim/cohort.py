@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.config import load_params
 from services.model.closed_loop import OfflineTrial, run_offline_session
 from services.model.params import NodConfig
@@ -137,14 +136,12 @@ def main(argv: list[str] | None = None) -> int:
     """Run `nod cohort`."""
     args = build_parser().parse_args(argv)
     if not 1 <= args.participants <= 100_000 or not 1 <= args.workers <= 256:
-        print("nod cohort: --participants must be 1-100000, --workers 1-256", file=sys.stderr)
-        return 2
+        return fail("nod cohort", "--participants must be 1-100000, --workers 1-256")
     try:
         cfg = load_params(args.params)
         Store(args.db).close()
     except (ValueError, OSError, StoreError) as exc:
-        print(f"nod cohort: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod cohort", exc)
     stored, seconds = run_cohort(
         args.participants, args.seed, args.db, cfg, args.workers,
         record=not args.no_samples, show=not args.quiet,

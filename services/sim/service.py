@@ -13,12 +13,11 @@ import argparse
 import json
 import logging
 import math
-import sys
 
 import numpy as np
 
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args
+from services.core.cli import Parser, add_service_args, fail
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -174,8 +173,7 @@ def main(argv: list[str] | None = None) -> int:
         stands_in = () if args.render else ("vision",)
         node = Node("sim", Fabric.from_args(args), stands_in_for=stands_in, retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
-        print(f"nod sim: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod sim", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("participant")))
     SimService(node, cfg, args.seed, args.rate, args.cohort, render=args.render)
     node.run()

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -25,11 +24,12 @@ from typing import Any
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.node import install_signal_handlers
 from services.core.rigfile import MONITOR, REQUIRED, RigFileError, identity, load_rig
 from services.core.session import add_zenoh_args
-from services.tools.topic import Rate, Tap, ToolError, connect, decode
+from services.core.tap import Tap
+from services.tools.observe import Rate, ToolError, connect, decode
 
 PROG = "nod status"
 CLOCK_WARN_MS = 20.0
@@ -220,15 +220,13 @@ def main(argv: list[str] | None = None) -> int:
     """Listen, report; exit 1 if a required service is down."""
     args = build_parser().parse_args(argv)
     if not 0.5 <= args.duration <= 600:
-        print(f"{PROG}: --duration must be in [0.5, 600] s", file=sys.stderr)
-        return 2
+        return fail(PROG, "--duration must be in [0.5, 600] s")
     required: tuple[str, ...] = REQUIRED
     if args.rig_file is not None:
         try:
             rig = load_rig(args.rig_file)
         except RigFileError as exc:
-            print(f"{PROG}: {exc}", file=sys.stderr)
-            return 2
+            return fail(PROG, exc)
         args.rig = rig.name
         if not (args.connect or args.config) and rig.tls is not None:
             args.config = identity(rig, MONITOR)  # read-only: a status never drives the rig
@@ -239,8 +237,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         session = connect(args)
     except ToolError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
+        return fail(PROG, exc)
     stop = threading.Event()
     install_signal_handlers(stop)
     try:

@@ -27,14 +27,13 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import logging
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from services.core.cli import Parser
+from services.core.cli import Parser, fail
 from services.core.config import ConfigError, from_mapping, load_toml
 from services.model.geometry import Box, CommitLine, TableLayout
 
@@ -291,8 +290,7 @@ def main(argv: list[str] | None = None) -> int:
             thresholds=_thresholds(args.min_saturation, args.min_value),
         )
     except (CalibrationError, OSError, RuntimeError) as exc:
-        print(f"nod vision calibrate: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod vision calibrate", exc)
     size = f" ({frame.shape[1]}x{frame.shape[0]})" if frame is not None else ""
     stamp = dt.datetime.now().isoformat(timespec="seconds")
     note = f"written {stamp} from {origin or 'numbers'}{size}: {how}"

@@ -32,7 +32,7 @@ import cv2
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser, add_params_arg
+from services.core.cli import Parser, add_params_arg, fail
 from services.core.clock import add_clock_args
 from services.core.config import ConfigError, load_params
 from services.core.contract import check_publisher
@@ -354,10 +354,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         node = node or Node("vision", fabric, retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
-        print(f"nod vision: {exc}", file=sys.stderr)
         capture.close()
         tracker.close()
-        return 2
+        return fail("nod vision", exc)
     service = VisionService(
         node, capture, tracker, layout, frames_hz=args.frames_key_hz, frame_width=args.frame_width
     )

@@ -27,7 +27,8 @@ from mcap.stream_reader import StreamReader
 
 from services.core import messages as m
 from services.core.contract import TOPICS
-from services.recording.mcap_io import McapIn, topic_of
+from services.core.keys import topic_of
+from services.recording.mcap_io import McapIn
 from services.store import Store
 from tests.processes import run_nod
 

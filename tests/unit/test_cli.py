@@ -20,3 +20,13 @@ def test_every_command_answers_help(name, capsys):
 def test_unknown_command_is_exit_2(capsys):
     assert main(["no-such-command"]) == 2
     assert "unknown command" in capsys.readouterr().err
+
+
+def test_a_failure_is_one_line_on_stderr_and_exit_2(capsys):
+    from services.core.cli import fail, one_line
+
+    err = ValueError("no router at\n  tcp/127.0.0.1:7447 at io/zenoh-link/src/lib.rs:42.")
+    assert fail("nod x", err) == 2
+    assert capsys.readouterr().err == "nod x: no router at tcp/127.0.0.1:7447\n"
+    assert one_line("a " * 400) == ("a " * 150)[:300] + "…"
+    assert fail("nod x", "b" * 400) == 2 and capsys.readouterr().err == f"nod x: {'b' * 400}\n"

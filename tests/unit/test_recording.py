@@ -14,8 +14,9 @@ from mcap.reader import make_reader
 
 from services.core import messages as m
 from services.core.contract import TOPICS
+from services.core.keys import topic_of
 from services.model.decision import DecisionModel
-from services.recording.mcap_io import FILE_METADATA, McapIn, McapOut, topic_of
+from services.recording.mcap_io import FILE_METADATA, McapIn, McapOut
 from services.recording.record import Recorder
 from services.recording.selection import input_topics, select_topics
 from services.recording.through import through_decision
