@@ -20,196 +20,24 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
-import re
 import sys
 import threading
 import time
-from collections import deque
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import msgspec
-import zenoh
 
 from services.core import messages as m
 from services.core.cli import Parser, positive_float
-from services.core.contract import TOPICS
-from services.core.keys import check_rig
 from services.core.node import clip, install_signal_handlers
-from services.core.session import Fabric, add_zenoh_args, open_session
-from services.core.tap import POLL_S, QUEUE_MAX, Arrival, Tap  # noqa: F401 (re-exported)
+from services.core.session import add_zenoh_args
+from services.core.tap import Tap
+from services.tools.observe import Rate, ToolError, connect, decode, print_line, resolve
+from services.tools.topic_list import run_list
 
 PROG = "nod topic"
 REPORT_S = 1.0  # `hz` prints once per second
-
-
-class ToolError(Exception):
-    """Bad input or an unreachable rig: one line on stderr, exit 2."""
-
-
-# --- keys ---------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Target:
-    """What a KEY argument names: the key expression to subscribe to and the topics it covers."""
-
-    expr: str  # e.g. nod/rig1/vision/hand, nod/rig1/safety/*
-    topics: tuple[str, ...]  # the contract topics it matches
-
-    @property
-    def is_pattern(self) -> bool:
-        """True if the expression has wildcards (it may match several keys)."""
-        return "*" in self.expr or "$" in self.expr
-
-
-def resolve(key: str, rig: str) -> Target:
-    """The key expression of a KEY argument (full, or relative to `rig`); ToolError if unknown."""
-    text = key.strip().strip("/")
-    if text == "nod" or text.startswith("nod/"):
-        parts = text.split("/", 2)
-        if len(parts) < 3 or not parts[2]:
-            raise ToolError(f"key {key!r} names no topic: give nod/<rig>/<topic> or a topic, "
-                            "e.g. vision/hand")
-        _, rig, name = parts
-        if rig != "*":
-            try:
-                check_rig(rig)
-            except ValueError as exc:
-                raise ToolError(str(exc)) from None
-    else:
-        name = text
-    if not name:
-        raise ToolError("empty key: give a topic, e.g. vision/hand")
-    if "*" in name or "$" in name:
-        try:
-            pattern = zenoh.KeyExpr(name)
-        except zenoh.ZError as exc:
-            raise ToolError(f"{key!r} is not a key expression: {clean(str(exc))}") from None
-        topics = tuple(t for t in TOPICS if pattern.intersects(zenoh.KeyExpr(t)))
-    else:
-        topics = (name,) if name in TOPICS else ()
-    if not topics:
-        raise ToolError(
-            f"unknown key {key!r}: the contract's keys (nod/<rig>/...) are {', '.join(TOPICS)}"
-        )
-    return Target(f"nod/{rig}/{name}", topics)
-
-
-def topic_of(key: str) -> str | None:
-    """The contract topic of a full key of any rig (`nod/<rig>/<topic>`), or None."""
-    parts = key.split("/", 2)
-    if len(parts) == 3 and parts[0] == "nod" and parts[2] in TOPICS:
-        return parts[2]
-    return None
-
-
-def decode(key: str, payload: bytes) -> m.Message:
-    """The message on a full key, strictly validated; MessageError says why not."""
-    topic = topic_of(key)
-    if topic is None:
-        raise m.MessageError("not a key of the contract: no decoder")
-    return m.decode(TOPICS[topic].message, payload)
-
-
-def clean(text: str) -> str:
-    """One short line of a zenoh error: the message itself, without the Rust source locations."""
-    inner = re.search(r'msg: "(.*?)"', text)  # a config error wraps its text in Json5Err(...)
-    if inner:
-        text = inner.group(1)
-    text = re.sub(r"\s*\bat \S+\.rs:\d+\.?", "", text)
-    return clip(text, 300)
-
-
-# --- rates --------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Stats:
-    """The arrival rate of some messages and the spread of the intervals between them."""
-
-    count: int  # messages
-    rate_hz: float
-    min_s: float
-    max_s: float
-    std_s: float
-
-    def describe(self) -> str:
-        """`50.0 Hz  min 19.6 ms  max 20.4 ms  std 0.21 ms`."""
-        return (
-            f"{self.rate_hz:.1f} Hz  min {_ms(self.min_s)}  max {_ms(self.max_s)}  "
-            f"std {_ms(self.std_s)}"
-        )
-
-    def as_json(self) -> dict[str, Any]:
-        """The statistics as a JSON object."""
-        return {
-            "count": self.count,
-            "rate_hz": round(self.rate_hz, 3),
-            "min_ms": round(self.min_s * 1e3, 3),
-            "max_ms": round(self.max_s * 1e3, 3),
-            "std_ms": round(self.std_s * 1e3, 3),
-        }
-
-
-def _ms(seconds: float) -> str:
-    ms = seconds * 1e3
-    return f"{ms:.1f} ms" if ms >= 10 else f"{ms:.2f} ms"
-
-
-def interval_stats(times: Iterable[float]) -> Stats | None:
-    """Statistics of arrival times (ascending); None with fewer than two."""
-    times = list(times)
-    if len(times) < 2 or times[-1] <= times[0]:
-        return None
-    gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
-    mean = (times[-1] - times[0]) / len(gaps)
-    std = math.sqrt(sum((g - mean) ** 2 for g in gaps) / len(gaps))
-    return Stats(len(times), 1.0 / mean, min(gaps), max(gaps), std)
-
-
-class Rate:
-    """Arrivals of one key: the last `window` arrival times, and running totals of every one."""
-
-    def __init__(self, window: int = 100) -> None:
-        self.recent: deque[float] = deque(maxlen=max(2, window))
-        self.count = 0
-        self.first: float | None = None
-        self.last: float | None = None
-        self._gaps = 0
-        self._mean = 0.0  # Welford's running mean and sum of squares of the intervals
-        self._m2 = 0.0
-        self._min = math.inf
-        self._max = 0.0
-
-    def add(self, t: float) -> None:
-        """Record an arrival at monotonic time `t`."""
-        if self.last is None:
-            self.first = t
-        else:
-            gap = max(0.0, t - self.last)
-            self._gaps += 1
-            delta = gap - self._mean
-            self._mean += delta / self._gaps
-            self._m2 += delta * (gap - self._mean)
-            self._min = min(self._min, gap)
-            self._max = max(self._max, gap)
-        self.last = t
-        self.count += 1
-        self.recent.append(t)
-
-    def window(self) -> Stats | None:
-        """Statistics of the last `window` arrivals."""
-        return interval_stats(self.recent)
-
-    def total(self) -> Stats | None:
-        """Statistics of every arrival so far."""
-        if self._gaps == 0 or self._mean <= 0:
-            return None
-        std = math.sqrt(self._m2 / self._gaps)
-        return Stats(self.count, 1.0 / self._mean, self._min, self._max, std)
 
 
 # --- the command line ---------------------------------------------------------------------------
@@ -307,167 +135,6 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
-def connect(args: argparse.Namespace) -> zenoh.Session:
-    """The session the flags describe; ToolError (one line) if it cannot open."""
-    try:
-        fabric = Fabric.from_args(args)
-        return open_session(fabric.zenoh_config())
-    except zenoh.ZError as exc:  # the configuration itself (open_session turns the rest into
-        # ConnectionError): a malformed endpoint, a config file zenoh refuses
-        raise ToolError(f"bad zenoh session flags: {clean(str(exc))}") from None
-    except (ConnectionError, OSError, ValueError) as exc:
-        raise ToolError(clean(str(exc))) from None
-
-
-def _out(line: str) -> None:
-    print(line, flush=True)
-
-
-# --- list ---------------------------------------------------------------------------------------
-
-
-@dataclass(slots=True)
-class Seen:
-    """What `list` saw on one key."""
-
-    rate: Rate
-    invalid: int = 0
-    size: int = 0
-
-
-def run_list(args: argparse.Namespace) -> int:
-    """`nod topic list`."""
-    rig = args.rig
-    session = connect(args)
-    stop = threading.Event()
-    install_signal_handlers(stop)
-    seen: dict[str, Seen] = {}
-    alive: dict[str, bool] = {}
-    alive_prefix = f"nod/{rig}/alive/"
-
-    def on_alive(sample: zenoh.Sample) -> None:
-        alive[str(sample.key_expr)[len(alive_prefix):]] = sample.kind == zenoh.SampleKind.PUT
-
-    t0 = time.monotonic()
-    deadline = t0 + args.duration
-    try:
-        tap = Tap(session, f"nod/{rig}/**")
-        watch = session.liveliness().declare_subscriber(
-            f"{alive_prefix}*", on_alive, history=True
-        )
-        try:
-            while not stop.is_set() and time.monotonic() < deadline:
-                item = tap.next(deadline)
-                if item is None:
-                    continue
-                entry = seen.get(item.key)
-                if entry is None:
-                    entry = seen[item.key] = Seen(Rate())
-                entry.rate.add(item.t)
-                entry.size += len(item.payload)
-                try:
-                    decode(item.key, item.payload)
-                except m.MessageError:
-                    entry.invalid += 1
-        finally:
-            tap.close()
-            watch.undeclare()
-    finally:
-        session.close()
-    elapsed = min(time.monotonic(), deadline) - t0
-    report = list_report(rig, elapsed, seen, sorted(s for s, up in alive.items() if up))
-    report["dropped"] = tap.dropped
-    if args.json:
-        _out(json.dumps(report, ensure_ascii=False))
-    else:
-        for line in list_lines(report):
-            _out(line)
-    return 0
-
-
-def list_report(
-    rig: str, elapsed: float, seen: dict[str, Seen], alive: list[str]
-) -> dict[str, Any]:
-    """The JSON form of `list`: every contract key (seen or silent) and every other key seen."""
-    rows: list[dict[str, Any]] = []
-    for name, spec in TOPICS.items():
-        key = f"nod/{rig}/{name}"
-        if spec.queried_only and key not in seen:  # answers queries; nothing to hear on it
-            continue
-        rows.append(_row(key, name, seen.get(key), elapsed) | {
-            "message": spec.message.__name__,
-            "publishers": list(spec.publishers),
-            "subscribers": list(spec.subscribers),
-            "declared_rate": spec.rate,
-            "qos": spec.qos.describe(),
-        })
-    known = {row["key"] for row in rows}
-    for key in sorted(set(seen) - known):
-        rows.append(_row(key, None, seen[key], elapsed))
-    return {"rig": rig, "duration_s": round(elapsed, 3), "keys": rows, "alive": alive}
-
-
-def _row(key: str, topic: str | None, entry: Seen | None, elapsed: float) -> dict[str, Any]:
-    count = entry.rate.count if entry else 0
-    stats = entry.rate.total() if entry else None
-    rate = stats.rate_hz if stats else (count / elapsed if count and elapsed > 0 else None)
-    return {
-        "key": key,
-        "topic": topic,
-        "in_contract": topic is not None,
-        "seen": count > 0,
-        "count": count,
-        "rate_hz": None if rate is None else round(rate, 3),
-        "invalid": entry.invalid if entry else 0,
-        "bytes": entry.size if entry else 0,
-    }
-
-
-def list_lines(report: dict[str, Any]) -> list[str]:
-    """The text form of `list`: a table of the keys seen, then the silent ones, then who is up."""
-    rows = report["keys"]
-    seen = [r for r in rows if r["seen"]]
-    silent = [r for r in rows if not r["seen"]]
-    header = ("KEY", "MSGS", "RATE", "MESSAGE", "PUBLISHERS", "DECLARED RATE")
-
-    def cells(r: dict[str, Any]) -> tuple[str, ...]:
-        rate = "-" if r["rate_hz"] is None else f"{r['rate_hz']:.1f} Hz"
-        if r["invalid"]:
-            rate += f" ({r['invalid']} invalid)"
-        if not r["in_contract"]:
-            return (r["key"], str(r["count"]), rate, "(not in the contract)", "", "")
-        who = r["publishers"]
-        if len(who) > 3:  # e.g. a heartbeat every service sends
-            who = [*who[:2], f"... (+{len(who) - 2})"]
-        return (r["key"], str(r["count"]), rate, r["message"], ", ".join(who), r["declared_rate"])
-
-    table = [header] + [cells(r) for r in seen + silent]
-    widths = [max(len(row[i]) for row in table) for i in range(len(header))]
-
-    def fmt(row: tuple[str, ...]) -> str:
-        right = {1, 2}  # counts and rates align right
-        out = [
-            c.rjust(w) if i in right else c.ljust(w)
-            for i, (c, w) in enumerate(zip(row, widths, strict=True))
-        ]
-        return "  ".join(out).rstrip()
-
-    lines = [
-        f"rig {report['rig']!r}: listened {report['duration_s']:.1f} s on nod/{report['rig']}/**; "
-        f"{len(seen)} key(s) seen, {len(silent)} silent",
-        fmt(header),
-    ]
-    lines += [fmt(cells(r)) for r in seen]
-    if silent:
-        lines.append(f"silent (in the contract, nothing in {report['duration_s']:.1f} s):")
-        lines += [fmt(cells(r)) for r in silent]
-    alive = report["alive"]
-    lines.append(f"alive: {', '.join(alive)}" if alive else "alive: no liveliness token seen")
-    if report.get("dropped"):
-        lines.append(f"({report['dropped']} samples dropped: the tool fell behind)")
-    return lines
-
-
 # --- echo ---------------------------------------------------------------------------------------
 
 
@@ -492,9 +159,9 @@ def run_echo(args: argparse.Namespace) -> int:
                     msg = decode(item.key, item.payload)
                 except m.MessageError as exc:
                     invalid += 1
-                    _out(invalid_line(item.key, item.payload, str(exc), args.json))
+                    print_line(invalid_line(item.key, item.payload, str(exc), args.json))
                     continue
-                _out(json_line(item.key, msg) if args.json else text_line(item.key, msg))
+                print_line(json_line(item.key, msg) if args.json else text_line(item.key, msg))
                 shown += 1
         finally:
             tap.close()
@@ -580,7 +247,7 @@ def run_hz(args: argparse.Namespace) -> int:
                 if deadline is not None and now >= deadline:
                     break
                 if now >= next_report:
-                    _out(hz_line(rate, reported))
+                    print_line(hz_line(rate, reported))
                     reported = rate.count
                     next_report = max(next_report + REPORT_S, now)
                 until = next_report if deadline is None else min(next_report, deadline)
@@ -597,7 +264,7 @@ def run_hz(args: argparse.Namespace) -> int:
     finally:
         session.close()
     elapsed = time.monotonic() - t0 if deadline is None else min(time.monotonic(), deadline) - t0
-    _out(hz_summary(target.expr, rate, elapsed, invalid, tap.dropped))
+    print_line(hz_summary(target.expr, rate, elapsed, invalid, tap.dropped))
     if rate.count == 0:
         print(f"{PROG} hz: nothing arrived on {target.expr} in {elapsed:.1f} s", file=sys.stderr)
         return 1

@@ -15,8 +15,8 @@ from serial.tools.list_ports_common import ListPortInfo
 
 from services.core import messages as m
 from services.core.contract import TOPICS
-from services.tools import ports, topic
-from services.tools.topic import Rate, ToolError, interval_stats, resolve
+from services.tools import observe, ports, topic, topic_list
+from services.tools.observe import Rate, ToolError, interval_stats, resolve
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -25,7 +25,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 
 
 def test_a_key_is_full_or_relative_to_the_rig():
-    assert resolve("vision/hand", "rig1") == topic.Target("nod/rig1/vision/hand", ("vision/hand",))
+    expected = observe.Target("nod/rig1/vision/hand", ("vision/hand",))
+    assert resolve("vision/hand", "rig1") == expected
     assert resolve("/vision/hand/", "rig7").expr == "nod/rig7/vision/hand"
     full = resolve("nod/rig2/safety/estop", "rig1")  # a full key names its own rig
     assert full.expr == "nod/rig2/safety/estop" and not full.is_pattern
@@ -34,7 +35,8 @@ def test_a_key_is_full_or_relative_to_the_rig():
 def test_wildcards_cover_the_contract_topics_they_match():
     target = resolve("safety/*", "rig1")
     assert target.is_pattern and target.topics == ("safety/estop", "safety/release")
-    assert resolve("**", "rig1").topics == tuple(TOPICS)
+    heard = tuple(t for t, spec in TOPICS.items() if not spec.queried_only)
+    assert resolve("**", "rig1").topics == heard  # the queried-only latch carries no samples
     assert resolve("nod/*/vision/hand", "rig1").expr == "nod/*/vision/hand"
 
 
@@ -56,11 +58,11 @@ def test_a_bad_key_is_a_tool_error(key, why):
 
 def test_decode_uses_the_contract_type_of_the_key():
     pose = m.HandPose(seq=4, t_ns=5, detected=False)
-    assert topic.decode("nod/any/vision/hand", m.encode(pose)) == pose
+    assert observe.decode("nod/any/vision/hand", m.encode(pose)) == pose
     with pytest.raises(m.MessageError, match="hand: not valid msgpack"):
-        topic.decode("nod/rig1/vision/hand", b"\xc1")
+        observe.decode("nod/rig1/vision/hand", b"\xc1")
     with pytest.raises(m.MessageError, match="not a key of the contract"):
-        topic.decode("nod/rig1/lab/extra", m.encode(pose))
+        observe.decode("nod/rig1/lab/extra", m.encode(pose))
 
 
 def test_zenoh_errors_lose_their_rust_source_locations():
@@ -68,8 +70,8 @@ def test_zenoh_errors_lose_their_rust_source_locations():
         'Json5Err(Message { msg: "Endpoints must be of the form <protocol>/<address>: x at '
         '/root/.cargo/git/zenoh/endpoint.rs:615.", location: None }) at /root/x/config.rs:86.'
     )
-    assert topic.clean(text) == "Endpoints must be of the form <protocol>/<address>: x"
-    assert topic.clean("Unable to connect!  at /a/b/orchestrator.rs:447.") == "Unable to connect!"
+    assert observe.clean(text) == "Endpoints must be of the form <protocol>/<address>: x"
+    assert observe.clean("Unable to connect!  at /a/b/orchestrator.rs:447.") == "Unable to connect!"
 
 
 # --- rates --------------------------------------------------------------------------------------
@@ -134,13 +136,13 @@ def test_an_invalid_payload_is_one_line():
 
 
 def test_list_text_names_seen_silent_and_unknown_keys():
-    seen = {"nod/r/vision/hand": topic.Seen(Rate()), "nod/r/lab/x": topic.Seen(Rate())}
+    seen = {"nod/r/vision/hand": topic_list.Seen(Rate()), "nod/r/lab/x": topic_list.Seen(Rate())}
     for t in (0.0, 0.5, 1.0):
         seen["nod/r/vision/hand"].rate.add(t)
     seen["nod/r/lab/x"].rate.add(0.0)
     seen["nod/r/lab/x"].invalid = 1
-    report = topic.list_report("r", 2.0, seen, ["sim"])
-    lines = topic.list_lines(report)
+    report = topic_list.list_report("r", 2.0, seen, ["sim"])
+    lines = topic_list.list_lines(report)
     text = "\n".join(lines)
     hand = next(line for line in lines if line.startswith("nod/r/vision/hand"))
     assert " 3 " in hand and "2.0 Hz" in hand and "HandPose" in hand and "vision, sim" in hand

@@ -1,0 +1,211 @@
+"""What the rig tools share: their session, a rig's keys, strict decoding, arrival rates.
+
+`nod topic` and `nod status` open the session their flags describe, resolve keys against the
+contract, decode what arrives with the contract's strict decoders and measure arrival rates.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from services.core import messages as m
+from services.core.contract import TOPICS
+from services.core.keys import check_rig
+from services.core.node import clip
+from services.core.session import Fabric, open_session
+
+
+class ToolError(Exception):
+    """Bad input or an unreachable rig: one line on stderr, exit 2."""
+
+
+# --- keys ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Target:
+    """What a KEY argument names: the key expression to subscribe to and the topics it covers."""
+
+    expr: str  # e.g. nod/rig1/vision/hand, nod/rig1/safety/*
+    topics: tuple[str, ...]  # the contract topics it matches
+
+    @property
+    def is_pattern(self) -> bool:
+        """True if the expression has wildcards (it may match several keys)."""
+        return "*" in self.expr or "$" in self.expr
+
+
+def resolve(key: str, rig: str) -> Target:
+    """The key expression of a KEY argument (full, or relative to `rig`); ToolError if unknown."""
+    text = key.strip().strip("/")
+    if text == "nod" or text.startswith("nod/"):
+        parts = text.split("/", 2)
+        if len(parts) < 3 or not parts[2]:
+            raise ToolError(f"key {key!r} names no topic: give nod/<rig>/<topic> or a topic, "
+                            "e.g. vision/hand")
+        _, rig, name = parts
+        if rig != "*":
+            try:
+                check_rig(rig)
+            except ValueError as exc:
+                raise ToolError(str(exc)) from None
+    else:
+        name = text
+    if not name:
+        raise ToolError("empty key: give a topic, e.g. vision/hand")
+    if "*" in name or "$" in name:
+        try:
+            pattern = zenoh.KeyExpr(name)
+        except zenoh.ZError as exc:
+            raise ToolError(f"{key!r} is not a key expression: {clean(str(exc))}") from None
+        # A key only ever queried (the e-stop latch) carries no samples to listen to.
+        topics = tuple(
+            t for t, spec in TOPICS.items()
+            if not spec.queried_only and pattern.intersects(zenoh.KeyExpr(t))
+        )
+    else:
+        topics = (name,) if name in TOPICS else ()
+    if not topics:
+        raise ToolError(
+            f"unknown key {key!r}: the contract's keys (nod/<rig>/...) are {', '.join(TOPICS)}"
+        )
+    return Target(f"nod/{rig}/{name}", topics)
+
+
+def topic_of(key: str) -> str | None:
+    """The contract topic of a full key of any rig (`nod/<rig>/<topic>`), or None."""
+    parts = key.split("/", 2)
+    if len(parts) == 3 and parts[0] == "nod" and parts[2] in TOPICS:
+        return parts[2]
+    return None
+
+
+def decode(key: str, payload: bytes) -> m.Message:
+    """The message on a full key, strictly validated; MessageError says why not."""
+    topic = topic_of(key)
+    if topic is None:
+        raise m.MessageError("not a key of the contract: no decoder")
+    return m.decode(TOPICS[topic].message, payload)
+
+
+def clean(text: str) -> str:
+    """One short line of a zenoh error: the message itself, without the Rust source locations."""
+    inner = re.search(r'msg: "(.*?)"', text)  # a config error wraps its text in Json5Err(...)
+    if inner:
+        text = inner.group(1)
+    text = re.sub(r"\s*\bat \S+\.rs:\d+\.?", "", text)
+    return clip(text, 300)
+
+
+# --- rates --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Stats:
+    """The arrival rate of some messages and the spread of the intervals between them."""
+
+    count: int  # messages
+    rate_hz: float
+    min_s: float
+    max_s: float
+    std_s: float
+
+    def describe(self) -> str:
+        """`50.0 Hz  min 19.6 ms  max 20.4 ms  std 0.21 ms`."""
+        return (
+            f"{self.rate_hz:.1f} Hz  min {_ms(self.min_s)}  max {_ms(self.max_s)}  "
+            f"std {_ms(self.std_s)}"
+        )
+
+    def as_json(self) -> dict[str, Any]:
+        """The statistics as a JSON object."""
+        return {
+            "count": self.count,
+            "rate_hz": round(self.rate_hz, 3),
+            "min_ms": round(self.min_s * 1e3, 3),
+            "max_ms": round(self.max_s * 1e3, 3),
+            "std_ms": round(self.std_s * 1e3, 3),
+        }
+
+
+def _ms(seconds: float) -> str:
+    ms = seconds * 1e3
+    return f"{ms:.1f} ms" if ms >= 10 else f"{ms:.2f} ms"
+
+
+def interval_stats(times: Iterable[float]) -> Stats | None:
+    """Statistics of arrival times (ascending); None with fewer than two."""
+    times = list(times)
+    if len(times) < 2 or times[-1] <= times[0]:
+        return None
+    gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
+    mean = (times[-1] - times[0]) / len(gaps)
+    std = math.sqrt(sum((g - mean) ** 2 for g in gaps) / len(gaps))
+    return Stats(len(times), 1.0 / mean, min(gaps), max(gaps), std)
+
+
+class Rate:
+    """Arrivals of one key: the last `window` arrival times, and running totals of every one."""
+
+    def __init__(self, window: int = 100) -> None:
+        self.recent: deque[float] = deque(maxlen=max(2, window))
+        self.count = 0
+        self.first: float | None = None
+        self.last: float | None = None
+        self._gaps = 0
+        self._mean = 0.0  # Welford's running mean and sum of squares of the intervals
+        self._m2 = 0.0
+        self._min = math.inf
+        self._max = 0.0
+
+    def add(self, t: float) -> None:
+        """Record an arrival at monotonic time `t`."""
+        if self.last is None:
+            self.first = t
+        else:
+            gap = max(0.0, t - self.last)
+            self._gaps += 1
+            delta = gap - self._mean
+            self._mean += delta / self._gaps
+            self._m2 += delta * (gap - self._mean)
+            self._min = min(self._min, gap)
+            self._max = max(self._max, gap)
+        self.last = t
+        self.count += 1
+        self.recent.append(t)
+
+    def window(self) -> Stats | None:
+        """Statistics of the last `window` arrivals."""
+        return interval_stats(self.recent)
+
+    def total(self) -> Stats | None:
+        """Statistics of every arrival so far."""
+        if self._gaps == 0 or self._mean <= 0:
+            return None
+        std = math.sqrt(self._m2 / self._gaps)
+        return Stats(self.count, 1.0 / self._mean, self._min, self._max, std)
+
+
+def connect(args: argparse.Namespace) -> zenoh.Session:
+    """The session the flags describe; ToolError (one line) if it cannot open."""
+    try:
+        fabric = Fabric.from_args(args)
+        return open_session(fabric.zenoh_config())
+    except zenoh.ZError as exc:  # the configuration itself (open_session turns the rest into
+        # ConnectionError): a malformed endpoint, a config file zenoh refuses
+        raise ToolError(f"bad zenoh session flags: {clean(str(exc))}") from None
+    except (ConnectionError, OSError, ValueError) as exc:
+        raise ToolError(clean(str(exc))) from None
+
+
+def print_line(line: str) -> None:
+    """One line of a tool's output, flushed at once (it is read live, often through a pipe)."""
+    print(line, flush=True)
