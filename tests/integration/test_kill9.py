@@ -95,6 +95,7 @@ def test_kill9_of_an_input_service_safe_stops_arm_and_eyes_within_the_bound(
     eyes = Collector(client, KEYS.topic("eyes/state"), m.EyesStateMsg)
     rng = random.Random(7)
     delays: dict[str, list[float]] = {"arm": [], "eyes": []}
+    victims: list[str] = []
     try:
         for run in range(20):
             wait_for(
@@ -103,9 +104,10 @@ def test_kill9_of_an_input_service_safe_stops_arm_and_eyes_within_the_bound(
                 30,
                 f"a safe-to-run rig before kill {run}",
             )
-            time.sleep(rng.uniform(0.1, 0.6))
+            time.sleep(rng.uniform(0.1, 0.6))  # a random point of the run to kill at
             victim = rng.choice(("decision", "sim"))
             t_kill = rig.kill9(victim)
+            victims.append(victim)
             for device, states in (("arm", arm), ("eyes", eyes)):
                 wait_for(
                     lambda s=states, t=t_kill: _first_safe_stop_after(s, t) is not None,
@@ -114,6 +116,9 @@ def test_kill9_of_an_input_service_safe_stops_arm_and_eyes_within_the_bound(
                 )
                 delays[device].append(_first_safe_stop_after(states, t_kill) - t_kill)
             rig.start(victim)  # what the launcher's supervision does
+        # Every kill was checked on both devices, and each input service was killed.
+        assert len(victims) == 20 and set(victims) == {"decision", "sim"}, victims
+        assert {d: len(v) for d, v in delays.items()} == {"arm": 20, "eyes": 20}, delays
         for device, values in delays.items():
             values.sort()
             print(f"\n{device}: safe stop after kill -9 in {[round(v * 1e3) for v in values]} ms")
