@@ -21,12 +21,11 @@ import zenoh
 from services.core import messages as m
 from services.core.clock import Clock
 from services.core.contract import TOPICS
-from services.core.keys import Keys
+from services.core.keys import Keys, topic_of
 from services.core.node import declare_publisher
 from services.recording.mcap_io import (
     Entry,
     McapIn,
-    topic_of,
 )
 from services.recording.selection import (
     ANCHOR_PHASES,

@@ -17,11 +17,11 @@ import zenoh
 
 from services.core import messages as m
 from services.core.contract import TOPICS
+from services.core.keys import topic_of
 from services.recording.mcap_io import (
     Entry,
     McapIn,
     rig_of,
-    topic_of,
 )
 
 PROG = "nod replay"

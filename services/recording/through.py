@@ -16,6 +16,7 @@ from typing import Any
 
 from services.core import messages as m
 from services.core.config import from_mapping, load_toml
+from services.core.keys import topic_of
 from services.model.decision import DecisionModel
 from services.model.params import NodConfig
 from services.recording.mcap_io import (
@@ -24,7 +25,6 @@ from services.recording.mcap_io import (
     SESSION_METADATA,
     McapIn,
     McapOut,
-    topic_of,
 )
 from services.recording.selection import decode_entry
 

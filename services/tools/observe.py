@@ -18,7 +18,7 @@ import zenoh
 
 from services.core import messages as m
 from services.core.contract import TOPICS
-from services.core.keys import check_rig
+from services.core.keys import check_rig, topic_of
 from services.core.node import clip
 from services.core.session import Fabric, open_session
 
@@ -78,14 +78,6 @@ def resolve(key: str, rig: str) -> Target:
             f"unknown key {key!r}: the contract's keys (nod/<rig>/...) are {', '.join(TOPICS)}"
         )
     return Target(f"nod/{rig}/{name}", topics)
-
-
-def topic_of(key: str) -> str | None:
-    """The contract topic of a full key of any rig (`nod/<rig>/<topic>`), or None."""
-    parts = key.split("/", 2)
-    if len(parts) == 3 and parts[0] == "nod" and parts[2] in TOPICS:
-        return parts[2]
-    return None
 
 
 def decode(key: str, payload: bytes) -> m.Message:
