@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -25,13 +24,10 @@ from services.core.keys import Keys
 from services.core.session import make_config, open_session
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)  # the tests' helpers
+from tests.processes import free_port  # noqa: E402
+
 KEYS = Keys("bench")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def pose(seq: int, i: int) -> bytes:

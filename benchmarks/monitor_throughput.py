@@ -17,7 +17,6 @@ import json
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -31,6 +30,7 @@ from services.core import messages as m  # noqa: E402
 from services.core.keys import Keys  # noqa: E402
 from services.core.session import make_config, open_session  # noqa: E402
 from services.monitor.bridge import rrd_rows  # noqa: E402
+from tests.processes import free_port  # noqa: E402
 
 
 def rss_mb(pid: int) -> float:
@@ -51,9 +51,7 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--extra", nargs=argparse.REMAINDER, default=[], help="more monitor flags")
     args = ap.parse_args()
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     tmp = Path(tempfile.mkdtemp(prefix="monbench-"))
     rrd = tmp / "bench.rrd"
     router = open_session(make_config(mode="router", listen=[endpoint]))

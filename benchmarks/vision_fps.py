@@ -24,7 +24,6 @@ import argparse
 import importlib.util
 import math
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -41,13 +40,10 @@ from services.scene.render import SceneRenderer, demo_path
 from services.vision.trackers import TrackerOptions, make_tracker
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)  # the tests' helpers
+from tests.processes import free_port  # noqa: E402
+
 GOAL_FPS = 60.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def decode_fps(video: Path) -> float:

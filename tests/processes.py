@@ -1,8 +1,9 @@
-"""The tests' one way to run `nod …` and to stop the processes they started."""
+"""The tests' one way to run `nod …`, to stop the processes they started and to pick a port."""
 
 from __future__ import annotations
 
 import signal
+import socket
 import subprocess
 import sys
 from collections.abc import Iterable
@@ -35,3 +36,10 @@ def stop_all(procs: Iterable[subprocess.Popen]) -> None:
             proc.wait(10)
         except subprocess.TimeoutExpired:
             proc.kill()
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on right now on 127.0.0.1 (the OS picks it)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]

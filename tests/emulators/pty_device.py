@@ -14,22 +14,12 @@ import os
 import select
 import tempfile
 import threading
-import time
 import tty
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 
-
-def eventually(check: Callable[[], bool], timeout_s: float = 5.0, every_s: float = 0.01) -> bool:
-    """Call `check` until it returns true; a generous bound, as the machine may be loaded."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        if check():
-            return True
-        if time.monotonic() >= deadline:
-            return False
-        time.sleep(every_s)
+from tests.polling import eventually
 
 
 class PtyDevice:
@@ -119,14 +109,12 @@ class PtyDevice:
 
     def wait_until(self, predicate: Callable[[], bool], timeout_s: float = 5.0) -> bool:
         """Poll `predicate` until true (write-only commands have no reply to wait for)."""
-        deadline = time.monotonic() + timeout_s
-        while True:
+
+        def locked() -> bool:
             with self._lock:
-                if predicate():
-                    return True
-            if time.monotonic() >= deadline:
-                return False
-            time.sleep(0.002)
+                return predicate()
+
+        return bool(eventually(locked, timeout_s, every_s=0.002))
 
     def take_received(self) -> bytes:
         """Return and clear the bytes received so far."""

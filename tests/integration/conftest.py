@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -13,7 +12,8 @@ import pytest
 
 from services.core import messages as m
 from services.core.session import make_config, open_session
-from tests.processes import stop_all
+from tests.polling import wait_for as wait_for  # the integration tests import it from here
+from tests.processes import free_port, stop_all
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 # A three-trial protocol (one control trial, two consensus ones): whole sessions in seconds.
@@ -32,13 +32,6 @@ mode = "consensus"
 option = "blue"
 gaze_level = "significant"
 """
-
-
-def free_port() -> int:
-    """A TCP port nobody listens on right now (the OS picks it)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture
@@ -103,13 +96,3 @@ class Collector:
     @property
     def messages(self) -> list[m.Message]:
         return [msg for _, msg in self.items]
-
-
-def wait_for(predicate: Callable[[], bool], timeout: float, what: str) -> None:
-    """Poll until predicate() holds; fail the test with `what` after timeout seconds."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.01)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")

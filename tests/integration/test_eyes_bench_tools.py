@@ -8,7 +8,7 @@ import pytest
 
 from services.eyes.trims import load_trims
 from tests.emulators.maestro_emulator import MaestroEmulator
-from tests.emulators.pty_device import eventually
+from tests.polling import eventually
 from tests.processes import run_nod
 
 pytestmark = pytest.mark.integration

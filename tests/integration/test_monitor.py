@@ -14,7 +14,7 @@ from services.core import messages as m
 from services.core.keys import Keys
 from services.monitor.bridge import rrd_rows
 
-from .conftest import wait_for
+from .conftest import free_port, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -118,15 +118,9 @@ def test_monitor_records_a_stream_and_closes_the_rrd_on_sigterm(client, spawn, t
     assert reader.store() is not None  # the footer was written: a clean close
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_monitor_serving_the_web_viewer_prints_urls_that_open_it(client, spawn):
     keys = Keys("rig1")
-    web, grpc = _free_port(), _free_port()
+    web, grpc = free_port(), free_port()
     proc = spawn("monitor", "--serve-web", "--web-port", str(web), "--grpc-port", str(grpc))
     wait_for(lambda: _alive(client, keys, "monitor") or proc.poll() is not None, 15, "monitor")
     assert proc.poll() is None, proc.log_path.read_text()

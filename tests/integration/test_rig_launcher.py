@@ -20,12 +20,13 @@ from services.core.session import make_config, open_session
 from services.store import Store
 from tests.processes import run_nod
 
-from .conftest import ROOT, free_port
+from .conftest import ROOT, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 
 
 nod = partial(run_nod, timeout=60)
+wait_for = partial(wait_for, every_s=0.2)  # the checks run `nod status` or read files
 
 
 def processes_mentioning(text: str) -> list[int]:
@@ -45,16 +46,6 @@ def processes_mentioning(text: str) -> list[int]:
 def status(endpoint: str, rig: str) -> tuple[int, dict]:
     res = nod("status", "--connect", endpoint, "--rig", rig, "--json", "--duration", "1.5")
     return res.returncode, (json.loads(res.stdout) if res.stdout.strip() else {})
-
-
-def wait_for(check, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = check()
-        if value:
-            return value
-        time.sleep(0.2)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 @pytest.fixture

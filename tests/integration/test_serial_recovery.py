@@ -22,7 +22,7 @@ from tests.emulators.arduino_emulator import ArduinoEyesEmulator
 from tests.emulators.feetech_emulator import FeetechBusEmulator
 from tests.emulators.links import LINK
 from tests.emulators.maestro_emulator import MaestroEmulator
-from tests.emulators.pty_device import eventually
+from tests.polling import eventually
 
 # An unplugged port fails at once (EIO / ENOENT), whatever the reply timeout: keep that generous
 # so a loaded machine cannot fail the healthy parts; reopen quickly.

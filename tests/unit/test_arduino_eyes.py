@@ -19,7 +19,7 @@ from services.model.gaze import GAZE_LEVELS, GazeCommand
 from services.model.servos import EyesCalibration, ServoCalibration, servo_targets
 from tests.emulators.arduino_emulator import ArduinoEyesEmulator, crc8_smbus
 from tests.emulators.links import FAST, LINK
-from tests.emulators.pty_device import eventually
+from tests.polling import eventually
 
 
 @pytest.fixture

@@ -32,7 +32,7 @@ from services.model.servos import EyesCalibration, ServoCalibration, servo_targe
 from tests.emulators.arduino_emulator import ArduinoEyesEmulator, crc8_smbus
 from tests.emulators.links import LINK
 from tests.emulators.maestro_emulator import SET_TARGET, MaestroEmulator
-from tests.emulators.pty_device import eventually
+from tests.polling import eventually
 from tests.processes import run_nod
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -25,7 +25,7 @@ from services.model.behaviour import ArmCommand
 from services.model.geometry import TableLayout
 from tests.emulators.feetech_emulator import IDS, POSES, FeetechBusEmulator
 from tests.emulators.links import FAST, LINK
-from tests.emulators.pty_device import eventually
+from tests.polling import eventually
 
 ROOT = Path(__file__).resolve().parents[2]
 CFG = FeetechArmConfig(

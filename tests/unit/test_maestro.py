@@ -21,7 +21,7 @@ from services.model.gaze import GAZE_LEVELS, GazeCommand, attention_gesture
 from services.model.servos import EyesCalibration, ServoCalibration, ServoTargets, servo_targets
 from tests.emulators.links import FAST, LINK
 from tests.emulators.maestro_emulator import ERR_PROTOCOL, MaestroEmulator
-from tests.emulators.pty_device import eventually
+from tests.polling import eventually
 
 
 @pytest.fixture
