@@ -23,6 +23,7 @@ import threading
 import time
 import uuid
 from pathlib import Path
+from typing import Any
 
 import zenoh
 
@@ -31,7 +32,9 @@ from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys, check_rig
 from services.core.lifeline import nod_command
+from services.core.rigfile import Host, Rig
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
+from services.launch.commands import command
 from services.launch.events import RigEvents
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
 from services.launch.view import SessionView
@@ -107,61 +110,52 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list[str]:
-    """The command line of one child service."""
-    cmd = nod_command(
-        service,
-        "--connect",
-        args.listen,
-        "--rig",
-        args.rig,
-        "--speed",
-        repr(args.speed),
-        "--epoch-ns",
-        str(epoch_ns),
+def sim_rig(args: argparse.Namespace) -> Rig:
+    """The rig `nod run` runs: every service on this machine, as an in-memory rig file says it.
+
+    What is run-specific (the participant's sim and conductor flags) rides in each service's
+    `args`, as a rig file's `args` would; everything else is the rig file's vocabulary.
+    """
+    services = (*SERVICES, "vision", "experiment")
+    sections: dict[str, dict[str, Any]] = {
+        "vision": {"source": "zenoh:sim/camera", "tracker": "aruco"},
+        "sim": {"seed": args.seed, "args": [
+            *(["--render"] if args.render else []),
+            *(["--cohort"] if getattr(args, "cohort", False) else []),
+        ]},
+    }
+    for service, prefix in (("actuation", "arm"), ("eyes", "eyes")):
+        sec: dict[str, Any] = {"driver": getattr(args, f"{prefix}_driver")}
+        for key, value in (
+            ("port", getattr(args, f"{prefix}_port")),
+            ("config", getattr(args, f"{prefix}_config")),
+            ("stale_ms", args.stale_ms),
+            ("state_dir", getattr(args, "state_dir", None)),
+            ("trims", getattr(args, "eyes_trims", None) if service == "eyes" else None),
+        ):
+            if value is not None:
+                sec[key] = value
+        sections[service] = sec
+    conductor = ["--db", str(args.db), "--participant", args.participant, "--seed",
+                 str(args.seed), "--clicks", args.clicks]
+    if getattr(args, "session", None):
+        conductor += ["--session", args.session]
+    if getattr(args, "record", None) is not None:
+        conductor += ["--record", str(args.record)]
+    sections["experiment"] = {"args": conductor}
+    return Rig(
+        path=Path("nod run --sim"),
+        name=args.rig,
+        router=args.listen,
+        hosts={"here": Host("here", services, router=True)},
+        params=args.params,
+        sections=sections,
     )
-    if args.params is not None:
-        cmd += ["--params", str(args.params)]
-    if args.verbose:
-        cmd.append("-v")
-    if service in ("actuation", "eyes") and args.stale_ms is not None:
-        cmd += ["--stale-ms", repr(args.stale_ms)]
-    for svc, prefix in (("actuation", "arm"), ("eyes", "eyes")):
-        if service == svc:
-            cmd += ["--driver", getattr(args, f"{prefix}_driver")]
-            if getattr(args, f"{prefix}_port"):
-                cmd += ["--port", getattr(args, f"{prefix}_port")]
-            if getattr(args, f"{prefix}_config"):
-                cmd += [f"--{prefix}-config", str(getattr(args, f"{prefix}_config"))]
-    state_dir = getattr(args, "state_dir", None)
-    if service in ("actuation", "eyes") and state_dir is not None:
-        cmd += ["--state-dir", str(state_dir)]
-    if service == "eyes" and getattr(args, "eyes_trims", None):
-        cmd += ["--trims", str(args.eyes_trims)]
-    if service == "vision":
-        cmd += ["--source", "zenoh:sim/camera", "--tracker", "aruco"]
-    if service == "sim":
-        cmd += ["--seed", str(args.seed)]
-        if args.render:
-            cmd.append("--render")
-        if getattr(args, "cohort", False):
-            cmd.append("--cohort")
-    if service == "experiment":
-        cmd += [
-            "--db",
-            str(args.db),
-            "--participant",
-            args.participant,
-            "--seed",
-            str(args.seed),
-            "--clicks",
-            args.clicks,
-        ]
-        if getattr(args, "session", None):
-            cmd += ["--session", args.session]
-        if getattr(args, "record", None) is not None:
-            cmd += ["--record", str(args.record)]
-    return cmd
+
+
+def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list[str]:
+    """The command line of one child service (the launchers' one builder)."""
+    return command(sim_rig(args), service, clock=(args.speed, epoch_ns), verbose=args.verbose)
 
 
 def main(argv: list[str] | None = None) -> int:

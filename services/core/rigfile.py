@@ -17,14 +17,14 @@
     [vision]   source = "0"; tracker = "aruco"; calibration = "table.toml"
     [actuation] driver = "feetech"; port = "/dev/ttyUSB0"; config = "arm.toml"
     [eyes]     driver = "maestro"; port = "/dev/ttyACM0"; config = "eyes.toml"
+               # state_dir = "/var/lib/nod/state": the e-stop latch (default $NOD_STATE_DIR)
     [monitor]  args = ["--serve-web"]
 
 Relative paths are relative to the rig file. `load_rig` validates everything that can be
 checked without touching a device (unknown keys, a service on two hosts or none, one router,
 drivers, endpoints, the safety bound and the seed the services will be given) and raises
-`RigFileError` with one line naming the file and the key. `command(rig, service)` is the
-command line that starts a service: `nod up` runs it under supervision, a systemd unit runs it
-through `nod up --exec` with systemd as the supervisor.
+`RigFileError` with one line naming the file and the key. The command line that starts a
+service from it is `services.launch.commands.command(rig, service)`.
 
 With `rig.tls`, every process speaks with its identity from `nod lab secure`
 (`services.lab.acl`): a service with its host's role (`<tls>/<role>/`), the monitor with the
@@ -41,7 +41,6 @@ from pathlib import Path
 from typing import Any
 
 from services.core.keys import check_rig
-from services.core.lifeline import nod_command
 from services.model.safety import SafetyParams
 
 # Services a rig file may place on a host. The conductor (`nod experiment`) is not one: the
@@ -124,8 +123,8 @@ _RIG_KEYS = {"name", "router", "params", "tls"}
 _HOST_KEYS = {"services", "router", "role", "address"}
 _SECTION_KEYS: dict[str, set[str]] = {
     "decision": {"args"},
-    "actuation": {"driver", "port", "config", "stale_ms", "args"},
-    "eyes": {"driver", "port", "config", "trims", "stale_ms", "args"},
+    "actuation": {"driver", "port", "config", "stale_ms", "state_dir", "args"},
+    "eyes": {"driver", "port", "config", "trims", "stale_ms", "state_dir", "args"},
     "vision": {"source", "tracker", "calibration", "args"},
     "sim": {"seed", "args"},
     "monitor": {"args"},
@@ -233,6 +232,7 @@ def load_rig(path: str | Path) -> Rig:
             raise fail(f"{service}.{key}", f"{value!r} is not one of {', '.join(allowed)}")
     for service, key in (
         ("actuation", "config"), ("eyes", "config"), ("eyes", "trims"), ("vision", "calibration"),
+        ("actuation", "state_dir"), ("eyes", "state_dir"),
     ):
         if key in sections[service]:
             sections[service][key] = file(sections[service][key], f"{service}.{key}")
@@ -284,48 +284,3 @@ def identity(rig: Rig, process: str, host: Host | None = None) -> Path:
     if process == LAUNCHER:
         return rig.tls / role / LAUNCHER / "zenoh.json5"
     return rig.tls / role / "zenoh.json5"
-
-
-def session_flags(
-    rig: Rig, host: Host, connect: str | None = None, service: str = ""
-) -> list[str]:
-    """The session flags of `service` on `host`: its rig and how it reaches the router."""
-    if rig.tls is not None:
-        return ["--config", str(identity(rig, service, host)), "--rig", rig.name]
-    return ["--connect", connect or rig.router, "--rig", rig.name]
-
-
-def command(
-    rig: Rig, service: str, *, sim_hardware: bool = False, connect: str | None = None
-) -> list[str]:
-    """The command line that starts `service` as the rig file says.
-
-    `sim_hardware` swaps every device for its simulation: sim arm and eyes drivers, and the sim
-    participant in place of the camera (a whole rig on one machine, no hardware).
-    """
-    host = rig.host_of(service)
-    sec = rig.sections.get(service, {})
-    name = "sim" if (sim_hardware and service == "vision") else service
-    cmd = nod_command(name, *session_flags(rig, host, connect, service))
-    if rig.params is not None and name != "monitor":
-        cmd += ["--params", str(rig.params)]
-    if service in ("actuation", "eyes"):
-        prefix = "arm" if service == "actuation" else "eyes"
-        driver = "sim" if sim_hardware else sec.get("driver", "sim")
-        cmd += ["--driver", driver]
-        if driver != "sim":
-            cmd += ["--port", sec["port"]]
-        if "config" in sec:
-            cmd += [f"--{prefix}-config", str(sec["config"])]
-        if "trims" in sec and not sim_hardware:
-            cmd += ["--trims", str(sec["trims"])]
-        if "stale_ms" in sec:
-            cmd += ["--stale-ms", repr(float(sec["stale_ms"]))]
-    elif name == "vision":
-        cmd += ["--source", str(sec.get("source", "0")), "--tracker", sec.get("tracker", "aruco")]
-        if "calibration" in sec:
-            cmd += ["--calibration", str(sec["calibration"])]
-    elif name == "sim" and "seed" in sec:
-        cmd += ["--seed", str(int(sec["seed"]))]
-    cmd += list(sec.get("args", []))
-    return cmd

@@ -33,8 +33,9 @@ from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys
 from services.core.lifeline import nod_command
-from services.core.rigfile import LAUNCHER, Rig, RigFileError, command, identity, load_rig
+from services.core.rigfile import LAUNCHER, Rig, RigFileError, identity, load_rig
 from services.core.session import make_config, open_session
+from services.launch.commands import command
 from services.launch.events import RigEvents
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
 from services.launch.view import SessionView

@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 from services.core.keys import Keys
-from services.core.rigfile import command, load_rig
+from services.core.rigfile import load_rig
+from services.launch.commands import command
 from services.launch.up import router_command
 from services.run import build_parser, child_command
 

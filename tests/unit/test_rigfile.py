@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from services.core.rigfile import RigFileError, command, identity, load_rig, split_endpoint
+from services.core.rigfile import RigFileError, identity, load_rig, split_endpoint
+from services.launch.commands import command
 
 GOOD = """
 [rig]
