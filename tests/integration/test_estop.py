@@ -11,10 +11,12 @@ from functools import partial
 
 import pytest
 
+from services.core import messages as m
+from services.core.keys import Keys
 from services.store import Store
 from tests.processes import run_nod
 
-from .conftest import ROOT, free_port, wait_for
+from .conftest import ROOT, Collector, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -31,10 +33,14 @@ def test_estop_with_nobody_listening_fails_and_says_so(router, endpoint):
     assert time.monotonic() - t0 < 15
 
 
-def test_estop_is_acknowledged_by_actuation_and_eyes(router, endpoint, spawn):
+def test_estop_is_acknowledged_by_actuation_and_eyes(router, endpoint, client, spawn):
+    keys = Keys("rig1")
+    arm = Collector(client, keys.topic("actuation/state"), m.ArmStateMsg)
+    eyes = Collector(client, keys.topic("eyes/state"), m.EyesStateMsg)
     spawn("actuation")
     spawn("eyes")
-    time.sleep(3.0)  # both up (the e-stop must reach devices in any state, safe or not)
+    # Both up, whatever their state (the e-stop must reach devices in any state, safe or not).
+    wait_for(lambda: arm.items and eyes.items, 30, "actuation and eyes publishing their state")
     run = _nod("estop", "--connect", endpoint, "--reason", "test")
     assert run.returncode == 0, run.stdout + run.stderr
     assert "actuation: obeyed in" in run.stdout and "eyes: obeyed in" in run.stdout
@@ -59,20 +65,28 @@ def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path):
         text=True,
     )
     try:
-        def in_trial_two() -> bool:  # trial 1 stored: trial 2 is under way
+        def rows(sql: str) -> int:
             if not db.exists():
-                return False
+                return 0
             with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as ro:  # a reader, not a writer
                 try:
-                    return ro.execute("SELECT COUNT(*) FROM trials").fetchone()[0] >= 1
+                    return ro.execute(sql).fetchone()[0]
                 except sqlite3.OperationalError:  # the schema is not there yet
-                    return False
+                    return 0
 
-        wait_for(in_trial_two, 120, "trial 1 stored")
-        time.sleep(1.0)  # into trial 2's countdown or reach (at 4x)
+        wait_for(lambda: rows("SELECT COUNT(*) FROM trials") >= 1, 120, "trial 1 stored")
+        # Trial 2's attempt is on record (its setup): from here on an e-stop breaks it.
+        wait_for(
+            lambda: rows("SELECT COUNT(*) FROM open_attempts WHERE trial = 2"), 60, "trial 2 begun"
+        )
         engaged = _nod("estop", "--connect", endpoint, "--reason", "bump")
         assert engaged.returncode == 0, engaged.stdout + engaged.stderr
-        time.sleep(1.5)
+        # Released only once the conductor has broken the trial and stored it so.
+        wait_for(
+            lambda: rows("SELECT COUNT(*) FROM interruptions WHERE trial = 2"),
+            60,
+            "trial 2 interrupted by the e-stop",
+        )
         released = _nod("estop", "--connect", endpoint, "--release")
         out, _ = run.communicate(timeout=300)
         assert released.returncode == 0, released.stdout + released.stderr + out + "".join(

@@ -15,7 +15,7 @@ import pytest
 
 from tests.processes import stop_all
 
-from .conftest import ROOT
+from .conftest import ROOT, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -74,6 +74,11 @@ class TwoHosts:
     def log(self, name: str) -> str:
         return (self.tmp / f"{name}.log").read_text()
 
+    def start_router(self) -> None:
+        """The router on host A, once it listens (the services connect to it at start)."""
+        self.start(self.a, "router", "router", "--listen", self.endpoint)
+        wait_for(lambda: "nod router: listening" in self.log("router"), 30, "the router up")
+
     def close(self) -> None:
         stop_all(self.procs.values())
         for ns in (self.a, self.b):
@@ -94,22 +99,22 @@ def _stamps(log: str, pattern: str) -> list[float]:
 def test_a_2s_link_cut_safe_stops_the_arm_and_it_resumes_without_a_restart(tmp_path):
     hosts = TwoHosts(tmp_path)
     try:
-        hosts.start(hosts.a, "router", "router", "--listen", hosts.endpoint)
-        time.sleep(1.0)
+        hosts.start_router()
         for service in ("decision", "sim"):
             hosts.start(hosts.a, service, service, "--connect", hosts.endpoint)
         arm = hosts.start(hosts.b, "actuation", "actuation", "--connect", hosts.endpoint)
-        deadline = time.time() + 30
-        while not _stamps(hosts.log("actuation"), "safety clear"):
-            assert time.time() < deadline, hosts.log("actuation")
-            time.sleep(0.1)
-        time.sleep(1.0)
+        wait_for(lambda: _stamps(hosts.log("actuation"), "safety clear"), 30, "the arm clear")
+        time.sleep(1.0)  # a second of normal running: the cut comes on a steady link
         t_cut = time.time()
         hosts.link(False)
-        time.sleep(2.0)
+        time.sleep(2.0)  # the fault itself: a 2 s cut
         t_back = time.time()
         hosts.link(True)
-        time.sleep(3.0)
+        wait_for(
+            lambda: [t for t in _stamps(hosts.log("actuation"), "safety clear") if t >= t_back],
+            10,
+            "the arm clear again after the link returned",
+        )
         log = hosts.log("actuation")
         stops = [t for t in _stamps(log, "SAFE STOP") if t >= t_cut]
         clears = [t for t in _stamps(log, "safety clear") if t >= t_back]
@@ -146,8 +151,7 @@ def test_a_long_cut_mid_trial_interrupts_the_trial_and_it_is_repeated(tmp_path):
     hosts = TwoHosts(tmp_path)
     clock = ["--speed", "2", "--epoch-ns", str(time.time_ns()), "--params", str(params)]
     try:
-        hosts.start(hosts.a, "router", "router", "--listen", hosts.endpoint)
-        time.sleep(1.0)
+        hosts.start_router()
         for service in ("decision", "sim"):
             hosts.start(hosts.a, service, service, "--connect", hosts.endpoint, *clock)
         for service in ("actuation", "eyes"):
@@ -156,13 +160,11 @@ def test_a_long_cut_mid_trial_interrupts_the_trial_and_it_is_repeated(tmp_path):
             hosts.a, "experiment", "experiment", "--connect", hosts.endpoint, *clock,
             "--db", str(db), "--clicks", "10",
         )
-        deadline = time.time() + 40
-        while not _stamps(hosts.log("experiment"), "trials 1-1"):
-            assert time.time() < deadline, hosts.log("experiment")
-            time.sleep(0.05)
-        time.sleep(2.0)  # at 2x: past "go", the hand on its way
+        wait_for(lambda: _stamps(hosts.log("experiment"), "trials 1-1"), 40, "all services up")
+        wait_for(lambda: "] GO" in hosts.log("experiment"), 40, "trial 1's go")  # under way
         hosts.link(False)
-        time.sleep(3.0)
+        # The cut lasts until the conductor has broken the trial (the arm controller silent).
+        wait_for(lambda: "INTERRUPTED" in hosts.log("experiment"), 30, "trial 1 interrupted")
         hosts.link(True)
         assert conductor.wait(90) == 0, hosts.log("experiment")[-3000:]
         store = Store(db)
