@@ -166,18 +166,24 @@ def test_run_sim_survives_kill9_of_its_services_and_stores_all_trials(tmp_path: 
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
-        def trials_done() -> int:
+        def count(sql: str, *args: int) -> int:
             if not db.exists():
                 return 0
             with sqlite3.connect(db) as con:
                 try:
-                    return con.execute("SELECT COUNT(*) FROM trials").fetchone()[0]
+                    return con.execute(sql, args).fetchone()[0]
                 except sqlite3.OperationalError:
                     return 0
 
         for service, after in (("decision", 1), ("actuation", 3)):
-            wait_for(lambda after=after: trials_done() >= after, 120, f"trial {after} stored")
-            time.sleep(1.0)  # into the next trial
+            wait_for(lambda after=after: count("SELECT COUNT(*) FROM trials") >= after, 120,
+                     f"trial {after} stored")
+            # Into the next trial: its attempt is on record, so the kill breaks a trial under way.
+            wait_for(
+                lambda n=after + 1: count("SELECT COUNT(*) FROM open_attempts WHERE trial = ?", n),
+                60,
+                f"trial {after + 1} begun",
+            )
             pids = [p for p in processes_mentioning(f"services.cli {service} --connect")
                     if f"127.0.0.1:{port}" in (Path(f"/proc/{p}/cmdline").read_bytes()
                                                .replace(b"\0", b" ").decode())]
@@ -217,6 +223,8 @@ def test_sigterm_stops_a_service_within_2_s_when_its_router_is_gone(
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     router = open_session(make_config(mode="router", listen=[endpoint]))
+    received: list[str] = []
+    router.declare_subscriber("nod/gone/**", lambda sample: received.append(str(sample.key_expr)))
     log = (tmp_path / f"{service}.log").open("w")
     proc = subprocess.Popen(
         [sys.executable, "-m", "services.cli", service, "--connect", endpoint, "--rig", "gone"],
@@ -225,9 +233,12 @@ def test_sigterm_stops_a_service_within_2_s_when_its_router_is_gone(
     try:
         wait_for(lambda: "up on rig" in (tmp_path / f"{service}.log").read_text(), 20,
                  f"{service} up")
-        time.sleep(1.0)  # publishing (the sim's camera, the arm's state) into the router
+        # Publishing into the router (the sim's camera, the arm's state, every heartbeat).
+        wait_for(lambda: len(received) >= 3, 20, f"{service} publishing")
         router.close()
-        time.sleep(1.0)  # the router is gone; the service is mid-publish or reconnecting
+        # The fault, not a wait for a condition: a second without the router (the service
+        # mid-publish or reconnecting) before the SIGTERM.
+        time.sleep(1.0)
         t0 = time.monotonic()
         proc.send_signal(signal.SIGTERM)
         proc.wait(10)
