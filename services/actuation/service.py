@@ -19,7 +19,7 @@ from pathlib import Path
 
 from services.actuation.drivers import ARM_DRIVERS, make_arm_driver
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args
+from services.core.cli import Parser, add_service_args, fail
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -218,8 +218,7 @@ def main(argv: list[str] | None = None) -> int:
         latch_file.check_writable()  # an arm whose e-stop cannot survive a restart does not start
         node = Node("actuation", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
-        print(f"nod actuation: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod actuation", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("behaviour", "sim_arm", "safety")))
     try:
         arm = make_arm_driver(
@@ -233,8 +232,7 @@ def main(argv: list[str] | None = None) -> int:
         arm.connect()
     except (ValueError, OSError, ConnectionError) as exc:
         node.close()
-        print(f"nod actuation: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod actuation", exc)
     ActuationService(node, cfg, arm, safety, latch_file)
     node.on_forced_exit(arm.hold)  # if a signal's clean stop hangs: hold the arm, then exit
     try:

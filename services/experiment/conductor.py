@@ -23,8 +23,8 @@ from services.core import messages as m
 from services.core.node import Node
 from services.experiment.console import SessionConsole
 from services.experiment.presses import RobotPresses
-from services.experiment.recorder import TrialRecorder
 from services.experiment.rig_watch import RigWatch
+from services.experiment.trial_samples import TrialSamples
 from services.model.geometry import Colour
 from services.model.judge import TrialJudge
 from services.model.params import NodConfig
@@ -41,7 +41,7 @@ GAZE_KEEPALIVE_NS = 50_000_000
 
 
 class Conductor:
-    """Runs the protocol over the fabric; callbacks fill the current trial's recorder."""
+    """Runs the protocol over the fabric; callbacks fill the current trial's samples."""
 
     def __init__(
         self,
@@ -66,7 +66,7 @@ class Conductor:
         self.store = store
         self.clicks = clicks
         self.alive: dict[str, bool] = {}
-        self.recorder: TrialRecorder | None = None
+        self.trial_samples: TrialSamples | None = None
         self.presses = RobotPresses()
         self.trial = 0
         self.gaze_msg: dict[str, object] | None = None
@@ -136,21 +136,21 @@ class Conductor:
         self._hands[pose.seq] = pose
         while len(self._hands) > 256:
             self._hands.popitem(last=False)
-        if self.recorder is not None:
-            self.recorder.on_hand(pose)
+        if self.trial_samples is not None:
+            self.trial_samples.on_hand(pose)
 
     def _scalar(self, name: str, msg: m.Scalar) -> None:
         self.console.value(name, msg.value)
-        if self.recorder is not None:
-            self.recorder.on_scalar(name, msg, self._hands.get(msg.src_seq))
+        if self.trial_samples is not None:
+            self.trial_samples.on_scalar(name, msg, self._hands.get(msg.src_seq))
 
     def on_arm(self, msg: m.ArmStateMsg) -> None:
         """The arm's end effector for the samples, and its safety state."""
         self.rig.device_state("actuation", msg.safe_stop, msg.safety_reason, self._now_ns())
         self.presses.arm_state(msg.trial, msg.phase, msg.target)
         self.console.robot(msg.phase, msg.target)
-        if self.recorder is not None:
-            self.recorder.on_arm(msg)
+        if self.trial_samples is not None:
+            self.trial_samples.on_arm(msg)
 
     def on_eyes(self, msg: m.EyesStateMsg) -> None:
         """The eyes' safety state."""
@@ -233,7 +233,7 @@ class Conductor:
                     if protocol.phase == "rest" and not self._rig_ready():
                         cues = []  # no new trial on an unsafe rig: the rest lasts until it is
                         continue
-                    rec = self.recorder
+                    rec = self.trial_samples
                     cues = protocol.advance(
                         self._now_s(),
                         human_pressed=rec is not None and rec.human is not None,
@@ -359,7 +359,7 @@ class Conductor:
                 with self.node.lock:
                     self.trial = spec.index
                     self.presses.begin(spec.index)
-                    self.recorder = None
+                    self.trial_samples = None
                     self.rig.begin(spec.index, protocol.attempt)
                     self._seq_regressions = 0
                     self._trial_start_ns = started
@@ -371,7 +371,7 @@ class Conductor:
                     go = self.pub_trial.put(
                         phase="go", text=cue.text, session=self.session, **ev
                     )
-                    self.recorder = TrialRecorder(go.t_ns, TrialJudge(self.cfg, self.layout))
+                    self.trial_samples = TrialSamples(go.t_ns, TrialJudge(self.cfg, self.layout))
             elif cue.kind == "end":
                 self._end_trial(spec, protocol)
                 cues.extend(protocol.judged(self._now_s()))
@@ -381,7 +381,7 @@ class Conductor:
     def _interrupted(self, spec: TrialSpec, protocol: SessionProtocol, why: str) -> None:
         """Store the broken start of a trial; the session pauses until the rig is safe."""
         with self.node.lock:
-            self.recorder = None
+            self.trial_samples = None
             events = self.rig.take_events()
             now = self._now_ns()
         log.warning("trial %d (attempt %d) INTERRUPTED: %s", spec.index, protocol.attempt, why)
@@ -407,7 +407,7 @@ class Conductor:
     def _end_trial(self, spec: TrialSpec, protocol: SessionProtocol) -> None:
         """Judge, store and publish the trial that just ended."""
         with self.node.lock:
-            rec, self.recorder = self.recorder, None
+            rec, self.trial_samples = self.trial_samples, None
             robot = self.presses.confirmed
             refused = self.presses.unconfirmed()
             arm = self.presses.where()
@@ -431,7 +431,7 @@ class Conductor:
         spec: TrialSpec,
         attempt: int,
         end: TrialEnd | None,
-        rec: TrialRecorder | None,
+        rec: TrialSamples | None,
         robot: Colour | None,
         clicks: int | None,
         reason: str,
@@ -463,7 +463,7 @@ class Conductor:
             interrupted=interrupted,
             attempts=attempt,
         )
-        samples = rec.samples(SAMPLE_HZ) if rec is not None else []
+        samples = rec.decimated(SAMPLE_HZ) if rec is not None else []
         self.store.write_trial(self.session, record, samples, events)
         self.records.append(record)
         self.console.result(spec.index, spec.mode, spec.option, j.robot, j.human, j.outcome,

@@ -17,7 +17,7 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
-from services.core.cli import Parser, add_service_args
+from services.core.cli import Parser, add_service_args, fail
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -107,8 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         clicks = clicks_source(args.clicks)
         store = Store(args.db)
     except (ValueError, OSError) as exc:
-        print(f"nod experiment: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod experiment", exc)
     participant, seed, first = args.participant, args.seed, 1
     lost: tuple[int, int, int] | None = None
     resume_at: tuple[int, int] | None = None
@@ -117,8 +116,7 @@ def main(argv: list[str] | None = None) -> int:
             participant, seed, done = store.resume_session(args.resume)
         except OSError as exc:
             store.close()
-            print(f"nod experiment: {exc}", file=sys.stderr)
-            return 2
+            return fail("nod experiment", exc)
         lost = store.open_attempt(args.resume)
         broken = store.attempts_made(args.resume, done + 1)
         # Where the session stands: in the attempt a dead conductor left open, paused after an
@@ -145,8 +143,7 @@ def main(argv: list[str] | None = None) -> int:
         node = Node("experiment", Fabric.from_args(args), retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         store.close()
-        print(f"nod experiment: {exc}", file=sys.stderr)
-        return 2
+        return fail("nod experiment", exc)
     if _another_conductor(node):
         node.close()
         store.close()

@@ -1,4 +1,4 @@
-"""One trial's recording: the samples, and the trial judge fed with the human's press and ẑ_h.
+"""One trial's samples, and the trial judge fed with the human's press and ẑ_h on the way.
 
 Decision outputs are joined to the hand pose that produced them through `src_seq`, so the
 stored samples line up exactly even when messages arrive interleaved.
@@ -27,7 +27,7 @@ class _Row:
     landmarks: bytes | None = None
 
 
-class TrialRecorder:
+class TrialSamples:
     """Collects what happens between "go" and the end of one trial."""
 
     def __init__(self, t_go_ns: int, judge: TrialJudge) -> None:
@@ -75,7 +75,7 @@ class TrialRecorder:
         """The latest end-effector position, attached to the following samples."""
         self._ee = msg.ee
 
-    def samples(self, max_hz: float) -> list[Sample]:
+    def decimated(self, max_hz: float) -> list[Sample]:
         """The recorded rows in time order, decimated to at most `max_hz`."""
         out: list[Sample] = []
         min_gap = int(1e9 / max_hz) if max_hz > 0 else 0

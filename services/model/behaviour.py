@@ -142,11 +142,6 @@ class RobotBehaviour:
         """The buzzer the robot committed to press, or None if it has not committed."""
         return self._target
 
-    @property
-    def last_command(self) -> ArmCommand:
-        """The command returned by the latest call."""
-        return self._last
-
     # -- transitions -----------------------------------------------------------------------
     def start(self, t: float, timeout_s: float) -> ArmCommand:
         """The countdown said "go" at time t (s): wait for the first non-zero z_r.

@@ -39,11 +39,10 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import threading
 from pathlib import Path
 
-from services.core.cli import Parser, add_params_arg, positive_float
+from services.core.cli import Parser, add_params_arg, fail, one_line, positive_float
 from services.core.clock import Clock
 from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
@@ -52,7 +51,6 @@ from services.recording.mcap_io import (
     McapIn,
 )
 from services.recording.player import LiveEvents, Player
-from services.recording.record import one_line
 from services.recording.selection import (
     PROG,
     input_topics,
@@ -112,15 +110,13 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose)
     problem = _check(args)
     if problem:
-        print(f"{PROG}: {problem}", file=sys.stderr)
-        return 2
+        return fail(PROG, problem)
     try:
         if args.through is not None:
             return _through(args)
         return _replay(args)
     except (ValueError, OSError) as exc:
-        print(f"{PROG}: {one_line(str(exc))}", file=sys.stderr)
-        return 2
+        return fail(PROG, one_line(str(exc)))
 
 
 def _check(args: argparse.Namespace) -> str | None:

@@ -29,7 +29,7 @@ from typing import Any
 import msgspec
 
 from services.core import messages as m
-from services.core.cli import Parser, positive_float
+from services.core.cli import Parser, fail, positive_float
 from services.core.node import clip, install_signal_handlers
 from services.core.session import add_zenoh_args
 from services.core.tap import Tap
@@ -131,8 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.run(args))
     except ToolError as exc:
-        print(f"{PROG} {args.action}: {exc}", file=sys.stderr)
-        return 2
+        return fail(f"{PROG} {args.action}", exc)
 
 
 # --- echo ---------------------------------------------------------------------------------------
