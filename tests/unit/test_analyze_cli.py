@@ -39,8 +39,8 @@ def test_thresholds_table_and_config(tmp_path: Path) -> None:
     res = nod("thresholds")
     assert res.returncode == 0 and "u_d*" in res.stdout
     cfg = tmp_path / "lab.toml"
-    cfg.write_text("[dynamics.robot]\nu = 1.0\n")
-    doc = json.loads(nod("thresholds", "--json", "--config", str(cfg)).stdout)
+    cfg.write_text("[decision.pair.robot]\nu = 1.0\n")
+    doc = json.loads(nod("thresholds", "--json", "--params", str(cfg)).stdout)
     assert doc["u"] == 1.0 and doc["dissensus_regime"] is False
 
 
@@ -133,7 +133,7 @@ def test_stuart_maxwell_json() -> None:
         (["sweep", "--range", "-3", "--out", "x.npz"], "--range"),
         (["sweep", "--out", "/no/such/dir/x.npz"], "does not exist"),
         (["square-claim", "--grid", "x"], "--grid"),
-        (["thresholds", "--config", "/no/such/file.toml"], "not found"),
+        (["thresholds", "--params", "/no/such/file.toml"], "not found"),
         (["frobnicate"], "invalid choice"),
         ([], "choose a command"),
     ],
@@ -150,12 +150,12 @@ def test_bad_input_is_one_line_and_exit_2(args: list[str], needle: str) -> None:
 
 def test_bad_config_key_is_one_line(tmp_path: Path) -> None:
     cfg = tmp_path / "bad.toml"
-    cfg.write_text("[dynamics.robot]\nuu = 1.0\n")
-    res = nod("thresholds", "--config", str(cfg))
+    cfg.write_text("[decision.pair.robot]\nuu = 1.0\n")
+    res = nod("thresholds", "--params", str(cfg))
     assert res.returncode == 2
     assert len(res.stderr.strip().splitlines()) == 1 and "uu" in res.stderr
-    cfg.write_text("[dynamics.robot]\ngamma = 1.0\n")  # no dissensus threshold
-    res = nod("thresholds", "--config", str(cfg))
+    cfg.write_text("[decision.pair.robot]\ngamma = 1.0\n")  # no dissensus threshold
+    res = nod("thresholds", "--params", str(cfg))
     assert res.returncode == 2 and "dissensus threshold" in res.stderr
 
 
