@@ -89,7 +89,8 @@ def test_a_silent_and_an_unplugged_bus_interrupt_their_trials(tmp_path, device):
             delays = {}
             for trial, fault in ((2, "silent"), (3, "unplugged")):
                 wait_for(lambda t=trial: _go_of(events, t), 120, f"trial {trial} under way")
-                time.sleep(0.2)  # the arm is on its way
+                if device == "actuation":  # the fault comes with the arm on its way
+                    wait_for(lambda: any(s.moving for s in arm.messages[-3:]), 10, "the arm moving")
                 seen = len(events.messages)
                 t_fault = time.monotonic()
                 if fault == "silent":

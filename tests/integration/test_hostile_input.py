@@ -90,7 +90,7 @@ def test_fuzzed_keys_leave_every_service_alive_bounded_and_working(router, endpo
                     sent += 1
                     if sent % 200 == 0:
                         time.sleep(0.01)  # a hostile peer at ~20k msg/s, not a pure burst
-            time.sleep(0.5)
+            time.sleep(0.5)  # a pause between rounds (pacing, not a wait for a condition)
         fuzz_s = time.monotonic() - t0
         rss0 = rounds[1]  # after the first round: zenoh's buffers and the decoders are warm
         # Still working: a valid pose gets its z_r, and both devices still report.
@@ -139,11 +139,18 @@ def test_the_transport_refuses_an_oversized_message(router, endpoint, client):
     attacker = open_session(make_config(mode="client", connect=[endpoint]))
     honest = open_session(make_config(mode="client", connect=[endpoint]))
     try:
-        time.sleep(0.3)
-        attacker.put(KEYS.topic("decision/z_r"), b"\x00" * (2 << 20))
         ok = m.encode(m.Scalar(seq=1, t_ns=time.time_ns(), value=0.5, src_seq=1))
+
+        def honest_gets_through(after: int) -> bool:
+            honest.put(KEYS.topic("decision/z_r"), ok)
+            return len(got.items) > after
+
+        # The route is up (else the oversized message would be refused for want of a reader).
+        wait_for(lambda: honest_gets_through(0), 5, "honest traffic through the router")
+        before = len(got.items)
+        attacker.put(KEYS.topic("decision/z_r"), b"\x00" * (2 << 20))
         wait_for(
-            lambda: (honest.put(KEYS.topic("decision/z_r"), ok), bool(got.items))[1],
+            lambda: honest_gets_through(before),
             5,
             "honest traffic through the router after the oversized message",
         )

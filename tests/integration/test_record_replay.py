@@ -32,7 +32,7 @@ from services.recording.mcap_io import McapIn
 from services.store import Store
 from tests.processes import run_nod
 
-from .conftest import ROOT, SHORT, free_port
+from .conftest import ROOT, SHORT, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 SPEED = "4"
@@ -211,10 +211,9 @@ def test_a_recorder_killed_with_sigkill_leaves_a_readable_file(router, endpoint,
     try:
         assert rec.stdout is not None
         assert rec.stdout.readline().startswith("nod record: recording nod/rig1/**")
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and sum(1 for _ in McapIn(out)) < 60:
-            time.sleep(0.2)  # the file is readable while it is written: chunks every 0.2 s
-        time.sleep(0.3)
+        # The file is readable while it is written (chunks every 0.2 s).
+        wait_for(lambda: sum(1 for _ in McapIn(out)) >= 60, 30, "60 messages on file", every_s=0.2)
+        time.sleep(0.3)  # not a wait: the kill lands while the recorder is writing on
         rec.send_signal(signal.SIGKILL)
         assert rec.wait(10) == -signal.SIGKILL
     finally:

@@ -5,15 +5,15 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
+from services.core.session import make_config, open_session
 from services.model.protocol import default_schedule
 from tests.processes import run_nod
 
-from .conftest import ROOT, free_port
+from .conftest import ROOT, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -116,10 +116,26 @@ def test_ctrl_c_stops_every_child(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
     )
-    deadline = time.monotonic() + 30
-    while len(_processes_mentioning(f"127.0.0.1:{port}")) < 6 and time.monotonic() < deadline:
-        time.sleep(0.1)
-    time.sleep(1.0)
+    every = {"actuation", "decision", "experiment", "eyes", "sim", "vision"}
+    endpoint = f"tcp/127.0.0.1:{port}"
+    session = None
+
+    def all_alive() -> bool:  # every child's liveliness token, on the run's own router
+        nonlocal session
+        if session is None:
+            try:
+                session = open_session(make_config(mode="client", connect=[endpoint]))
+            except ConnectionError:  # the router is not up yet
+                return False
+        replies = session.liveliness().get("nod/rig1/alive/*", timeout=1)
+        return {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok} >= every
+
+    try:
+        wait_for(all_alive, 30, f"every child alive: {sorted(every)}", every_s=0.1)
+    finally:
+        if session is not None:
+            session.close()
+    assert len(_processes_mentioning(f"127.0.0.1:{port}")) >= 6
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 130, out + err

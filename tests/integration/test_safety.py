@@ -64,9 +64,9 @@ def _start_moving(client, spawn):
     feeder = Feeder(client)
     trial = client.declare_publisher(KEYS.topic("experiment/trial"))
     wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 20, "actuation ready")
-    for i, phase in enumerate(("setup", "go")):
-        trial.put(m.encode(m.TrialEvent(seq=i, t_ns=time.time_ns(), phase=phase, trial=1)))
-        time.sleep(0.1)
+    trial.put(m.encode(m.TrialEvent(seq=0, t_ns=time.time_ns(), phase="setup", trial=1)))
+    wait_for(lambda: bool(state.messages) and state.messages[-1].trial == 1, 10, "trial 1 set up")
+    trial.put(m.encode(m.TrialEvent(seq=1, t_ns=time.time_ns(), phase="go", trial=1)))
     wait_for(lambda: bool(state.messages) and state.messages[-1].moving, 10, "the arm moving")
     return state, feeder
 
@@ -92,13 +92,13 @@ def test_estop_stops_the_arm_within_the_bound_and_latches(client, spawn):
         assert flagged is not None and "e-stop" in flagged.safety_reason
         assert flagged.t_ns - t_estop <= BOUND_NS
         assert stopped.t_ns - t_estop <= BOUND_NS  # braking included
-        time.sleep(0.3)  # inputs stay fresh, yet the e-stop latches
+        time.sleep(0.3)  # a negative check: inputs stay fresh, yet the e-stop latches
         assert all(s.safe_stop and not s.moving for s in state.messages[-5:])
         t_rel = time.time_ns()
         estop.put(m.encode(m.Estop(seq=1, t_ns=t_rel, engaged=False, reason="wrong key", id="w1")))
         # A release without an id (not fresh) on the right key is refused too.
         release.put(m.encode(m.Estop(seq=2, t_ns=time.time_ns(), engaged=False, reason="no id")))
-        time.sleep(0.3)  # both refused: still stopped
+        time.sleep(0.3)  # a negative check: both refused, still stopped
         assert all(s.safe_stop and not s.moving and s.estop_id == "e1"
                    for s in state.messages[-5:])
         release.put(m.encode(m.Estop(seq=3, t_ns=time.time_ns(), engaged=False, reason="test",
@@ -168,7 +168,7 @@ def test_future_stamps_cannot_hold_the_gate_open(client, spawn):
         assert "stale" in flagged.safety_reason
         # Still alive and ticking at its 50 Hz (the 2^63-1 stamp once stopped the state key).
         n = len(state.messages)
-        time.sleep(1.0)
+        time.sleep(1.0)  # a rate's window, not a wait for a condition
         assert len(state.messages) - n >= 30
         assert all(s.safe_stop and not s.moving for s in state.messages[-10:])
     finally:
