@@ -27,7 +27,7 @@ from typing import Any
 
 import zenoh
 
-from services.core.cli import Parser, fail
+from services.core.cli import SEED, Parser, fail, int_in
 from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys, check_rig
@@ -59,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--sim", action="store_true", help="simulate participant, arm and eyes")
     p.add_argument("--db", type=Path, default=Path("nod-sessions.sqlite"), help="session store")
-    p.add_argument("--seed", type=int, default=1, help="seed of the simulated participant")
+    p.add_argument("--seed", type=SEED, default=1, help="seed of the simulated participant")
     p.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second")
     p.add_argument("--listen", default=DEFAULT_ROUTER, help=f"router endpoint ({DEFAULT_ROUTER})")
     p.add_argument("--rig", type=check_rig, default="rig1", help="rig name scoping every key")
@@ -80,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--participants",
-        type=int,
+        type=int_in(1, 10_000),
         default=1,
         help="run N simulated participants one after another (ids P01.., seeds seed..seed+N-1, "
         "person-to-person variation drawn from each seed), all in one database",

@@ -12,7 +12,7 @@ import argparse
 import sys
 
 from services.analysis.commands import COMMANDS, UsageError
-from services.core.cli import Parser, fail, finite_float, positive_float
+from services.core.cli import Parser, fail, finite_float, int_in, positive_float
 
 PROG = "nod analyze"
 
@@ -24,16 +24,6 @@ def _formats(text: str) -> tuple[str, ...]:
         return parse_formats(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _grid_size(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 2:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 2, got {text!r}")
-    return value
 
 
 def _build_parser() -> Parser:
@@ -75,7 +65,7 @@ def _build_parser() -> Parser:
             "[i, j] for b_h[i], b_r[j]), z0, method, dt, horizon, tol, params (JSON)."
         ),
     )
-    p.add_argument("--grid", type=_grid_size, default=121, metavar="N", help="N×N grid (121)")
+    p.add_argument("--grid", type=int_in(2), default=121, metavar="N", help="N×N grid (121)")
     p.add_argument(
         "--range", type=positive_float, default=6.0, metavar="R",
         help="biases in linspace(-R, R, N) (6)",
@@ -106,7 +96,7 @@ def _build_parser() -> Parser:
         "equilibrium (and above which every equilibrium is a consensus) against the paper's "
         "|b| > u; (3) how Fig 3a's consensus map depends on the unstated starting opinion.",
     )
-    p.add_argument("--grid", type=_grid_size, default=61, metavar="N", help="Fig 3a grid (61)")
+    p.add_argument("--grid", type=int_in(2), default=61, metavar="N", help="Fig 3a grid (61)")
     p.add_argument("--json", action="store_true", help="print JSON")
 
     p = sub.add_parser(
@@ -129,7 +119,7 @@ def _build_parser() -> Parser:
         description="Compare the paper's consensus-square claim (both readings) "
         "with a computed sweep from the same initial condition as `sweep`.",
     )
-    p.add_argument("--grid", type=_grid_size, default=121, metavar="N")
+    p.add_argument("--grid", type=int_in(2), default=121, metavar="N")
     p.add_argument("--range", type=positive_float, default=6.0, metavar="R")
     p.add_argument("--json", action="store_true", help="print JSON instead of a summary")
 
@@ -156,7 +146,7 @@ def _build_parser() -> Parser:
     p.add_argument(
         "--press-s", type=positive_float, default=2.2, help="the fastest press to cover (2.2 s)"
     )
-    p.add_argument("--seeds", type=int, default=5, help="jitter draws per option (5)")
+    p.add_argument("--seeds", type=int_in(1, 1000), default=5, help="jitter draws per option (5)")
     p.add_argument("--params", metavar="FILE.toml", help="rig parameters (default: SPEC)")
     p.add_argument("--json", action="store_true", help="print JSON")
 
@@ -168,7 +158,7 @@ def _build_parser() -> Parser:
     )
     p.add_argument("--db", required=True, metavar="FILE", help="session database")
     p.add_argument("--session", default=None, help="session id (default: the latest)")
-    p.add_argument("--trial", type=int, required=True, help="trial number")
+    p.add_argument("--trial", type=int_in(1, 10_000), required=True, help="trial number")
     p.add_argument("--out", required=True, metavar="DIR", help="where to write trial<K>.<fmt>")
     p.add_argument(
         "--format", type=_formats, default=("png",), metavar="FMT",
@@ -185,8 +175,18 @@ def _build_parser() -> Parser:
         "intervals (the Monte-Carlo error).",
     )
     p.add_argument("--participants", default="20,40,60", help="study sizes, e.g. 20,40,60")
-    p.add_argument("--runs", type=int, default=100, help="drawn studies per size (100)")
-    p.add_argument("--population", type=int, default=400, help="simulated people (400)")
+    p.add_argument(
+        "--runs",
+        type=int_in(1, 100_000),
+        default=100,
+        help="drawn studies per size (100)",
+    )
+    p.add_argument(
+        "--population",
+        type=int_in(1, 1_000_000),
+        default=400,
+        help="simulated people (400)",
+    )
     p.add_argument("--alpha", type=positive_float, default=0.05, help="significance level (0.05)")
     p.add_argument("--seed", type=int, default=1, help="seed of the population and the draws")
     p.add_argument("--params", metavar="FILE.toml", help="cohort parameters (calibrated traits)")

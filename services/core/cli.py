@@ -6,6 +6,7 @@ import argparse
 import math
 import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
@@ -53,6 +54,35 @@ def positive_float(text: str) -> float:
     if not (value > 0 and math.isfinite(value)):
         raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}")
     return value
+
+
+MAX_SEED = 2**63 - 1  # seeds are non-negative (numpy refuses < 0) and an int64 everywhere
+
+
+def int_in(low: int, high: int | None = None) -> Callable[[str], int]:
+    """An argparse type: a whole number in [low, high] (no upper bound if None).
+
+    Every integer flag goes through one of these: a count of 0, a negative port or a seed numpy
+    refuses is a one-line usage error at the command line, not a traceback later.
+    """
+    span = f"in [{low}, {high}]" if high is not None else f">= {low}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text, 10)
+        except ValueError:
+            why = f"must be a whole number {span}, got {text!r}"
+            raise argparse.ArgumentTypeError(why) from None
+        if value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"must be {span}, got {value}")
+        return value
+
+    parse.__name__ = "int"  # argparse names the type in its messages
+    return parse
+
+
+SEED = int_in(0, MAX_SEED)
+PORT = int_in(1, 65535)
 
 
 def add_params_arg(parser: argparse.ArgumentParser) -> None:

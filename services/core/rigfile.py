@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from services.core.cli import MAX_SEED
 from services.core.keys import check_rig
 from services.model.safety import SafetyParams
 
@@ -53,7 +54,6 @@ REQUIRED = ("decision", "actuation", "eyes", "vision")
 ARM_DRIVERS = ("sim", "feetech")
 EYES_DRIVERS = ("sim", "maestro", "arduino")
 TRACKERS = ("aruco", "mediapipe", "sim")
-MAX_SEED = 2**63 - 1  # the sim's --seed: non-negative (numpy refuses < 0), an int64 everywhere
 WILDCARD_HOSTS = ("0.0.0.0", "::", "")  # "every interface": never where a router listens unasked
 _PORTED = ("tcp", "tls", "udp", "quic", "ws")  # endpoint schemes that take host:port
 

@@ -17,7 +17,7 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
-from services.core.cli import Parser, add_service_args, fail
+from services.core.cli import SEED, Parser, add_service_args, fail
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -53,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_service_args(p)
     p.add_argument("--db", type=Path, default=Path("nod-sessions.sqlite"), help="session store")
     p.add_argument("--participant", default="P01", help="participant id stored with the session")
-    p.add_argument("--seed", type=int, default=None, help="seed of the sim participant (stored)")
+    p.add_argument("--seed", type=SEED, default=None, help="seed of the sim participant (stored)")
     p.add_argument("--session", default=None, help="session id (default: a new UUID)")
     p.add_argument(
         "--resume",

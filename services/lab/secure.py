@@ -40,7 +40,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from services.core.cli import Parser, fail
+from services.core.cli import PORT, Parser, fail, int_in
 from services.core.keys import check_rig
 from services.core.rigfile import WILDCARD_HOSTS, RigFileError, load_rig, split_endpoint
 from services.core.session import MAX_MESSAGE_BYTES
@@ -238,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="name or address the hosts reach the control station by (in its certificate; the "
         "router listens there; default localhost)",
     )
-    p.add_argument("--port", type=int, default=None, help="the router's TLS port (7447)")
+    p.add_argument("--port", type=PORT, default=None, help="the router's TLS port (7447)")
     p.add_argument(
         "--listen",
         default=None,
@@ -246,7 +246,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="where the router listens, when not at --router-host (e.g. tls/192.168.10.1:7447; "
         "tls/0.0.0.0:PORT, every interface, only when said here)",
     )
-    p.add_argument("--days", type=int, default=825, help="validity of the certificates (825)")
+    p.add_argument(
+        "--days",
+        type=int_in(1, 3650),
+        default=825,
+        help="validity of the certificates (825)",
+    )
     p.add_argument(
         "--install-dir",
         type=Path,

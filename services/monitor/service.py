@@ -28,7 +28,7 @@ import rerun as rr
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser, fail
+from services.core.cli import PORT, Parser, fail, int_in
 from services.core.contract import TOPICS
 from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
@@ -180,8 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument(
         "--serve-web", action="store_true", help="host the web viewer (for a lab screen)"
     )
-    g.add_argument("--web-port", type=int, default=9090, help="web viewer port (9090)")
-    g.add_argument("--grpc-port", type=int, default=9876, help="gRPC port of --serve-web (9876)")
+    g.add_argument("--web-port", type=PORT, default=9090, help="web viewer port (9090)")
+    g.add_argument("--grpc-port", type=PORT, default=9876, help="gRPC port of --serve-web (9876)")
     g.add_argument("--save", type=Path, default=None, metavar="FILE.rrd", help="write a recording")
     g.add_argument(
         "--no-footer",
@@ -201,8 +201,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="memory the served/spawned viewer keeps before dropping the oldest data (1GiB)",
     )
     q = p.add_argument_group("queues")
-    q.add_argument("--hand-queue", type=int, default=240, help="hand poses held (lossy; 240)")
-    q.add_argument("--event-queue", type=int, default=200_000, help="scalars/events held (200000)")
+    q.add_argument(
+        "--hand-queue",
+        type=int_in(1, 1_000_000),
+        default=240,
+        help="hand poses held (lossy; 240)",
+    )
+    q.add_argument(
+        "--event-queue",
+        type=int_in(1, 10_000_000),
+        default=200_000,
+        help="scalars/events held (200000)",
+    )
     g.add_argument(
         "--viewer-grace",
         type=float,

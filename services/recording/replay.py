@@ -42,7 +42,7 @@ import logging
 import threading
 from pathlib import Path
 
-from services.core.cli import Parser, add_params_arg, fail, one_line, positive_float
+from services.core.cli import Parser, add_params_arg, fail, int_in, one_line, positive_float
 from services.core.clock import Clock
 from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
@@ -91,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     clock = p.add_argument_group("the live rig's clock (--restamp, --follow)")
     clock.add_argument("--clock-speed", type=positive_float, default=1.0, metavar="S",
                        help="the rig's simulated seconds per wall second (its services' --speed)")
-    clock.add_argument("--epoch-ns", type=int, default=None,
+    clock.add_argument("--epoch-ns", type=int_in(0, 2**63 - 1), default=None,
                        help="the rig's clock epoch (its services' --epoch-ns)")
     off = p.add_argument_group("offline (no Zenoh)")
     off.add_argument("--through", choices=("decision",), default=None,

@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args, fail
+from services.core.cli import SEED, Parser, add_service_args, fail
 from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -146,7 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Publish a synthetic participant's hand on vision/hand (stands in for vision).",
     )
     add_service_args(p)
-    p.add_argument("--seed", type=int, default=1, help="random seed of the participant")
+    p.add_argument("--seed", type=SEED, default=1, help="random seed of the participant")
     p.add_argument("--rate", type=float, default=30.0, help="camera rate in Hz (default 30)")
     p.add_argument(
         "--cohort",

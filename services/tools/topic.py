@@ -23,13 +23,12 @@ import json
 import sys
 import threading
 import time
-from collections.abc import Callable
 from typing import Any
 
 import msgspec
 
 from services.core import messages as m
-from services.core.cli import Parser, fail, positive_float
+from services.core.cli import Parser, fail, int_in, positive_float
 from services.core.node import clip, install_signal_handlers
 from services.core.session import add_zenoh_args
 from services.core.tap import Tap
@@ -41,19 +40,6 @@ REPORT_S = 1.0  # `hz` prints once per second
 
 
 # --- the command line ---------------------------------------------------------------------------
-
-
-def _int_at_least(low: int) -> Callable[[str], int]:
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = low - 1
-        if value < low:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}")
-        return value
-
-    return parse
 
 
 def build_parser() -> Parser:
@@ -95,7 +81,7 @@ def build_parser() -> Parser:
     echo.add_argument("key", metavar="KEY", help="e.g. vision/hand, or wildcards: 'safety/*'")
     echo.add_argument("--json", action="store_true", help="one JSON object per line")
     echo.add_argument(
-        "-n", "--count", type=_int_at_least(1), default=None, metavar="N",
+        "-n", "--count", type=int_in(1), default=None, metavar="N",
         help="stop after N valid messages",
     )
     echo.add_argument(
@@ -118,7 +104,7 @@ def build_parser() -> Parser:
         help="stop after S seconds (default: Ctrl-C)",
     )
     hz.add_argument(
-        "--window", type=_int_at_least(2), default=100, metavar="W",
+        "--window", type=int_in(2), default=100, metavar="W",
         help="messages the per-second rate is computed over (100)",
     )
     hz.set_defaults(run=run_hz)

@@ -30,3 +30,24 @@ def test_a_failure_is_one_line_on_stderr_and_exit_2(capsys):
     assert capsys.readouterr().err == "nod x: no router at tcp/127.0.0.1:7447\n"
     assert one_line("a " * 400) == ("a " * 150)[:300] + "…"
     assert fail("nod x", "b" * 400) == 2 and capsys.readouterr().err == f"nod x: {'b' * 400}\n"
+
+
+def test_every_integer_flag_is_checked_in_one_line():
+    import argparse
+
+    from services.core.cli import PORT, SEED, int_in
+
+    assert int_in(1)("7") == 7 and PORT("65535") == 65535 and SEED("0") == 0
+    for parse, text, why in (
+        (int_in(1), "0", "must be >= 1, got 0"),
+        (int_in(0, 255), "256", "must be in [0, 255], got 256"),
+        (PORT, "-1", "in [1, 65535]"),
+        (SEED, "2.5", "whole number"),
+        (SEED, str(2**63), "in [0, 9223372036854775807]"),
+    ):
+        try:
+            parse(text)
+        except argparse.ArgumentTypeError as exc:
+            assert why in str(exc), exc
+        else:
+            raise AssertionError(f"{text!r} accepted")
