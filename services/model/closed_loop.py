@@ -12,7 +12,7 @@ differs.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -25,6 +25,7 @@ from services.model.judge import TrialJudge
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered
 from services.model.protocol import Cue, SessionProtocol
+from services.model.replayed_hand import Pose, ReplayedHand
 from services.model.robot import RobotTrial
 
 
@@ -67,13 +68,22 @@ class _Loop:
     """One participant's session: the protocol's cues dispatched to the loop's parts."""
 
     def __init__(
-        self, cfg: NodConfig, seed: int, cohort: bool, clicks: int | None, record: bool = False
+        self,
+        cfg: NodConfig,
+        seed: int,
+        cohort: bool,
+        clicks: int | None,
+        record: bool = False,
+        hand: ReplayedHand | None = None,
     ) -> None:
         rng = np.random.default_rng(seed)
         params = jittered(cfg.participant, rng) if cohort else cfg.participant
         self.cfg = cfg
         self.clicks = clicks
-        self.person = Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
+        self.person: Participant | ReplayedHand = (
+            hand if hand is not None
+            else Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
+        )
         self.model = DecisionModel(cfg.decision, cfg.layout)
         self.robot = RobotTrial(
             cfg.layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
@@ -190,6 +200,7 @@ def run_offline_session(
     record: bool = False,
     breaks: Mapping[tuple[int, int], float] | None = None,
     safe_again_s: float = 1.0,
+    hands: Mapping[int, Sequence[Pose]] | None = None,
 ) -> list[OfflineTrial]:
     """Simulate one participant's whole session; return each trial's outcome (and samples).
 
@@ -197,8 +208,13 @@ def run_offline_session(
     after that attempt's setup at which a safe stop breaks it. The session then pauses, as the
     conductor's does, until the rig has been safe for `safe_again_s` (the stop's own length and
     the conductor's settling time), and repeats the trial or moves on as the protocol says.
+
+    `hands` replaces the simulated participant with a recorded hand: per trial, its poses timed
+    from that trial's "go" (`services.model.replayed_hand`; `services.recording.reaches` reads
+    them from a recording).
     """
-    loop = _Loop(cfg, seed, cohort, clicks, record)
+    hand = ReplayedHand(hands) if hands is not None else None
+    loop = _Loop(cfg, seed, cohort, clicks, record, hand)
     breaks = dict(breaks or {})
     dt = 1.0 / rate_hz
     t = 0.0

@@ -26,9 +26,12 @@ from mcap.records import Footer, Message
 from mcap.stream_reader import StreamReader
 
 from services.core import messages as m
+from services.core.config import load_params
 from services.core.contract import TOPICS
 from services.core.keys import topic_of
+from services.model.closed_loop import run_offline_session
 from services.recording.mcap_io import McapIn
+from services.recording.reaches import recorded_hands
 from services.store import Store
 from tests.processes import run_nod
 
@@ -150,6 +153,20 @@ def test_the_inputs_replayed_into_a_fresh_rig_give_the_same_trials(recorded, rou
     assert replay.returncode == 0, out
     assert "vision/hand, vision/layout (following the live conductor)" in out
     assert _trials(db) == _trials(recorded.db), out
+
+
+def test_the_offline_loop_over_the_recorded_hand_gives_the_live_trials(recorded):
+    """The same session through the offline loop: the live services' trials, trial by trial.
+
+    The recording's hand (each trial's poses, timed from its "go") drives the offline loop in
+    place of the simulated participant: the same decision model, robot reactor and trial judge
+    the live services ran, in lock step instead of over the fabric.
+    """
+    hands = recorded_hands(recorded.mcap)
+    assert sorted(hands) == [1, 2, 3] and all(len(p) > 30 for p in hands.values())
+    trials = run_offline_session(load_params(recorded.params), seed=0, hands=hands)
+    offline = [(t.trial, t.mode, t.option, t.robot, t.human, t.outcome) for t in trials]
+    assert offline == _trials(recorded.db)
 
 
 def test_through_decision_with_another_b_star_changes_b_r_in_consensus_trials(recorded,

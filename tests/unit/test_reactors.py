@@ -92,3 +92,30 @@ def test_the_offline_loop_interrupts_repeats_and_gives_up_like_the_conductor():
 
 def test_without_breaks_the_loop_is_the_same_session():
     assert run_offline_session(CFG, 6) == run_offline_session(CFG, 6, breaks={})
+
+
+def test_a_replayed_hand_is_where_the_recording_was_after_go():
+    from services.model.replayed_hand import ReplayedHand
+
+    hand = ReplayedHand({
+        1: [(-0.5, [(0.5, 0.9)]), (0.0, [(0.5, 0.8)]), (0.2, [(0.4, 0.5)])],
+        2: [(0.1, [(0.6, 0.4)])],
+    })
+    hand.new_trial(None)
+    hand.advance(10.0)
+    assert hand.landmarks().tolist() == [[0.5, 0.9]]  # before "go": its first pose
+    hand.go(10.0)
+    hand.advance(10.1)
+    assert hand.landmarks().tolist() == [[0.5, 0.8]]  # the latest pose at or before go + 0.1
+    hand.advance(11.0)
+    assert hand.landmarks().tolist() == [[0.4, 0.5]]
+    hand.new_trial("red")
+    hand.go(20.0)
+    hand.advance(20.0)
+    assert hand.landmarks().tolist() == [[0.6, 0.4]]  # before its first pose: that pose
+    try:
+        hand.new_trial(None)
+    except ValueError as exc:
+        assert "only 2 trial" in str(exc)
+    else:
+        raise AssertionError("a third trial out of a two-trial recording")
