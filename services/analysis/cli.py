@@ -12,7 +12,7 @@ import argparse
 import sys
 
 from services.analysis.commands import COMMANDS, UsageError
-from services.core.cli import Parser, fail, finite_float, int_in, positive_float
+from services.core.cli import SEED, Parser, fail, finite_float, int_in, positive_float
 
 PROG = "nod analyze"
 
@@ -175,20 +175,12 @@ def _build_parser() -> Parser:
         "intervals (the Monte-Carlo error).",
     )
     p.add_argument("--participants", default="20,40,60", help="study sizes, e.g. 20,40,60")
-    p.add_argument(
-        "--runs",
-        type=int_in(1, 100_000),
-        default=100,
-        help="drawn studies per size (100)",
-    )
-    p.add_argument(
-        "--population",
-        type=int_in(1, 1_000_000),
-        default=400,
-        help="simulated people (400)",
-    )
+    p.add_argument("--runs", type=int_in(1, 10**5), default=100,
+                   help="drawn studies per size (100)")
+    p.add_argument("--population", type=int_in(1, 10**6), default=400,
+                   help="simulated people (400)")
     p.add_argument("--alpha", type=positive_float, default=0.05, help="significance level (0.05)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the population and the draws")
+    p.add_argument("--seed", type=SEED, default=1, help="seed of the population and the draws")
     p.add_argument("--params", metavar="FILE.toml", help="cohort parameters (calibrated traits)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
     p.add_argument("--json", action="store_true", help="print JSON")

@@ -246,12 +246,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="where the router listens, when not at --router-host (e.g. tls/192.168.10.1:7447; "
         "tls/0.0.0.0:PORT, every interface, only when said here)",
     )
-    p.add_argument(
-        "--days",
-        type=int_in(1, 3650),
-        default=825,
-        help="validity of the certificates (825)",
-    )
+    p.add_argument("--days", type=int_in(1, 3650), default=825,
+                   help="validity of the certificates (825)")
     p.add_argument(
         "--install-dir",
         type=Path,

@@ -201,18 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="memory the served/spawned viewer keeps before dropping the oldest data (1GiB)",
     )
     q = p.add_argument_group("queues")
-    q.add_argument(
-        "--hand-queue",
-        type=int_in(1, 1_000_000),
-        default=240,
-        help="hand poses held (lossy; 240)",
-    )
-    q.add_argument(
-        "--event-queue",
-        type=int_in(1, 10_000_000),
-        default=200_000,
-        help="scalars/events held (200000)",
-    )
+    q.add_argument("--hand-queue", type=int_in(1, 10**6), default=240,
+                   help="hand poses held (lossy; 240)")
+    q.add_argument("--event-queue", type=int_in(1, 10**7), default=200_000,
+                   help="scalars/events held (200000)")
     g.add_argument(
         "--viewer-grace",
         type=float,

@@ -193,20 +193,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--params", type=Path, default=None,
         help="base parameters (TOML); its traits are also the search's first candidate",
     )
-    p.add_argument(
-        "--participants",
-        type=int_in(1, 100_000),
-        default=60,
-        help="cohort size per candidate (60)",
-    )
+    p.add_argument("--participants", type=int_in(1, 10**5), default=60,
+                   help="cohort size per candidate (60)")
     p.add_argument("--seed", type=SEED, default=1, help="first seed of the cohort (1)")
     p.add_argument("--starts", type=int_in(1, 10_000), default=24, help="seeded candidates (24)")
-    p.add_argument(
-        "--iterations",
-        type=int_in(1, 100_000),
-        default=40,
-        help="Nelder–Mead evaluations (40)",
-    )
+    p.add_argument("--iterations", type=int_in(1, 10**5), default=40,
+                   help="Nelder–Mead evaluations (40)")
     p.add_argument("--workers", type=int_in(1, 1024), default=os.cpu_count() or 1, help="processes")
     p.add_argument(
         "--evaluate", action="store_true",

@@ -120,18 +120,12 @@ def build_parser() -> argparse.ArgumentParser:
         prog="nod cohort",
         description="Simulate a cohort offline on every core and store it like a real study.",
     )
-    p.add_argument(
-        "--participants",
-        type=int_in(1, 100_000),
-        required=True,
-        help="how many (1-100000)",
-    )
+    p.add_argument("--participants", type=int_in(1, 10**5), required=True,
+                   help="how many (1-100000)")
     p.add_argument("--seed", type=SEED, default=1, help="first seed (participant i: seed + i)")
     p.add_argument("--db", type=Path, required=True, help="session database to write")
-    p.add_argument(
-        "--workers", type=int_in(1, 1024), default=os.cpu_count() or 1,
-        help="processes (default: cores)",
-    )
+    p.add_argument("--workers", type=int_in(1, 1024), default=os.cpu_count() or 1,
+                   help="processes (default: cores)")
     p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
     p.add_argument("--no-samples", action="store_true", help="store trials only (smaller, faster)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -246,12 +246,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="where the participant's hand starts relative to the commit line (default below)",
     )
     p.add_argument("--margin", type=float, default=0.0, help="grow colour boxes by this (norm)")
-    p.add_argument(
-        "--min-saturation",
-        type=int_in(0, 255),
-        default=120,
-        help="HSV S threshold (0-255)",
-    )
+    p.add_argument("--min-saturation", type=int_in(0, 255), default=120,
+                   help="HSV S threshold (0-255)")
     p.add_argument("--min-value", type=int_in(0, 255), default=60, help="HSV V threshold (0-255)")
     p.add_argument("-o", "--out", type=Path, default=Path("calibration.toml"), help="output file")
     p.add_argument("--preview", type=Path, help="write the frame with the boxes drawn here")

@@ -243,18 +243,10 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="camera index (0), video file, stream URL (rtsp://, http://) or 'sim'",
     )
-    g.add_argument(
-        "--width",
-        type=int_in(1, 8192),
-        default=None,
-        help="frame width to ask the camera for",
-    )
-    g.add_argument(
-        "--height",
-        type=int_in(1, 8192),
-        default=None,
-        help="frame height to ask the camera for",
-    )
+    g.add_argument("--width", type=int_in(1, 8192), default=None,
+                   help="frame width to ask the camera for")
+    g.add_argument("--height", type=int_in(1, 8192), default=None,
+                   help="frame height to ask the camera for")
     g.add_argument("--fps", type=float, default=None, help="camera rate to ask for (Hz)")
     g.add_argument("--realtime", action="store_true", help="play a file at its own frame rate")
     g.add_argument("--loop", action="store_true", help="play a file (or sim) again at its end")
@@ -262,28 +254,16 @@ def build_parser() -> argparse.ArgumentParser:
     t = p.add_argument_group("tracking")
     t.add_argument("--tracker", choices=sorted(TRACKERS), default="aruco", help="hand tracker")
     t.add_argument("--dictionary", default="DICT_4X4_50", help="ArUco dictionary (aruco, sim)")
-    t.add_argument(
-        "--marker-id",
-        type=int_in(0, 4095),
-        default=None,
-        help="the hand's marker id (any)",
-    )
-    t.add_argument(
-        "--model-complexity",
-        type=int_in(0, 1),
-        default=1,
-        help="mediapipe model: 0 or 1",
-    )
+    t.add_argument("--marker-id", type=int_in(0, 4095), default=None,
+                   help="the hand's marker id (any)")
+    t.add_argument("--model-complexity", type=int_in(0, 1), default=1,
+                   help="mediapipe model: 0 or 1")
     t.add_argument("--min-confidence", type=float, default=0.5, help="mediapipe confidence")
     t.add_argument("--calibration", type=Path, default=None, help="boxes + commit line (TOML)")
     o = p.add_argument_group("output")
     o.add_argument("--frames-key-hz", type=float, default=2.0, help="monitor JPEG rate (0: off)")
-    o.add_argument(
-        "--frame-width",
-        type=int_in(16, 8192),
-        default=320,
-        help="monitor JPEG width (px)",
-    )
+    o.add_argument("--frame-width", type=int_in(16, 8192), default=320,
+                   help="monitor JPEG width (px)")
     o.add_argument(
         "--wait-for-subscriber",
         type=float,
