@@ -5,12 +5,14 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 
 import pytest
 
 from services.core import messages as m
+from services.core.keys import Keys
 from services.core.session import make_config, open_session
 from tests.polling import wait_for as wait_for  # the integration tests import it from here
 from tests.processes import free_port, stop_all
@@ -96,3 +98,26 @@ class Collector:
     @property
     def messages(self) -> list[m.Message]:
         return [msg for _, msg in self.items]
+
+
+class FakeConductor:
+    """Holds the conductor's liveliness and keeps the gaze alive (the eyes need both)."""
+
+    def __init__(self, client) -> None:
+        keys = Keys("rig1")
+        self.token = client.liveliness().declare_token(keys.alive("experiment"))
+        self.pub = client.declare_publisher(keys.topic("eyes/cmd"))
+        self.quit = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        seq = 0
+        while not self.quit.wait(0.05):
+            seq += 1
+            self.pub.put(m.encode(m.GazeMsg(seq=seq, t_ns=time.time_ns(), yaw=0.3, trial=1)))
+
+    def close(self) -> None:
+        self.quit.set()
+        self.thread.join()
+        self.token.undeclare()

@@ -25,7 +25,7 @@ from services.core.session import make_config, open_session
 from services.store import Store
 from tests.processes import run_nod, stop_all
 
-from .conftest import ROOT, SHORT, Collector, free_port, wait_for
+from .conftest import ROOT, SHORT, Collector, FakeConductor, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
@@ -67,28 +67,6 @@ class Procs:
         stop_all(self.procs.values())
 
 
-class Conductor:
-    """The conductor's liveliness and gaze keep-alive, which the eyes need to run at all."""
-
-    def __init__(self, session) -> None:
-        self.token = session.liveliness().declare_token(KEYS.alive("experiment"))
-        self.pub = session.declare_publisher(KEYS.topic("eyes/cmd"))
-        self.quit = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        seq = 0
-        while not self.quit.wait(0.05):
-            seq += 1
-            self.pub.put(m.encode(m.GazeMsg(seq=seq, t_ns=time.time_ns(), yaw=0.3, trial=1)))
-
-    def close(self) -> None:
-        self.quit.set()
-        self.thread.join()
-        self.token.undeclare()
-
-
 def _connect(endpoint: str):
     deadline = time.monotonic() + 30
     while True:
@@ -122,7 +100,7 @@ def test_an_estop_survives_kill9_of_devices_and_router_until_released(tmp_path):
         client = _connect(endpoint)
         for service in ("decision", "actuation", "eyes", "sim"):
             rig.start(service)
-        conductor = Conductor(client)
+        conductor = FakeConductor(client)
         arm = Collector(client, KEYS.topic("actuation/state"), m.ArmStateMsg)
         eyes = Collector(client, KEYS.topic("eyes/state"), m.EyesStateMsg)
         wait_for(lambda: arm.items and not arm.items[-1][1].safe_stop

@@ -12,7 +12,6 @@ import signal
 import sqlite3
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
@@ -22,7 +21,7 @@ from services.core.keys import Keys
 from services.store import Store
 from tests.processes import stop_all
 
-from .conftest import ROOT, SHORT, Collector, wait_for
+from .conftest import ROOT, SHORT, Collector, FakeConductor, wait_for
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
@@ -56,28 +55,6 @@ class Rig:
 
     def stop(self) -> None:
         stop_all(self.procs.values())
-
-
-class FakeConductor:
-    """Holds the conductor's liveliness and keeps the gaze alive (the eyes need both)."""
-
-    def __init__(self, client) -> None:
-        self.token = client.liveliness().declare_token(KEYS.alive("experiment"))
-        self.pub = client.declare_publisher(KEYS.topic("eyes/cmd"))
-        self.quit = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        seq = 0
-        while not self.quit.wait(0.05):
-            seq += 1
-            self.pub.put(m.encode(m.GazeMsg(seq=seq, t_ns=time.time_ns(), yaw=0.3, trial=1)))
-
-    def close(self) -> None:
-        self.quit.set()
-        self.thread.join()
-        self.token.undeclare()
 
 
 def _first_safe_stop_after(states: Collector, t_kill: float) -> float | None:
