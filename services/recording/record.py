@@ -24,6 +24,7 @@ import argparse
 import logging
 import os
 import socket
+import sys
 import threading
 import time
 from collections import Counter
@@ -209,7 +210,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Record until Ctrl-C, SIGTERM or --duration; 2 on bad flags or an unreachable router."""
+    """Record until Ctrl-C, SIGTERM or --duration; 2 on bad flags or an unreachable router.
+
+    `nod record repair FILE` makes a cut recording whole (`services.recording.repair`).
+    """
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv[:1] == ["repair"]:
+        from services.recording.repair import main as repair
+
+        return repair(argv[1:])
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
     try:

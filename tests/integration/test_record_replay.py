@@ -255,3 +255,17 @@ def test_a_recorder_killed_with_sigkill_leaves_a_readable_file(router, endpoint,
     assert read.count == messages and not read.complete and read.truncated
     assert "nod/rig1/vision/hand" in keys
     assert read.file_metadata()["rig"] == "rig1"
+    # The library's standard (seeking) reader needs the summary the kill cut off...
+    with out.open("rb") as fh, pytest.raises(Exception):  # noqa: B017 whichever it raises
+        list(make_reader(fh).iter_messages())
+    # ...and opens the repaired copy, every message the cut file held, in order.
+    res = _nod("record", "repair", str(out))
+    fixed = out.with_suffix(".repaired.mcap")
+    assert res.returncode == 0 and "it was cut" in res.stdout, res.stdout + res.stderr
+    with fixed.open("rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics.message_count == messages
+        topics = {channel.topic for _, channel, _ in reader.iter_messages()}
+    assert keys <= topics
+    assert _nod("record", "repair", str(fixed), "--out", str(fixed)).returncode == 2
