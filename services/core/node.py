@@ -24,6 +24,7 @@ from services.core import messages as m
 from services.core.clock import Clock
 from services.core.contract import EVERY_SERVICE, QoS, check_publisher, check_subscriber
 from services.core.keys import Keys
+from services.core.limits import max_payload_bytes
 from services.core.session import Fabric, open_session_retrying
 from services.model.safety import Watchdog
 
@@ -123,10 +124,12 @@ class Node:
         network and the check (zenoh's own hand-off queue is unbounded, and a burst of hostile
         samples held there grew a service by tens of MB), one thread wake-up less per message.
         So handlers must be short — every one in this project is; I/O lives on its own threads.
+        The size limit is the topic's (`services.core.limits`), which the session's low-pass
+        filter already applies: this check only sees what a peer's or router's config let by.
         """
         key = self.keys.topic(topic)
         cls: type[m.Message] = check_subscriber(topic, self.service).message
-        limit = cls.MAX_BYTES
+        limit = max_payload_bytes(cls)
 
         def on_sample(sample: zenoh.Sample) -> None:
             size = len(sample.payload)

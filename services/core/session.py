@@ -6,6 +6,11 @@ endpoints, config file) and the shared simulated clock. `add_zenoh_args(parser)`
 flags); tests build a `Fabric` directly. Multicast scouting is off unless a config file turns it
 on: a lab network decides its topology explicitly (and tests must never find each other by
 accident).
+
+Every session — service, tool or `nod router`, with or without a config file — gets the rig's
+intake bounds on top of its configuration (`harden`): the contract's size limit per key
+(`services.core.limits`: zenoh's low-pass filter drops a bigger message in the router and in
+the receiving session, before it reaches a subscriber), and no shared memory.
 """
 
 from __future__ import annotations
@@ -23,11 +28,19 @@ import zenoh
 
 from services.core.clock import Clock
 from services.core.keys import check_rig
+from services.core.limits import low_pass_filters
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 # The transport refuses larger messages (zenoh's default is 1 GiB): no message of the rig comes
 # near it (a monitor frame is ≤ 260 kB), and an oversized one would stay resident in every host.
 MAX_MESSAGE_BYTES = 1 << 20
+# zenoh's implicit shared-memory transport (on by default) puts every message of 3 kB or more
+# from a process on the same host into a 16 MiB pool of that sender's; each receiver maps the
+# pools it is sent from and keeps them mapped for good: a burst from four local senders left
+# the router and a service ~180 MB larger, and every restart of a local sender adds its pool.
+# No message of the rig needs it (the largest is a 260 kB frame at 30 Hz). Refused when either
+# end disables it.
+SHARED_MEMORY = False
 log = logging.getLogger(__name__)
 
 
@@ -115,6 +128,7 @@ def make_config(
         conf = zenoh.Config()
         _insert(conf, "scouting/multicast/enabled", False)
         _insert(conf, "transport/link/rx/max_message_size", MAX_MESSAGE_BYTES)
+    harden(conf)
     _insert(conf, "mode", mode)
     if connect is None and mode == "client" and config_file is None:
         connect = [DEFAULT_ROUTER]
@@ -123,6 +137,17 @@ def make_config(
     if listen:
         _insert(conf, "listen/endpoints", listen)
     return conf
+
+
+def harden(conf: zenoh.Config) -> None:
+    """Put the rig's intake bounds on a configuration: per-key size limits, no shared memory.
+
+    The contract's low-pass rules go after any the configuration already has (zenoh applies the
+    smallest limit that matches a key, so a file can only tighten them).
+    """
+    rules = json.loads(conf.get_json("low_pass_filter") or "[]") or []
+    _insert(conf, "low_pass_filter", [*rules, *low_pass_filters()])
+    _insert(conf, "transport/shared_memory/enabled", SHARED_MEMORY)
 
 
 def _insert(conf: zenoh.Config, key: str, value: Any) -> None:

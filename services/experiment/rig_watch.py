@@ -15,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from services.core import messages as m
+from services.model.intake import IntakeLimit
 from services.store.records import RigEventRecord, SafetyEvent
 
 DEVICES = ("actuation", "eyes")
@@ -35,6 +36,18 @@ class RigWatch:
     _safe_since: int | None = None
     _pending: list[SafetyEvent | RigEventRecord] = field(default_factory=list)
     _break: str | None = None  # the first new stop since the trial began
+    # Launchers' events are kept, but not a flood of them (150,000 in 1.7 s once grew the
+    # conductor by 106 MB and one trial's transaction by 198 MB): a burst of 50, then 2 a
+    # second, at most 200 per trial attempt and 1000 per session (wall time, this host's clock).
+    rig_events: IntakeLimit = field(
+        default_factory=lambda: IntakeLimit(
+            burst=50, per_s=2, per_scope=200, total=1000,
+            scope_label="per trial attempt", total_label="per session",
+        )
+    )
+    # The record counting the rig events dropped in this attempt while it is still pending:
+    # (the pending list it is in, its index there, the attempt).
+    _rig_dropped: tuple[list, int, tuple[int, int]] | None = None
 
     def device_state(self, device: str, safe_stop: bool, reason: str, now_ns: int) -> None:
         """A device's state message: record each change of its safe stop."""
@@ -109,12 +122,36 @@ class RigWatch:
         return "; ".join(parts) or "settling"
 
     def rig_event(self, now_ns: int, msg: m.RigEvent) -> None:
-        """A launcher's event (a service restarted, given up…): kept with the session's events."""
-        self._pending.append(
-            RigEventRecord(
-                self.trial, self.attempt, now_ns, msg.host, msg.service, msg.kind, msg.code,
-                msg.text,
+        """A launcher's event (a service restarted, given up…): kept with the session's events.
+
+        Rate-limited and capped (`rig_events`). What is dropped is counted in one record per
+        trial attempt and batch of stored events: kind "dropped", `code` how many, stamped at
+        the first one dropped.
+        """
+        attempt = (self.trial, self.attempt)
+        why = self.rig_events.admit(self.monotonic(), attempt)
+        if why is None:
+            self._pending.append(
+                RigEventRecord(
+                    self.trial, self.attempt, now_ns, msg.host, msg.service, msg.kind,
+                    msg.code, msg.text,
+                )
             )
+            return
+        held = self._rig_dropped
+        if held is not None and held[0] is self._pending and held[2] == attempt:
+            record = self._pending[held[1]]
+            n = record.code + 1
+        else:
+            record = RigEventRecord(
+                self.trial, self.attempt, now_ns, "", "experiment", "dropped", 0, ""
+            )
+            self._pending.append(record)
+            self._rig_dropped = held = (self._pending, len(self._pending) - 1, attempt)
+            n = 1
+        self._pending[held[1]] = RigEventRecord(
+            record.trial, record.attempt, record.t_ns, "", "experiment", "dropped", n,
+            f"{n} rig events dropped ({why}; limits: {self.rig_events.describe()})",
         )
 
     def take_events(self) -> list[SafetyEvent | RigEventRecord]:

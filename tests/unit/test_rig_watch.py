@@ -70,3 +70,44 @@ def test_a_silent_device_breaks_a_trial_and_an_estop_holds_until_released():
     for ms in range(1420, 2000, 20):
         report(rig, clock, ms)
     assert rig.safe(2000 * MS)
+
+
+def _rig_event(i: int):
+    from services.core import messages as m
+
+    return m.RigEvent(seq=i, t_ns=i, host="h", service="decision", kind="restarting", text="x")
+
+
+def test_a_flood_of_rig_events_is_rate_limited_capped_and_its_drops_counted_in_the_store_path():
+    rig, clock = watch()
+    kept, counted = [], 0
+    sent = 0
+    for attempt_start in (0, 40_000, 80_000):  # three attempts, each flooded, then a quiet one
+        rig.begin(1 + attempt_start // 40_000, 1)
+        for i in range(20_000):
+            clock.t = (attempt_start + i // 10) * MS  # 10,000 events a second
+            rig.rig_event(clock.t, _rig_event(sent))
+            sent += 1
+            if i % 7000 == 0:  # the conductor stores events at trial ends, interruptions
+                events = rig.take_events()
+                kept += [e for e in events if e.kind != "dropped"]
+                counted += sum(e.code for e in events if e.kind == "dropped")
+    events = rig.take_events()
+    kept += [e for e in events if e.kind != "dropped"]
+    dropped = [e for e in events if e.kind == "dropped"]
+    counted += sum(e.code for e in dropped)
+    limit = rig.rig_events
+    assert len(kept) == limit.accepted and counted == limit.dropped == sent - len(kept)
+    per_trial = {t: sum(1 for e in kept if e.trial == t) for t in (1, 2, 3)}
+    # Each attempt: 2 s of flood → at most the burst + 2/s · 2 s, well under the per-attempt cap.
+    assert all(n <= limit.burst + 2 * limit.per_s for n in per_trial.values()), per_trial
+    assert dropped and dropped[-1].service == "experiment" and dropped[-1].trial == 3
+    assert "rig events dropped (rate limit" in dropped[-1].text
+    # A long session of floods stops at the session's cap, whatever the rate allows.
+    for k in range(100):
+        rig.begin(10 + k, 1)
+        clock.t += 60_000 * MS  # a minute later: the bucket is full again
+        for _ in range(300):
+            rig.rig_event(clock.t, _rig_event(0))
+    assert limit.accepted == limit.total
+    assert any("cap of 1000 per session" in e.text for e in rig.take_events())
