@@ -2,22 +2,32 @@
 
 Decision outputs are joined to the hand pose that produced them through `src_seq`, so the
 stored samples line up exactly even when messages arrive interleaved.
+
+A trial keeps at most `MAX_ROWS` poses, whatever a publisher floods the hand key with: the rest
+are counted (`dropped`, one log line) and `drop_records` puts the count in the trial's events.
 """
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from services.model.geometry import Colour
 from services.model.judge import TrialJudge
-from services.store.records import Sample, pack_landmarks
+from services.store.records import RigEventRecord, Sample, pack_landmarks
 
 if TYPE_CHECKING:  # the recorder reads decoded messages; it needs no codec
     from services.core import messages as m
 
+log = logging.getLogger(__name__)
+# Poses kept per trial: the longest trial the protocol's bounds allow (a 120 s timeout and a
+# 60 s robot wait) at a 160 Hz camera. A 10 kHz flood of hand poses stops here (≈ 15 MB)
+# instead of growing the conductor by ~0.5 kB a pose until the trial ends.
+MAX_ROWS = 30_000
 
-@dataclass
+
+@dataclass(slots=True)
 class _Row:
     t_ns: int
     detected: bool
@@ -35,6 +45,7 @@ class TrialSamples:
         self.judge = judge  # its clock: the poses' and outputs' t_ns
         self._rows: dict[int, _Row] = {}
         self._ee: tuple[float, float] | None = None
+        self.dropped = 0  # poses not kept: the trial had MAX_ROWS
 
     @property
     def human(self) -> Colour | None:
@@ -45,12 +56,12 @@ class TrialSamples:
         """Record a pose; the judge looks for the human's press in it (on the trial's layout)."""
         if pose.t_ns < self.t_go_ns:
             return
-        row = self._rows.setdefault(
-            pose.seq, _Row(pose.t_ns, pose.detected, pose.center, ee=self._ee)
-        )
-        if pose.detected and row.landmarks is None:
+        row = self._rows.get(pose.seq)
+        if row is None and self._room():
+            row = self._rows[pose.seq] = _Row(pose.t_ns, pose.detected, pose.center, ee=self._ee)
+        if row is not None and pose.detected and row.landmarks is None:
             row.landmarks = pack_landmarks(pose.landmarks)
-        if pose.detected:
+        if pose.detected:  # a full trial still sees the press
             self.judge.see_hand(pose.landmarks, pose.t_ns)
 
     def on_scalar(self, name: str, msg: m.Scalar, pose: m.HandPose | None) -> None:
@@ -61,7 +72,9 @@ class TrialSamples:
         if row is None:
             if pose is None:
                 return  # its pose was never seen (dropped): nothing to join it with
-            row = self._rows.setdefault(msg.src_seq, _Row(pose.t_ns, pose.detected, pose.center))
+            if len(self._rows) >= MAX_ROWS:
+                return  # full: its pose, if it came here, was counted
+            row = self._rows[msg.src_seq] = _Row(pose.t_ns, pose.detected, pose.center)
             if pose.detected:
                 row.landmarks = pack_landmarks(pose.landmarks)
         row.values[name] = msg.value
@@ -74,6 +87,24 @@ class TrialSamples:
     def on_arm(self, msg: m.ArmStateMsg) -> None:
         """The latest end-effector position, attached to the following samples."""
         self._ee = msg.ee
+
+    def _room(self) -> bool:
+        """Whether one more row fits; if not, count it (and say so once)."""
+        if len(self._rows) < MAX_ROWS:
+            return True
+        self.dropped += 1
+        if self.dropped == 1:
+            log.warning("trial samples full (%d poses): further poses are counted, not kept",
+                        MAX_ROWS)
+        return False
+
+    def drop_records(self, trial: int, attempt: int, t_ns: int) -> list[RigEventRecord]:
+        """The count of what was not kept, for the trial's events (none if nothing was)."""
+        if not self.dropped:
+            return []
+        text = f"{self.dropped} poses not recorded (at most {MAX_ROWS} per trial)"
+        return [RigEventRecord(trial, attempt, t_ns, "", "experiment", "dropped", self.dropped,
+                               text)]
 
     def decimated(self, max_hz: float) -> list[Sample]:
         """The recorded rows in time order, decimated to at most `max_hz`."""
