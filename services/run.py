@@ -307,7 +307,7 @@ def _participant(args: argparse.Namespace, i: int) -> argparse.Namespace:
 
     The launcher names the session, so a conductor it restarts can resume that very session.
     """
-    extra = {"session": uuid.uuid4().hex[:12]}
+    extra: dict[str, object] = {"session": uuid.uuid4().hex[:12]}
     if args.participants > 1:
         extra |= {"seed": args.seed + i, "participant": f"P{i + 1:02d}", "cohort": True}
     return argparse.Namespace(**{**vars(args), **extra})

@@ -10,6 +10,7 @@ its pace whatever the bus does; a hold is applied before anything queued behind 
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 from collections import deque
@@ -122,7 +123,7 @@ class ThreadedArm(ArmDriver):
             for job in jobs:
                 self._call(job)
             if t is not None:
-                report = self._call(lambda t=t: self.inner.state(t))
+                report = self._call(functools.partial(self.inner.state, t))
                 if isinstance(report, ArmState):
                     with self._lock:
                         self._report = report

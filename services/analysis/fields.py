@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from services.model.dynamics import Jacobian, PairParams, jacobian_entries, pair_rhs
+from services.model.dynamics import ArrayLike, Jacobian, PairParams, jacobian_entries, pair_rhs
 
 # max |d/dw sech²(w)| = 4 / (3√3), attained at tanh(w) = ±1/√3.
 _MAX_SECH2_SLOPE = 4.0 / (3.0 * math.sqrt(3.0))
@@ -21,7 +21,7 @@ _MAX_SECH2_SLOPE = 4.0 / (3.0 * math.sqrt(3.0))
 def is_stable(j: Jacobian) -> np.ndarray:
     """True where both eigenvalues of the 2×2 Jacobian have negative real part (tr < 0, det > 0)."""
     j11, j12, j21, j22 = j
-    return (j11 + j22 < 0.0) & (j11 * j22 - j12 * j21 > 0.0)
+    return np.asarray((j11 + j22 < 0.0) & (j11 * j22 - j12 * j21 > 0.0))
 
 
 def log_norm(j: Jacobian) -> np.ndarray:
@@ -49,8 +49,8 @@ def jacobian_lipschitz(p: PairParams) -> float:
 def newton(
     z_r: np.ndarray,
     z_h: np.ndarray,
-    b_r: np.ndarray,
-    b_h: np.ndarray,
+    b_r: ArrayLike,
+    b_h: ArrayLike,
     p: PairParams,
     iterations: int = 10,
     step_tol: float = 1e-15,

@@ -155,14 +155,16 @@ def score(
         z = observer.update(landmarks, t).z_hat
         tracker.add(z, None)
         rows.append((t, z, truth))
-    changes = [
-        i for i, r in enumerate(rows) if r[2] is not None and (i == 0 or rows[i - 1][2] != r[2])
+    changes = [  # (row, the new truth) where the truth changes to a colour
+        (i, truth)
+        for i, (_, _, truth) in enumerate(rows)
+        if truth is not None and (i == 0 or rows[i - 1][2] != truth)
     ]
     counted = wrong = 0
     latencies: list[float] = []
-    for k, i in enumerate(changes):
-        end = changes[k + 1] if k + 1 < len(changes) else len(rows)
-        t0, _, truth = rows[i]
+    for k, (i, truth) in enumerate(changes):
+        end = changes[k + 1][0] if k + 1 < len(changes) else len(rows)
+        t0 = rows[i][0]
         want = colour_sign(truth)
         for t, z, _ in rows[i:end]:
             if t - t0 >= GRACE_S:

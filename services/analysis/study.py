@@ -68,7 +68,9 @@ def load_participants(store: Store) -> tuple[list[ParticipantOutcomes], list[str
         if not trials:
             notes.append(f"session {s['session']} ({s['participant']}) has no trials: skipped")
             continue
-        bad = sorted({t.outcome for _, t in trials if t.outcome not in (*OUTCOMES, None)})
+        bad = sorted(
+            {t.outcome for _, t in trials if t.outcome is not None and t.outcome not in OUTCOMES}
+        )
         if bad:
             raise ValueError(f"session {s['session']}: unknown outcome(s) {bad}")
         for _, t in trials:

@@ -7,13 +7,17 @@ subscriber, decoders take the message type from here, and the README's contract 
 `--update README.md` rewrites it in place).
 Services that read every key of a rig (`nod monitor`) subscribe to `nod/<rig>/**` and are not
 listed per topic.
+
+Each topic is also a constant named after its key, typed by its message: `DECISION_Z_R` is
+`Topic[m.Scalar]`, so code that passes the constant instead of the name ("decision/z_r") has
+the message class checked, and the topic's publishers and subscribers are one lookup away.
 """
 
 from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import Literal, TypeAlias
+from typing import Any, Generic, Literal, TypeAlias, TypeVar, overload
 
 from services.core import messages as m
 
@@ -43,12 +47,15 @@ CONTROL = QoS("block", "interactive_high")
 SAFETY = QoS("block", "real_time")
 
 
+M = TypeVar("M", bound=m.Message, covariant=True)  # a topic's message class
+
+
 @dataclass(frozen=True, slots=True)
-class Topic:
-    """One key of the rig (`nod/<rig>/<name>`)."""
+class Topic(Generic[M]):
+    """One key of the rig (`nod/<rig>/<name>`), carrying messages of class `M`."""
 
     name: str
-    message: type[m.Message]
+    message: type[M]
     publishers: tuple[str, ...]
     subscribers: tuple[str, ...]
     rate: str
@@ -68,141 +75,157 @@ BASE = ("seq", "t_ns")
 EVERY_SERVICE = ("decision", "actuation", "eyes", "vision", "sim", "experiment", "monitor",
                  "launcher")
 
-_TOPICS = (
-    Topic(
-        "vision/hand", m.HandPose, ("vision", "sim"), ("decision", "actuation", "experiment"),
-        "camera (30 Hz)", STREAM,
-        "`detected` bool, `center` [x,y] (mean of the landmarks) or nil, `landmarks` up to 64 "
-        "[x,y] (21 from a hand model), normalised image coords, `source`",
-    ),
-    Topic(
-        "vision/layout", m.Layout, ("vision", "sim"), ("decision", "actuation", "experiment"),
-        "1 Hz + queryable", RELIABLE, "`red`, `blue` [x1,y1,x2,y2] boxes, `commit_y`",
-    ),
-    Topic(
-        "vision/frame", m.VisionFrame, ("vision",), (), "2 Hz", STREAM,
-        "`jpeg` (downscaled, landmarks and boxes drawn), `width`, `height`, `hand_seq`, "
-        "`detected`",
-    ),
-    Topic(
-        "sim/camera", m.VisionFrame, ("sim",), ("vision",), "30 Hz (`nod sim --render`)", STREAM,
-        "a rendered camera frame: `jpeg`, `width`, `height`, `hand_seq`, `detected`",
-    ),
-    Topic(
-        "decision/z_h", m.Observed, ("decision",), ("experiment",), "per pose", STREAM,
-        "`value` ẑ_h, `src_seq` (the pose's seq), `theta` θ and `distance` d of eq 7 when "
-        "this pose set ẑ_h (else nil)",
-    ),
-    Topic(
-        "decision/z_r", m.Scalar, ("decision",), ("actuation", "experiment"), "per pose", STREAM,
-        "`value` z_r, `src_seq`",
-    ),
-    Topic(
-        "decision/b_r", m.Scalar, ("decision",), ("experiment",), "per pose", STREAM,
-        "`value` b_r, `src_seq`",
-    ),
-    Topic(
-        "actuation/cmd", m.ArmCommandMsg, ("actuation",), (), "on change", RELIABLE,
-        "`action` idle/stop/move/press, `direction` ±1/0, `target`, `reason`",
-    ),
-    Topic(
-        "actuation/state", m.ArmStateMsg, ("actuation",), ("sim", "experiment", "estop"), "50 Hz",
-        STREAM,
-        "`ee` [x,y], `phase`, `moving`, `target`, `safe_stop`, `safety_reason`, `fault`, "
-        "`estop` (latched), `estop_id` (the last e-stop command obeyed), `trial`",
-    ),
-    Topic(
-        "actuation/press", m.PressMsg, ("actuation",), ("experiment", "sim"), "once per trial",
-        CONTROL, "`colour`, `trial`",
-    ),
-    Topic(
-        "eyes/cmd", m.GazeMsg, ("experiment",), ("eyes", "sim"), "per cue + 20 Hz keep-alive",
-        CONTROL, "`yaw`, `pitch` (rad, + toward red), `level`, `gesture` (a pose of the "
-        "attention gesture), `trial`",
-    ),
-    Topic(
-        "eyes/state", m.EyesStateMsg, ("eyes",), ("experiment", "estop"), "50 Hz", STREAM,
-        "`angles_deg` ×4, `pulses_us` ×4, `clamped`, `safe_stop`, `safety_reason`, `fault`, "
-        "`estop`, `estop_id`",
-    ),
-    Topic(
-        "experiment/trial", m.TrialEvent, ("experiment",),
-        ("decision", "actuation", "sim", "run", "launcher"),
-        "per event", CONTROL,
-        "`phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, `mode`, "
-        "`option`, `text`, `session`",
-    ),
-    Topic(
-        "experiment/result", m.TrialResult, ("experiment",), ("run", "launcher"), "per trial",
-        RELIABLE,
-        "`trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, `violations`, "
-        "`score`, `session`, `interrupted`",
-    ),
-    Topic(
-        "rig/status", m.NodeStatus, EVERY_SERVICE, ("status",), "1 Hz per service (wall time)",
-        RELIABLE,
-        "`service`, `host`, `pid`, `version`, `started_ns`, `wall_ns` (host wall clock: clock "
-        "offsets), `restarts`, `received`, `dropped`",
-    ),
-    Topic(
-        "rig/event", m.RigEvent, ("launcher",), ("experiment", "status"), "on change",
-        RELIABLE,
-        "`host`, `service`, `kind` started/exited/restarting/gave_up/stopped, `code` (exit "
-        "code; negative: the signal), `restarts`, `text`",
-    ),
-    Topic(
-        "safety/estop", m.Estop, ("estop",), ("actuation", "eyes", "experiment"), "on demand",
-        SAFETY,
-        "engage only (`engaged` true; false is refused here): `engaged`, `reason`, `source` "
-        "(user@host), `id` (acknowledged on the state keys)",
-    ),
-    Topic(
-        "safety/release", m.Estop, ("estop",), ("actuation", "eyes", "experiment"), "on demand",
-        SAFETY,
-        "release only (`engaged` false), a key of its own so an ACL can let every host engage "
-        "and only the control station release: `engaged`, `reason`, `source`, `id`",
-    ),
-    Topic(
-        "safety/latch", m.LatchMsg, ("actuation", "eyes"), ("actuation", "eyes", "experiment"),
-        "queryable (asked at start)", RELIABLE,
-        "each device answers with its e-stop latch: `service`, `engaged`, `reason`, `source`, "
-        "`id`, `seen` (recent command ids, which can never release it again); a device that "
-        "starts is engaged if any is",
-        queried_only=True,
-    ),
+VISION_HAND = Topic(
+    "vision/hand", m.HandPose, ("vision", "sim"), ("decision", "actuation", "experiment"),
+    "camera (30 Hz)", STREAM,
+    "`detected` bool, `center` [x,y] (mean of the landmarks) or nil, `landmarks` up to 64 "
+    "[x,y] (21 from a hand model), normalised image coords, `source`",
 )
-TOPICS: dict[str, Topic] = {t.name: t for t in _TOPICS}
+VISION_LAYOUT = Topic(
+    "vision/layout", m.Layout, ("vision", "sim"), ("decision", "actuation", "experiment"),
+    "1 Hz + queryable", RELIABLE, "`red`, `blue` [x1,y1,x2,y2] boxes, `commit_y`",
+)
+VISION_FRAME = Topic(
+    "vision/frame", m.VisionFrame, ("vision",), (), "2 Hz", STREAM,
+    "`jpeg` (downscaled, landmarks and boxes drawn), `width`, `height`, `hand_seq`, "
+    "`detected`",
+)
+SIM_CAMERA = Topic(
+    "sim/camera", m.VisionFrame, ("sim",), ("vision",), "30 Hz (`nod sim --render`)", STREAM,
+    "a rendered camera frame: `jpeg`, `width`, `height`, `hand_seq`, `detected`",
+)
+DECISION_Z_H = Topic(
+    "decision/z_h", m.Observed, ("decision",), ("experiment",), "per pose", STREAM,
+    "`value` ẑ_h, `src_seq` (the pose's seq), `theta` θ and `distance` d of eq 7 when "
+    "this pose set ẑ_h (else nil)",
+)
+DECISION_Z_R = Topic(
+    "decision/z_r", m.Scalar, ("decision",), ("actuation", "experiment"), "per pose", STREAM,
+    "`value` z_r, `src_seq`",
+)
+DECISION_B_R = Topic(
+    "decision/b_r", m.Scalar, ("decision",), ("experiment",), "per pose", STREAM,
+    "`value` b_r, `src_seq`",
+)
+ACTUATION_CMD = Topic(
+    "actuation/cmd", m.ArmCommandMsg, ("actuation",), (), "on change", RELIABLE,
+    "`action` idle/stop/move/press, `direction` ±1/0, `target`, `reason`",
+)
+ACTUATION_STATE = Topic(
+    "actuation/state", m.ArmStateMsg, ("actuation",), ("sim", "experiment", "estop"), "50 Hz",
+    STREAM,
+    "`ee` [x,y], `phase`, `moving`, `target`, `safe_stop`, `safety_reason`, `fault`, "
+    "`estop` (latched), `estop_id` (the last e-stop command obeyed), `trial`",
+)
+ACTUATION_PRESS = Topic(
+    "actuation/press", m.PressMsg, ("actuation",), ("experiment", "sim"), "once per trial",
+    CONTROL, "`colour`, `trial`",
+)
+EYES_CMD = Topic(
+    "eyes/cmd", m.GazeMsg, ("experiment",), ("eyes", "sim"), "per cue + 20 Hz keep-alive",
+    CONTROL, "`yaw`, `pitch` (rad, + toward red), `level`, `gesture` (a pose of the "
+    "attention gesture), `trial`",
+)
+EYES_STATE = Topic(
+    "eyes/state", m.EyesStateMsg, ("eyes",), ("experiment", "estop"), "50 Hz", STREAM,
+    "`angles_deg` ×4, `pulses_us` ×4, `clamped`, `safe_stop`, `safety_reason`, `fault`, "
+    "`estop`, `estop_id`",
+)
+EXPERIMENT_TRIAL = Topic(
+    "experiment/trial", m.TrialEvent, ("experiment",),
+    ("decision", "actuation", "sim", "run", "launcher"),
+    "per event", CONTROL,
+    "`phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, `mode`, "
+    "`option`, `text`, `session`",
+)
+EXPERIMENT_RESULT = Topic(
+    "experiment/result", m.TrialResult, ("experiment",), ("run", "launcher"), "per trial",
+    RELIABLE,
+    "`trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, `violations`, "
+    "`score`, `session`, `interrupted`",
+)
+RIG_STATUS = Topic(
+    "rig/status", m.NodeStatus, EVERY_SERVICE, ("status",), "1 Hz per service (wall time)",
+    RELIABLE,
+    "`service`, `host`, `pid`, `version`, `started_ns`, `wall_ns` (host wall clock: clock "
+    "offsets), `restarts`, `received`, `dropped`",
+)
+RIG_EVENT = Topic(
+    "rig/event", m.RigEvent, ("launcher",), ("experiment", "status"), "on change",
+    RELIABLE,
+    "`host`, `service`, `kind` started/exited/restarting/gave_up/stopped, `code` (exit "
+    "code; negative: the signal), `restarts`, `text`",
+)
+SAFETY_ESTOP = Topic(
+    "safety/estop", m.Estop, ("estop",), ("actuation", "eyes", "experiment"), "on demand",
+    SAFETY,
+    "engage only (`engaged` true; false is refused here): `engaged`, `reason`, `source` "
+    "(user@host), `id` (acknowledged on the state keys)",
+)
+SAFETY_RELEASE = Topic(
+    "safety/release", m.Estop, ("estop",), ("actuation", "eyes", "experiment"), "on demand",
+    SAFETY,
+    "release only (`engaged` false), a key of its own so an ACL can let every host engage "
+    "and only the control station release: `engaged`, `reason`, `source`, `id`",
+)
+SAFETY_LATCH = Topic(
+    "safety/latch", m.LatchMsg, ("actuation", "eyes"), ("actuation", "eyes", "experiment"),
+    "queryable (asked at start)", RELIABLE,
+    "each device answers with its e-stop latch: `service`, `engaged`, `reason`, `source`, "
+    "`id`, `seen` (recent command ids, which can never release it again); a device that "
+    "starts is engaged if any is",
+    queried_only=True,
+)
+_TOPICS: tuple[Topic[m.Message], ...] = (
+    VISION_HAND, VISION_LAYOUT, VISION_FRAME, SIM_CAMERA, DECISION_Z_H, DECISION_Z_R, DECISION_B_R,
+    ACTUATION_CMD, ACTUATION_STATE, ACTUATION_PRESS, EYES_CMD, EYES_STATE, EXPERIMENT_TRIAL,
+    EXPERIMENT_RESULT, RIG_STATUS, RIG_EVENT, SAFETY_ESTOP, SAFETY_RELEASE, SAFETY_LATCH,
+)
+TOPICS: dict[str, Topic[m.Message]] = {t.name: t for t in _TOPICS}
 
 
 class ContractError(RuntimeError):
     """Code tried to publish or subscribe outside the declared contract (a bug, not input)."""
 
 
-def topic(name: str) -> Topic:
-    """A topic by name, with the known names in the error."""
-    try:
-        return TOPICS[name]
-    except KeyError:
-        raise KeyError(f"unknown topic {name!r}; known: {sorted(TOPICS)}") from None
+@overload
+def topic(name: Topic[M]) -> Topic[M]: ...
+@overload
+def topic(name: str) -> Topic[m.Message]: ...
+def topic(name: str | Topic[Any]) -> Topic[Any]:
+    """A topic by name or by its constant (the declared one); the error lists the known names."""
+    key = name.name if isinstance(name, Topic) else name
+    found = TOPICS.get(key)
+    if found is None or (isinstance(name, Topic) and found is not name):
+        raise KeyError(f"unknown topic {key!r}; known: {sorted(TOPICS)}")
+    return found
 
 
-def check_publisher(name: str, service: str) -> Topic:
+@overload
+def check_publisher(name: Topic[M], service: str) -> Topic[M]: ...
+@overload
+def check_publisher(name: str, service: str) -> Topic[m.Message]: ...
+def check_publisher(name: str | Topic[Any], service: str) -> Topic[Any]:
     """The topic, if `service` is one of its declared publishers."""
     t = topic(name)
     if service not in t.publishers:
         raise ContractError(
-            f"{service} publishes {name}, but the contract names only {t.publishers}: "
+            f"{service} publishes {t.name}, but the contract names only {t.publishers}: "
             "declare it in services/core/contract.py"
         )
     return t
 
 
-def check_subscriber(name: str, service: str) -> Topic:
+@overload
+def check_subscriber(name: Topic[M], service: str) -> Topic[M]: ...
+@overload
+def check_subscriber(name: str, service: str) -> Topic[m.Message]: ...
+def check_subscriber(name: str | Topic[Any], service: str) -> Topic[Any]:
     """The topic, if `service` is one of its declared subscribers."""
     t = topic(name)
     if service not in t.subscribers:
         raise ContractError(
-            f"{service} subscribes to {name}, but the contract names only {t.subscribers}: "
+            f"{service} subscribes to {t.name}, but the contract names only {t.subscribers}: "
             "declare it in services/core/contract.py"
         )
     return t

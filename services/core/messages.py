@@ -32,30 +32,30 @@ class MessageError(ValueError):
     """A payload failed to decode or validate; the text says which field and why."""
 
 
-def _num(lo: float, hi: float) -> Any:
-    """A float in [lo, hi] (NaN fails every bound, so it is rejected too)."""
-    return Annotated[float, msgspec.Meta(ge=lo, le=hi)]
-
-
-def _int(lo: int, hi: int) -> Any:
-    return Annotated[int, msgspec.Meta(ge=lo, le=hi)]
-
-
+# Every number has a range: `Annotated[float, msgspec.Meta(ge=lo, le=hi)]` is a float in [lo, hi]
+# to the decoder (NaN fails every bound, so it is rejected too) and a plain float to a type checker.
 Counter: TypeAlias = Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)]
 Text: TypeAlias = Annotated[str, msgspec.Meta(max_length=MAX_TEXT)]
 Trial: TypeAlias = Annotated[int, msgspec.Meta(ge=0, le=10_000)]
 Colour: TypeAlias = Literal["red", "blue"]
-Coord = _num(-0.5, 1.5)  # normalised image coordinates, with a margin for off-frame hands
+# normalised image coordinates, with a margin for off-frame hands
+Coord: TypeAlias = Annotated[float, msgspec.Meta(ge=-0.5, le=1.5)]
 Vec2: TypeAlias = tuple[Coord, Coord]
-Unit = _num(0.0, 1.0)
-Pixels = _int(1, 8192)
-Score = _int(-100, 100)
-Direction = _int(-1, 1)
-Opinion = _num(-1e6, 1e6)  # ẑ_h, z_r, b_r: finite, far beyond any value the model reaches
-Radians = _num(-math.pi, math.pi)
-Table = _num(-1, 2)  # the arm's end effector, table coordinates with a margin
+Unit: TypeAlias = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
+Pixels: TypeAlias = Annotated[int, msgspec.Meta(ge=1, le=8192)]
+Score: TypeAlias = Annotated[int, msgspec.Meta(ge=-100, le=100)]
+Direction: TypeAlias = Annotated[int, msgspec.Meta(ge=-1, le=1)]
+# ẑ_h, z_r, b_r: finite, far beyond any value the model reaches
+Opinion: TypeAlias = Annotated[float, msgspec.Meta(ge=-1e6, le=1e6)]
+Radians: TypeAlias = Annotated[float, msgspec.Meta(ge=-math.pi, le=math.pi)]
+# the arm's end effector, table coordinates with a margin
+Table: TypeAlias = Annotated[float, msgspec.Meta(ge=-1, le=2)]
 Box4: TypeAlias = tuple[Unit, Unit, Unit, Unit]
 ServiceName = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
+Pid: TypeAlias = Annotated[int, msgspec.Meta(ge=0, le=2**31 - 1)]
+Restarts: TypeAlias = Annotated[int, msgspec.Meta(ge=0, le=1_000_000)]
+# a process's exit code; negative: killed by that signal
+ExitCode: TypeAlias = Annotated[int, msgspec.Meta(ge=-255, le=255)]
 
 
 class Message(
@@ -213,8 +213,8 @@ class GazeMsg(Message, frozen=True, kw_only=True):
     trial: Trial = 0
 
 
-Angle = _num(-360, 360)
-Pulse = _num(0, 5000)
+Angle: TypeAlias = Annotated[float, msgspec.Meta(ge=-360, le=360)]
+Pulse: TypeAlias = Annotated[float, msgspec.Meta(ge=0, le=5000)]
 
 
 class EyesStateMsg(Message, frozen=True, kw_only=True):
@@ -312,11 +312,11 @@ class NodeStatus(Message, frozen=True, kw_only=True):
     KIND: ClassVar[str] = "status"
     service: ServiceName = "decision"
     host: Text = ""
-    pid: _int(0, 2**31 - 1) = 0
+    pid: Pid = 0
     version: Text = ""
     started_ns: Counter = 0  # wall clock at start
     wall_ns: Counter = 0
-    restarts: _int(0, 1_000_000) = 0  # how often the launcher restarted this service
+    restarts: Restarts = 0  # how often the launcher restarted this service
     received: Counter = 0  # messages handled so far
     dropped: Counter = 0  # bad messages dropped so far
 
@@ -331,8 +331,8 @@ class RigEvent(Message, frozen=True, kw_only=True):
     host: Text = ""
     service: ServiceName = "decision"
     kind: RigEventKind = "started"
-    code: _int(-255, 255) | None = None  # exit code (negative: killed by that signal)
-    restarts: _int(0, 1_000_000) = 0
+    code: ExitCode | None = None  # exit code (negative: killed by that signal)
+    restarts: Restarts = 0
     text: Text = ""
 
 

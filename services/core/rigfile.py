@@ -223,13 +223,13 @@ def load_rig(path: str | Path) -> Rig:
         if not isinstance(args, list) or not all(isinstance(a, str) for a in args):
             raise fail(f"{service}.args", "must be a list of strings")
         sections[service] = dict(sec)
-    for service, key, allowed in (
+    for service, key, choices in (
         ("actuation", "driver", ARM_DRIVERS), ("eyes", "driver", EYES_DRIVERS),
         ("vision", "tracker", TRACKERS),
     ):
         value = sections[service].get(key)
-        if value is not None and value not in allowed:
-            raise fail(f"{service}.{key}", f"{value!r} is not one of {', '.join(allowed)}")
+        if value is not None and value not in choices:
+            raise fail(f"{service}.{key}", f"{value!r} is not one of {', '.join(choices)}")
     for service, key in (
         ("actuation", "config"), ("eyes", "config"), ("eyes", "trims"), ("vision", "calibration"),
         ("actuation", "state_dir"), ("eyes", "state_dir"),

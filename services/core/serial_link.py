@@ -36,6 +36,7 @@ try:  # POSIX: pyserial lets termios.error escape from flush/ioctl calls on a va
     _PORT_ERRORS: tuple[type[Exception], ...] = (serial.SerialException, OSError, termios.error)
 except ImportError:  # pragma: no cover - Windows
     _PORT_ERRORS = (serial.SerialException, OSError)
+_OPEN_ERRORS: tuple[type[Exception], ...] = (*_PORT_ERRORS, ValueError)  # ValueError: a bad setting
 
 log = logging.getLogger(__name__)
 
@@ -166,7 +167,7 @@ class SerialLink:
         c = self.config
         try:
             self._ser = self._factory(self.port, self.baudrate, c.timeout_s, c.write_timeout_s)
-        except (*_PORT_ERRORS, ValueError) as exc:
+        except _OPEN_ERRORS as exc:
             self._schedule_retry(f"cannot open {self.port}: {exc}")
             raise LinkLostError(
                 f"cannot open serial port {self.port} ({exc}); check the cable, the --port "

@@ -11,6 +11,7 @@ command line.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import threading
@@ -18,6 +19,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypedDict
 
 from services.core import messages as m
 from services.core.node import Node
@@ -28,7 +30,7 @@ from services.experiment.trial_samples import TrialSamples
 from services.model.geometry import Colour
 from services.model.judge import TrialJudge
 from services.model.params import NodConfig
-from services.model.protocol import Cue, SessionProtocol, TrialEnd, TrialSpec
+from services.model.protocol import Cue, Mode, SessionProtocol, TrialEnd, TrialSpec
 from services.store import Interruption, Store, TrialRecord
 
 log = logging.getLogger("nod.experiment")
@@ -38,6 +40,24 @@ SAMPLE_HZ = 60.0  # stored samples are decimated to this rate (a 30 Hz camera pa
 # The gaze is repeated this often: the eyes' watchdog holds them neutral when it goes stale
 # (250 ms), so the keep-alive runs 5x faster than that bound, with room for a busy host.
 GAZE_KEEPALIVE_NS = 50_000_000
+
+
+class GazeFields(TypedDict, total=False):
+    """The gaze command the conductor keeps repeating: fields of `m.GazeMsg`."""
+
+    yaw: float
+    pitch: float
+    level: str
+    gesture: bool
+    trial: int
+
+
+class TrialFields(TypedDict):
+    """The trial every `m.TrialEvent` of one cue names."""
+
+    trial: int
+    mode: Mode
+    option: Colour | None
 
 
 class Conductor:
@@ -69,7 +89,7 @@ class Conductor:
         self.trial_samples: TrialSamples | None = None
         self.presses = RobotPresses()
         self.trial = 0
-        self.gaze_msg: dict[str, object] | None = None
+        self.gaze_msg: GazeFields | None = None
         self.session = ""
         self.records: list[TrialRecord] = []
         self.rig = RigWatch()
@@ -97,7 +117,7 @@ class Conductor:
         node.subscribe("safety/release", self.on_estop)
         node.subscribe("rig/event", lambda msg: self.rig.rig_event(self._now_ns(), msg))
         for service in REQUIRED:
-            node.watch_liveliness(service, lambda a, s=service: self._liveliness(s, a))
+            node.watch_liveliness(service, functools.partial(self._liveliness, service))
         # An e-stop engaged while no conductor ran (or before this one started) holds the session
         # from the start: the devices answer with their latches.
         for latch in node.ask("safety/latch", 1.0):
@@ -338,7 +358,7 @@ class Conductor:
             spec = cue.trial
             if spec is None:  # session_end: run_session publishes it once the store is closed
                 continue
-            ev = {"trial": spec.index, "mode": spec.mode, "option": spec.option}
+            ev: TrialFields = {"trial": spec.index, "mode": spec.mode, "option": spec.option}
             if cue.kind in ("setup", "countdown", "go", "end", "interrupted"):
                 self.console.cue(cue.kind, spec.index, spec.mode, spec.option, cue.text)
             if cue.kind == "gaze" and cue.gaze is not None:

@@ -102,9 +102,11 @@ class LiveConsole(SessionConsole):
         self.lock = threading.Lock()
         self.session = self.participant = ""
         self.n = 0
-        self.trial, self.mode, self.option, self.phase, self.text = 0, "", None, "waiting", ""
+        self.trial, self.mode, self.phase, self.text = 0, "", "waiting", ""
+        self.option: str | None = None
         self.values: dict[str, float] = {}
-        self.robot_phase, self.robot_target = "idle", None
+        self.robot_phase = "idle"
+        self.robot_target: str | None = None
         self.results: list[tuple] = []
         self.events: deque[tuple[str, str]] = deque(maxlen=6)
         self._live: Any = None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 from services.core.cli import Parser, fail
 from services.store import Store
@@ -34,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
         store.close()
     if args.session is not None and not trials:
         return fail("nod report", f"no trials for session {args.session!r}")
-    rows = [
+    rows: list[dict[str, Any]] = [  # JSON objects, one per trial (--json prints them)
         {
             "session": session,
             "trial": t.trial,

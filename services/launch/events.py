@@ -40,7 +40,9 @@ class RigEvents:
         self.lock = threading.Lock()
         self.quiet_starts = True  # the first start of each service is not news
 
-    def __call__(self, service: str, kind: str, code: int | None, restarts: int, text: str) -> None:
+    def __call__(
+        self, service: str, kind: m.RigEventKind, code: int | None, restarts: int, text: str
+    ) -> None:
         """Report one supervisor event."""
         with self.lock:
             msg = m.RigEvent(

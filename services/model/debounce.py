@@ -31,7 +31,7 @@ class DebounceParams:
 class SignDebouncer:
     """The debounced sign of a stream of samples; `feed` one sample at a time."""
 
-    def __init__(self, c_max: int = DebounceParams.c_max) -> None:
+    def __init__(self, c_max: int = DebounceParams().c_max) -> None:
         """Debounce with `c_max` consecutive samples (validated as DebounceParams)."""
         self.c_max = DebounceParams(c_max).c_max
         self.reset()

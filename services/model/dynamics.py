@@ -14,11 +14,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any, TypeAlias
+from typing import Any, TypeAlias, TypeVar, overload
 
 import numpy as np
 
 ArrayLike: TypeAlias = float | np.ndarray
+Y = TypeVar("Y", float, np.ndarray)  # a state: a float stays a float, an array an array
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,6 +55,39 @@ class PairParams:
         return np.array([[0.0, self.a_rh], [self.a_hr, 0.0]])
 
 
+@overload
+def opinion_rate(
+    z: float,
+    z_other: float,
+    b: float,
+    d: float,
+    u: float,
+    alpha: float,
+    gamma_a: float,
+    tanh: Callable[[Any], Any] = ...,
+) -> float: ...
+@overload
+def opinion_rate(
+    z: np.ndarray,
+    z_other: ArrayLike,
+    b: ArrayLike,
+    d: float,
+    u: float,
+    alpha: float,
+    gamma_a: float,
+    tanh: Callable[[Any], Any] = ...,
+) -> np.ndarray: ...
+@overload
+def opinion_rate(
+    z: ArrayLike,
+    z_other: ArrayLike,
+    b: ArrayLike,
+    d: float,
+    u: float,
+    alpha: float,
+    gamma_a: float,
+    tanh: Callable[[Any], Any] = ...,
+) -> ArrayLike: ...
 def opinion_rate(
     z: ArrayLike,
     z_other: ArrayLike,
@@ -85,6 +119,18 @@ def human_rate(z_h: ArrayLike, z_r: ArrayLike, b_h: ArrayLike, p: PairParams) ->
     return opinion_rate(z_h, z_r, b_h, h.d, h.u, h.alpha, h.gamma * p.a_hr)
 
 
+@overload
+def pair_rhs(
+    z_r: float, z_h: float, b_r: float, b_h: float, p: PairParams
+) -> tuple[float, float]: ...
+@overload
+def pair_rhs(
+    z_r: np.ndarray, z_h: np.ndarray, b_r: ArrayLike, b_h: ArrayLike, p: PairParams
+) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def pair_rhs(
+    z_r: ArrayLike, z_h: ArrayLike, b_r: ArrayLike, b_h: ArrayLike, p: PairParams
+) -> tuple[ArrayLike, ArrayLike]: ...
 def pair_rhs(
     z_r: ArrayLike, z_h: ArrayLike, b_r: ArrayLike, b_h: ArrayLike, p: PairParams
 ) -> tuple[ArrayLike, ArrayLike]:
@@ -92,7 +138,7 @@ def pair_rhs(
     return robot_rate(z_r, z_h, b_r, p), human_rate(z_h, z_r, b_h, p)
 
 
-def rk4_step(f: Callable[[Any], Any], y: ArrayLike, dt: float) -> ArrayLike:
+def rk4_step(f: Callable[[Y], Y], y: Y, dt: float) -> Y:
     """One classical Runge-Kutta step of ẏ = f(y) (autonomous; inputs held constant = ZOH)."""
     k1 = f(y)
     k2 = f(y + 0.5 * dt * k1)

@@ -6,6 +6,7 @@ Coordinates are normalised image coordinates: x to the right, y down, both in [0
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal, TypeAlias
 
@@ -112,7 +113,7 @@ class TableLayout:
         """Algorithm 1 assumes red toward +x; False means the layout is mirrored (SPEC §2)."""
         return self.red.center[0] >= self.blue.center[0]
 
-    def pressed(self, points: list[Point] | tuple[Point, ...]) -> Colour | None:
+    def pressed(self, points: Iterable[Point]) -> Colour | None:
         """The buzzer whose box holds any of the points (a hand landmark), or None."""
         for p in points:
             for colour in COLOURS:

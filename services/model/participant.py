@@ -197,7 +197,7 @@ class Participant:
 
         self.z_h = rk4_step(f, self.z_h, h)
 
-        if self.t < self.t_go + self.p.reaction_s:
+        if self.t_go is None or self.t < self.t_go + self.p.reaction_s:  # (set: `advance`)
             return
         wanted: Colour = "red" if self.z_h > 0 else "blue"
         if self._heading is None:

@@ -33,7 +33,7 @@ def recorded_hands(path: Path) -> dict[int, list[Pose]]:
                 current = msg.trial
                 trials[current] = []
                 go_ns.pop(current, None)
-            elif msg.phase == "go" and msg.trial == current:
+            elif msg.phase == "go" and current is not None and msg.trial == current:
                 go_ns[current] = msg.t_ns
             elif msg.phase in ("end", "interrupted", "abort", "session_end"):
                 current = None

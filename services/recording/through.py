@@ -122,8 +122,10 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
             topic = topic_of(e.key)
             if topic in DECISION_TOPICS:
                 left_out += 1
-                open_trial = current is not None and not current.closed
-                if e.valid and open_trial and topic != "decision/z_h":
+                if (
+                    e.valid and current is not None and not current.closed
+                    and topic != "decision/z_h"
+                ):
                     msg = decode_entry(topic, e)
                     if msg is not None:
                         z_r, b_r = current.recorded.get(msg.src_seq, (math.nan, math.nan))

@@ -5,6 +5,7 @@ Actuation and eyes both gate their outputs this way; this is the one place that 
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Callable
 
@@ -91,4 +92,4 @@ def watch_safety_inputs(
         log.info("%s: e-stop state known (%s, %d peer(s) asked)", node.service,
                  "ENGAGED" if watchdog.latch.engaged else "released", len(peers))
     for service in dict.fromkeys((*watchdog.params.require_alive, *also_watch)):
-        node.watch_liveliness(service, lambda alive, s=service: watchdog.set_alive(s, alive))
+        node.watch_liveliness(service, functools.partial(watchdog.set_alive, service))

@@ -153,7 +153,7 @@ class SceneRenderer:
             self._draw_hand(img, x, y, angle)
             self._draw_marker(img, x, y, angle)
         if self.noise > 0:  # OpenCV's RNG: 5x faster than numpy's here, though not seeded
-            cv2.randn(self._noise, (0.0,) * 3, (self.noise,) * 3)
+            cv2.randn(self._noise, np.zeros(3), np.full(3, float(self.noise)))
             img = cv2.add(img, self._noise, dtype=cv2.CV_8U)
         return img
 
@@ -250,7 +250,7 @@ def write_video(
     n = int(round(hand_path.duration * fps)) + 1 if frames is None else frames
     truth = hand_path.sample(n, fps)
     size = (renderer.width, renderer.height)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, size)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"MJPG"), fps, size)
     if not writer.isOpened():
         raise OSError(f"cannot write an MJPG video to {path}")
     try:

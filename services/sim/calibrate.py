@@ -96,7 +96,11 @@ def _session(args: tuple[NodConfig, int]) -> list[str | None]:
 
 def with_traits(cfg: NodConfig, values: dict[str, float]) -> NodConfig:
     """The config with the participant's traits replaced."""
-    return replace(cfg, participant=replace(cfg.participant, **values))
+    traits = replace(
+        cfg.participant,
+        **values,  # type: ignore[arg-type]  # the keys: TRAITS' names, all float fields
+    )
+    return replace(cfg, participant=traits)
 
 
 class Objective:

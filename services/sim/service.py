@@ -13,6 +13,7 @@ import argparse
 import json
 import logging
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +25,9 @@ from services.core.session import Fabric
 from services.model.geometry import colour_sign
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered
+
+if TYPE_CHECKING:  # imported at run time only with --render (it loads OpenCV)
+    from services.scene.render import SceneRenderer
 
 log = logging.getLogger("nod.sim")
 NS = 1e-9
@@ -51,7 +55,7 @@ class SimService:
         self.robot: str | None = None
         # --render: be the camera, not the tracker — frames go to `nod vision`, which publishes
         # the hand and the layout itself.
-        self.renderer = None
+        self.renderer: SceneRenderer | None = None
         if render:
             from services.scene.render import SceneRenderer
 
@@ -105,7 +109,7 @@ class SimService:
         """One camera frame: advance the person and publish the hand."""
         self._advance(now_ns)
         if self.renderer is not None:
-            self._render(now_ns)
+            self._render(self.renderer, now_ns)
             return
         pts = self.person.landmarks()
         center = pts.mean(axis=0)
@@ -117,11 +121,11 @@ class SimService:
             source="sim",
         )
 
-    def _render(self, now_ns: int) -> None:
+    def _render(self, renderer: SceneRenderer, now_ns: int) -> None:
         import cv2
 
         x, y = (float(v) for v in self.person.pos)
-        image = self.renderer.render((x, y))
+        image = renderer.render((x, y))
         ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
         if ok:
             h, w = image.shape[:2]

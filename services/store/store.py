@@ -384,7 +384,13 @@ class Store:
                 return []
             session = row[0]
         cur = self.db.execute("SELECT * FROM trials WHERE session = ? ORDER BY trial", (session,))
-        return [(r[0], TrialRecord(*r[1:-2], bool(r[-2]), r[-1])) for r in cur]
+        cols = [c[0] for c in cur.description]
+        out: list[tuple[str, TrialRecord]] = []
+        for row in cur:
+            fields = dict(zip(cols, row, strict=True))  # by name: the columns a migration added
+            fields["interrupted"] = bool(fields["interrupted"])
+            out.append((fields.pop("session"), TrialRecord(**fields)))
+        return out
 
     def write_questionnaires(
         self,

@@ -193,9 +193,9 @@ def render(doc: dict[str, Any]) -> Any:
         for col in ("device", "safety", "reason"):
             dev.add_column(col)
         for name, d in doc["devices"].items():
-            state = "E-STOP" if d["estop"] else ("safe stop" if d["safe_stop"] else "running")
+            safety = "E-STOP" if d["estop"] else ("safe stop" if d["safe_stop"] else "running")
             style = "bold red" if d["estop"] else ("yellow" if d["safe_stop"] else "green")
-            dev.add_row(name, Text(state, style=style), d["reason"] or d["fault"])
+            dev.add_row(name, Text(safety, style=style), d["reason"] or d["fault"])
         parts.append(dev)
     for e in doc["events"][-10:]:
         parts.append(Text(f"[{e['host']}] {e['service']} {e['kind']}: {e['text']}", style="dim"))
@@ -248,13 +248,13 @@ def main(argv: list[str] | None = None) -> int:
             return 0 if doc["ok"] else 1
         from rich.live import Live
 
-        doc = None
+        last: dict[str, Any] | None = None
         with Live(auto_refresh=False) as live:
             while not stop.is_set():
-                doc = report(observe(session, args.rig, args.duration, stop), args.rig, required,
-                             time.time_ns())
-                live.update(render(doc), refresh=True)
-        return 0 if doc is None or doc["ok"] else 1
+                last = report(observe(session, args.rig, args.duration, stop), args.rig, required,
+                              time.time_ns())
+                live.update(render(last), refresh=True)
+        return 0 if last is None or last["ok"] else 1
     finally:
         session.close()
 

@@ -27,7 +27,7 @@ def draw_layout(img: np.ndarray, layout: TableLayout) -> np.ndarray:
     h, w = img.shape[:2]
     thick = max(1, w // 320)
     for colour in ("red", "blue"):
-        box = layout.box(colour)  # type: ignore[arg-type]
+        box = layout.box(colour)
         p1, p2 = _px(box.x1, box.y1, w, h), _px(box.x2, box.y2, w, h)
         cv2.rectangle(img, p1, p2, _BOX_COLOURS[colour], thick, cv2.LINE_AA)
     y = round(layout.commit.y * h - 0.5)

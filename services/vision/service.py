@@ -210,7 +210,8 @@ class VisionService:
         probe = self.node.session.declare_publisher(self.pub_hand.key)
         try:
             deadline = time.monotonic() + timeout_s
-            while not probe.matching_status.matching:
+            # zenoh's stub types `matching_status` as a bool; it is a MatchingStatus (zenoh 1.x)
+            while not probe.matching_status.matching:  # type: ignore[attr-defined]  # stub bug
                 if time.monotonic() > deadline or self.node.stop.wait(0.02):
                     return False
             return True
@@ -314,6 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose)
     if not args.verbose:  # OpenCV's own warnings repeat on every reopen attempt; ours say it all
         quiet_opencv()
+    node: Node | None = None
     try:
         if not 0 <= args.frames_key_hz <= 30:
             raise ValueError(f"--frames-key-hz must be in [0, 30], got {args.frames_key_hz}")
@@ -351,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nod vision: {exc}", file=sys.stderr)
         if "capture" in locals():
             capture.close()
-        if locals().get("node") is not None:
+        if node is not None:
             node.close()
         return 2
     log.info("%s: %s", capture.source.label, info.describe(params))

@@ -7,9 +7,12 @@ from pathlib import Path
 
 import pytest
 
+from services.core import contract
+from services.core import messages as m
 from services.core.contract import (
     TOPICS,
     ContractError,
+    Topic,
     check_publisher,
     check_subscriber,
     markdown_table,
@@ -96,3 +99,19 @@ def test_safety_and_protocol_messages_are_never_dropped():
     for name in ("safety/estop", "experiment/trial", "actuation/press", "eyes/cmd"):
         assert TOPICS[name].qos.congestion == "block", name
     assert TOPICS["safety/estop"].qos.priority == "real_time"
+
+
+def test_every_topic_is_a_constant_named_after_its_key():
+    constants = {k: v for k, v in vars(contract).items() if isinstance(v, Topic)}
+    assert {k: v.name for k, v in constants.items()} == {
+        name.upper().replace("/", "_"): name for name in TOPICS
+    }
+    assert all(TOPICS[t.name] is t for t in constants.values())
+    assert contract.DECISION_Z_R.message is m.Scalar
+    assert check_publisher(contract.EYES_CMD, "experiment") is contract.EYES_CMD
+    assert check_subscriber(contract.DECISION_Z_R, "actuation") is TOPICS["decision/z_r"]
+    with pytest.raises(ContractError, match="declare it"):
+        check_publisher(contract.DECISION_Z_R, "vision")
+    stray = Topic("decision/z_r", m.Scalar, ("vision",), (), "", contract.STREAM, "")
+    with pytest.raises(KeyError, match="unknown topic"):  # only the declared constant counts
+        check_publisher(stray, "vision")
