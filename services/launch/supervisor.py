@@ -5,7 +5,10 @@ main thread a few times a second — notices a child that ended: a clean exit (c
 an abnormal one (a non-zero code, a signal) is restarted after a backoff that doubles each time
 (`RestartPolicy`), unless the service already restarted `max_restarts` times within `window_s`:
 then it is reported as given up and left down (a crash loop is a fault to look at, not to hide).
-Every change is reported to `on_event` (the launcher prints it and publishes it on rig/event).
+Exit code 2 is every service's "bad input" (a wrong flag, a missing file or device): starting
+it again cannot help, so it is given up at once. Every change is reported to `on_event` (the
+launcher prints it and publishes it on rig/event), with the last line the service wrote to its
+log — the cause, where the operator sees it.
 
 Children must not outlive the launcher, even when it is killed with SIGKILL and can run no
 cleanup: each child gets `NOD_PARENT_PID` and asks the kernel (prctl PR_SET_PDEATHSIG, see
@@ -78,6 +81,26 @@ class Supervised:
 
 
 OnEvent = Callable[[str, EventKind, "int | None", int, str], None]
+
+
+CONFIG_ERROR = 2  # every service's exit code for bad input: never restarted
+TAIL_BYTES = 4096  # how much of a log's end is read for its last line
+
+
+def last_line(log: Path | None) -> str:
+    """The last non-empty line a service wrote to its log (clipped), or ""."""
+    if log is None:
+        return ""
+    try:
+        with log.open("rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            fh.seek(max(0, fh.tell() - TAIL_BYTES))
+            tail = fh.read().decode("utf-8", "replace")
+    except OSError:
+        return ""
+    lines = [ln.strip() for ln in tail.splitlines() if ln.strip()]
+    text = lines[-1] if lines else ""
+    return text if len(text) <= 300 else text[:300] + "…"
 
 
 def describe_exit(code: int) -> str:
@@ -159,6 +182,13 @@ class Supervisor:
                     continue
                 while s.recent and now - s.recent[0] > self.policy.window_s:
                     s.recent.popleft()
+                said = last_line(s.spec.log)
+                cause = f" — {said}" if said else ""
+                if code == CONFIG_ERROR:
+                    s.state = "failed"
+                    self._event(s, "gave_up", code, f"a configuration error (exit {code}): not "
+                                f"restarted; fix it and start again{cause}")
+                    continue
                 if not s.spec.restart or len(s.recent) >= self.policy.max_restarts:
                     s.state = "failed"
                     why = (
@@ -167,11 +197,12 @@ class Supervisor:
                         if s.spec.restart
                         else f"{describe_exit(code)}; not restarted"
                     )
-                    self._event(s, "gave_up", code, why)
+                    self._event(s, "gave_up", code, why + cause)
                     continue
                 delay = self.policy.backoff(len(s.recent))
                 s.state, s.due_at = "waiting", now + delay
-                self._event(s, "restarting", code, f"{describe_exit(code)}; again in {delay:.2f} s")
+                self._event(s, "restarting", code,
+                            f"{describe_exit(code)}; again in {delay:.2f} s{cause}")
             elif s.state == "waiting" and now >= s.due_at and not self.stopping:
                 s.restarts += 1
                 s.recent.append(now)

@@ -9,7 +9,9 @@ With the router on this host (`router = true`, or the whole rig here) the router
 this process. Every service is a child process under a `Supervisor`: restarted with backoff
 when it dies, given up (and reported) when it keeps dying; each event is printed and published
 on rig/event. Ctrl-C or SIGTERM stops everything cleanly (arm holds, eyes neutral) and exits 0;
-a service given up on makes the exit code 1. `nod status --connect ROUTER` shows the rig.
+a service given up on makes the exit code 1, and one the rig needs (decision, actuation, eyes,
+vision or the sim standing in for it) stops the whole rig safely first. `nod status --connect
+ROUTER` shows the rig.
 
 In a secured lab (`rig.tls`) this process speaks as its host's launcher identity, the only one
 the router lets publish rig/event (`services.lab.acl`), and each service as its own (the host's
@@ -33,7 +35,7 @@ from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys
 from services.core.lifeline import nod_command
-from services.core.rigfile import LAUNCHER, Rig, RigFileError, identity, load_rig
+from services.core.rigfile import LAUNCHER, REQUIRED, Rig, RigFileError, identity, load_rig
 from services.core.session import make_config, open_session
 from services.launch.commands import command
 from services.launch.events import RigEvents
@@ -187,6 +189,13 @@ def main(argv: list[str] | None = None) -> int:
                     reported.add(name)
                     print(f"nod up: {name} is down (given up); see {logs}/{name}.log",
                           file=sys.stderr, flush=True)
+            needed = sorted(n for n in reported if n in (*REQUIRED, "sim"))
+            if needed:
+                # Half a rig runs no trial, and what still runs would only hold and wait: stop it
+                # all safely (the arm holds, the eyes go neutral) and say so.
+                print(f"nod up: {', '.join(needed)} gave up: a rig cannot run without it; "
+                      "stopping every service", file=sys.stderr, flush=True)
+                break
             stopping.wait(0.1)
     finally:
         supervisor.stop()

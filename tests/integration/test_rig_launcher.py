@@ -144,6 +144,31 @@ def test_nod_up_refuses_a_bad_rig_file_in_one_line(tmp_path: Path) -> None:
     assert res.returncode == 2 and "already runs" in res.stderr
 
 
+def test_a_missing_device_stops_the_rig_at_once_and_says_why(tmp_path: Path) -> None:
+    """The arm's port is not there: actuation exits 2 (bad input), is not restarted, its cause is
+    on the console, and `nod up` stops every other service and exits 1 — no half rig."""
+    port = free_port()
+    rig = tmp_path / "rig.toml"
+    arm = tmp_path / "arm.toml"
+    arm.write_text((Path(ROOT) / "deploy/hardware/arm.example.toml").read_text())
+    rig.write_text(
+        f'[rig]\nname = "rigm"\nrouter = "tcp/127.0.0.1:{port}"\n'
+        '[hosts.lab]\nrouter = true\nservices = ["decision", "actuation", "eyes", "sim"]\n'
+        '[actuation]\ndriver = "feetech"\nport = "/dev/ttyNOPE9"\nconfig = "arm.toml"\n'
+    )
+    t0 = time.monotonic()
+    res = nod("up", str(rig), "--logs", str(tmp_path / "logs"))
+    took = time.monotonic() - t0
+    out = res.stdout + res.stderr
+    assert res.returncode == 1, out
+    assert "[actuation] gave_up: a configuration error (exit 2)" in out, out
+    assert "cannot open serial port /dev/ttyNOPE9" in out, out
+    assert "stopping every service" in out and "every service stopped" in out, out
+    assert out.count("[actuation] restarting") == 0, out
+    assert not processes_mentioning(f"127.0.0.1:{port}"), "services left running"
+    print(f"\nnod up with a missing arm port: stopped in {took:.1f} s")
+
+
 def test_status_exits_1_when_the_rig_is_down(tmp_path: Path) -> None:
     port = free_port()
     router = open_session(make_config(mode="router", listen=[f"tcp/127.0.0.1:{port}"]))

@@ -51,6 +51,32 @@ def test_a_crashing_service_is_restarted_then_given_up(tmp_path: Path) -> None:
     assert sup.failed() == ["crashy"]
 
 
+def test_a_configuration_error_is_not_restarted_and_its_cause_is_shown(tmp_path: Path) -> None:
+    events: list[tuple[str, str, int | None, str]] = []
+    sup = Supervisor(FAST, on_event=lambda s, k, c, r, t: events.append((s, k, c, t)))
+    counter = tmp_path / "runs"
+    code = (f"import sys; open({str(counter)!r}, 'a').write('x\\n'); "
+            "print('nod actuation: cannot open /dev/ttyUSB9: no such port', file=sys.stderr); "
+            "raise SystemExit(2)")
+    sup.start(ServiceSpec("actuation", [PY, "-c", code], log=tmp_path / "actuation.log"))
+    run_until(sup, lambda: sup.state("actuation") == "failed")
+    assert len(counter.read_text().splitlines()) == 1  # started once: restarting cannot help
+    (_, kind, exit_code, text), = [e for e in events if e[1] != "started"]
+    assert kind == "gave_up" and exit_code == 2
+    assert "configuration error" in text and "cannot open /dev/ttyUSB9" in text, text
+
+
+def test_a_restart_says_the_last_line_the_service_wrote(tmp_path: Path) -> None:
+    events: list[tuple[str, str]] = []
+    sup = Supervisor(FAST, on_event=lambda s, k, c, r, t: events.append((k, t)))
+    code = ("import sys; print('Traceback…\\nValueError: bad frame', file=sys.stderr); "
+            "raise SystemExit(1)")
+    sup.start(ServiceSpec("vision", [PY, "-c", code], log=tmp_path / "vision.log"))
+    run_until(sup, lambda: any(k == "restarting" for k, _ in events))
+    sup.stop()
+    assert any(k == "restarting" and "ValueError: bad frame" in t for k, t in events), events
+
+
 def test_a_clean_exit_is_final_and_a_signal_is_restarted(tmp_path: Path) -> None:
     sup = Supervisor(FAST)
     sup.start(ServiceSpec("once", [PY, "-c", "pass"]))
