@@ -10,6 +10,7 @@ Goal: decision p50 ≤ 1.2 × echo p50, decision p99 ≤ 1 ms, nothing lost.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import subprocess
@@ -32,7 +33,7 @@ KEYS = Keys("bench")
 
 def pose(seq: int, i: int) -> bytes:
     x, y = 0.5 + 0.002 * (i % 100), 0.85 - 0.003 * (i % 100)
-    lm = tuple((x + 0.01 * np.cos(k), y + 0.01 * np.sin(k)) for k in range(21))
+    lm = tuple((x + 0.01 * math.cos(k), y + 0.01 * math.sin(k)) for k in range(21))
     return m.encode(
         m.HandPose(
             seq=seq, t_ns=time.time_ns(), detected=True, center=(x, y), landmarks=lm, source="bench"

@@ -92,7 +92,7 @@ class Node:
         self.clock: Clock = fabric.clock()
         self.lock = threading.RLock()
         self.stop = threading.Event()
-        self._exit_hooks: list[Callable[[], None]] = []
+        self._exit_hooks: list[Callable[[], object]] = []
         install_signal_handlers(self.stop, self._exit_hooks)
         self.session = open_session_retrying(fabric, self.stop, service, retry_s)
         self.bad: Counter[str] = Counter()
@@ -220,7 +220,7 @@ class Node:
         replies = self.session.liveliness().get(self.keys.alive(service), timeout=timeout_s)
         return any(r.ok is not None for r in replies)
 
-    def on_forced_exit(self, hook: Callable[[], None]) -> None:
+    def on_forced_exit(self, hook: Callable[[], object]) -> None:
         """Run `hook` (e.g. hold the arm) if a signal's clean stop does not finish in time."""
         self._exit_hooks.append(hook)
 
@@ -357,7 +357,7 @@ EXIT_GRACE_S = 2.0  # a service stops within this after SIGTERM, whatever blocks
 
 def install_signal_handlers(
     stop: threading.Event,
-    exit_hooks: list[Callable[[], None]] | None = None,
+    exit_hooks: list[Callable[[], object]] | None = None,
     grace_s: float = EXIT_GRACE_S,
 ) -> None:
     """Turn SIGINT and SIGTERM into `stop.set()`; force the exit if that has not ended us soon.

@@ -11,6 +11,7 @@ command line.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import math
@@ -463,41 +464,21 @@ class Conductor:
             j = rec.judge.verdict(end, robot, clicks)
         with self.node.lock:
             events = self.rig.take_events()
+        # The judgement's fields (presses, outcome, switches, violations, score) are stored and
+        # published as they are.
+        verdict = dataclasses.asdict(j)
+        trial: TrialFields = {"trial": spec.index, "mode": spec.mode, "option": spec.option}
         record = TrialRecord(
-            trial=spec.index,
-            mode=spec.mode,
-            option=spec.option,
-            gaze_level=spec.gaze_level,
-            yaw=spec.gaze.yaw,
-            pitch=spec.gaze.pitch,
-            t_go_ns=rec.t_go_ns if rec is not None else None,
-            t_end_ns=self._now_ns(),
-            human=j.human,
-            robot=j.robot,
-            outcome=j.outcome,
-            switches=j.switches,
-            violations=j.violations,
-            clicks=clicks,
-            score=j.score,
-            end_reason=reason[:400],
-            interrupted=interrupted,
-            attempts=attempt,
+            **trial, **verdict, gaze_level=spec.gaze_level, yaw=spec.gaze.yaw,
+            pitch=spec.gaze.pitch, t_go_ns=rec.t_go_ns if rec is not None else None,
+            t_end_ns=self._now_ns(), clicks=clicks, end_reason=reason[:400],
+            interrupted=interrupted, attempts=attempt,
         )
         samples = rec.decimated(SAMPLE_HZ) if rec is not None else []
+        if rec is not None:  # poses beyond the trial's cap: their count goes on record
+            events += rec.drop_records(spec.index, attempt, self._now_ns())
         self.store.write_trial(self.session, record, samples, events)
         self.records.append(record)
         self.console.result(spec.index, spec.mode, spec.option, j.robot, j.human, j.outcome,
                             j.score, interrupted)
-        self.pub_result.put(
-            trial=spec.index,
-            mode=spec.mode,
-            option=spec.option,
-            robot=j.robot,
-            human=j.human,
-            outcome=j.outcome,
-            switches=j.switches,
-            violations=j.violations,
-            score=j.score,
-            session=self.session,
-            interrupted=interrupted,
-        )
+        self.pub_result.put(**trial, **verdict, session=self.session, interrupted=interrupted)

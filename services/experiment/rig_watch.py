@@ -45,9 +45,20 @@ class RigWatch:
             scope_label="per trial attempt", total_label="per session",
         )
     )
-    # The record counting the rig events dropped in this attempt while it is still pending:
-    # (the pending list it is in, its index there, the attempt).
-    _rig_dropped: tuple[list, int, tuple[int, int]] | None = None
+    # Safety events too: a forged device state flipping `safe_stop` at 10 kHz must not grow the
+    # conductor and the store without bound (the safety state itself follows every message; only
+    # the records are limited): a burst of 100, then 10 a second, 500 per attempt, 5000 in all.
+    safety_events: IntakeLimit = field(
+        default_factory=lambda: IntakeLimit(
+            burst=100, per_s=10, per_scope=500, total=5000,
+            scope_label="per trial attempt", total_label="per session",
+        )
+    )
+    # Per kind of event, the record counting those dropped in this attempt while it is still
+    # pending: (the pending list it is in, its index there, the attempt).
+    _dropped: dict[str, tuple[list[SafetyEvent | RigEventRecord], int, tuple[int, int]]] = (
+        field(default_factory=dict)
+    )
 
     def device_state(self, device: str, safe_stop: bool, reason: str, now_ns: int) -> None:
         """A device's state message: record each change of its safe stop."""
@@ -128,30 +139,35 @@ class RigWatch:
         trial attempt and batch of stored events: kind "dropped", `code` how many, stamped at
         the first one dropped.
         """
-        attempt = (self.trial, self.attempt)
-        why = self.rig_events.admit(self.monotonic(), attempt)
-        if why is None:
-            self._pending.append(
-                RigEventRecord(
-                    self.trial, self.attempt, now_ns, msg.host, msg.service, msg.kind,
-                    msg.code, msg.text,
-                )
-            )
+        why = self.rig_events.admit(self.monotonic(), (self.trial, self.attempt))
+        if why is not None:
+            self._count_drop("rig events", self.rig_events, why, now_ns)
             return
-        held = self._rig_dropped
-        if held is not None and held[0] is self._pending and held[2] == attempt:
-            record = self._pending[held[1]]
-            n = record.code + 1
-        else:
-            record = RigEventRecord(
-                self.trial, self.attempt, now_ns, "", "experiment", "dropped", 0, ""
+        self._pending.append(
+            RigEventRecord(
+                self.trial, self.attempt, now_ns, msg.host, msg.service, msg.kind, msg.code,
+                msg.text,
             )
-            self._pending.append(record)
-            self._rig_dropped = held = (self._pending, len(self._pending) - 1, attempt)
-            n = 1
-        self._pending[held[1]] = RigEventRecord(
-            record.trial, record.attempt, record.t_ns, "", "experiment", "dropped", n,
-            f"{n} rig events dropped ({why}; limits: {self.rig_events.describe()})",
+        )
+
+    def _count_drop(self, what: str, limit: IntakeLimit, why: str, now_ns: int) -> None:
+        """One more `what` dropped: counted in one record per attempt and batch of events."""
+        attempt = (self.trial, self.attempt)
+        held = self._dropped.get(what)
+        if held is not None and held[0] is self._pending and held[2] == attempt:
+            index = held[1]
+            old = self._pending[index]
+            assert isinstance(old, RigEventRecord) and old.code is not None  # ours, below
+            n, t0 = old.code + 1, old.t_ns
+        else:
+            index, n, t0 = len(self._pending), 1, now_ns
+            self._pending.append(RigEventRecord(
+                self.trial, self.attempt, t0, "", "experiment", "dropped", 0, ""
+            ))
+            self._dropped[what] = (self._pending, index, attempt)
+        self._pending[index] = RigEventRecord(
+            self.trial, self.attempt, t0, "", "experiment", "dropped", n,
+            f"{n} {what} dropped ({why}; limits: {limit.describe()})",
         )
 
     def take_events(self) -> list[SafetyEvent | RigEventRecord]:
@@ -167,6 +183,10 @@ class RigWatch:
             self._safe_since = self.monotonic()
 
     def _event(self, now_ns: int, device: str, event: str, reason: str) -> None:
+        why = self.safety_events.admit(self.monotonic(), (self.trial, self.attempt))
+        if why is not None:
+            self._count_drop("safety events", self.safety_events, why, now_ns)
+            return
         self._pending.append(
             SafetyEvent(self.trial, self.attempt, now_ns, device, event, reason[:400])
         )

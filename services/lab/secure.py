@@ -42,8 +42,9 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from services.core.cli import PORT, Parser, fail, int_in
 from services.core.keys import check_rig
+from services.core.limits import low_pass_filters
 from services.core.rigfile import WILDCARD_HOSTS, RigFileError, load_rig, split_endpoint
-from services.core.session import MAX_MESSAGE_BYTES
+from services.core.session import MAX_MESSAGE_BYTES, SHARED_MEMORY
 from services.lab.acl import HOSTS, Identity, acl, identities
 
 
@@ -151,9 +152,16 @@ def _tls(folder: Path, listen: bool) -> dict:
 
 
 def _common(tls: dict) -> dict:
+    # The intake bounds go into the files themselves (not only into what `nod` adds when it
+    # loads them), so a stock `zenohd -c router.json5` refuses oversized messages too and keeps
+    # shared memory off (docs/safety.md "Bounded intake").
     return {
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"tls": tls, "rx": {"max_message_size": MAX_MESSAGE_BYTES}}},
+        "transport": {
+            "link": {"tls": tls, "rx": {"max_message_size": MAX_MESSAGE_BYTES}},
+            "shared_memory": {"enabled": SHARED_MEMORY},
+        },
+        "low_pass_filter": low_pass_filters(),
     }
 
 

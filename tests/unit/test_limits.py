@@ -118,3 +118,20 @@ def test_every_session_config_carries_the_limits_and_no_shared_memory(tmp_path):
     conf = make_config(config_file=path)
     assert rules_of(conf) == [own, *low_pass_filters()]
     assert conf.get_json("transport/shared_memory/enabled") == "false"
+
+
+def test_the_lab_configs_carry_the_limits_themselves(tmp_path):
+    # A stock `zenohd -c router.json5` (not only `nod router`) must refuse oversized messages and
+    # keep shared memory off: the bounds are in the files `nod lab secure` writes.
+    from services.lab.secure import secure
+
+    written = secure(tmp_path, ["control", "arm"], "rig1", "127.0.0.1", 7447, 30,
+                     tmp_path / "installed")
+    configs = [p for p in written if p.name.endswith(".json5")]
+    assert any(p.name == "router.json5" for p in configs) and len(configs) >= 3
+    for path in configs:
+        text = path.read_text()
+        doc = json.loads(text[text.index("{"):])  # after the header comment
+        assert doc["low_pass_filter"] == low_pass_filters(), path
+        assert doc["transport"]["shared_memory"]["enabled"] is False, path
+        zenoh.Config.from_file(str(path))  # and zenoh itself accepts the file

@@ -1,6 +1,7 @@
 """The conductor's view of the rig's safety: what breaks a trial, when the session may go on."""
 
 from services.experiment.rig_watch import RigWatch
+from services.store.records import SafetyEvent
 
 MS = 1_000_000
 
@@ -111,3 +112,22 @@ def test_a_flood_of_rig_events_is_rate_limited_capped_and_its_drops_counted_in_t
             rig.rig_event(clock.t, _rig_event(0))
     assert limit.accepted == limit.total
     assert any("cap of 1000 per session" in e.text for e in rig.take_events())
+
+
+def test_a_forged_state_flipping_safe_stop_is_followed_but_its_records_are_bounded():
+    rig, clock = watch()
+    rig.begin(2, 1)
+    flips = 100_000
+    for i in range(flips):  # a forged actuation/state at 10 kHz, safe stop on and off
+        clock.t = i * MS // 10
+        rig.device_state("actuation", i % 2 == 0, "forged", clock.t)
+    # The safety state follows every message: the trial is broken, the rig now safe (odd last).
+    assert rig.interruption(clock.t) == "actuation: forged"
+    events = rig.take_events()
+    stored = [e for e in events if isinstance(e, SafetyEvent)]
+    dropped = [e for e in events if not isinstance(e, SafetyEvent)]
+    limit = rig.safety_events
+    assert len(stored) == limit.accepted <= limit.burst + limit.per_s * 10 + 1  # 10 s of flood
+    assert len(dropped) == 1 and dropped[0].kind == "dropped"
+    assert dropped[0].code == limit.dropped == flips - len(stored)
+    assert "safety events dropped" in dropped[0].text and dropped[0].trial == 2
