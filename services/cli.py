@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "analyze": ("services.analysis.cli", "numerical analysis and statistics"),
     "questionnaire": ("services.experiment.questionnaire", "enter or import Q1-Q5 answers"),
     "export": ("services.experiment.export", "write a session database as CSV"),
+    "study": ("services.study.cli", "a study's roster: orders, consent, who is next, start"),
     "monitor": ("services.monitor.service", "live view of every key in Rerun"),
     "topic": ("services.tools.topic", "list, echo and measure the rig's keys"),
     "record": ("services.recording.record", "record every key of a rig into an MCAP file"),

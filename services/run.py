@@ -40,6 +40,7 @@ from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
 from services.launch.view import SessionView
 from services.safety.latch_file import STATE_DIR_ENV
 from services.store import Store, StoreError
+from services.store.participants import next_free_ids, reuse_problem
 
 log = logging.getLogger("nod.run")
 SERVICES = ("decision", "actuation", "eyes", "sim")  # and the conductor, "experiment"
@@ -63,7 +64,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second")
     p.add_argument("--listen", default=DEFAULT_ROUTER, help=f"router endpoint ({DEFAULT_ROUTER})")
     p.add_argument("--rig", type=check_rig, default="rig1", help="rig name scoping every key")
-    p.add_argument("--participant", default="P01", help="participant id stored with the session")
+    p.add_argument(
+        "--participant",
+        default=None,
+        help="participant id stored with the session (default: the first of P01, P02, … with "
+        "no session in --db); one with a complete session is refused without --again",
+    )
+    p.add_argument("--order", default=None, metavar="O,O,...",
+                   help="O of each consensus trial (`nod experiment --order`)")
+    p.add_argument("--again", default=None, metavar="REASON",
+                   help="a new session for a participant who has one (`nod experiment --again`)")
     p.add_argument(
         "--monitor",
         nargs="?",
@@ -82,8 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--participants",
         type=int_in(1, 10_000),
         default=1,
-        help="run N simulated participants one after another (ids P01.., seeds seed..seed+N-1, "
-        "person-to-person variation drawn from each seed), all in one database",
+        help="run N simulated participants one after another (the first free ids P01.., seeds "
+        "seed..seed+N-1, person-to-person variation drawn from each seed), all in one database",
     )
     p.add_argument("--clicks", default="10", help="counter clicks per trial: N, 'prompt' or 'none'")
     p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
@@ -136,8 +146,12 @@ def sim_rig(args: argparse.Namespace) -> Rig:
             if value is not None:
                 sec[key] = value
         sections[service] = sec
-    conductor = ["--db", str(args.db), "--participant", args.participant, "--seed",
-                 str(args.seed), "--clicks", args.clicks]
+    conductor = ["--db", str(args.db), "--seed", str(args.seed), "--clicks", args.clicks]
+    if args.participant is not None:  # else the conductor takes the first free id
+        conductor += ["--participant", args.participant]
+    for flag in ("order", "again"):
+        if getattr(args, flag, None) is not None:
+            conductor += [f"--{flag}", getattr(args, flag)]
     if getattr(args, "session", None):
         conductor += ["--session", args.session]
     if getattr(args, "record", None) is not None:
@@ -291,9 +305,19 @@ def _preflight(args: argparse.Namespace) -> str | None:
     except zenoh.ZError:
         return f"--listen {args.listen!r} is not a zenoh endpoint (e.g. tcp/127.0.0.1:7447)"
     try:
-        Store(args.db).close()
+        store = Store(args.db)
     except StoreError as exc:
         return str(exc)
+    try:  # who runs: the ids given, or the first free ones; a done participant needs --again
+        if args.participant is None or args.participants > 1:
+            args.ids = next_free_ids(store, args.participants)
+        else:
+            args.ids = [args.participant]
+            if args.again is None and (problem := reuse_problem(store, args.participant, True)):
+                return problem
+        args.participant = args.ids[0]
+    finally:
+        store.close()
     logs = args.logs or args.db.with_suffix(".logs")
     try:
         logs.mkdir(parents=True, exist_ok=True)
@@ -309,7 +333,7 @@ def _participant(args: argparse.Namespace, i: int) -> argparse.Namespace:
     """
     extra: dict[str, object] = {"session": uuid.uuid4().hex[:12]}
     if args.participants > 1:
-        extra |= {"seed": args.seed + i, "participant": f"P{i + 1:02d}", "cohort": True}
+        extra |= {"seed": args.seed + i, "participant": args.ids[i], "cohort": True}
     return argparse.Namespace(**{**vars(args), **extra})
 
 

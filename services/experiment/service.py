@@ -23,8 +23,11 @@ from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.experiment.conductor import Conductor
 from services.experiment.console import make_console
+from services.experiment.order import participant_problem, session_config
 from services.experiment.recording import RecorderProcess, recorder_command, recording_path
+from services.model.protocol import order_of
 from services.store import Store
+from services.store.participants import next_free_ids, record_order
 
 log = logging.getLogger("nod.experiment")
 RECORDER_READY_S = 30.0  # wall seconds for `nod record` to start and subscribe
@@ -52,9 +55,29 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_service_args(p)
     p.add_argument("--db", type=Path, default=Path("nod-sessions.sqlite"), help="session store")
-    p.add_argument("--participant", default="P01", help="participant id stored with the session")
+    p.add_argument(
+        "--participant",
+        default=None,
+        help="participant id stored with the session (default: the first of P01, P02, … with "
+        "no session in --db); one with a complete session is refused without --again",
+    )
     p.add_argument("--seed", type=SEED, default=None, help="seed of the sim participant (stored)")
     p.add_argument("--session", default=None, help="session id (default: a new UUID)")
+    p.add_argument(
+        "--order",
+        default=None,
+        metavar="O,O,...",
+        help="O of each consensus trial, e.g. blue,red,red,blue,red or BRRBR (a participant's "
+        "counterbalanced order: `nod study start`); default: the schedule's own; stored with "
+        "the session, and a resumed session keeps its own",
+    )
+    p.add_argument(
+        "--again",
+        default=None,
+        metavar="REASON",
+        help="start a new session for a participant who already has a complete one; the "
+        "reason is stored with it",
+    )
     p.add_argument(
         "--resume",
         metavar="SESSION",
@@ -108,6 +131,17 @@ def main(argv: list[str] | None = None) -> int:
         store = Store(args.db)
     except (ValueError, OSError) as exc:
         return fail("nod experiment", exc)
+    try:
+        cfg = session_config(cfg, store, args.order, args.resume)
+    except ValueError as exc:
+        store.close()
+        return fail("nod experiment", exc)
+    if args.participant is None:
+        args.participant = next_free_ids(store, 1)[0]
+    problem = participant_problem(store, args.participant, args.again, args.resume)
+    if problem is not None:
+        store.close()
+        return fail("nod experiment", problem)
     participant, seed, first = args.participant, args.seed, 1
     lost: tuple[int, int, int] | None = None
     resume_at: tuple[int, int] | None = None
@@ -169,6 +203,9 @@ def main(argv: list[str] | None = None) -> int:
         conductor.recording = (recorder.path, node.clock.now_ns())
     try:
         conductor.wait_for_services(args.wait_services)
+        if args.resume is None:  # the order this session runs, and why it is another one
+            order = order_of(cfg.protocol.trials)
+            record_order(store, session, participant, order, args.again, time.time_ns())
         log.info(
             "session %s (%s): all services alive; trials %d-%d",
             session, participant, first, len(cfg.protocol.trials),

@@ -14,7 +14,8 @@ origin, always passed in.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from typing import Literal, TypeAlias
 
 from services.model.gaze import (
@@ -115,6 +116,55 @@ def default_schedule() -> tuple[TrialSpec, ...]:
     )
 
 
+Order: TypeAlias = tuple[Colour, ...]  # O of each consensus trial of a schedule, in trial order
+
+
+def order_of(trials: Sequence[TrialSpec]) -> Order:
+    """The O order of a schedule: the option of each consensus trial, in trial order."""
+    return tuple(t.option for t in trials if t.mode == "consensus" and t.option is not None)
+
+
+def with_order(trials: Sequence[TrialSpec], order: Sequence[Colour]) -> tuple[TrialSpec, ...]:
+    """The schedule with its consensus trials' O replaced by `order`, each gaze turned toward O.
+
+    A participant's counterbalanced order (`services.model.counterbalance`): the trials, their
+    modes and gaze levels stay; a trial whose O changes has its gaze mirrored (yaw and pitch, as
+    `GazeLevel.toward` mirrors a table row), so the eyes look toward the new O at the same level.
+    """
+    n = len(order_of(trials))
+    if len(order) != n or any(o not in ("red", "blue") for o in order):
+        raise ValueError(
+            f"an order gives O (red or blue) for each of the schedule's {n} consensus trials, "
+            f"got {list(order)}"
+        )
+    it = iter(order)
+    out: list[TrialSpec] = []
+    for spec in trials:
+        if spec.mode != "consensus":
+            out.append(spec)
+            continue
+        option = next(it)
+        if option == spec.option:
+            out.append(spec)
+        else:
+            assert spec.yaw is not None and spec.pitch is not None  # set by __post_init__
+            out.append(replace(spec, option=option, yaw=-spec.yaw, pitch=-spec.pitch))
+    return tuple(out)
+
+
+def parse_order(text: str, n: int) -> Order:
+    """An order from the command line: `red,blue,…` or letters `RBRRB` (n consensus trials)."""
+    names: dict[str, Colour] = {"r": "red", "b": "blue", "red": "red", "blue": "blue"}
+    raw = text.strip().lower()
+    parts = [w.strip() for w in raw.split(",")] if "," in raw or raw in names else list(raw)
+    if len(parts) != n or any(w not in names for w in parts):
+        raise ValueError(
+            f"--order needs O for each of the {n} consensus trials, as red,blue,… or letters "
+            f"such as {'BRRBR'[:n] or 'R'}; got {text!r}"
+        )
+    return tuple(names[w] for w in parts)
+
+
 @dataclass(frozen=True, slots=True)
 class ProtocolParams:
     """Session protocol settings (SPEC §6 defaults)."""
@@ -196,6 +246,11 @@ def trial_timeline(spec: TrialSpec, start_t: float, params: ProtocolParams) -> T
         raise ValueError(f"start_t must be finite, got {start_t!r}")
     if spec.attention_gesture:
         gaze = tuple(attention_gesture(start_t, spec.gaze, params.gesture))
+        if spec.gaze.yaw * params.gesture.limit_yaw > 0:
+            # The gesture starts on the side opposite the trial's cue, as the paper's trial 4
+            # (limit toward red, settle toward O = blue): a counterbalanced O = red mirrors it,
+            # or its limit pose (1.4 rad) would be a cue for O stronger than "extreme".
+            gaze = (*((t, GazeCommand(-c.yaw, -c.pitch)) for t, c in gaze[:-1]), gaze[-1])
     else:
         gaze = ((start_t, spec.gaze),)
     first_word = gaze[-1][0] + params.gaze_lead_s

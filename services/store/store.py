@@ -1,7 +1,9 @@
 """The session store: one SQLite file (WAL) with sessions, trials, samples and questionnaires.
 
 Samples are decimated; questionnaires hold the post-session answers Q1-Q5 of paper Sec 8;
-recordings link a session to the MCAP files `nod record` wrote of it (`nod experiment --record`).
+recordings link a session to the MCAP files `nod record` wrote of it (`nod experiment --record`);
+participants hold consent and demographics, session_orders the O order each session ran and why
+a participant got another session (`services.store.participants`).
 A table added by a later version is created when an older file is opened (`CREATE TABLE IF NOT
 EXISTS`); a column added to an existing table is added by `_migrate`.
 
@@ -132,6 +134,19 @@ CREATE TABLE IF NOT EXISTS recordings (
     path       TEXT NOT NULL,
     started_ns INTEGER NOT NULL,
     PRIMARY KEY (session, path)
+);
+CREATE TABLE IF NOT EXISTS participants (
+    participant  TEXT PRIMARY KEY,
+    consent      INTEGER NOT NULL CHECK (consent IN (0, 1)),
+    consented_ns INTEGER NOT NULL,
+    demographics TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS session_orders (
+    session     TEXT PRIMARY KEY,
+    participant TEXT NOT NULL,
+    options     TEXT NOT NULL,
+    again       TEXT,
+    recorded_ns INTEGER NOT NULL
 );
 """
 

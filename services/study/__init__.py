@@ -1,0 +1,1 @@
+"""Study management: the study file, its counterbalanced roster, consent, and `nod study`."""

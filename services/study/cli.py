@@ -1,0 +1,329 @@
+"""`nod study …`: a study's roster — make it, record consent, see who is next, run their session.
+
+    nod study init STUDY.toml --participants 40 [--seed S] [--params FILE]
+    nod study consent STUDY.toml --db DB --participant P07 --yes [--age 25-34 --handedness right]
+    nod study next STUDY.toml --db DB
+    nod study start STUDY.toml --db DB [--participant P07] [--again WHY] [--sim] [-- FLAGS…]
+    nod study status STUDY.toml --db DB [--json]
+
+`start` runs `nod experiment` (or, with --sim, `nod run --sim`) for the participant with their
+order (`--order`), the study's `--params`, and any FLAGS after `--` (the rig's `--connect`,
+`--rig`, `--clicks` …); it refuses a participant without consent and one who already has a
+session (unless `--again` says why). Every refusal is one line on stderr with exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import secrets
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+from types import FrameType
+
+from services.core.cli import SEED, Parser, fail, int_in
+from services.core.config import load_params
+from services.core.lifeline import nod_command
+from services.model.protocol import TrialSpec
+from services.store import Store
+from services.store.participants import record_consent, reuse_problem
+from services.study.roster import Roster, Standing, roster
+from services.study.studyfile import (
+    MAX_PARTICIPANTS,
+    Conditions,
+    Study,
+    StudyError,
+    load,
+    make_study,
+    write,
+)
+
+PROG = "nod study"
+AGES = ("18-24", "25-34", "35-44", "45-54", "55-64", "65+", "undisclosed")
+HANDS = ("right", "left", "ambidextrous", "undisclosed")
+# Flags `start` sets itself: given again after `--` they would contradict the study.
+RESERVED = ("--db", "--participant", "--participants", "--order", "--again", "--resume")
+
+
+def build_parser() -> Parser:
+    """The command line of `nod study`."""
+    p = Parser(prog=PROG, description="A study's roster: counterbalanced orders, consent, "
+               "who is next, and their session (docs/study.md).")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser, required=True)
+
+    def command(name: str, help_: str, db: bool = True) -> Parser:
+        c: Parser = sub.add_parser(name, help=help_, description=help_)
+        c.add_argument("study", type=Path, metavar="STUDY.toml", help="the study file")
+        if db:
+            c.add_argument("--db", type=Path, default=Path("nod-sessions.sqlite"),
+                           help="session store (default nod-sessions.sqlite)")
+        return c
+
+    c = command("init", "write a new study file with a counterbalanced roster", db=False)
+    c.add_argument("--participants", type=int_in(1, MAX_PARTICIPANTS), required=True,
+                   help="how many participants (slots 1..N)")
+    c.add_argument("--seed", type=SEED, default=None,
+                   help="seed of the roster's shuffle (default: a random one, stored in the file)")
+    c.add_argument("--name", default=None, help="the study's name (default: the file's stem)")
+    c.add_argument("--params", type=Path, default=None,
+                   help="the protocol's parameters file every session runs (default: SPEC)")
+    c.add_argument("--prefix", default="P", help="participant ids <prefix>01, … (default P)")
+    c.add_argument("--force", action="store_true", help="overwrite an existing study file")
+
+    c = command("consent", "record a participant's consent (and optional demographics)")
+    c.add_argument("--participant", required=True, help="the participant's id in the study")
+    yes_no = c.add_mutually_exclusive_group(required=True)
+    yes_no.add_argument("--yes", action="store_true", help="consent given")
+    yes_no.add_argument("--no", action="store_true", help="consent refused or withdrawn")
+    c.add_argument("--age", choices=AGES, default=None, help="age range")
+    c.add_argument("--handedness", choices=HANDS, default=None, help="handedness")
+    c.add_argument("--notes", default=None, help="free-text notes (keep them non-identifying)")
+
+    command("next", "who is next, with their order (exit 1: nobody is left)")
+
+    c = command("start", "start the next (or a named) participant's session with their order")
+    c.add_argument("--participant", default=None, help="this participant (default: the next)")
+    c.add_argument("--again", default=None, metavar="WHY",
+                   help="a new session for a participant who has one; the reason is stored")
+    c.add_argument("--sim", action="store_true",
+                   help="a simulated participant: `nod run --sim` (router and every service)")
+    c.add_argument("--dry-run", action="store_true", help="print the command, run nothing")
+
+    c = command("status", "who is done, running, aborted and left")
+    c.add_argument("--json", action="store_true", help="print the roster as JSON")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one `nod study` command."""
+    args_in = list(sys.argv[1:] if argv is None else argv)
+    extra: list[str] = []
+    if "--" in args_in:  # the conductor's own flags, for `start`
+        at = args_in.index("--")
+        args_in, extra = args_in[:at], args_in[at + 1 :]
+    args = build_parser().parse_args(args_in)
+    prog = f"{PROG} {args.command}"
+    if extra and args.command != "start":
+        return fail(prog, "flags after -- are for `nod study start` only")
+    try:
+        if args.command == "init":
+            return _init(args)
+        study = load(args.study)
+        trials = _protocol(study)
+        store = Store(args.db)
+    except (StudyError, OSError, ValueError) as exc:
+        return fail(prog, exc)
+    try:
+        if args.command == "consent":
+            return _consent(args, study, store)
+        if args.command == "next":
+            return _next(args, study, roster(study, store))
+        if args.command == "status":
+            return _status(args, roster(study, store), len(trials))
+        cmd = _start_command(args, study, store, extra)
+    except StudyError as exc:
+        return fail(prog, exc)
+    finally:
+        store.close()
+    if isinstance(cmd, str):
+        return fail(prog, cmd)
+    print(f"nod study: {shlex.join(['nod', *cmd])}", flush=True)
+    if args.dry_run:
+        return 0
+    return _run(nod_command(*cmd))
+
+
+def _protocol(study: Study) -> tuple[TrialSpec, ...]:
+    """The study's schedule, checked against the conditions the file was made for."""
+    try:
+        trials = load_params(study.params).protocol.trials
+    except (ValueError, OSError) as exc:
+        raise StudyError(f"the study's params: {exc}") from None
+    have = Conditions.of(trials)
+    if have != study.conditions:
+        source = study.params or "the SPEC defaults"
+        raise StudyError(
+            f"the study file's conditions ({study.conditions.describe()}) are not the protocol "
+            f"of {source} ({have.describe()}): give the study the params it was made for"
+        )
+    return trials
+
+
+def _init(args: argparse.Namespace) -> int:
+    prog = f"{PROG} init"
+    path: Path = args.study
+    if path.exists() and not args.force:
+        return fail(prog, f"{path} exists: a roster in use is not overwritten (--force to do so)")
+    seed = args.seed if args.seed is not None else secrets.randbelow(2**31)
+    try:
+        trials = load_params(args.params).protocol.trials
+        params = None if args.params is None else args.params.resolve()
+        study = make_study(args.name or path.stem, trials, args.participants, seed, params,
+                           args.prefix)
+        write(study, path)
+    except (StudyError, ValueError, OSError) as exc:
+        return fail(prog, exc)
+    cb, n = study.counterbalance, len(study.participants)
+    first, last = study.participants[0].id, study.participants[-1].id
+    print(f"{path}: {n} participants {first}–{last}, {study.conditions.describe()}")
+    print(f"O orders: a Latin square of {_letters(cb.base)} with colour reversal, in blocks of "
+          f"{cb.block} (seed {cb.seed}); the gaze looks toward O")
+    if n % cb.block:
+        print(f"note: the last block has {n % cb.block} of {cb.block} participants; every "
+              f"position is balanced over full blocks (and every even count within one)")
+    return 0
+
+
+def _consent(args: argparse.Namespace, study: Study, store: Store) -> int:
+    if study.entry(args.participant) is None:
+        return fail(f"{PROG} consent", _not_in(study, args.participant))
+    demographics = {k: v for k, v in (("age", args.age), ("handedness", args.handedness),
+                                      ("notes", args.notes)) if v is not None}
+    record_consent(store, args.participant, bool(args.yes), time.time_ns(), demographics)
+    what = "consent given" if args.yes else "consent refused/withdrawn: no session will start"
+    extra = "".join(f"; {k} {v}" for k, v in demographics.items())
+    print(f"{args.participant}: {what} ({_when(time.time_ns())}){extra}")
+    return 0
+
+
+def _next(args: argparse.Namespace, study: Study, r: Roster) -> int:
+    nxt = r.next()
+    if nxt is None:
+        print(f"study {study.name}: nobody is left ({_counts(r)})")
+        return 1
+    print(_describe(study, nxt))
+    if nxt.consent is None:
+        print(f"consent: not recorded — nod study consent {shlex.quote(str(args.study))} "
+              f"--db {shlex.quote(str(args.db))} --participant {nxt.entry.id} --yes")
+    return 0
+
+
+def _start_command(
+    args: argparse.Namespace, study: Study, store: Store, extra: list[str]
+) -> list[str] | str:
+    """The `nod …` command for the participant's session, or why it may not start."""
+    r = roster(study, store)
+    if args.participant is not None:
+        who = r.standing(args.participant)
+        if who is None:
+            return _not_in(study, args.participant)
+    else:
+        who = r.next()
+        if who is None:
+            return f"nobody is left in study {study.name} ({_counts(r)})"
+    pid = who.entry.id
+    if who.consent is None:
+        return (f"{pid} has no consent on record: nod study consent {args.study} --db {args.db} "
+                f"--participant {pid} --yes")
+    if not who.consent.consent:
+        return f"{pid} refused or withdrew consent ({_when(who.consent.consented_ns)})"
+    if args.again is not None and not args.again.strip():
+        return "--again needs a reason, e.g. --again 'fire alarm at trial 5'"
+    if args.again is None and (problem := reuse_problem(store, pid)):
+        return problem
+    reserved = RESERVED + (("--params",) if study.params is not None else ())
+    for flag in extra:
+        if flag.split("=", 1)[0] in reserved:
+            return f"{flag.split('=', 1)[0]} after -- : the study sets it (give --db before --)"
+    cmd = ["run", "--sim"] if args.sim else ["experiment"]
+    cmd += ["--db", str(args.db), "--participant", pid, "--order", who.entry.letters]
+    if study.params is not None:
+        cmd += ["--params", str(study.params)]
+    if args.again is not None:
+        cmd += ["--again", args.again]
+    if args.sim and not any(f.split("=", 1)[0] == "--seed" for f in extra):
+        cmd += ["--seed", str(who.entry.slot)]  # one simulated person per slot
+    print(_describe(study, who), flush=True)
+    return cmd + extra
+
+
+def _run(cmd: list[str]) -> int:
+    """Run the session in the foreground; its exit code.
+
+    Ctrl-C reaches the child from the terminal, which stops cleanly (and says how to resume);
+    this process waits for it rather than dying first. A SIGTERM is passed on.
+    """
+    proc = subprocess.Popen(cmd)
+
+    def forward(_sig: int, _frame: FrameType | None) -> None:
+        proc.terminate()
+
+    old_int = signal.signal(signal.SIGINT, signal.SIG_IGN)  # after the exec: the child's own
+    old_term = signal.signal(signal.SIGTERM, forward)
+    try:
+        return proc.wait()
+    finally:
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
+
+
+def _status(args: argparse.Namespace, r: Roster, n_trials: int) -> int:
+    if args.json:
+        print(json.dumps(r.as_json(), indent=2))
+        return 0
+    study, cb = r.study, r.study.counterbalance
+    how = (f"Latin square of {_letters(cb.base)} in blocks of {cb.block} (seed {cb.seed})"
+           if cb.method == "latin-square" else "declared orders")
+    print(f"study {study.name}: {len(study.participants)} participants, "
+          f"{study.conditions.describe()}, {how}")
+    print(f"{'slot':>4}  {'id':<8} {'consent':<8} {'status':<8} {'trials':>6}  "
+          f"{'session':<12}  O")
+    for s in r.standings:
+        last = s.session
+        consent = "—" if s.consent is None else ("yes" if s.consent.consent else "no")
+        trials = f"{last.trials}/{n_trials}" if last else ""
+        print(f"{s.entry.slot:>4}  {s.entry.id:<8} {consent:<8} {s.status:<8} {trials:>6}  "
+              f"{last.session if last else '':<12}  {s.entry.letters}{_note(s)}")
+    nxt = r.next()
+    print(f"{_counts(r)}; next: {nxt.entry.id if nxt else 'nobody'}")
+    done = r.balance()
+    if done:
+        reds = " ".join(f"{red}/{red + blue}" for red, blue in done)
+        print(f"red O per consensus trial {list(study.conditions.consensus)} among the done: "
+              f"{reds}")
+    if r.strangers:
+        who = ", ".join(f"{p} ({n})" for p, n in sorted(r.strangers.items()))
+        print(f"sessions in {args.db} of participants not in the study: {who}")
+    return 0
+
+
+def _note(s: Standing) -> str:
+    notes = []
+    last = s.session
+    if s.status in ("running", "aborted") and last is not None:
+        notes.append(f"resume: nod experiment --resume {last.session}")
+    if len(s.sessions) > 1:
+        notes.append(f"{len(s.sessions)} sessions")
+    if s.order_mismatch and last is not None and last.options is not None:
+        notes.append(f"ran {''.join(o[0].upper() for o in last.options)}, not the roster's")
+    return "  (" + "; ".join(notes) + ")" if notes else ""
+
+
+def _describe(study: Study, s: Standing) -> str:
+    e = s.entry
+    trials = ",".join(map(str, study.conditions.consensus))
+    return (f"{e.id} (slot {e.slot} of {len(study.participants)}): O of trials {trials} = "
+            f"{' '.join(e.order)}; the gaze looks toward O")
+
+
+def _counts(r: Roster) -> str:
+    return ", ".join(f"{n} {k}" for k, n in r.counts().items())
+
+
+def _not_in(study: Study, participant: str) -> str:
+    ids = [e.id for e in study.participants]
+    span = f"{ids[0]}…{ids[-1]}" if len(ids) > 1 else ids[0]
+    return f"{participant!r} is not in study {study.name} (its ids: {span})"
+
+
+def _letters(order: tuple[str, ...]) -> str:
+    return "".join(o[0].upper() for o in order)
+
+
+def _when(t_ns: int) -> str:
+    return datetime.fromtimestamp(t_ns / 1e9).isoformat(timespec="seconds")

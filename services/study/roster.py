@@ -1,0 +1,130 @@
+"""Where a study stands: each participant of the study file against the session store.
+
+A participant is *done* with a complete session, *running* with a session that has not ended
+(a conductor at work, or one that crashed: `nod experiment --resume SESSION`), *aborted* when
+their only sessions were stopped before the end, and *left* with none. The next participant is
+the first one left, by slot, who has not refused consent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal, TypeAlias
+
+from services.model.counterbalance import position_counts
+from services.store import Store
+from services.store.participants import (
+    Consent,
+    SessionSummary,
+    consents,
+    sessions_by_participant,
+)
+from services.study.studyfile import Entry, Study
+
+Status: TypeAlias = Literal["done", "running", "aborted", "left"]
+STATUSES: tuple[Status, ...] = ("done", "running", "aborted", "left")
+
+
+@dataclass(frozen=True, slots=True)
+class Standing:
+    """One participant: their entry, sessions (oldest first) and consent."""
+
+    entry: Entry
+    sessions: tuple[SessionSummary, ...]
+    consent: Consent | None
+
+    @property
+    def status(self) -> Status:
+        """done, running, aborted or left (the module's docstring)."""
+        kinds = {s.status for s in self.sessions}
+        if "complete" in kinds:
+            return "done"
+        if "running" in kinds:
+            return "running"
+        return "aborted" if kinds else "left"
+
+    @property
+    def session(self) -> SessionSummary | None:
+        """The session that decides the status (the last complete one, else the latest)."""
+        done = [s for s in self.sessions if s.status == "complete"]
+        return done[-1] if done else (self.sessions[-1] if self.sessions else None)
+
+    @property
+    def order_mismatch(self) -> bool:
+        """Whether the deciding session ran another O order than the roster's."""
+        s = self.session
+        return s is not None and s.options is not None and s.options != self.entry.order
+
+
+@dataclass(frozen=True, slots=True)
+class Roster:
+    """The whole study against one store."""
+
+    study: Study
+    standings: tuple[Standing, ...]
+    strangers: dict[str, int]  # participants with sessions in the store who are not in the study
+
+    def counts(self) -> dict[Status, int]:
+        """How many participants are in each status."""
+        return {k: sum(s.status == k for s in self.standings) for k in STATUSES}
+
+    def next(self) -> Standing | None:
+        """The first participant left, by slot, who has not refused consent (or None)."""
+        for s in self.standings:
+            if s.status == "left" and (s.consent is None or s.consent.consent):
+                return s
+        return None
+
+    def standing(self, participant: str) -> Standing | None:
+        """One participant's standing (None: not in the study)."""
+        return next((s for s in self.standings if s.entry.id == participant), None)
+
+    def balance(self) -> list[tuple[int, int]]:
+        """(red, blue) at each consensus trial over the participants who are done."""
+        return position_counts([s.entry.order for s in self.standings if s.status == "done"])
+
+    def as_json(self) -> dict[str, Any]:
+        """The roster as a JSON document (`nod study status --json`)."""
+        nxt = self.next()
+        return {
+            "study": self.study.name,
+            "method": self.study.counterbalance.method,
+            "block": self.study.counterbalance.block,
+            "consensus_trials": list(self.study.conditions.consensus),
+            "counts": self.counts(),
+            "next": None if nxt is None else nxt.entry.id,
+            "participants": [
+                {
+                    "id": s.entry.id,
+                    "slot": s.entry.slot,
+                    "order": list(s.entry.order),
+                    "status": s.status,
+                    "consent": None if s.consent is None else s.consent.consent,
+                    "demographics": {} if s.consent is None else s.consent.demographics,
+                    "sessions": [
+                        {
+                            "session": x.session,
+                            "status": x.status,
+                            "trials": x.trials,
+                            "order": None if x.options is None else list(x.options),
+                            "again": x.again,
+                        }
+                        for x in s.sessions
+                    ],
+                }
+                for s in self.standings
+            ],
+            "not_in_study": self.strangers,
+        }
+
+
+def roster(study: Study, store: Store) -> Roster:
+    """The study's participants with their sessions and consent from the store."""
+    sessions = sessions_by_participant(store)
+    consent = consents(store)
+    standings = tuple(
+        Standing(e, tuple(sessions.get(e.id, [])), consent.get(e.id)) for e in study.participants
+    )
+    ids = {e.id for e in study.participants}
+    strangers = {p: len(v) for p, v in sessions.items() if p not in ids}
+    return Roster(study, standings, strangers)

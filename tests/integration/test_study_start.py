@@ -1,0 +1,82 @@
+"""`nod study start --sim`: the next participant's real session — a router, every service its own
+process — runs their counterbalanced order, and the store keeps the order with the session."""
+
+import json
+import sqlite3
+
+import pytest
+
+from services.study.studyfile import load
+from tests.processes import run_nod
+
+from .conftest import SHORT, free_port
+
+pytestmark = pytest.mark.integration
+
+
+def test_study_start_runs_the_next_participant_with_their_order(tmp_path):
+    params, study, db = tmp_path / "short.toml", tmp_path / "study.toml", tmp_path / "s.sqlite"
+    params.write_text(SHORT)  # 1 control trial, 2 consensus trials
+    init = run_nod("study", "init", str(study), "--participants", "4", "--seed", "5",
+                   "--params", str(params), timeout=60)
+    assert init.returncode == 0, init.stderr
+    roster = load(study).participants
+    assert sorted(e.letters for e in roster) == ["BR", "BR", "RB", "RB"]  # one full block
+    listen = f"tcp/127.0.0.1:{free_port()}"
+    sim = ["--", "--speed", "8", "--stale-ms", "2000", "--listen", listen]
+
+    for entry in roster[:2]:  # the first two slots, each as `nod study start` picks the next
+        consent = run_nod("study", "consent", str(study), "--db", str(db), "--participant",
+                          entry.id, "--yes", "--age", "25-34", timeout=60)
+        assert consent.returncode == 0, consent.stderr
+        nxt = run_nod("study", "next", str(study), "--db", str(db), timeout=60)
+        assert nxt.stdout.startswith(f"{entry.id} (slot {entry.slot} of 4)"), nxt.stdout
+        run = run_nod("study", "start", str(study), "--db", str(db), "--sim", *sim, timeout=400)
+        assert run.returncode == 0, run.stdout + run.stderr
+        assert f"--participant {entry.id} --order {entry.letters}" in run.stdout
+        assert "3 trials of 1 participant(s) stored" in run.stdout
+
+    con = sqlite3.connect(db)
+    sessions = con.execute(
+        "SELECT s.participant, s.seed, s.status, o.options, o.again FROM sessions s "
+        "JOIN session_orders o ON o.session = s.session ORDER BY s.started_ns"
+    ).fetchall()
+    assert sessions == [
+        (e.id, e.slot, "complete", json.dumps(list(e.order)), None) for e in roster[:2]
+    ]
+    for entry in roster[:2]:
+        trials = con.execute(
+            "SELECT t.mode, t.option, t.yaw FROM trials t JOIN sessions s ON s.session = "
+            "t.session WHERE s.participant = ? ORDER BY t.trial", (entry.id,)
+        ).fetchall()
+        assert [m for m, _, _ in trials] == ["dissensus", "consensus", "consensus"]
+        assert tuple(o for _, o, _ in trials[1:]) == entry.order  # the roster's O, as run
+        assert all((yaw > 0) == (o == "red") for _, o, yaw in trials[1:])  # the gaze toward O
+        stored = json.loads(con.execute("SELECT config FROM sessions WHERE participant = ?",
+                                        (entry.id,)).fetchone()[0])
+        assert [t["option"] for t in stored["protocol"]["trials"][1:]] == list(entry.order)
+
+    status = run_nod("study", "status", str(study), "--db", str(db), "--json", timeout=60)
+    doc = json.loads(status.stdout)
+    assert [p["status"] for p in doc["participants"]] == ["done", "done", "left", "left"]
+    assert doc["next"] == roster[2].id
+    assert doc["participants"][0]["demographics"] == {"age": "25-34"}
+
+    again = run_nod("study", "start", str(study), "--db", str(db), "--sim", "--participant",
+                    roster[0].id, *sim, timeout=60)
+    assert again.returncode == 2
+    assert again.stderr.count("\n") == 1 and "already has a complete session" in again.stderr
+
+
+def test_nod_run_twice_into_one_database_takes_the_next_free_id(tmp_path):
+    params, db = tmp_path / "short.toml", tmp_path / "s.sqlite"
+    params.write_text(SHORT)
+    for _ in range(2):  # no --participant: P01, then P02 (P01 is done and never reused)
+        run = run_nod("run", "--sim", "--speed", "8", "--stale-ms", "2000", "--params",
+                      str(params), "--db", str(db), "--listen",
+                      f"tcp/127.0.0.1:{free_port()}", timeout=400)
+        assert run.returncode == 0, run.stdout + run.stderr
+    con = sqlite3.connect(db)
+    rows = con.execute("SELECT s.participant, o.options FROM sessions s JOIN session_orders o "
+                       "ON o.session = s.session ORDER BY s.started_ns").fetchall()
+    assert rows == [("P01", '["red", "blue"]'), ("P02", '["red", "blue"]')]  # the schedule's own

@@ -1,0 +1,89 @@
+"""The counterbalanced O orders: a cyclic Latin square of the protocol's O order with colour
+reversal, in seeded blocks of 2n (services/model/counterbalance.py, docs/study.md)."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from services.model.counterbalance import (
+    block_problem,
+    block_size,
+    latin_block,
+    position_counts,
+    reversed_colours,
+    roster_orders,
+)
+from services.model.protocol import default_schedule, order_of
+
+colours = st.sampled_from(["red", "blue"])
+bases = st.lists(colours, min_size=1, max_size=8).map(tuple)
+
+
+def _transitions(orders, p):
+    return Counter((o[p], o[p + 1]) for o in orders)
+
+
+@settings(max_examples=150, deadline=None)
+@given(base=bases, blocks=st.integers(1, 4), seed=st.integers(0, 2**32))
+def test_every_full_block_balances_each_position_and_the_carry_over(base, blocks, seed):
+    n = len(base)
+    orders = roster_orders(base, blocks * block_size(n), seed)
+    assert len(orders) == blocks * 2 * n
+    for start in range(0, len(orders), 2 * n):
+        block = orders[start : start + 2 * n]
+        # each position: red and blue n times each over the block
+        assert position_counts(block) == [(n, n)] * n
+        # the block is exactly the Latin square's rows (the rotations and their reversals)
+        assert Counter(block) == Counter(latin_block(base))
+        # carry-over: at each consecutive pair, R→B as often as B→R, R→R as B→B
+        for p in range(n - 1):
+            t = _transitions(block, p)
+            assert t[("red", "blue")] == t[("blue", "red")]
+            assert t[("red", "red")] == t[("blue", "blue")]
+    # every participant's order has the base's mix of colours (or its reversal's)
+    mixes = {Counter(base)["red"], Counter(base)["blue"]}
+    assert all(Counter(o)["red"] in mixes for o in orders)
+    assert block_problem(base, orders) is None
+
+
+@settings(max_examples=100, deadline=None)
+@given(base=bases, participants=st.integers(1, 60), seed=st.integers(0, 2**32))
+def test_every_even_count_of_participants_is_balanced(base, participants, seed):
+    orders = roster_orders(base, participants, seed)
+    for k in range(2, participants + 1, 2):  # after 2, 4, 6 … participants
+        assert all(red == blue for red, blue in position_counts(orders[:k]))
+    assert block_problem(base, orders) is None  # a partial last block is part of a block
+
+
+def test_the_papers_protocol_in_a_40_person_study():
+    base = order_of(default_schedule())
+    assert base == ("blue", "red", "red", "blue", "red")
+    assert block_size(len(base)) == 10
+    orders = roster_orders(base, 40, seed=7)
+    assert position_counts(orders) == [(20, 20)] * 5  # every trial 4-8: 20 red, 20 blue
+    # each of the 10 orders of the square 4 times; the paper's own among them
+    assert Counter(orders) == Counter({o: 4 for o in latin_block(base)})
+    assert base in orders and reversed_colours(base) in orders
+    assert roster_orders(base, 40, seed=7) == orders  # the seed makes the roster
+    assert roster_orders(base, 40, seed=8) != orders
+
+
+def test_an_edited_order_is_not_the_latin_square():
+    base = ("blue", "red", "red", "blue", "red")
+    orders = roster_orders(base, 10, seed=1)
+    orders[3] = ("red",) * 5
+    problem = block_problem(base, orders)
+    assert problem is not None and "slots 1-10" in problem and "RRRRR" in problem
+    twice = roster_orders(base, 10, seed=1)
+    twice[1] = twice[0] if twice[0] != twice[1] else twice[2]
+    assert block_problem(base, twice) is not None  # one order twice, another missing
+
+
+@pytest.mark.parametrize("bad", [(), ("green",)])
+def test_a_bad_base_is_refused(bad):
+    with pytest.raises(ValueError, match="red/blue"):
+        roster_orders(bad, 4, seed=1)
