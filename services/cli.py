@@ -42,6 +42,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+# Tools that read as a service's verbs: `nod experiment next` is the operator's, not the
+# conductor's (it runs on any host, while the conductor runs the session).
+VERBS: dict[tuple[str, str], str] = {
+    ("experiment", "next"): "services.tools.operator",
+    ("experiment", "pause"): "services.tools.operator",
+}
+
+
 def _usage() -> str:
     lines = ["usage: nod <command> [options]", "", "commands:"]
     lines += [f"  {name:<11} {help_}" for name, (_, help_) in COMMANDS.items()]
@@ -60,7 +68,11 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"nod: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
         return 2
-    module = importlib.import_module(COMMANDS[name][0])
+    verb = VERBS.get((name, rest[0])) if rest else None
+    if verb is not None:
+        name, module = f"{name} {rest[0]}", importlib.import_module(verb)
+    else:
+        module = importlib.import_module(COMMANDS[name][0])
     try:
         return int(module.main(rest) or 0)
     except KeyboardInterrupt:

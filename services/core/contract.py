@@ -133,7 +133,7 @@ EYES_STATE = Topic(
 )
 EXPERIMENT_TRIAL = Topic(
     "experiment/trial", m.TrialEvent, ("experiment",),
-    ("decision", "actuation", "sim", "run", "launcher"),
+    ("decision", "actuation", "sim", "run", "launcher", "operator"),
     "per event", CONTROL,
     "`phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, `mode`, "
     "`option`, `text`, `session`",
@@ -144,11 +144,17 @@ EXPERIMENT_RESULT = Topic(
     "`trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, `violations`, "
     "`score`, `session`, `interrupted`",
 )
+EXPERIMENT_OPERATOR = Topic(
+    "experiment/operator", m.OperatorCmd, ("operator",), ("experiment",), "on demand", CONTROL,
+    "the operator's start gate: `action` start (the waiting trial) or pause (hold the next "
+    "one), `trial` (the trial a start is for; 0: whichever waits), `source` (user@host)",
+)
 RIG_STATUS = Topic(
-    "rig/status", m.NodeStatus, EVERY_SERVICE, ("status",), "1 Hz per service (wall time)",
-    RELIABLE,
+    "rig/status", m.NodeStatus, EVERY_SERVICE, ("status", "experiment"),
+    "1 Hz per service (wall time)", RELIABLE,
     "`service`, `host`, `pid`, `version`, `started_ns`, `wall_ns` (host wall clock: clock "
-    "offsets), `restarts`, `received`, `dropped`",
+    "offsets), `restarts`, `received`, `dropped`, `params_hash` (12 hex digits of its "
+    "parameters' SHA-256, or nil: the conductor refuses a decision or actuation with another)",
 )
 RIG_EVENT = Topic(
     "rig/event", m.RigEvent, ("launcher",), ("experiment", "status"), "on change",
@@ -179,7 +185,8 @@ SAFETY_LATCH = Topic(
 _TOPICS: tuple[Topic[m.Message], ...] = (
     VISION_HAND, VISION_LAYOUT, VISION_FRAME, SIM_CAMERA, DECISION_Z_H, DECISION_Z_R, DECISION_B_R,
     ACTUATION_CMD, ACTUATION_STATE, ACTUATION_PRESS, EYES_CMD, EYES_STATE, EXPERIMENT_TRIAL,
-    EXPERIMENT_RESULT, RIG_STATUS, RIG_EVENT, SAFETY_ESTOP, SAFETY_RELEASE, SAFETY_LATCH,
+    EXPERIMENT_RESULT, EXPERIMENT_OPERATOR, RIG_STATUS, RIG_EVENT, SAFETY_ESTOP, SAFETY_RELEASE,
+    SAFETY_LATCH,
 )
 TOPICS: dict[str, Topic[m.Message]] = {t.name: t for t in _TOPICS}
 
@@ -235,7 +242,8 @@ def markdown_table() -> str:
     """The README's contract table, generated from `TOPICS`."""
 
     def names(who: tuple[str, ...]) -> str:
-        return ", ".join(f"`nod {w}`" if w in ("estop", "run") else w for w in who) or "—"
+        tools = {"estop": "`nod estop`", "run": "`nod run`", "operator": "`nod experiment next`"}
+        return ", ".join(tools.get(w, w) for w in who) or "—"
 
     rows = [
         "| key (`nod/<rig>/…`) | publishers | subscribers | rate | QoS | fields |",

@@ -281,6 +281,15 @@ class Estop(Message, frozen=True, kw_only=True):
     id: Text = ""  # the command's id, echoed as `estop_id` on the state keys of each device obeying
 
 
+class OperatorCmd(Message, frozen=True, kw_only=True):
+    """The operator's command to the conductor: start the waiting trial, or hold the next one."""
+
+    KIND: ClassVar[str] = "operator"
+    action: Literal["start", "pause"] = "start"
+    trial: Trial = 0  # the trial a start is for (0: whichever waits)
+    source: Text = ""  # user@host
+
+
 class LatchMsg(Message, frozen=True, kw_only=True):
     """A device's e-stop latch, in reply to a query on safety/latch (a starting device asks).
 

@@ -62,6 +62,11 @@ class TopicPublisher:
         self._pub = declare_publisher(node.session, self.key, spec.qos)
         self.seq = 0
 
+    def matched(self) -> bool:
+        """Whether some subscriber of the topic is reachable now (zenoh's matching status)."""
+        status = self._pub.matching_status  # a MatchingStatus at run time
+        return bool(status.matching)  # type: ignore[attr-defined]  # zenoh's stub says bool
+
     def put(self, t_ns: int | None = None, **fields: Any) -> m.Message:
         """Build, validate, encode and publish one message; return it."""
         msg = self.cls(seq=self.seq, t_ns=self._clock.now_ns() if t_ns is None else t_ns, **fields)

@@ -25,6 +25,7 @@ from typing import TypedDict
 from services.core import messages as m
 from services.core.node import Node
 from services.experiment.console import SessionConsole
+from services.experiment.operator import OperatorGate
 from services.experiment.presses import RobotPresses
 from services.experiment.rig_watch import RigWatch
 from services.experiment.trial_samples import TrialSamples
@@ -117,6 +118,8 @@ class Conductor:
         node.subscribe("safety/estop", self.on_estop)
         node.subscribe("safety/release", self.on_estop)
         node.subscribe("rig/event", lambda msg: self.rig.rig_event(self._now_ns(), msg))
+        self.gate = OperatorGate()
+        node.subscribe("experiment/operator", self.gate.command)
         for service in REQUIRED:
             node.watch_liveliness(service, functools.partial(self._liveliness, service))
         # An e-stop engaged while no conductor ran (or before this one started) holds the session
@@ -253,6 +256,15 @@ class Conductor:
                         continue
                     if protocol.phase == "rest" and not self._rig_ready():
                         cues = []  # no new trial on an unsafe rig: the rest lasts until it is
+                        continue
+                    cues, note = self.gate.step(
+                        protocol, protocol.waiting_for_operator and self._rig_ready(),
+                        self._now_s(),
+                    )
+                    if note:
+                        log.info("%s", note)
+                        self.console.note(note)
+                    if cues or protocol.waiting_for_operator:
                         continue
                     rec = self.trial_samples
                     cues = protocol.advance(

@@ -63,7 +63,7 @@ class Identity:
 # The hosts of a lab and the services of each. `nod up` runs as the host's launcher identity,
 # `nod monitor` as the monitor identity, everything else as the host's role.
 HOSTS: dict[str, tuple[str, ...]] = {
-    "control": ("experiment", "estop", "run", "record"),
+    "control": ("experiment", "operator", "estop", "run", "record"),
     "camera": ("vision", "sim"),
     "arm": ("decision", "actuation"),
     "eyes": ("eyes",),

@@ -225,7 +225,9 @@ def run_offline_session(
         t += dt
         loop.frame(t)
         proto = loop.protocol
-        if proto.phase == "paused":
+        if proto.waiting_for_operator:  # a gated protocol: the simulated operator starts at once
+            cues = proto.open_gate(t)
+        elif proto.phase == "paused":
             assert broken_at is not None
             cues = proto.resume(t) if t - broken_at >= safe_again_s else []
         elif (

@@ -69,7 +69,7 @@ CueKind: TypeAlias = Literal[
     "gaze", "setup", "countdown", "go", "end", "interrupted", "session_end"
 ]
 Phase: TypeAlias = Literal[
-    "idle", "cueing", "running", "robot", "judging", "paused", "rest", "done"
+    "idle", "gated", "cueing", "running", "robot", "judging", "paused", "rest", "done"
 ]
 
 
@@ -156,6 +156,7 @@ class SessionProtocol:
         self._rest_until = math.inf
         self._end: TrialEnd | None = None
         self._attempt = attempts_before  # attempts of the current trial so far (1 = its first)
+        self._hold = params.gate  # the next trial waits for the operator's `open_gate`
 
     # -- read-only state -------------------------------------------------------------------
 
@@ -188,6 +189,11 @@ class SessionProtocol:
     def running_trial(self) -> bool:
         """Whether a trial is under way (from its setup to its end): what an interruption breaks."""
         return self._phase in ("cueing", "running", "robot")
+
+    @property
+    def waiting_for_operator(self) -> bool:
+        """Whether the next trial is set and waits for the operator to start it."""
+        return self._phase == "gated"
 
     @property
     def done(self) -> bool:
@@ -287,6 +293,31 @@ class SessionProtocol:
         self._end = None
         self._human_pressed = False
         self._robot_deadline = math.inf
+        if self._hold:  # the operator starts it: nothing is cued until `open_gate`
+            self._phase = "gated"
+            self._timeline = None
+            self._script = []
+            return
+        self._script_trial(t)
+
+    def hold(self) -> None:
+        """The operator's pause: the next trial waits for `open_gate` (the current one goes on)."""
+        self._hold = True
+
+    def open_gate(self, t: float) -> list[Cue]:
+        """The operator starts the waiting trial at time t (its cues from now on).
+
+        Called when no trial waits, it lifts a `hold` so the next trial follows on its own.
+        """
+        self._hold = self.params.gate
+        if self._phase != "gated":
+            return []
+        self._script_trial(t)
+        return self.advance(t)
+
+    def _script_trial(self, t: float) -> None:
+        spec = self._trial
+        assert spec is not None  # set by _begin_trial
         tl = trial_timeline(spec, t, self.params)
         self._timeline = tl
         gesture = spec.attention_gesture

@@ -185,6 +185,11 @@ class ProtocolParams:
     max_attempts: int = 3
     # Counter clicks the participant must make for the counter point.
     target_clicks: int = 10
+    # The operator's start gate: each trial waits, after the rest, until the operator starts it
+    # (`nod experiment next`), so no trial begins before the participant is ready. Without the
+    # gate trials follow each other; the operator can still hold the next one
+    # (`nod experiment pause`).
+    gate: bool = False
     # The trials of a session, in order (indices 1..n).
     trials: tuple[TrialSpec, ...] = field(default_factory=default_schedule)
     # The attention gesture run before a trial that asks for it.

@@ -185,3 +185,33 @@ def test_a_trial_is_skipped_after_max_attempts_or_when_repeats_are_off():
         assert cues[1].trial.index == 2 and protocol.attempt == 1
     with pytest.raises(RuntimeError):
         SessionProtocol(P).interrupt(0.0, "nothing under way")
+
+
+def test_a_gated_trial_waits_for_the_operator_and_cues_from_the_start():
+    from dataclasses import replace as _replace
+
+    gated = SessionProtocol(_replace(P, gate=True))
+    assert gated.start(0.0) == [] and gated.waiting_for_operator
+    assert gated.next_due() == math.inf and gated.advance(500.0) == []  # time alone: nothing
+    cues = gated.open_gate(600.0)  # the operator: the trial's script starts now
+    assert [c.kind for c in cues][:2] == ["gaze", "setup"] and gated.phase == "cueing"
+    assert gated.timeline is not None and gated.timeline.go_t > 600.0
+    assert gated.open_gate(601.0) == []  # a second start changes nothing
+
+
+def test_the_operators_pause_holds_the_next_trial_only():
+    protocol = SessionProtocol(P)
+    assert any(c.kind == "setup" for c in protocol.start(0.0))
+    protocol.hold()  # during trial 1: it goes on, trial 2 will wait
+    go = protocol.timeline.go_t
+    protocol.advance(go + 1.0, human_pressed=True, robot_pressed=True)
+    protocol.judged(go + 1.5)
+    assert protocol.advance(go + 100.0) == [] and protocol.waiting_for_operator
+    assert protocol.trial.index == 2
+    cues = protocol.open_gate(go + 200.0)
+    assert any(c.kind == "setup" and c.trial.index == 2 for c in cues)
+    # Ungated again: trial 3 follows trial 2 by itself.
+    go2 = protocol.timeline.go_t
+    protocol.advance(go2 + 1.0, human_pressed=True, robot_pressed=True)
+    protocol.judged(go2 + 1.5)
+    assert any(c.kind == "setup" for c in protocol.advance(go2 + 100.0))

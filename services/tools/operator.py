@@ -1,0 +1,80 @@
+"""`nod experiment next | pause`: the operator's start gate, from any host of the rig.
+
+`next` starts the trial that waits for the operator (`[protocol] gate = true`, or after a
+pause) and waits until the conductor announces its setup; `pause` holds the next trial until a
+`next`. Each command is sent once, reliably, when the conductor listens: a repeat could start
+the trial after the one meant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import getpass
+import socket
+import sys
+import threading
+import time
+
+from services.core import messages as m
+from services.core.cli import Parser, fail, int_in, positive_float
+from services.core.node import Node
+from services.core.session import Fabric, add_zenoh_args
+
+PROG = "nod experiment"
+
+
+def build_parser(action: str) -> argparse.ArgumentParser:
+    """The command line of `nod experiment next` or `pause`."""
+    what = {
+        "next": "Start the trial that waits for the operator; waits until it is set up.",
+        "pause": "Hold the next trial until `nod experiment next` (the current one goes on).",
+    }[action]
+    p = Parser(prog=f"{PROG} {action}", description=what)
+    add_zenoh_args(p)
+    if action == "next":
+        p.add_argument("--trial", type=int_in(0, 10_000), default=0,
+                       help="the trial to start (default 0: whichever waits)")
+    p.add_argument("--timeout", type=positive_float, default=10.0,
+                   help="seconds to wait for the conductor (10)")
+    return p
+
+
+def main(argv: list[str]) -> int:
+    """Send one operator command; 0 when the conductor took it, 1 when it did not in time."""
+    action = argv[0]
+    args = build_parser(action).parse_args(argv[1:])
+    prog = f"{PROG} {action}"
+    try:
+        node = Node("operator", Fabric.from_args(args))
+    except (ConnectionError, OSError, ValueError) as exc:
+        return fail(prog, exc)
+    try:
+        if not node.peer_alive("experiment"):
+            return fail(prog, f"no conductor is running on rig {node.keys.rig!r}")
+        started = threading.Event()
+        trial = getattr(args, "trial", 0)
+
+        def on_trial(ev: m.TrialEvent) -> None:
+            if ev.phase == "setup" and trial in (0, ev.trial):
+                started.set()
+
+        node.subscribe("experiment/trial", on_trial)
+        pub = node.publisher("experiment/operator")
+        deadline = time.monotonic() + args.timeout
+        while not pub.matched() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if not pub.matched():
+            return fail(prog, "the conductor did not subscribe in time")
+        source = f"{getpass.getuser()}@{socket.gethostname()}"
+        pub.put(action="start" if action == "next" else "pause", trial=trial, source=source)
+        if action == "pause":
+            print(f"{prog}: sent; the next trial waits for `nod experiment next`")
+            return 0
+        if started.wait(max(0.0, deadline - time.monotonic())):
+            print(f"{prog}: the trial is set up")
+            return 0
+        print(f"{prog}: no trial started within {args.timeout:g} s (does one wait for the "
+              "operator? the conductor starts it once the rig is safe)", file=sys.stderr)
+        return 1
+    finally:
+        node.close()

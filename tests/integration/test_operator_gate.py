@@ -1,0 +1,82 @@
+"""The operator's start gate: with `gate = true` no trial starts before `nod experiment next`,
+and `nod experiment pause` holds the next trial of an ungated session (real processes)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from services.core import messages as m
+from services.core.keys import Keys
+from services.store import Store
+from tests.processes import run_nod
+
+from .conftest import SHORT, Collector, wait_for
+
+pytestmark = pytest.mark.integration
+KEYS = Keys("rig1")
+SPEED = ("--speed", "4")
+
+
+def _rig(spawn, params: str, epoch: str) -> None:
+    clock = [*SPEED, "--epoch-ns", epoch, "--params", params]
+    for service in ("decision", "actuation", "eyes", "sim"):
+        spawn(service, *clock)
+
+
+def _setups(events: Collector) -> list[int]:
+    return [e.trial for e in events.messages if e.phase == "setup"]
+
+
+def _operator(endpoint: str, action: str) -> None:
+    res = run_nod("experiment", action, "--connect", endpoint, "--timeout", "30", timeout=60)
+    assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_a_gated_session_starts_each_trial_only_when_the_operator_says(
+    router, endpoint, client, spawn, tmp_path
+):
+    params = tmp_path / "gated.toml"
+    params.write_text(SHORT.replace("[[protocol.trials]]", "[protocol]\ngate = true\n\n"
+                                    "[[protocol.trials]]", 1))
+    epoch = str(time.time_ns())
+    _rig(spawn, str(params), epoch)
+    events = Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
+    db = tmp_path / "s.sqlite"
+    conductor = spawn("experiment", *SPEED, "--epoch-ns", epoch, "--params", str(params),
+                      "--db", str(db), "--clicks", "10", "--console", "lines")
+    for trial in (1, 2, 3):
+        wait_for(lambda t=trial: f"trial {t} ready: waiting for the operator"
+                 in conductor.log_path.read_text(), 60, f"trial {trial} waiting")
+        # Not a wait for a condition: a bounded window in which nothing may start by itself.
+        time.sleep(0.5)
+        assert _setups(events) == list(range(1, trial)), _setups(events)
+        _operator(endpoint, "next")
+        wait_for(lambda t=trial: t in _setups(events), 10, f"trial {trial} set up")
+    assert conductor.wait(60) == 0, conductor.log_path.read_text()[-2000:]
+    store = Store(db)
+    try:
+        assert [t.trial for _, t in store.trials()] == [1, 2, 3]
+    finally:
+        store.close()
+
+
+def test_pause_holds_the_next_trial_of_an_ungated_session(
+    router, endpoint, client, spawn, tmp_path
+):
+    params = tmp_path / "short.toml"
+    params.write_text(SHORT)
+    epoch = str(time.time_ns())
+    _rig(spawn, str(params), epoch)
+    events = Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
+    conductor = spawn("experiment", *SPEED, "--epoch-ns", epoch, "--params", str(params),
+                      "--db", str(tmp_path / "s.sqlite"), "--clicks", "10", "--console", "lines")
+    wait_for(lambda: 1 in _setups(events), 60, "trial 1 under way")
+    _operator(endpoint, "pause")
+    wait_for(lambda: "trial 2 ready: waiting for the operator" in conductor.log_path.read_text(),
+             60, "trial 2 held")
+    assert _setups(events) == [1]
+    _operator(endpoint, "next")
+    assert conductor.wait(60) == 0, conductor.log_path.read_text()[-2000:]
+    assert _setups(events) == [1, 2, 3]  # trial 3 followed trial 2 by itself
