@@ -12,6 +12,7 @@ import argparse
 import sys
 
 from services.analysis.commands import COMMANDS, UsageError
+from services.analysis.multiplicity import CORRECTIONS
 from services.core.cli import SEED, Parser, fail, finite_float, int_in, positive_float
 
 PROG = "nod analyze"
@@ -157,7 +158,15 @@ def _build_parser() -> Parser:
         "table with the arm's end effector (panels a-d).",
     )
     p.add_argument("--db", required=True, metavar="FILE", help="session database")
-    p.add_argument("--session", default=None, help="session id (default: the latest)")
+    who = p.add_mutually_exclusive_group()
+    who.add_argument(
+        "--participant", default=None, metavar="ID",
+        help="the participant's latest session with trials (e.g. P01)",
+    )
+    who.add_argument(
+        "--session", default=None, metavar="ID",
+        help="a session id, or a participant id (default: the latest session)",
+    )
     p.add_argument("--trial", type=int_in(1, 10_000), required=True, help="trial number")
     p.add_argument("--out", required=True, metavar="DIR", help="where to write trial<K>.<fmt>")
     p.add_argument(
@@ -180,6 +189,10 @@ def _build_parser() -> Parser:
     p.add_argument("--population", type=int_in(1, 10**6), default=400,
                    help="simulated people (400)")
     p.add_argument("--alpha", type=positive_float, default=0.05, help="significance level (0.05)")
+    p.add_argument(
+        "--correction", choices=CORRECTIONS, default="holm",
+        help="adjust each drawn study's p-values as `nod analyze study` does (default holm)",
+    )
     p.add_argument("--seed", type=SEED, default=1, help="seed of the population and the draws")
     p.add_argument("--params", metavar="FILE.toml", help="cohort parameters (calibrated traits)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
@@ -192,10 +205,21 @@ def _build_parser() -> Parser:
         description="Every session of a database: per-trial outcome frequencies (Fig 8a), "
         "control→experiment flows (8b), per-participant grid (8c), contingency table (8d), "
         "Stuart-Maxwell tests (control vs experiment, trials 4→5 … 7→8) and the questionnaire "
-        "statistics (t-tests of Q1, Q2, Q4, Q5 vs 5.5; χ² of Q3). Timeouts are excluded from "
-        "the categorical tests and listed.",
+        "statistics (t-tests of Q1, Q2, Q4, Q5 vs 5.5; χ² of Q3). Only complete sessions "
+        "count unless --min-trials says otherwise; every excluded session is listed with its "
+        "reason. Timeouts and interrupted trials are excluded from the categorical tests and "
+        "listed. The Stuart-Maxwell p-values are corrected for multiple comparisons (Holm).",
     )
     p.add_argument("--db", required=True, metavar="FILE", help="session database (nod run)")
+    p.add_argument(
+        "--min-trials", type=int_in(1, 10_000), default=None, metavar="N",
+        help="include any session with at least N scored trials (default: complete sessions "
+        "only: status complete, every scheduled trial stored)",
+    )
+    p.add_argument(
+        "--correction", choices=CORRECTIONS, default="holm",
+        help="multiple-comparison correction of the Stuart-Maxwell tests (default holm)",
+    )
     p.add_argument("--json", action="store_true", help="print every number as JSON")
     p.add_argument(
         "--out", metavar="DIR", help="write Figs 8a-8d, report.md and study.json here"

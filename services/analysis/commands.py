@@ -161,13 +161,15 @@ def stuart_maxwell(args: argparse.Namespace) -> int:
 
 def study(args: argparse.Namespace) -> int:
     """`nod analyze study`: the study's statistics and figures from a session store."""
-    from services.analysis.study import load_study
-    from services.analysis.study_report import finite_json, markdown, summary, write_figures
+    from services.analysis.study import InclusionRule, load_study
+    from services.analysis.study_figures import write_figures
+    from services.analysis.study_report import finite_json, markdown, summary
 
     db = Path(args.db)
     if not db.is_file():
         raise UsageError(f"--db: no such database {args.db!r}; run `nod run` first")
-    doc = finite_json(load_study(str(db)))
+    rule = InclusionRule(args.min_trials)
+    doc = finite_json(load_study(str(db), rule, args.correction))
     if args.out:
         out = Path(args.out)
         try:
@@ -234,11 +236,12 @@ def power(args: argparse.Namespace) -> int:
     cfg = load_params(args.params)
     t0 = time.monotonic()
     pop = population(cfg, args.population, args.seed, args.workers or os.cpu_count() or 1)
-    results = power(pop, sizes, args.runs, args.alpha, args.seed)
+    results = power(pop, sizes, args.runs, args.alpha, args.seed, args.correction)
     doc = {
         "method": "one simulated population, studies drawn with replacement",
         "population": args.population,
         "alpha": args.alpha,
+        "correction": args.correction,
         "params": args.params,
         "seconds": round(time.monotonic() - t0, 1),
         "results": results,
@@ -255,8 +258,8 @@ def power(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(doc, indent=2))
         return 0
-    print(f"power at α = {args.alpha} ({args.runs} drawn studies per size from "
-          f"{args.population} simulated people, {doc['seconds']} s):")
+    print(f"power at α = {args.alpha}, {args.correction} correction ({args.runs} drawn studies "
+          f"per size from {args.population} simulated people, {doc['seconds']} s):")
     print("  N   " + "  ".join(f"{t.replace('trial_', ''):>22}" for t in TESTS))
     for r in results:
         cells = [
@@ -268,7 +271,8 @@ def power(args: argparse.Namespace) -> int:
 
 def trial(args: argparse.Namespace) -> int:
     """`nod analyze trial`: one stored trial's streams as a figure (Figs 6-7)."""
-    from services.analysis.trial_plot import figure
+    from services.analysis.sessions import resolve_session
+    from services.analysis.trial_plot import figure, trial_title
     from services.core.config import load_params
     from services.store import Store
 
@@ -278,28 +282,27 @@ def trial(args: argparse.Namespace) -> int:
         raise UsageError(f"--db: no such database {args.db!r}")
     store = Store(db)
     try:
-        trials = store.trials(args.session)
-        if not trials:
-            raise UsageError(f"no trials for session {args.session or '(latest)'}")
-        session = trials[0][0]
+        session, participant = resolve_session(store, args.session, args.participant)
+        trials = store.trials(session)
         match = [t for _, t in trials if t.trial == args.trial]
         if not match:
-            raise UsageError(f"session {session} has no trial {args.trial}")
+            have = ", ".join(str(t.trial) for _, t in trials) or "none"
+            raise UsageError(
+                f"participant {participant} (session {session}) has no trial {args.trial}; "
+                f"stored: {have}"
+            )
         samples = store.samples(session, args.trial)
     finally:
         store.close()
     rec = match[0]
-    option = f", O={rec.option}" if rec.option else ""
-    title = (
-        f"session {session}, trial {rec.trial} ({rec.mode}{option}): human {rec.human or '-'}, "
-        f"robot {rec.robot or '-'}, outcome {rec.outcome or '-'}"
-    )
     layout = load_params(args.params).layout
     try:
-        paths = figure(samples, rec, layout, title, Path(args.out), formats)
+        paths = figure(samples, rec, layout, trial_title(participant, rec), Path(args.out),
+                       formats)
     except OSError as exc:
         raise UsageError(f"cannot write to --out {args.out!r}: {exc}") from None
-    print("wrote " + ", ".join(str(p) for p in paths))
+    print(f"participant {participant}, session {session}, trial {rec.trial}: wrote "
+          + ", ".join(str(p) for p in paths))
     return 0
 
 

@@ -3,8 +3,10 @@
 Method (resampling from one simulated population): a population of simulated participants is
 run once, offline (the calibrated cohort: `--params`); a study of N participants is then drawn
 from it with replacement, `runs` times, and each drawn study is analysed exactly as a real one
-(phase categories, paired tables, Stuart–Maxwell at α). The power of a test at N is the share
-of drawn studies in which it is significant; its Monte-Carlo error is the Wilson 95% interval.
+(phase categories, paired tables, Stuart–Maxwell, the p-values adjusted over the family of
+defined tests as `nod analyze study` adjusts them: Holm by default). The power of a test at N
+is the share of drawn studies in which its adjusted p is below α; its Monte-Carlo error is the
+Wilson 95% interval.
 Resampling keeps the cost at one population, however many N and runs; the population must be
 large against N (default 400 for N up to 60), or the draws repeat the same people too often.
 The power is that of the *model's* effect, which is as good as its calibration.
@@ -15,10 +17,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from services.analysis.multiplicity import Correction, adjust
 from services.analysis.stuart_maxwell import stuart_maxwell
 from services.analysis.study import (
     ADJACENT_PAIRS,
@@ -29,6 +32,9 @@ from services.analysis.study import (
 )
 from services.model.closed_loop import run_offline_session
 from services.model.params import NodConfig
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 TESTS = ("control_vs_experiment", *(f"trial_{a}_vs_{b}" for a, b in ADJACENT_PAIRS))
 
@@ -92,16 +98,21 @@ def power(
     runs: int,
     alpha: float = 0.05,
     seed: int = 0,
+    correction: Correction = "holm",
 ) -> list[dict[str, Any]]:
-    """Per study size: each test's power (share of significant draws) with its 95% interval."""
+    """Per study size: each test's power (share of significant draws) with its 95% interval.
+
+    Significant: the test's p, adjusted by `correction` over the draw's defined tests, < α.
+    """
     rng = np.random.default_rng(seed)
     result = []
     for n in sizes:
         hits = {t: 0 for t in TESTS}
         for _ in range(runs):
             study = [pop[i] for i in rng.integers(0, len(pop), n)]
-            for test, p in p_values(study).items():
-                hits[test] += bool(p < alpha)  # nan (untestable) is never significant
+            raw = {t: p for t, p in p_values(study).items() if not math.isnan(p)}
+            for test, p in zip(raw, adjust(list(raw.values()), correction), strict=True):
+                hits[test] += bool(p < alpha)  # an untestable (nan) test is never significant
         result.append({
             "participants": n,
             "runs": runs,
@@ -111,24 +122,41 @@ def power(
     return result
 
 
-def plot(doc: dict[str, Any], path: str) -> None:
-    """Power against N for every test, with the Monte-Carlo intervals."""
+def draw(doc: dict[str, Any]) -> Figure:
+    """Power against N for every test, with the Monte-Carlo intervals; the legend under the axes.
+
+    The legend sits outside the axes, so it never hides a point (power is anywhere in [0, 1]);
+    the tests' points at one N are drawn slightly apart (1 % of the N range) so none hides
+    another's interval.
+    """
     from services.analysis.figures import pyplot
 
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    fig, ax = plt.subplots(figsize=(6.4, 4.6), layout="constrained")
     sizes = [r["participants"] for r in doc["results"]]
-    for test in TESTS:
+    step = 0.01 * ((max(sizes) - min(sizes)) or max(sizes))  # side by side at each N
+    for k, test in enumerate(TESTS):
         y = [r["power"][test] for r in doc["results"]]
         lo = [r["power"][test] - r["ci95"][test][0] for r in doc["results"]]
         hi = [r["ci95"][test][1] - r["power"][test] for r in doc["results"]]
-        ax.errorbar(sizes, y, yerr=[lo, hi], marker="o", capsize=3, label=test.replace("_", " "))
+        x = [n + (k - (len(TESTS) - 1) / 2) * step for n in sizes]
+        ax.errorbar(x, y, yerr=[lo, hi], marker="o", capsize=3, label=test.replace("_", " "))
     ax.axhline(0.8, color="grey", lw=0.8, ls="--")
     ax.set_xlabel("participants")
-    ax.set_ylabel(f"power (α = {doc['alpha']})")
+    how = {"holm": ", Holm", "bonferroni": ", Bonferroni"}.get(doc.get("correction", "none"), "")
+    ax.set_ylabel(f"power (α = {doc['alpha']}{how})")
     ax.set_ylim(-0.02, 1.02)
     ax.set_title("Stuart–Maxwell power, simulated cohort (a model)", fontsize=10)
-    ax.legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
+    fig.legend(fontsize=7, loc="outside lower center", ncol=3, frameon=False)
+    return fig
+
+
+def plot(doc: dict[str, Any], path: str) -> None:
+    """Draw the power figure (`draw`) into a file; the suffix picks the format."""
+    from services.analysis.figures import pyplot
+
+    fig = draw(doc)
+    try:
+        fig.savefig(path, dpi=150)
+    finally:
+        pyplot().close(fig)

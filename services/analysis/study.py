@@ -2,96 +2,61 @@
 
 Units and rules:
 
+- **Inclusion** (services.analysis.sessions, stated in every report): by default only complete
+  sessions (status complete, every scheduled trial stored); `min_trials = N` lets in any
+  session with at least N scored trials. Every session left out is listed in `excluded` with
+  its reason ("aborted after 4 of 8 trials").
 - A *participant* is the `participant` column of the sessions table. When a participant has
-  several sessions, the most recent one that stored any trial is analysed and the others are
-  listed in `notes` (e.g. a re-run after an aborted session).
+  several sessions that pass the rule, the most recent one is analysed and the others are
+  excluded as superseded (e.g. a full re-run).
 - Outcomes are C, CH, D, DH per trial. A stored trial without an outcome (the human never
-  pressed: a timeout) and a trial that was never stored (an aborted session) are *excluded*:
-  each is listed in `excluded_trials`, counted as `none` in the per-trial frequencies (so each
-  trial's frequencies sum to the number of participants), and left out of every categorical
-  test. A phase category is taken over the phase's remaining trials; a participant with no
-  outcome in a phase, or without both trials of an adjacent pair, drops out of that table.
+  pressed: a timeout), a trial interrupted by a safe stop, and a trial never stored (an
+  incomplete session let in by `min_trials`) are *excluded trial-wise*: each is listed in
+  `excluded_trials`, counted as `none` in the per-trial frequencies (so each trial's
+  frequencies sum to the number of participants), and left out of every categorical test. A
+  phase category is taken over the phase's remaining trials; a participant with no outcome in
+  a phase, or without both trials of an adjacent pair, drops out of that table.
 - Phases: control = trials 1-3, experiment = trials 4-8. A participant's category in a phase is
   its most frequent outcome there; a tie goes to the outcome seen in the later trial.
 - Stuart-Maxwell (services.analysis.stuart_maxwell) on the control × experiment table and on
   each adjacent pair 4→5 … 7→8; rows are the earlier classification. An undefined test (e.g.
-  every pair concordant) is reported with its reason instead of numbers.
+  every pair concordant) is reported with its reason instead of numbers. The defined tests are
+  one family for the correction for multiple comparisons (services.analysis.multiplicity; Holm
+  by default): each carries its raw `p` and its `p_adjusted`.
 - Questionnaire: one-sample t-tests (scipy.stats.ttest_1samp, two-sided) of Q1, Q2, Q4, Q5
   against the scale midpoint 5.5 with Cohen's d = (mean − 5.5)/sd (sd with ddof 1); χ² goodness
   of fit (scipy.stats.chisquare) of Q3's Yes/No/Maybe counts against uniform, with Cohen's
-  w = √(χ²/n) and Cramér's V = √(χ²/(n(k − 1))), k = 3.
+  w = √(χ²/n) and Cramér's V = √(χ²/(n(k − 1))), k = 3. The answers of a participant whose
+  every session is excluded are left out too (listed in `questionnaire_excluded`).
 """
 
 from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
 
+from services.analysis.multiplicity import Correction, adjust
+from services.analysis.sessions import (
+    OUTCOMES,
+    TRIALS,
+    ExcludedSession,
+    InclusionRule,
+    ParticipantOutcomes,
+    select_sessions,
+)
 from services.analysis.stuart_maxwell import stuart_maxwell
 from services.store import QuestionnaireRecord, Store
 
-OUTCOMES: tuple[str, ...] = ("C", "CH", "D", "DH")
-TRIALS: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 7, 8)
 CONTROL_TRIALS: tuple[int, ...] = (1, 2, 3)
 EXPERIMENT_TRIALS: tuple[int, ...] = (4, 5, 6, 7, 8)
 ADJACENT_PAIRS: tuple[tuple[int, int], ...] = ((4, 5), (5, 6), (6, 7), (7, 8))
 LIKERT_MIDPOINT = 5.5
 LIKERT_KEYS: tuple[str, ...] = ("q1", "q2", "q4", "q5")
 Q3_CHOICES: tuple[str, ...] = ("Yes", "No", "Maybe")
-
-
-@dataclass(frozen=True, slots=True)
-class ParticipantOutcomes:
-    """One participant's analysed session: trial number → outcome (None: timeout)."""
-
-    participant: str
-    session: str
-    status: str
-    outcomes: Mapping[int, str | None]  # stored trials only; a missing trial has no key
-
-    def outcome(self, trial: int) -> str | None:
-        """The trial's outcome, or None for a timeout or a trial never stored."""
-        return self.outcomes.get(trial)
-
-
-def load_participants(store: Store) -> tuple[list[ParticipantOutcomes], list[str]]:
-    """Each participant's latest session with trials, ordered by participant id; plus notes."""
-    latest: dict[str, ParticipantOutcomes] = {}
-    notes: list[str] = []
-    for s in store.sessions():  # oldest first, so later sessions overwrite earlier ones
-        trials = store.trials(s["session"])
-        if not trials:
-            notes.append(f"session {s['session']} ({s['participant']}) has no trials: skipped")
-            continue
-        bad = sorted(
-            {t.outcome for _, t in trials if t.outcome is not None and t.outcome not in OUTCOMES}
-        )
-        if bad:
-            raise ValueError(f"session {s['session']}: unknown outcome(s) {bad}")
-        for _, t in trials:
-            if t.interrupted:  # broken by a safe stop or e-stop: never scored, never counted
-                notes.append(
-                    f"session {s['session']} ({s['participant']}) trial {t.trial} was "
-                    "interrupted by a safe stop: excluded"
-                )
-        part = ParticipantOutcomes(
-            participant=str(s["participant"]),
-            session=str(s["session"]),
-            status=str(s["status"]),
-            outcomes={t.trial: None if t.interrupted else t.outcome for _, t in trials},
-        )
-        if part.participant in latest:
-            notes.append(
-                f"participant {part.participant}: session {latest[part.participant].session} "
-                f"superseded by the later session {part.session}"
-            )
-        latest[part.participant] = part
-    return [latest[p] for p in sorted(latest)], notes
 
 
 def phase_category(outcomes: Sequence[str | None]) -> str | None:
@@ -220,19 +185,46 @@ def flows(table: np.ndarray) -> list[dict[str, Any]]:
     ]
 
 
+def correct(tests: dict[str, dict[str, Any]], method: Correction) -> list[str]:
+    """Add `p_adjusted` to every defined test of the family, in place; return the family's names.
+
+    The family is the tests that have a p-value (an undefined test is not a comparison made).
+    """
+    family = [name for name, t in tests.items() if "p" in t]
+    for name, q in zip(family, adjust([tests[n]["p"] for n in family], method), strict=True):
+        tests[name]["p_adjusted"] = q
+    return family
+
+
 def analyze_study(
     parts: Sequence[ParticipantOutcomes],
     questionnaires: Sequence[QuestionnaireRecord] = (),
     notes: Sequence[str] = (),
+    excluded: Sequence[ExcludedSession] = (),
+    rule: InclusionRule | None = None,
+    correction: Correction = "holm",
 ) -> dict[str, Any]:
-    """Every number of the Sec 7-8 study analysis as one JSON-ready document."""
-    if not parts:
+    """Every number of the Sec 7-8 study analysis as one JSON-ready document.
+
+    `parts` are the sessions the inclusion `rule` let in, `excluded` those it left out (both as
+    `select_sessions` gives them); `correction` adjusts the Stuart-Maxwell family's p-values.
+    """
+    rule = rule or InclusionRule()
+    if not parts and not excluded:
         raise ValueError("no session with stored trials: run `nod run` first")
-    excluded = [
+    if not parts:
+        first = excluded[0]
+        raise ValueError(
+            f"no session passes the inclusion rule: all {len(excluded)} excluded (e.g. "
+            f"{first.session} of {first.participant}: {first.reason}); --min-trials N lets "
+            "in sessions with at least N scored trials"
+        )
+    trial_excluded = [
         {
             "participant": p.participant,
             "trial": trial,
-            "reason": "timeout" if trial in p.outcomes else "missing",
+            "reason": "interrupted" if trial in p.interrupted
+            else "timeout" if trial in p.outcomes else "missing",
         }
         for p in parts
         for trial in TRIALS
@@ -250,19 +242,25 @@ def analyze_study(
     for a, b in ADJACENT_PAIRS:
         pair = paired_table((p.outcome(a), p.outcome(b)) for p in parts)
         tests[f"trial_{a}_vs_{b}"] = stuart_maxwell_doc(pair)
-    answered = {q.participant for q in questionnaires}
+    family = correct(tests, correction)
+    included = {p.participant for p in parts}
+    left_out = {e.participant for e in excluded} - included
+    answers = [q for q in questionnaires if q.participant not in left_out]
+    answered = {q.participant for q in answers}
     return {
         "categories": list(OUTCOMES),
         "trials": list(TRIALS),
         "control_trials": list(CONTROL_TRIALS),
         "experiment_trials": list(EXPERIMENT_TRIALS),
+        "inclusion": rule.as_dict(),
         "participants": len(parts),
         "sessions": [
             {"participant": p.participant, "session": p.session, "status": p.status} for p in parts
         ],
+        "excluded": [e.as_dict() for e in excluded],
         "notes": list(notes),
         "grid": {p.participant: [p.outcome(t) for t in TRIALS] for p in parts},
-        "excluded_trials": excluded,
+        "excluded_trials": trial_excluded,
         "frequencies": frequencies(parts),
         "phase_categories": phases,
         "contingency": {
@@ -276,19 +274,26 @@ def analyze_study(
             ),
         },
         "flows": flows(table),
+        "correction": correction,
+        "correction_family": family,
         "stuart_maxwell": tests,
-        "questionnaire": questionnaire_stats(questionnaires),
-        "questionnaire_without_session": sorted(answered - {p.participant for p in parts}),
-        "sessions_without_questionnaire": sorted({p.participant for p in parts} - answered),
+        "questionnaire": questionnaire_stats(answers),
+        "questionnaire_excluded": sorted({q.participant for q in questionnaires} & left_out),
+        "questionnaire_without_session": sorted(answered - included),
+        "sessions_without_questionnaire": sorted(included - answered),
     }
 
 
-def load_study(path: str) -> dict[str, Any]:
-    """Open a session database, analyse every participant, close it."""
+def load_study(
+    path: str, rule: InclusionRule | None = None, correction: Correction = "holm"
+) -> dict[str, Any]:
+    """Open a session database, select its sessions by the rule, analyse them, close it."""
     store = Store(path)
     try:
-        parts, notes = load_participants(store)
+        chosen = select_sessions(store, rule)
         answers = store.questionnaires()
     finally:
         store.close()
-    return analyze_study(parts, answers, notes)
+    return analyze_study(
+        chosen.participants, answers, chosen.notes, chosen.excluded, chosen.rule, correction
+    )

@@ -1,7 +1,7 @@
-"""Figures 8a-8d (PNG, PDF or SVG) and a Markdown report of the study analysis (Secs 7-8).
+"""The Markdown report and the terminal summary of the study analysis (Secs 7-8).
 
-Everything here draws or formats the JSON document of services.analysis.study.analyze_study;
-no number is computed twice. matplotlib is imported lazily with the Agg backend.
+Everything here formats the JSON document of services.analysis.study.analyze_study; no number
+is computed twice. The figures it links are services.analysis.study_figures'.
 """
 
 from __future__ import annotations
@@ -11,217 +11,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from services.analysis.figures import FORMATS, pyplot
-from services.analysis.study import CONTROL_TRIALS, LIKERT_KEYS, OUTCOMES
-
-COLOURS: Mapping[str, str] = {
-    "C": "#2e7d32",
-    "CH": "#9ccc65",
-    "D": "#c62828",
-    "DH": "#ff8f00",
-    "none": "#9e9e9e",
-}
-TITLES: Mapping[str, str] = {
-    "8a": "Outcome frequency per trial",
-    "8b": "Control → experiment flows",
-    "8c": "Per-participant outcomes",
-    "8d": "Contingency table",
-}
-FIGURES: Mapping[str, str] = {
-    "8a": "fig8a_frequencies",
-    "8b": "fig8b_flows",
-    "8c": "fig8c_grid",
-    "8d": "fig8d_contingency",
-}
-
-
-def _title(ax: Any, key: str) -> None:
-    """The panel letter (a-d, as Fig 8 of the paper) and the panel's title."""
-    ax.set_title(f"({key[-1]}) {TITLES[key]}", loc="left", fontsize=10)
-
-
-def plot_frequencies(doc: Mapping[str, Any], path: Path) -> None:
-    """Fig 8a: per trial, the share of participants with each outcome (grouped bars)."""
-    plt = pyplot()
-    freq, n = doc["frequencies"], doc["participants"]
-    keys = list(OUTCOMES) + (["none"] if any(r["none"] for r in freq.values()) else [])
-    fig, ax = plt.subplots(figsize=(8.0, 3.8), dpi=120)
-    width = 0.8 / len(keys)
-    ax.axvspan(0.5, len(CONTROL_TRIALS) + 0.5, color="#eeeeee", zorder=0)
-    for k, key in enumerate(keys):
-        xs = [t + (k - (len(keys) - 1) / 2) * width for t in doc["trials"]]
-        ys = [100.0 * freq[str(t)][key] / n for t in doc["trials"]]
-        label = "timeout / missing" if key == "none" else key
-        ax.bar(xs, ys, width, color=COLOURS[key], label=label, zorder=2)
-    ax.set_xticks(doc["trials"])
-    ax.set_xlabel("trial (shaded: control)")
-    ax.set_ylabel(f"% of {n} participants")
-    ax.set_ylim(0, 115)
-    ax.set_yticks(range(0, 101, 20))
-    _title(ax, "8a")
-    ax.legend(ncol=len(keys), fontsize=8, loc="upper center")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-
-
-def _stack(totals: list[int], gap: float) -> dict[int, float]:
-    """Bottom y of each non-empty node in a column, C on top."""
-    y, out = 0.0, {}
-    for i in reversed(range(len(totals))):
-        if totals[i] > 0:
-            out[i] = y
-            y += totals[i] + gap
-    return out
-
-
-def plot_flows(doc: Mapping[str, Any], path: Path) -> None:
-    """Fig 8b: an alluvial plot of control → experiment categories drawn with patches."""
-    plt = pyplot()
-    from matplotlib.patches import PathPatch, Rectangle
-    from matplotlib.path import Path as MPath
-
-    cont = doc["contingency"]
-    table = cont["table"]
-    rows, cols = cont["row_totals"], cont["column_totals"]
-    total = max(sum(rows), 1)
-    gap = 0.04 * total
-    left, right = _stack(rows, gap), _stack(cols, gap)
-    x0, x1, w = 0.0, 1.0, 0.06
-    fig, ax = plt.subplots(figsize=(6.0, 4.5), dpi=120)
-    out_used = dict.fromkeys(left, 0.0)
-    in_used = dict.fromkeys(right, 0.0)
-    # Draw flows top-down on both sides so bands do not cross more than needed.
-    for i in sorted(left):
-        for j in sorted(right):
-            c = table[i][j]
-            if c <= 0:
-                continue
-            ly = left[i] + rows[i] - out_used[i]
-            ry = right[j] + cols[j] - in_used[j]
-            out_used[i] += c
-            in_used[j] += c
-            xa, xb, xm = x0 + w, x1 - w, (x0 + x1) / 2
-            verts = [
-                (xa, ly),
-                (xm, ly),
-                (xm, ry),
-                (xb, ry),
-                (xb, ry - c),
-                (xm, ry - c),
-                (xm, ly - c),
-                (xa, ly - c),
-                (xa, ly),
-            ]
-            codes = [MPath.MOVETO] + [MPath.CURVE4] * 3 + [MPath.LINETO] + [MPath.CURVE4] * 3
-            codes.append(MPath.CLOSEPOLY)
-            band = PathPatch(MPath(verts, codes), fc=COLOURS[OUTCOMES[i]], ec="none", alpha=0.45)
-            ax.add_patch(band)
-            ax.text(xa + 0.02, ly - c / 2, str(c), ha="left", va="center", fontsize=7)
-    for nodes, totals, x, side in ((left, rows, x0, "right"), (right, cols, x1 - w, "left")):
-        for i, y in nodes.items():
-            ax.add_patch(Rectangle((x, y), w, totals[i], fc=COLOURS[OUTCOMES[i]], ec="black"))
-            tx = x - 0.02 if side == "right" else x + w + 0.02
-            ax.text(
-                tx,
-                y + totals[i] / 2,
-                f"{OUTCOMES[i]} ({totals[i]})",
-                va="center",
-                ha=side,
-                fontsize=9,
-            )
-    height = max(sum(rows), sum(cols)) + gap * len(OUTCOMES)
-    ax.set_xlim(-0.25, 1.25)
-    ax.set_ylim(-gap, height)
-    ax.axis("off")
-    ax.text(x0 + w / 2, height, "control (trials 1-3)", ha="center", va="top", fontsize=9)
-    ax.text(x1 - w / 2, height, "experiment (4-8)", ha="center", va="top", fontsize=9)
-    _title(ax, "8b")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-
-
-def plot_grid(doc: Mapping[str, Any], path: Path) -> None:
-    """Fig 8c: each participant's outcome per trial, coloured by outcome (as Figs 8a-8b).
-
-    A cell that is not as designed (agreement in a control trial, disagreement in an
-    experiment trial) gets a black frame; grey marks a timeout or a missing trial.
-    """
-    plt = pyplot()
-    from matplotlib.colors import ListedColormap
-    from matplotlib.patches import Rectangle
-
-    grid = doc["grid"]
-    names = list(grid)
-    keys = [*OUTCOMES, "none"]
-    code = [[keys.index(o if o in OUTCOMES else "none") for o in grid[name]] for name in names]
-    fig, ax = plt.subplots(figsize=(5.5, 1.4 + 0.22 * len(names)), dpi=120)
-    cmap = ListedColormap([COLOURS[k] for k in keys])
-    ax.imshow(code, cmap=cmap, vmin=0, vmax=len(keys) - 1, aspect="auto", interpolation="nearest")
-    for r, name in enumerate(names):
-        for c, (trial, o) in enumerate(zip(doc["trials"], grid[name], strict=True)):
-            ax.text(c, r, o or "–", ha="center", va="center", fontsize=6)
-            expected = ("D", "DH") if trial in CONTROL_TRIALS else ("C", "CH")
-            if o is not None and o not in expected:
-                ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="black", lw=1.2))
-    ax.set_xticks(range(len(doc["trials"])), [str(t) for t in doc["trials"]])
-    ax.set_yticks(range(len(names)), names, fontsize=6)
-    ax.axvline(len(CONTROL_TRIALS) - 0.5, color="black", lw=1)
-    ax.set_xlabel("trial (framed: not as designed)")
-    _title(ax, "8c")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-
-
-def plot_contingency(doc: Mapping[str, Any], path: Path) -> None:
-    """Fig 8d: the control × experiment table as a heatmap, with its Stuart-Maxwell test."""
-    plt = pyplot()
-    table = doc["contingency"]["table"]
-    fig, ax = plt.subplots(figsize=(4.8, 4.2), dpi=120)
-    ax.imshow(table, cmap="Blues", vmin=0)
-    top = max(max(r) for r in table) or 1
-    for i, row in enumerate(table):
-        for j, v in enumerate(row):
-            ax.text(
-                j, i, str(v), ha="center", va="center", color="white" if v > 0.6 * top else "black"
-            )
-    ticks = range(len(OUTCOMES))
-    ax.set_xticks(
-        ticks,
-        [f"{o}\n({n})" for o, n in zip(OUTCOMES, doc["contingency"]["column_totals"], strict=True)],
-    )
-    ax.set_yticks(
-        ticks,
-        [f"{o} ({n})" for o, n in zip(OUTCOMES, doc["contingency"]["row_totals"], strict=True)],
-    )
-    ax.set_xlabel("experiment (trials 4-8)")
-    ax.set_ylabel("control (trials 1-3)")
-    _title(ax, "8d")
-    ax.text(0.5, -0.22, _sm_short(doc["stuart_maxwell"]["control_vs_experiment"]),
-            transform=ax.transAxes, ha="center", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-
-
-def write_figures(
-    doc: Mapping[str, Any], out: Path, formats: tuple[str, ...] = ("png",)
-) -> dict[str, Path]:
-    """Draw Figs 8a-8d into `out` in each format; return the first format's paths by figure."""
-    bad = [f for f in formats if f not in FORMATS]
-    if bad or not formats:
-        raise ValueError(f"figure formats must be among {', '.join(FORMATS)}, got {formats!r}")
-    out.mkdir(parents=True, exist_ok=True)
-    draw = {"8a": plot_frequencies, "8b": plot_flows, "8c": plot_grid, "8d": plot_contingency}
-    paths: dict[str, Path] = {}
-    for fmt in formats:
-        for key, stem in FIGURES.items():
-            path = out / f"{stem}.{fmt}"
-            draw[key](doc, path)
-            paths.setdefault(key, path)
-    return paths
+from services.analysis.multiplicity import NAMES, Correction
+from services.analysis.study import LIKERT_KEYS, OUTCOMES
+from services.analysis.study_figures import TITLES
 
 
 def _num(x: float | None, digits: int = 4) -> str:
@@ -232,10 +24,29 @@ def _num(x: float | None, digits: int = 4) -> str:
     return f"{x:.{digits}g}"
 
 
-def _sm_short(t: Mapping[str, Any]) -> str:
+def _sm_short(t: Mapping[str, Any], correction: Correction) -> str:
+    """One test in one line: X², df, raw p, adjusted p (unless uncorrected), n."""
     if "error" in t:
         return f"Stuart-Maxwell undefined (n = {t['n']})"
-    return f"X² = {t['statistic']:.3f}, df = {t['df']}, p = {_num(t['p'], 3)} (n = {t['n']})"
+    adjusted = "" if correction == "none" else (
+        f", {NAMES[correction]} p = {_num(t['p_adjusted'], 3)}"
+    )
+    return (
+        f"X² = {t['statistic']:.3f}, df = {t['df']}, p = {_num(t['p'], 3)}{adjusted} "
+        f"(n = {t['n']})"
+    )
+
+
+def _correction_line(doc: Mapping[str, Any]) -> str:
+    """The correction for multiple comparisons, stated as the report states it."""
+    family = len(doc["correction_family"])
+    if doc["correction"] == "none":
+        return f"No correction for multiple comparisons over the {family} Stuart-Maxwell tests."
+    return (
+        f"Correction for multiple comparisons: {NAMES[doc['correction']]} over the family of "
+        f"{family} defined Stuart-Maxwell tests (family-wise error rate; compare the adjusted "
+        "p with α)."
+    )
 
 
 def _table(header: list[str], rows: list[list[str]]) -> list[str]:
@@ -251,6 +62,15 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
         f"{n} participants; control = trials {doc['control_trials']}, experiment = trials "
         f"{doc['experiment_trials']}."
     )
+    md += ["", f"Inclusion: {doc['inclusion']['description']}."]
+    gone = doc["excluded"]
+    md += ["", f"Excluded sessions ({len(gone)}):" if gone else "Excluded sessions: none."]
+    md += [f"- {e['participant']} (session {e['session']}): {e['reason']}" for e in gone]
+    if doc["questionnaire_excluded"]:
+        md.append(
+            "- their questionnaire answers are left out too: "
+            + ", ".join(doc["questionnaire_excluded"])
+        )
     for note in doc["notes"]:
         md.append(f"- note: {note}")
     ex = doc["excluded_trials"]
@@ -287,12 +107,12 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
         "Flows (Fig 8b): "
         + (", ".join(f"{f['from']}→{f['to']} {f['count']}" for f in doc["flows"]) or "none"),
     ]
-    md += ["", "## Stuart-Maxwell tests of marginal homogeneity", ""]
+    md += ["", "## Stuart-Maxwell tests of marginal homogeneity", "", _correction_line(doc), ""]
     rows = []
     for name, t in doc["stuart_maxwell"].items():
         label = name.replace("_", " ").replace("vs", "→").replace("trial ", "trials ")
         if "error" in t:
-            rows.append([label, str(t["n"]), "–", "–", "–", "–", t["error"]])
+            rows.append([label, str(t["n"]), "–", "–", "–", "–", "–", t["error"]])
         else:
             rows.append(
                 [
@@ -301,11 +121,15 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
                     f"{t['statistic']:.4f}",
                     str(t["df"]),
                     _num(t["p"]),
+                    _num(t["p_adjusted"]),
                     " ".join(t["categories_kept"]),
                     "",
                 ]
             )
-    md += _table(["comparison", "n", "X²", "df", "p", "categories kept", "note"], rows)
+    adjusted = f"p ({NAMES[doc['correction']]})"
+    md += _table(
+        ["comparison", "n", "X²", "df", "p (raw)", adjusted, "categories kept", "note"], rows
+    )
     q = doc["questionnaire"]
     md += ["", f"## Questionnaire (Sec 8), {q['n']} answer sets", ""]
     rows = []
@@ -349,9 +173,12 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
         "",
         "## Method",
         "",
+        f"Inclusion: {doc['inclusion']['description']}. "
         "Phase category = most frequent outcome of the phase's trials, ties to the later "
-        "trial; timeouts and missing trials are excluded from every categorical test. "
-        "Stuart-Maxwell drops categories empty in both margins. t-tests are one-sample, "
+        "trial; timeouts, interrupted and missing trials are excluded from every categorical "
+        "test. Stuart-Maxwell drops categories empty in both margins. "
+        + _correction_line(doc)
+        + " The questionnaire tests are not corrected. t-tests are one-sample, "
         "two-sided, against 5.5; Cohen's d = (mean − 5.5)/sd; Q3 χ² against uniform with "
         "Cohen's w = √(χ²/n) and Cramér's V = √(χ²/(2n)).",
         "",
@@ -362,17 +189,26 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
 def summary(doc: Mapping[str, Any]) -> str:
     """A few lines for the terminal."""
     lines = [
-        f"{doc['participants']} participants, "
-        f"{len(doc['excluded_trials'])} trial(s) excluded (timeout/missing)"
+        f"{doc['participants']} participants ({doc['inclusion']['label']}); "
+        f"{len(doc['excluded'])} session(s) excluded, "
+        f"{len(doc['excluded_trials'])} trial(s) excluded (timeout/interrupted/missing)"
     ]
+    lines += [f"  excluded {e['participant']} ({e['session']}): {e['reason']}"
+              for e in doc["excluded"]]
     for t, r in doc["frequencies"].items():
         lines.append(
             f"  trial {t}: "
             + "  ".join(f"{o} {r[o]:>2}" for o in OUTCOMES)
             + (f"  none {r['none']}" if r["none"] else "")
         )
+    family = len(doc["correction_family"])
+    how = (
+        "uncorrected p" if doc["correction"] == "none"
+        else f"p adjusted by {NAMES[doc['correction']]}"
+    )
+    lines.append(f"  Stuart-Maxwell, {family} tests, {how}:")
     for name, t in doc["stuart_maxwell"].items():
-        lines.append(f"  {name}: {_sm_short(t)}")
+        lines.append(f"  {name}: {_sm_short(t, doc['correction'])}")
     q = doc["questionnaire"]
     if q["n"] == 0:
         lines.append("  questionnaire: no answers stored (enter them with `nod questionnaire`)")

@@ -2,17 +2,32 @@
 
 Panels: (a) ẑ_h, z_r and b_r against time from "go"; (b) θ; (c) d; (d) the hand's path over the
 table — the buzzer boxes, the commit line, where the human pressed — with the arm's end effector.
-Read from the session store (`nod analyze trial --db F --session S --trial K --out DIR`).
+Read from the session store (`nod analyze trial --db F --participant P01 --trial K --out DIR`).
+The figure is titled by participant, trial, mode and O (not by the session id); the legends sit
+outside the panels, so no trace is hidden under one.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from services.analysis.figures import pyplot
 from services.model.geometry import TableLayout
 from services.store import Sample, TrialRecord
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+
+def trial_title(participant: str, trial: TrialRecord) -> str:
+    """The figure's title: participant, trial, mode and O, then what happened."""
+    option = f", O = {trial.option}" if trial.option else ""
+    return (
+        f"{participant}, trial {trial.trial} ({trial.mode}{option}): human {trial.human or '-'}, "
+        f"robot {trial.robot or '-'}, outcome {trial.outcome or '-'}"
+    )
 
 
 def figure(
@@ -23,7 +38,25 @@ def figure(
     out: Path,
     formats: Sequence[str] = ("png",),
 ) -> list[Path]:
-    """Draw the four panels; write one file per format; return their paths."""
+    """Draw the four panels (`draw`); write one file per format; return their paths."""
+    plt = pyplot()
+    fig = draw(samples, trial, layout, title)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    try:
+        for fmt in formats:
+            path = out / f"trial{trial.trial}.{fmt}"
+            fig.savefig(path, dpi=150)
+            paths.append(path)
+    finally:
+        plt.close(fig)
+    return paths
+
+
+def draw(
+    samples: Sequence[Sample], trial: TrialRecord, layout: TableLayout, title: str
+) -> Figure:
+    """The four panels of one trial as a matplotlib Figure."""
     from matplotlib.patches import Rectangle
 
     plt = pyplot()
@@ -45,7 +78,8 @@ def figure(
         ax_z.plot(t, [getattr(s, key) for s in samples], label=label, color=colour, lw=1.2)
     ax_z.axhline(0, color="grey", lw=0.6)
     ax_z.set_ylabel("opinion (> 0 red)")
-    ax_z.legend(fontsize=7, loc="upper left")
+    ax_z.legend(fontsize=7, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3,
+                frameon=False, borderaxespad=0.2)
     ax_th.plot(t, [s.theta for s in samples], ".", ms=3, color="tab:purple")
     ax_th.set_ylabel("θ (rad)")
     ax_d.plot(t, [s.distance for s in samples], ".", ms=3, color="tab:brown")
@@ -68,17 +102,11 @@ def figure(
     ax_path.set_xlim(0, 1)
     ax_path.set_ylim(1, 0)  # image coordinates: y down
     ax_path.set_aspect("equal")
-    ax_path.legend(fontsize=7, loc="lower right")
+    ax_path.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=3,
+                   frameon=False)
     ax_path.set_title("table (camera view)", fontsize=9)
     for ax, letter in zip((ax_z, ax_th, ax_d, ax_path), "abcd", strict=True):
-        ax.text(-0.12, 1.02, f"({letter})", transform=ax.transAxes, fontweight="bold")
+        ax.set_title(f"({letter})", loc="left", fontweight="bold", fontsize=10)  # over no tick
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for fmt in formats:
-        path = out / f"trial{trial.trial}.{fmt}"
-        fig.savefig(path, dpi=150)
-        paths.append(path)
-    plt.close(fig)
-    return paths
+    return fig

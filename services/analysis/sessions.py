@@ -1,0 +1,215 @@
+"""Which sessions a study analyses: the inclusion rule, applied to a session store (SPEC §7).
+
+By default only *complete* sessions count: status `complete` and every scheduled trial stored
+(the schedule is the session's stored protocol, else SPEC's 8 trials); an interrupted trial is
+stored, so a complete session may still lose trials trial-wise. With `min_trials = N` instead,
+a session with at least N *scored* trials (stored and not interrupted) counts, whatever its
+status. Of a participant's sessions that pass, the latest is analysed. Every other session is
+an `ExcludedSession` with its reason, in the words the report prints: "aborted after 4 of 8
+trials", "running (crashed?) after 2 of 8 trials", "superseded by the later session …".
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+from services.store import Store
+
+OUTCOMES: tuple[str, ...] = ("C", "CH", "D", "DH")
+TRIALS: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 7, 8)
+
+
+@dataclass(frozen=True, slots=True)
+class ParticipantOutcomes:
+    """One participant's analysed session: trial number → outcome (None: timeout)."""
+
+    participant: str
+    session: str
+    status: str
+    outcomes: Mapping[int, str | None]  # stored trials only; a missing trial has no key
+    interrupted: frozenset[int] = frozenset()  # stored as interrupted (their outcome is None)
+
+    def outcome(self, trial: int) -> str | None:
+        """The trial's outcome, or None for a timeout or a trial never stored."""
+        return self.outcomes.get(trial)
+
+
+@dataclass(frozen=True, slots=True)
+class InclusionRule:
+    """The sessions that enter the analysis: complete ones, or those with ≥ N scored trials."""
+
+    min_trials: int | None = None  # None: complete sessions only; else ≥ 1 scored trials
+
+    def __post_init__(self) -> None:
+        if self.min_trials is not None and self.min_trials < 1:
+            raise ValueError(f"--min-trials must be at least 1, got {self.min_trials}")
+
+    def describe(self) -> str:
+        """The rule in one sentence, as every report states it."""
+        if self.min_trials is None:
+            return (
+                "complete sessions only (status complete and every scheduled trial stored); "
+                "--min-trials N includes incomplete sessions with at least N scored trials"
+            )
+        return (
+            f"sessions with at least {self.min_trials} scored trial(s) (stored and not "
+            "interrupted), whatever their status; the missing trials are excluded trial-wise"
+        )
+
+    def label(self) -> str:
+        """The rule in a few words ("complete sessions only")."""
+        if self.min_trials is None:
+            return "complete sessions only"
+        return f"sessions with ≥ {self.min_trials} scored trials"
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready form: the rule's name, its parameter, a label and its sentence."""
+        return {
+            "rule": "complete" if self.min_trials is None else "min_trials",
+            "min_trials": self.min_trials,
+            "label": self.label(),
+            "description": self.describe(),
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class ExcludedSession:
+    """A session left out of the analysis, and why."""
+
+    session: str
+    participant: str
+    status: str  # running, complete or aborted, as stored
+    stored: int  # trials stored (interrupted ones included)
+    scored: int  # trials stored and not interrupted
+    scheduled: int  # trials of the session's protocol
+    reason: str  # e.g. "aborted after 4 of 8 trials"
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        return {
+            "session": self.session,
+            "participant": self.participant,
+            "reason": self.reason,
+            "status": self.status,
+            "trials_stored": self.stored,
+            "trials_scored": self.scored,
+            "trials_scheduled": self.scheduled,
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class Selection:
+    """The sessions a rule lets in (one per participant), the ones it leaves out, and notes."""
+
+    participants: list[ParticipantOutcomes]  # ordered by participant id
+    excluded: list[ExcludedSession]  # in the order the sessions were started
+    notes: list[str]
+    rule: InclusionRule
+
+
+def scheduled_trials(config: str | None) -> int:
+    """How many trials a session's stored protocol schedules (SPEC's 8 if it does not say)."""
+    try:
+        doc = json.loads(config or "{}")
+        trials = doc["protocol"]["trials"]
+    except (ValueError, KeyError, TypeError):  # no or an older config: the SPEC schedule
+        return len(TRIALS)
+    return len(trials) if isinstance(trials, list) and trials else len(TRIALS)
+
+
+def _status_reason(status: str, stored: int, scheduled: int) -> str:
+    """Why an incomplete session is incomplete, in the words of the report."""
+    if status == "aborted":
+        return f"aborted after {stored} of {scheduled} trials"
+    if status == "running":
+        return f"running (crashed?) after {stored} of {scheduled} trials"
+    return f"{status} but only {stored} of {scheduled} trials stored"
+
+
+def select_sessions(store: Store, rule: InclusionRule | None = None) -> Selection:
+    """Apply the inclusion rule to every stored session; the latest included one per participant."""
+    rule = rule or InclusionRule()
+    parts: dict[str, ParticipantOutcomes] = {}
+    latest: dict[str, ExcludedSession] = {}  # the facts of each participant's session so far
+    excluded: list[ExcludedSession] = []
+    notes: list[str] = []
+    for s in store.sessions():  # oldest first, so later sessions supersede earlier ones
+        sid, pid, status = str(s["session"]), str(s["participant"]), str(s["status"])
+        trials = [t for _, t in store.trials(sid)]
+        bad = sorted(
+            {t.outcome for t in trials if t.outcome is not None and t.outcome not in OUTCOMES}
+        )
+        if bad:
+            raise ValueError(f"session {sid}: unknown outcome(s) {bad}")
+        scheduled = scheduled_trials(s.get("config"))
+        numbers = {t.trial for t in trials}
+        scored = sum(not t.interrupted for t in trials)
+        complete = status == "complete" and numbers >= set(range(1, scheduled + 1))
+        reason = None if complete else _status_reason(status, len(trials), scheduled)
+        if rule.min_trials is not None:
+            enough = scored >= rule.min_trials
+            reason = None if enough else (
+                f"{reason or 'complete'}: {scored} scored trial(s), fewer than --min-trials "
+                f"{rule.min_trials}"
+            )
+        if reason is not None:
+            excluded.append(ExcludedSession(sid, pid, status, len(trials), scored, scheduled,
+                                            reason))
+            continue
+        for t in trials:
+            if t.interrupted:  # broken by a safe stop or e-stop: never scored, never counted
+                notes.append(
+                    f"session {sid} ({pid}) trial {t.trial} was interrupted by a safe stop: "
+                    "excluded"
+                )
+        part = ParticipantOutcomes(
+            participant=pid,
+            session=sid,
+            status=status,
+            outcomes={t.trial: None if t.interrupted else t.outcome for t in trials},
+            interrupted=frozenset(t.trial for t in trials if t.interrupted),
+        )
+        if pid in latest:
+            old = latest[pid]
+            excluded.append(replace(old, reason=f"superseded by the later session {sid}"))
+        latest[pid] = ExcludedSession(sid, pid, status, len(trials), scored, scheduled, "")
+        parts[pid] = part
+    return Selection([parts[p] for p in sorted(parts)], excluded, notes, rule)
+
+
+def resolve_session(
+    store: Store, session: str | None = None, participant: str | None = None
+) -> tuple[str, str]:
+    """The (session id, participant) a command names: by session id, by participant, or latest.
+
+    `participant` picks that participant's latest session with stored trials. A `session` that
+    is no session id but a participant id is read as the participant (`--session P01`, as the
+    README writes it, works on `nod run` stores, whose session ids are hex). With neither, the
+    latest session. ValueError, naming what the store has, when nothing matches.
+    """
+    rows = store.sessions()  # oldest first
+    if not rows:
+        raise ValueError(f"no sessions in {store.path}: run `nod run` first")
+    by_id = {str(r["session"]): str(r["participant"]) for r in rows}
+    if session is not None and session in by_id:
+        if participant is not None and by_id[session] != participant:
+            raise ValueError(f"session {session} is participant {by_id[session]}'s, not "
+                             f"{participant}'s")
+        return session, by_id[session]
+    who = participant if participant is not None else session
+    if who is None:
+        last = str(rows[-1]["session"])
+        return last, by_id[last]
+    theirs = [str(r["session"]) for r in rows if str(r["participant"]) == who]
+    with_trials = [s for s in theirs if store.trials(s)]
+    if with_trials:
+        return with_trials[-1], who
+    if theirs:
+        raise ValueError(f"participant {who} has no stored trials (sessions: {', '.join(theirs)})")
+    people = sorted(set(by_id.values()))
+    shown = ", ".join(people[:8]) + (", …" if len(people) > 8 else "")
+    what = "participant" if participant is not None else "session or participant"
+    raise ValueError(f"no {what} {who!r} in {store.path}; participants: {shown}")
