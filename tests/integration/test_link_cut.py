@@ -190,7 +190,10 @@ def test_a_long_cut_mid_trial_interrupts_the_trial_and_it_is_repeated(tmp_path):
         finally:
             store.close()
         assert broken and "silent" in broken[0].reason, (broken, hosts.log("experiment")[-2000:])
-        assert len(trials) == 1 and trials[0].attempts == 2 and not trials[0].interrupted
+        # Repeated and stored whole; a loaded machine may break one more attempt (a late input
+        # after the link returns), never fewer, and every attempt broken is on record.
+        assert len(trials) == 1 and not trials[0].interrupted
+        assert trials[0].attempts == len(broken) + 1 >= 2, (trials[0], broken)
         assert trials[0].robot is not None
     finally:
         hosts.close()

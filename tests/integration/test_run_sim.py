@@ -183,8 +183,10 @@ def test_full_session_through_the_rendered_camera_path(tmp_path):
     run = _run_sim(db, "--render", f"--monitor=--save {rrd}", speed="3")
     assert run.returncode == 0, run.stdout + run.stderr
     rows, _ = rrd_rows(rrd)
-    # vision publishes 2 frames/s, the sim's camera 30 (and the hand is drawn at 30 Hz)
-    assert 0 < rows["/camera/frame"] < rows["/table/hand"] / 5
+    # vision publishes 2 frames/s, the sim's camera 30 (and the hand is drawn at 30 Hz): had the
+    # monitor recorded the camera, frames would be about as many as hands. (Not a rate bound: a
+    # loaded machine renders and tracks fewer hands, while the frame timer keeps its pace.)
+    assert 0 < rows["/camera/frame"] < rows["/table/hand"] / 2
     shapes = set()
     for chunk in RrdReader(rrd).stream():
         if chunk.entity_path == "/camera/frame" and not chunk.is_static:
