@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 import zenoh
 
+from services.core.cli import one_line
 from services.core.clock import Clock
 from services.core.keys import check_rig
 from services.core.limits import low_pass_filters
@@ -182,7 +183,13 @@ def open_session(conf: zenoh.Config) -> zenoh.Session:
     try:
         return zenoh.open(conf)
     except zenoh.ZError as exc:
-        raise ConnectionError(
-            f"cannot open the zenoh session ({exc}); is a router running at the --connect "
-            "endpoint (e.g. `nod run`, or `nod router`)?"
-        ) from None
+        text = one_line(str(exc))
+        if "Address already in use" in text or "AddrInUse" in text:
+            hint = ("something already listens there (another `nod run`, `nod up` or router?): "
+                    "stop it, or listen on another endpoint")
+        elif "listener" in text.lower():
+            hint = "check the --listen endpoint (an address of this host, a free port)"
+        else:
+            hint = ("is a router running at the --connect endpoint (e.g. `nod run`, or "
+                    "`nod router`)?")
+        raise ConnectionError(f"cannot open the zenoh session ({text}); {hint}") from None
