@@ -220,6 +220,17 @@ class Node:
         )
         self._handles.append(sub)
 
+    def other_rigs(self, timeout_s: float = 0.3) -> str:
+        """The other rigs whose services are alive on this router, e.g. "rig1 (decision, eyes)"."""
+        found: dict[str, set[str]] = {}
+        for reply in self.session.liveliness().get("nod/*/alive/*", timeout=timeout_s):
+            if reply.ok is None:
+                continue
+            parts = str(reply.ok.key_expr).split("/")
+            if len(parts) == 4 and parts[1] != self.keys.rig:
+                found.setdefault(parts[1], set()).add(parts[3])
+        return "; ".join(f"{rig} ({', '.join(sorted(s))})" for rig, s in sorted(found.items()))
+
     def peer_alive(self, service: str, timeout_s: float = 0.3) -> bool:
         """Whether some process holds `service`'s liveliness token on this rig right now."""
         replies = self.session.liveliness().get(self.keys.alive(service), timeout=timeout_s)

@@ -198,11 +198,24 @@ class Conductor:
 
     def wait_for_services(self, timeout_s: float) -> None:
         """Block until every required service's liveliness token is seen (wall clock)."""
-        deadline = time.monotonic() + timeout_s
+        start = time.monotonic()
+        deadline, hinted = start + timeout_s, False
         while not all(self.alive.get(s) for s in REQUIRED):
+            others = ""
+            if not any(self.alive.values()) and (
+                time.monotonic() - start > 3.0 or time.monotonic() > deadline
+            ):  # nothing of this rig at all: a wrong --rig is the likely cause, say what is there
+                others = self.node.other_rigs()
+                if others and not hinted:
+                    hinted = True
+                    log.warning("nothing of rig %r is alive; on this router: %s (--rig?)",
+                                self.node.keys.rig, others)
             if time.monotonic() > deadline or self.node.stop.is_set():
                 missing = [s for s in REQUIRED if not self.alive.get(s)]
-                raise TimeoutError(f"services not alive after {timeout_s:.0f} s: {missing}")
+                seen = f"; on this router: {others} (--rig?)" if others else ""
+                raise TimeoutError(
+                    f"services not alive after {timeout_s:.0f} s: {missing}{seen}"
+                )
             time.sleep(0.02)
 
     def run_session(

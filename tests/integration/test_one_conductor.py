@@ -47,3 +47,17 @@ def test_a_second_conductor_is_refused_and_the_first_keeps_running(router, endpo
         )  # nothing stored for the refused one
     finally:
         stop_all([first])
+
+
+def test_a_wrong_rig_says_which_rigs_are_there(router, endpoint, spawn, tmp_path):
+    spawn("decision", "--rig", "rigA")
+    deadline = time.monotonic() + 30
+    while not any(r.ok is not None for r in router.liveliness().get(
+            Keys("rigA").alive("decision"), timeout=0.5)):
+        assert time.monotonic() < deadline, "decision never came up on rigA"
+    res = run_nod("experiment", "--connect", endpoint, "--rig", "rigB", "--db",
+                  str(tmp_path / "w.sqlite"), "--wait-services", "4", "--console", "off",
+                  "--clicks", "none", timeout=60)
+    assert res.returncode == 1
+    line = [ln for ln in res.stderr.splitlines() if ln.startswith("nod experiment:")]
+    assert len(line) == 1 and "on this router: rigA (decision)" in line[0], res.stderr
