@@ -20,7 +20,7 @@ from pathlib import Path
 from services.actuation.drivers import ARM_DRIVERS, make_arm_driver
 from services.core import messages as m
 from services.core.cli import Parser, add_service_args, fail
-from services.core.config import load_params
+from services.core.config import load_params, params_hash
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.model.arm import ArmDriver
@@ -216,7 +216,9 @@ def main(argv: list[str] | None = None) -> int:
             safety = dataclasses.replace(safety, stale_ms=args.stale_ms)
         latch_file = LatchFile(args.state_dir or default_state_dir(), args.rig, "actuation")
         latch_file.check_writable()  # an arm whose e-stop cannot survive a restart does not start
-        node = Node("actuation", Fabric.from_args(args), retry_s=math.inf)
+        node = Node(
+            "actuation", Fabric.from_args(args), retry_s=math.inf, params_hash=params_hash(cfg)
+        )
     except (ValueError, OSError, ConnectionError) as exc:
         return fail("nod actuation", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("behaviour", "sim_arm", "safety")))

@@ -8,6 +8,8 @@ config file fails at start-up instead of silently using a default.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import tomllib
 import types
 import typing
@@ -112,3 +114,17 @@ def load_params(path: str | Path | None) -> NodConfig:
 def as_dict(obj: Any) -> dict[str, Any]:
     """A dataclass as plain nested dicts, for printing the effective configuration."""
     return dataclasses.asdict(obj)
+
+
+PARAMS_HASH_DIGITS = 12  # 48 bits: two different parameter sets never meet by chance
+
+
+def params_hash(cfg: NodConfig) -> str:
+    """A short fingerprint of the effective parameters: the first 12 hex digits of a SHA-256.
+
+    Of the values, not of the file: a params file that only repeats SPEC's defaults has the
+    hash of no file at all, and comments or key order change nothing. Each service publishes
+    it in its heartbeat (`NodeStatus.params_hash`); the conductor compares them with its own.
+    """
+    text = json.dumps(as_dict(cfg), sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:PARAMS_HASH_DIGITS]

@@ -56,6 +56,8 @@ Pid: TypeAlias = Annotated[int, msgspec.Meta(ge=0, le=2**31 - 1)]
 Restarts: TypeAlias = Annotated[int, msgspec.Meta(ge=0, le=1_000_000)]
 # a process's exit code; negative: killed by that signal
 ExitCode: TypeAlias = Annotated[int, msgspec.Meta(ge=-255, le=255)]
+# a fingerprint of a service's parameters (`services.core.config.params_hash`), lower-case hex
+ParamsHash: TypeAlias = Annotated[str, msgspec.Meta(pattern=r"^[0-9a-f]{12,64}$")]
 
 
 class Message(
@@ -328,6 +330,7 @@ class NodeStatus(Message, frozen=True, kw_only=True):
     restarts: Restarts = 0  # how often the launcher restarted this service
     received: Counter = 0  # messages handled so far
     dropped: Counter = 0  # bad messages dropped so far
+    params_hash: ParamsHash | None = None  # its effective parameters; None: it has none
 
 
 RigEventKind = Literal["started", "exited", "restarting", "gave_up", "stopped"]

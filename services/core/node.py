@@ -85,13 +85,16 @@ class Node:
         *,
         stands_in_for: tuple[str, ...] = (),
         retry_s: float | None = None,
+        params_hash: str | None = None,
     ) -> None:
         """Open the session; with `retry_s`, wait up to that long for a router (inf: forever).
 
         Services retry (a rig's hosts start in any order, and a router may restart); one-shot
-        tools fail at once. SIGINT/SIGTERM end the wait.
+        tools fail at once. SIGINT/SIGTERM end the wait. `params_hash` (of the parameters the
+        service runs, `services.core.config.params_hash`) goes out with every heartbeat.
         """
         self.service = service
+        self.params_hash = params_hash
         self.fabric = fabric
         self.keys = Keys(fabric.rig)
         self.clock: Clock = fabric.clock()
@@ -298,6 +301,7 @@ class Node:
                     service=self.service, host=host[:200], pid=pid, version=version,
                     started_ns=self.started_ns, wall_ns=time.time_ns(),
                     restarts=self.restarts, received=received, dropped=dropped,
+                    params_hash=self.params_hash,
                 )
             except Exception as exc:  # a heartbeat must never take the service down
                 log.debug("%s: heartbeat not sent: %s", self.service, exc)

@@ -20,11 +20,15 @@
                # state_dir = "/var/lib/nod/state": the e-stop latch (default $NOD_STATE_DIR)
     [monitor]  args = ["--serve-web"]
 
-Relative paths are relative to the rig file. `load_rig` validates everything that can be
-checked without touching a device (unknown keys, a service on two hosts or none, one router,
-drivers, endpoints, the safety bound and the seed the services will be given) and raises
-`RigFileError` with one line naming the file and the key. The command line that starts a
-service from it is `services.launch.commands.command(rig, service)`.
+Relative paths are relative to the rig file (every key of FILE_KEYS and FOLDER_KEYS, and
+`vision.source` when it names a video file), made absolute here: a rig file moves with the
+files it names (`nod up RIG.toml --init-rig DIR` copies them together). `load_rig` validates
+everything that can be checked without touching a device (unknown keys, a service on two hosts
+or none, one router, drivers, endpoints, the safety bound and the seed the services will be
+given) and raises `RigFileError` with one line naming the file and the key; what the services
+will open (files, ports, cameras) is `nod up --dry-run`'s preflight (`services.launch.
+preflight`). The command line that starts a service from it is `services.launch.commands.
+command(rig, service)`.
 
 With `rig.tls`, every process speaks with its identity from `nod lab secure`
 (`services.lab.acl`): a service with its host's role (`<tls>/<role>/`), the monitor with the
@@ -119,6 +123,27 @@ class Rig:
         return next((h for h in self.hosts.values() if h.router), None)
 
 
+# Every key whose value is a path; a relative one is relative to the rig file (`vision.source`
+# too, when it names a video file: `is_file_source`). Files, then folders.
+FILE_KEYS = (
+    ("rig", "params"), ("actuation", "config"), ("eyes", "config"), ("eyes", "trims"),
+    ("vision", "calibration"),
+)
+FOLDER_KEYS = (("rig", "tls"), ("actuation", "state_dir"), ("eyes", "state_dir"))
+
+
+def is_file_source(source: str) -> bool:
+    """Whether a `vision.source` names a file (not an index, `sim`, `zenoh:KEY` or a URL).
+
+    The same rule as `services.vision.capture.parse_source` (tests/unit/test_rigfile.py holds
+    them equal): the rig file is read below the services and cannot import it.
+    """
+    text = source.strip()
+    return bool(text) and not (
+        text.isdigit() or text == "sim" or text.startswith("zenoh:") or "://" in text
+    )
+
+
 _RIG_KEYS = {"name", "router", "params", "tls"}
 _HOST_KEYS = {"services", "router", "role", "address"}
 _SECTION_KEYS: dict[str, set[str]] = {
@@ -167,7 +192,7 @@ def load_rig(path: str | Path) -> Rig:
             split_endpoint(router)
         except ValueError as exc:
             raise fail("rig.router", f"{exc} (port 1-65535)") from None
-    base = path.parent
+    base = path.absolute().parent  # the services may run elsewhere than where this was read
 
     def file(value: Any, key: str) -> Path:
         if not isinstance(value, str) or not value:
@@ -230,12 +255,14 @@ def load_rig(path: str | Path) -> Rig:
         value = sections[service].get(key)
         if value is not None and value not in choices:
             raise fail(f"{service}.{key}", f"{value!r} is not one of {', '.join(choices)}")
-    for service, key in (
-        ("actuation", "config"), ("eyes", "config"), ("eyes", "trims"), ("vision", "calibration"),
-        ("actuation", "state_dir"), ("eyes", "state_dir"),
-    ):
-        if key in sections[service]:
+    for service, key in (*FILE_KEYS, *FOLDER_KEYS):
+        if service != "rig" and key in sections[service]:
             sections[service][key] = file(sections[service][key], f"{service}.{key}")
+    source = sections["vision"].get("source")
+    if source is not None and not isinstance(source, str):
+        raise fail("vision.source", "must be a string: a camera index, a video file or a URL")
+    if source is not None and is_file_source(source):
+        sections["vision"]["source"] = str(file(source, "vision.source"))
     for service in ("actuation", "eyes"):
         if sections[service].get("driver", "sim") != "sim" and "port" not in sections[service]:
             raise fail(f"{service}.port", f"the {sections[service]['driver']} driver needs a port")
@@ -267,6 +294,20 @@ def load_rig(path: str | Path) -> Rig:
 
 LAUNCHER = "launcher"  # the contract's name of `nod up` (services.lab.acl: its identity)
 MONITOR = "monitor"
+CONTROL = "control"  # the control station's role: the router's config, the conductor's identity
+
+
+def session_flags(
+    rig: Rig, host: Host, connect: str | None = None, service: str = ""
+) -> list[str]:
+    """The session flags of `service` on `host`: its rig and how it reaches the router.
+
+    The one builder of them: every service `nod up` starts (`services.launch.commands`) and the
+    conductor given `--rig-file` (on the control station: `Host(CONTROL, ())`).
+    """
+    if rig.tls is not None:
+        return ["--config", str(identity(rig, service, host)), "--rig", rig.name]
+    return ["--connect", connect or rig.router, "--rig", rig.name]
 
 
 def identity(rig: Rig, process: str, host: Host | None = None) -> Path:

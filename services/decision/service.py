@@ -14,7 +14,7 @@ import math
 
 from services.core import messages as m
 from services.core.cli import Parser, add_service_args, fail
-from services.core.config import load_params
+from services.core.config import load_params, params_hash
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.model.decision import DecisionModel
@@ -100,7 +100,9 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose)
     try:
         cfg = load_params(args.params)
-        node = Node("decision", Fabric.from_args(args), retry_s=math.inf)
+        node = Node(
+            "decision", Fabric.from_args(args), retry_s=math.inf, params_hash=params_hash(cfg)
+        )
     except (ValueError, OSError, ConnectionError) as exc:
         return fail("nod decision", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("decision")))

@@ -18,12 +18,14 @@ from collections.abc import Callable
 from pathlib import Path
 
 from services.core.cli import SEED, Parser, add_service_args, fail
-from services.core.config import load_params
+from services.core.config import load_params, params_hash
 from services.core.node import Node, setup_logging
+from services.core.rigfile import CONTROL, Host, RigFileError, load_rig, session_flags
 from services.core.session import Fabric
 from services.experiment.conductor import Conductor
 from services.experiment.console import make_console
 from services.experiment.order import participant_problem, session_config
+from services.experiment.params_check import ParamsCheck
 from services.experiment.recording import RecorderProcess, recorder_command, recording_path
 from services.model.protocol import order_of
 from services.store import Store
@@ -54,6 +56,21 @@ def build_parser() -> argparse.ArgumentParser:
         description="Conduct one participant's 8 trials and store them in a SQLite file.",
     )
     add_service_args(p)
+    p.add_argument(
+        "--rig-file",
+        type=Path,
+        default=None,
+        metavar="RIG.toml",
+        help="take the rig name, the router (or, with rig.tls, the control station's identity) "
+        "and --params from a rig file, as `nod up` gives them to its services; flags given "
+        "here win",
+    )
+    p.add_argument(
+        "--allow-params-mismatch",
+        action="store_true",
+        help="run even when decision or actuation publish another params hash than this "
+        "conductor's (a warning instead of a refusal)",
+    )
     p.add_argument("--db", type=Path, default=Path("nod-sessions.sqlite"), help="session store")
     p.add_argument(
         "--participant",
@@ -124,9 +141,16 @@ def clicks_source(spec: str) -> Callable[[int], int | None]:
 def main(argv: list[str] | None = None) -> int:
     """Run one session; exit 0 when every trial is stored."""
     args = build_parser().parse_args(argv)
+    if args.rig_file is not None:
+        try:
+            flags = rig_file_flags(args.rig_file, explicit_connect=bool(args.connect))
+        except RigFileError as exc:
+            return fail("nod experiment", exc)
+        args = build_parser().parse_args([*flags, *(sys.argv[1:] if argv is None else argv)])
     setup_logging(args.verbose)
     try:
         cfg = load_params(args.params)
+        own_hash = params_hash(cfg)  # the rig's parameters, before this session's --order
         clicks = clicks_source(args.clicks)
         store = Store(args.db)
     except (ValueError, OSError) as exc:
@@ -174,7 +198,9 @@ def main(argv: list[str] | None = None) -> int:
                 session,
             )
     try:
-        node = Node("experiment", Fabric.from_args(args), retry_s=math.inf)
+        node = Node(
+            "experiment", Fabric.from_args(args), retry_s=math.inf, params_hash=own_hash
+        )
     except (ValueError, OSError, ConnectionError) as exc:
         store.close()
         return fail("nod experiment", exc)
@@ -188,6 +214,7 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
+    params_check = ParamsCheck(node)
     conductor = Conductor(
         node, cfg, store, clicks, make_console(args.console), resume_at=resume_at
     )
@@ -203,6 +230,12 @@ def main(argv: list[str] | None = None) -> int:
         conductor.recording = (recorder.path, node.clock.now_ns())
     try:
         conductor.wait_for_services(args.wait_services)
+        mismatch = params_check.problem(own_hash, args.params)
+        if mismatch is not None and not args.allow_params_mismatch:
+            print(f"nod experiment: {mismatch}", file=sys.stderr)
+            return 2
+        if mismatch is not None:
+            log.warning("%s (--allow-params-mismatch: running anyway)", mismatch)
         if args.resume is None:  # the order this session runs, and why it is another one
             order = order_of(cfg.protocol.trials)
             record_order(store, session, participant, order, args.again, time.time_ns())
@@ -227,6 +260,21 @@ def main(argv: list[str] | None = None) -> int:
         store.close()
     log.info("session %s complete: %s", session, json.dumps(str(args.db)))
     return 0
+
+
+def rig_file_flags(path: Path, explicit_connect: bool = False) -> list[str]:
+    """The session flags and `--params` a rig file gives the conductor (RigFileError if bad).
+
+    Built by the rig file's one builder (`session_flags`) for the control station, whose
+    identity the conductor speaks with under rig.tls. They go before the command line's own, so
+    a flag given there wins; an explicit `--connect` replaces the rig's router.
+    """
+    rig = load_rig(path)
+    flags = session_flags(rig, Host(CONTROL, ()), service="experiment")
+    if explicit_connect and "--connect" in flags:
+        at = flags.index("--connect")
+        del flags[at : at + 2]
+    return flags + (["--params", str(rig.params)] if rig.params is not None else [])
 
 
 CONDUCTOR_GONE_S = 2.0  # how long a conductor that just died may still look alive (wall)

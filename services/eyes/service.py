@@ -17,7 +17,7 @@ import sys
 
 from services.core import messages as m
 from services.core.cli import Parser, add_service_args, fail
-from services.core.config import load_params
+from services.core.config import load_params, params_hash
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.eyes.drivers import add_driver_args, make_eyes_driver
@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         latch_file = LatchFile(args.state_dir or default_state_dir(), args.rig, "eyes")
         latch_file.check_writable()  # eyes whose e-stop cannot survive a restart do not start
-        node = Node("eyes", Fabric.from_args(args), retry_s=math.inf)
+        node = Node("eyes", Fabric.from_args(args), retry_s=math.inf, params_hash=params_hash(cfg))
     except (ValueError, OSError, ConnectionError) as exc:
         return fail("nod eyes", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("eyes", "safety")))

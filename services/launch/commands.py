@@ -9,16 +9,7 @@ parameters, its drivers and devices — is written once, here.
 from __future__ import annotations
 
 from services.core.lifeline import nod_command
-from services.core.rigfile import Host, Rig, identity
-
-
-def session_flags(
-    rig: Rig, host: Host, connect: str | None = None, service: str = ""
-) -> list[str]:
-    """The session flags of `service` on `host`: its rig and how it reaches the router."""
-    if rig.tls is not None:
-        return ["--config", str(identity(rig, service, host)), "--rig", rig.name]
-    return ["--connect", connect or rig.router, "--rig", rig.name]
+from services.core.rigfile import Rig, session_flags
 
 
 def command(

@@ -4,6 +4,8 @@
     nod up rig.toml                   # every host's services on this machine
     nod up rig.toml --sim-hardware    # the same with simulated arm, eyes and participant
     nod up rig.toml --host arm --exec actuation   # exec one service (systemd supervises)
+    nod up rig.toml --host arm --dry-run          # the preflight: commands, files, ports, cameras
+    nod up deploy/rig.example.toml --init-rig /etc/nod   # copy a rig file with the files it names
 
 With the router on this host (`router = true`, or the whole rig here) the router runs inside
 this process. Every service is a child process under a `Supervisor`: restarted with backoff
@@ -39,6 +41,8 @@ from services.core.rigfile import LAUNCHER, REQUIRED, Rig, RigFileError, identit
 from services.core.session import make_config, open_session
 from services.launch.commands import command
 from services.launch.events import RigEvents
+from services.launch.init_rig import init_rig
+from services.launch.preflight import problems
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
 from services.launch.view import SessionView
 
@@ -71,7 +75,20 @@ def build_parser() -> argparse.ArgumentParser:
         "service: systemd supervises it)",
     )
     p.add_argument("--max-restarts", type=int, default=5, help="per minute, before giving up (5)")
-    p.add_argument("--dry-run", action="store_true", help="print the commands; start nothing")
+    p.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print the commands and check every file, serial port and camera they need (one "
+        "line per problem, exit 2); start nothing",
+    )
+    p.add_argument(
+        "--init-rig",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="copy RIG.toml to DIR/rig.toml with every file it names by a relative path (e.g. "
+        "`nod up deploy/rig.example.toml --init-rig /etc/nod`); start nothing",
+    )
     return p
 
 
@@ -106,6 +123,12 @@ def main(argv: list[str] | None = None) -> int:
     """Start, supervise, stop."""
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    if args.init_rig is not None:
+        try:
+            print("\n".join(init_rig(args.rig_file, args.init_rig)))
+        except RigFileError as exc:
+            return fail("nod up", exc)
+        return 0
     rig = None
     try:
         rig = load_rig(args.rig_file)
@@ -135,8 +158,13 @@ def main(argv: list[str] | None = None) -> int:
     }
     if args.dry_run:
         for s, cmd in commands.items():
-            print(f"{s}: {' '.join(cmd)}")
-        return 0
+            print(f"{s}: {' '.join(cmd)}", flush=True)
+        found = problems(
+            rig, services, host=args.host, with_router=with_router, sim_hardware=args.sim_hardware
+        )
+        for line in found:
+            print(f"nod up: {line}", file=sys.stderr)
+        return 2 if found else 0
     logs = args.logs or Path(f"nod-{rig.name}.logs")
     try:
         logs.mkdir(parents=True, exist_ok=True)
