@@ -6,7 +6,9 @@ child processes connected to it, sharing one simulated clock (`--speed`), under 
 `Supervisor` as `nod up`: a service that dies is restarted with backoff (the conductor resumes
 its session, so the trial in progress is repeated), a crash loop is given up and fails the run,
 and every such event is printed and published on rig/event. The conductor's trial events drive a
-progress line and a per-trial table; when it exits, the others are stopped.
+progress line and a per-trial table; when it exits, the others are stopped. A run stopped before
+its session's last trial (Ctrl-C, a service given up) prints `resume with: nod run --sim
+--resume SESSION …`, which starts the rig again with a conductor resuming that session.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from typing import Any
 
 import zenoh
 
+from services.core import messages as m
 from services.core.cli import SEED, Parser, fail, int_in
 from services.core.clock import Clock
 from services.core.config import load_params
@@ -34,6 +37,7 @@ from services.core.keys import Keys, check_rig
 from services.core.lifeline import nod_command
 from services.core.rigfile import Host, Rig
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
+from services.experiment.resume import resume_argv, resume_line, stored_unfinished
 from services.launch.commands import command
 from services.launch.events import RigEvents
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
@@ -48,6 +52,13 @@ SERVICES = ("decision", "actuation", "eyes", "sim")  # and the conductor, "exper
 # time) and the gaze keep-alive (20 Hz) come too slowly; above 10x a 2-core host cannot carry
 # the message rates (30 Hz x speed poses, each answered three times) without late inputs.
 MIN_SPEED, MAX_SPEED = 0.5, 10.0
+# What a resumed run keeps of the interrupted one (argparse dests; a session keeps its own
+# participant, seed and order).
+RESUME_FLAGS = (
+    "speed", "listen", "rig", "params", "clicks", "stale_ms", "logs", "record", "render",
+    "arm_driver", "arm_port", "arm_config", "eyes_driver", "eyes_port", "eyes_config",
+    "eyes_trims", "verbose",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -74,6 +85,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="O of each consensus trial (`nod experiment --order`)")
     p.add_argument("--again", default=None, metavar="REASON",
                    help="a new session for a participant who has one (`nod experiment --again`)")
+    p.add_argument(
+        "--resume",
+        default=None,
+        metavar="SESSION",
+        help="go on with a stored session of --db at its next trial (after Ctrl-C or a crash: "
+        "the line the run printed); its participant, seed and order are its own",
+    )
     p.add_argument(
         "--monitor",
         nargs="?",
@@ -203,6 +221,13 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.participants} participant(s); logs in {logs}/",
         flush=True,
     )
+    if args.resume is not None:  # the table goes on from the trials stored before
+        view.begin(args.participant)
+        earlier = _stored_results(args.db, args.resume)
+        print(f"resuming session {args.resume} ({args.participant}): {len(earlier)} trial(s) "
+              "stored before", flush=True)
+        for result in earlier:
+            view.on_result(result)
     monitor = _start_monitor(args, router, keys, logs) if args.monitor is not None else None
     events = RigEvents(router, keys, Clock(args.speed, epoch_ns))
     supervisor = Supervisor(RestartPolicy(), on_event=events)
@@ -210,13 +235,16 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, lambda *_: stopping.set())
     signal.signal(signal.SIGTERM, lambda *_: stopping.set())
     code = 1
+    session = args.resume
     try:
         rig = [*SERVICES[:-1], *(["vision"] if args.render else [])]
         for service in rig:  # the rig: decision, actuation, eyes (, vision) stay up throughout
             supervisor.start(_spec(service, args, epoch_ns, logs))
         for i in range(args.participants):
             person = _participant(args, i)
-            view.begin(person.participant)
+            session = person.session
+            if args.resume is None:
+                view.begin(person.participant)
             for service in ("sim", "experiment"):  # a new person: new sim, new conductor
                 supervisor.start(_spec(service, person, epoch_ns, logs, suffix=f"-{i + 1}"))
             code = _supervise(supervisor, stopping)
@@ -240,7 +268,27 @@ def main(argv: list[str] | None = None) -> int:
         print("\ninterrupted: every service stopped", file=sys.stderr)
     else:
         _explain_failure(logs)
+    if code != 0 and session is not None and stored_unfinished(args.db, session):
+        resumed = resume_argv(build_parser(), args, session, ("nod", "run", "--sim"),
+                              RESUME_FLAGS)
+        print(resume_line(resumed), file=sys.stderr, flush=True)
     return code
+
+
+def _stored_results(db: Path, session: str) -> list[m.TrialResult]:
+    """The trials a resumed session has stored, as the results the table shows."""
+    store = Store(db)
+    try:
+        trials = [t for _, t in store.trials(session)]
+    finally:
+        store.close()
+    names = ("trial", "mode", "option", "robot", "human", "outcome", "switches", "violations",
+             "score", "interrupted")
+    out = []
+    for t in trials:
+        fields: dict[str, Any] = {name: getattr(t, name) for name in names}
+        out.append(m.TrialResult(seq=0, t_ns=t.t_end_ns or 0, session=session, **fields))
+    return out
 
 
 def _start_monitor(args: argparse.Namespace, router, keys: Keys, logs: Path) -> subprocess.Popen:
@@ -291,6 +339,14 @@ def _check_args(args: argparse.Namespace) -> str | None:
         )
     if not 1 <= args.participants <= 1000:
         return f"--participants must be in [1, 1000], got {args.participants}"
+    if args.resume is not None:
+        given = [f for f in ("participant", "again", "order") if getattr(args, f) is not None]
+        if args.participants != 1 or given:
+            flags = ", ".join(f"--{f}" for f in given) or "--participants"
+            return (
+                f"--resume goes on with one stored session, with its own participant, seed and "
+                f"order: leave out {flags}"
+            )
     return None
 
 
@@ -309,7 +365,16 @@ def _preflight(args: argparse.Namespace) -> str | None:
     except StoreError as exc:
         return str(exc)
     try:  # who runs: the ids given, or the first free ones; a done participant needs --again
-        if args.participant is None or args.participants > 1:
+        if args.resume is not None:  # the stored session's own participant and seed
+            known = {s["session"]: s for s in store.sessions()}
+            if args.resume not in known:
+                return f"--resume: no session {args.resume!r} in {args.db}; known: " + (
+                    ", ".join(list(known)[-5:]) or "none"
+                )
+            args.ids = [known[args.resume]["participant"]]
+            if known[args.resume]["seed"] is not None:
+                args.seed = known[args.resume]["seed"]
+        elif args.participant is None or args.participants > 1:
             args.ids = next_free_ids(store, args.participants)
         else:
             args.ids = [args.participant]
@@ -331,7 +396,7 @@ def _participant(args: argparse.Namespace, i: int) -> argparse.Namespace:
 
     The launcher names the session, so a conductor it restarts can resume that very session.
     """
-    extra: dict[str, object] = {"session": uuid.uuid4().hex[:12]}
+    extra: dict[str, object] = {"session": args.resume or uuid.uuid4().hex[:12]}
     if args.participants > 1:
         extra |= {"seed": args.seed + i, "participant": args.ids[i], "cohort": True}
     return argparse.Namespace(**{**vars(args), **extra})
@@ -347,6 +412,8 @@ def _spec(
         at = cmd.index("--session")
         resumed = [*cmd[:at], "--resume", cmd[at + 1], *cmd[at + 2 :]]
         resume = lambda: resumed  # noqa: E731
+        if getattr(args, "resume", None) is not None:  # `nod run --resume`: from the start
+            cmd = resumed
     log_path = logs / f"{service}{suffix}.log"
     log_path.write_text("")  # a fresh log per run; restarts append to it
     return ServiceSpec(service, cmd, log=log_path, restart_argv=resume)

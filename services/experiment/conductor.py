@@ -42,6 +42,10 @@ SAMPLE_HZ = 60.0  # stored samples are decimated to this rate (a 30 Hz camera pa
 # The gaze is repeated this often: the eyes' watchdog holds them neutral when it goes stale
 # (250 ms), so the keep-alive runs 5x faster than that bound, with room for a busy host.
 GAZE_KEEPALIVE_NS = 50_000_000
+# At a session's start the rig is held for a moment on every normal run (the eyes wait for the
+# first gaze, then it settles 0.5 s): only a hold longer than this (wall s), or an e-stop, is
+# shown to the operator.
+START_QUIET_S = 3.0
 
 
 class GazeFields(TypedDict, total=False):
@@ -82,6 +86,7 @@ class Conductor:
         """
         self.node = node
         self.console = console or SessionConsole()
+        self.console.interrupt = node.stop  # a prompt waiting for the operator ends on SIGINT
         self.cfg = cfg
         self.proto = cfg.protocol
         self.layout = cfg.layout
@@ -243,10 +248,13 @@ class Conductor:
             self.store.add_recording(session, *self.recording)
         self.session = session
         self.records = []
-        first_trial, attempts_before = self._attempts_so_far(first_trial, lost)
         self.console.start(session, participant, len(self.proto.trials))
+        for _, t in self.store.trials(session) if resume else []:  # the panel goes on from them
+            self.console.result(t.trial, t.mode, t.option, t.robot, t.human, t.outcome, t.score,
+                                t.interrupted)
         status = "aborted"
         try:
+            first_trial, attempts_before = self._attempts_so_far(first_trial, lost)
             if first_trial > len(self.proto.trials):  # the lost attempt was the last one's last
                 status = "complete"
                 return self.records
@@ -344,18 +352,22 @@ class Conductor:
         with self.node.lock:
             self.gaze_msg = {"yaw": 0.0, "pitch": 0.0, "level": "neutral", "trial": 0}
             self.pub_gaze.put(**self.gaze_msg)
-        while not self._rig_ready():
+        quiet_until = time.monotonic() + START_QUIET_S
+        while not self._rig_ready(quiet=time.monotonic() < quiet_until):
             self._wait(math.inf)
 
-    def _rig_ready(self) -> bool:
-        """Is the rig safe (and settled)? Says once when it is not, and when it is again."""
+    def _rig_ready(self, quiet: bool = False) -> bool:
+        """Is the rig safe (and settled)? Says once when it is not, and when it is again.
+
+        `quiet`: a hold is expected now (the session's start); only an e-stop is said at once.
+        """
         if self.rig.safe(self._now_ns()):
             if self._held:
                 log.info("rig safe again: the session goes on")
                 self.console.note("rig safe again: the session goes on")
                 self._held = False
             return True
-        if not self._held:
+        if not self._held and not (quiet and not self.rig.estop_engaged):
             log.warning("session held: %s", self.rig.why_unsafe())
             self._held = True
         return False
@@ -467,7 +479,7 @@ class Conductor:
         self.pub_trial.put(
             phase="end", trial=spec.index, mode=spec.mode, option=spec.option, session=self.session
         )
-        clicks = self.console.ask(lambda: self.clicks(spec.index))
+        clicks = self.clicks(spec.index)  # the console's prompt (`nod experiment --clicks`)
         self._store_trial(
             spec, protocol.attempt, protocol.end, rec, robot, clicks, protocol.end.reason
         )

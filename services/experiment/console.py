@@ -7,7 +7,8 @@ console shows it:
   and option O, the countdown, live z_r / ẑ_h / b_r, where the robot is heading and where the
   person is heading, the finished trials with outcome and score, and the latest safety events
   and warnings (the conductor's log lines are routed into the panel instead of tearing it).
-  The counter-click prompt stops the panel and asks on its own line, then the panel resumes.
+  The counter-click prompt is a line of the panel: the keys the operator types are drawn there
+  (Enter ends the answer), so nothing else writes to the terminal while the panel runs.
 - `LineConsole` (a pipe, a log file): one plain line per protocol step, result and event.
 - `SessionConsole` itself shows nothing (`--console off`, and the tests).
 
@@ -17,19 +18,26 @@ on rich's refresh thread (or inline for lines).
 
 from __future__ import annotations
 
+import codecs
 import logging
+import os
+import select
 import sys
 import threading
 from collections import deque
-from collections.abc import Callable
 from typing import Any
 
 PHASES = {"setup": "gaze set", "countdown": "countdown", "go": "GO", "end": "judging",
           "interrupted": "INTERRUPTED"}
+POLL_S = 0.1  # how often a prompt waiting for the operator looks whether the process must stop
 
 
 class SessionConsole:
     """The hooks, showing nothing."""
+
+    # Set when the process is asked to stop (the conductor's node.stop: SIGINT, SIGTERM): a
+    # prompt waiting for the operator then gives up with KeyboardInterrupt within POLL_S.
+    interrupt: threading.Event | None = None
 
     def start(self, session: str, participant: str, n_trials: int) -> None:
         """The session begins."""
@@ -50,9 +58,14 @@ class SessionConsole:
     def note(self, text: str, level: str = "info") -> None:
         """A safety event or a warning."""
 
-    def ask(self, prompt: Callable[[], Any]) -> Any:
-        """Run a prompt on the terminal (the live panel steps aside)."""
-        return prompt()
+    def read_line(self, question: str) -> str:
+        """Ask the operator for one line on the terminal (EOFError: input has ended)."""
+        fd = _stdin_fd()
+        if fd is None:
+            return input(question)
+        sys.stdout.write(question)
+        sys.stdout.flush()
+        return _read_line(fd, self.interrupt)
 
     def stop(self) -> None:
         """The session is over."""
@@ -109,6 +122,8 @@ class LiveConsole(SessionConsole):
         self.robot_target: str | None = None
         self.results: list[tuple] = []
         self.events: deque[tuple[str, str]] = deque(maxlen=6)
+        self.question: str | None = None  # the prompt open in the panel, and what is typed
+        self.typed = ""
         self._live: Any = None
         self._handler = _ConsoleLogHandler(self)
         self._saved_handlers: list[logging.Handler] = []
@@ -161,15 +176,57 @@ class LiveConsole(SessionConsole):
         with self.lock:
             self.events.append((level, text))
 
-    def ask(self, prompt: Callable[[], Any]) -> Any:
-        """Stop the panel, prompt on a line of its own, resume."""
-        if self._live is None:
-            return prompt()
-        self._live.stop()
+    def read_line(self, question: str) -> str:
+        """The operator's answer, typed into the panel's prompt line.
+
+        On a terminal the keys are read one by one (no echo; Backspace and Ctrl-U edit, Enter
+        ends, Ctrl-D on an empty line is the end of input, Ctrl-C still interrupts) and drawn
+        by the panel itself. Answers from a pipe are read as lines while the panel asks.
+        """
+        fd = _stdin_fd()
+        live = self._live
+        if live is None or fd is None:  # no panel, or no input of ours to read keys from
+            return super().read_line(question)
+        with self.lock:
+            self.question, self.typed = question, ""
+        live.refresh()
         try:
-            return prompt()
+            return self._type(fd) if os.isatty(fd) else _read_line(fd, self.interrupt)
         finally:
-            self._live.start()
+            with self.lock:
+                self.question = None
+            live.refresh()
+
+    def _type(self, fd: int) -> str:
+        """Keys from the terminal `fd` into `typed` (redrawn at each key) until Enter."""
+        import termios
+        import tty
+
+        saved = termios.tcgetattr(fd)
+        tty.setcbreak(fd, termios.TCSANOW)
+        utf8 = codecs.getincrementaldecoder("utf-8")(errors="ignore")
+        try:
+            while True:
+                key = _next_byte(fd, self.interrupt)
+                if key == b"\x1b":  # an arrow or function key: not part of an answer
+                    _skip_escape(fd)
+                    continue
+                ch = utf8.decode(key)
+                if not key or ch in ("\r", "\n"):
+                    return self.typed
+                with self.lock:
+                    if ch == "\x04" and not self.typed:
+                        raise EOFError
+                    if ch in ("\x7f", "\b"):
+                        self.typed = self.typed[:-1]
+                    elif ch == "\x15":
+                        self.typed = ""
+                    elif ch.isprintable():
+                        self.typed += ch
+                if self._live is not None:
+                    self._live.refresh()
+        finally:
+            termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
     def stop(self) -> None:
         """Leave the last panel on screen and give the log back."""
@@ -203,6 +260,12 @@ class LiveConsole(SessionConsole):
             phase_style = "bold green" if self.phase == "GO" else (
                 "bold red" if self.phase == "INTERRUPTED" else "bold")
             head.append(f"{self.phase} {self.text}".strip(), style=phase_style)
+            asking = []
+            if self.question is not None:
+                line = Text(self.question, style="bold yellow")
+                line.append(self.typed, style="bold")
+                line.append("▌", style="blink")
+                asking.append(line)
             live = Table.grid(padding=(0, 2))
             for name, label in (("z_r", "z_r"), ("z_h", "ẑ_h"), ("b_r", "b_r")):
                 v = self.values.get(name)
@@ -214,15 +277,15 @@ class LiveConsole(SessionConsole):
             who.append(f"    human heading: {human}")
             done = Table("trial", "mode", "O", "robot", "human", "outcome", "score",
                          title="finished", title_justify="left", expand=False)
-            total = 0
+            total = sum(r[6] for r in self.results)
             for t, mode, o, rb, hu, oc, sc, intr in self.results[-8:]:
-                total += sc
                 done.add_row(str(t), mode, o or "-", rb or "-", hu or "-",
                              "interrupted" if intr else (oc or "-"), str(sc))
             events = [Text(t, style={"warning": "yellow", "error": "bold red"}.get(lv, "dim"))
                       for lv, t in self.events]
             title = f"session {self.session} · {self.participant} · score {total}"
-            return Panel(Group(head, live, who, done, *events), title=title, title_align="left")
+            return Panel(Group(head, *asking, live, who, done, *events), title=title,
+                         title_align="left")
 
 
 def _bar(v: float, scale: float = 8.0, width: int = 21) -> Any:
@@ -251,6 +314,46 @@ class _ConsoleLogHandler(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         level = "error" if record.levelno >= logging.ERROR else "warning"
         self.target.note(record.getMessage(), level)
+
+
+def _stdin_fd() -> int | None:
+    """The file descriptor of standard input, or None (closed, or replaced by a test runner)."""
+    try:
+        return sys.stdin.fileno()
+    except (AttributeError, ValueError, OSError):  # io.UnsupportedOperation is both
+        return None
+
+
+def _next_byte(fd: int, interrupt: threading.Event | None) -> bytes:
+    """The next byte from `fd` (b"" at its end); KeyboardInterrupt once `interrupt` is set."""
+    while True:
+        if interrupt is not None and interrupt.is_set():
+            raise KeyboardInterrupt
+        if select.select([fd], [], [], POLL_S)[0]:
+            return os.read(fd, 1)
+
+
+def _read_line(fd: int, interrupt: threading.Event | None) -> str:
+    """One line from `fd`, a byte at a time (nothing beyond it is taken from the stream)."""
+    data = bytearray()
+    while (byte := _next_byte(fd, interrupt)) != b"\n":
+        if not byte:
+            if not data:
+                raise EOFError
+            break
+        data += byte
+    return data.decode(errors="replace").rstrip("\r")
+
+
+def _skip_escape(fd: int) -> None:
+    """Drop the rest of an escape sequence (ESC [ A, ESC O P) that follows an ESC key."""
+    if not select.select([fd], [], [], 0.05)[0]:
+        return  # the Esc key alone
+    kind = os.read(fd, 1)
+    while kind in (b"[", b"O") and select.select([fd], [], [], 0.05)[0]:
+        byte = os.read(fd, 1)
+        if kind == b"O" or 0x40 <= byte[0] <= 0x7E:  # SS3 takes one byte; CSI ends on a final
+            return
 
 
 def make_console(kind: str) -> SessionConsole:

@@ -123,6 +123,11 @@ class RigWatch:
         fresh = all(mono - self._seen.get(d, -(2**62)) < self.settle_ns for d in DEVICES)
         return fresh and self._safe_since is not None and mono - self._safe_since >= self.settle_ns
 
+    @property
+    def estop_engaged(self) -> bool:
+        """Whether an e-stop holds the rig (until a release)."""
+        return self._estop is not None
+
     def why_unsafe(self) -> str:
         """What holds the rig, in one line."""
         parts = [f"{d}: {r}" for d, r in sorted(self._stopped.items())]

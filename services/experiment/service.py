@@ -8,6 +8,7 @@ starts the recorder when asked, and runs the session.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import math
@@ -27,6 +28,7 @@ from services.experiment.console import make_console
 from services.experiment.order import participant_problem, session_config
 from services.experiment.params_check import ParamsCheck
 from services.experiment.recording import RecorderProcess, recorder_command, recording_path
+from services.experiment.resume import say_how_to_resume
 from services.model.protocol import order_of
 from services.store import Store
 from services.store.participants import next_free_ids, record_order
@@ -35,18 +37,22 @@ log = logging.getLogger("nod.experiment")
 RECORDER_READY_S = 30.0  # wall seconds for `nod record` to start and subscribe
 
 
-def ask_clicks(trial: int) -> int | None:
-    """Prompt the operator for the counter value of a trial (empty → not entered)."""
+def ask_clicks(trial: int, read_line: Callable[[str], str] = input) -> int | None:
+    """Prompt the operator for the counter value of a trial (empty → not entered).
+
+    `read_line` asks (the console's own prompt: a line of its live panel, or the terminal's).
+    """
+    question = f"trial {trial}: counter clicks (empty = not entered)? "
     while True:
         try:
-            raw = input(f"trial {trial}: counter clicks (empty = not entered)? ").strip()
+            raw = read_line(question).strip()
         except EOFError:
             return None
         if not raw:
             return None
         if raw.isdigit():
             return int(raw)
-        print("please enter a non-negative whole number, or nothing")
+        question = f"{raw[:20]!r} is not a whole number ≥ 0 — trial {trial}: counter clicks? "
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -127,10 +133,12 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def clicks_source(spec: str) -> Callable[[int], int | None]:
-    """The operator's counter values, from the --clicks flag."""
+def clicks_source(
+    spec: str, read_line: Callable[[str], str] = input
+) -> Callable[[int], int | None]:
+    """The operator's counter values, from the --clicks flag (`read_line` asks for 'prompt')."""
     if spec == "prompt":
-        return ask_clicks
+        return functools.partial(ask_clicks, read_line=read_line)
     if spec == "none":
         return lambda _trial: None
     if spec.isdigit():
@@ -151,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = load_params(args.params)
         own_hash = params_hash(cfg)  # the rig's parameters, before this session's --order
-        clicks = clicks_source(args.clicks)
+        console = make_console(args.console)
+        clicks = clicks_source(args.clicks, console.read_line)
         store = Store(args.db)
     except (ValueError, OSError) as exc:
         return fail("nod experiment", exc)
@@ -215,9 +224,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 2
     params_check = ParamsCheck(node)
-    conductor = Conductor(
-        node, cfg, store, clicks, make_console(args.console), resume_at=resume_at
-    )
+    conductor = Conductor(node, cfg, store, clicks, console, resume_at=resume_at)
     node.ready()
     session = args.resume or args.session or uuid.uuid4().hex[:12]
     recorder = None
@@ -228,6 +235,7 @@ def main(argv: list[str] | None = None) -> int:
             store.close()
             return 2
         conductor.recording = (recorder.path, node.clock.now_ns())
+    complete = False
     try:
         conductor.wait_for_services(args.wait_services)
         mismatch = params_check.problem(own_hash, args.params)
@@ -246,6 +254,7 @@ def main(argv: list[str] | None = None) -> int:
         conductor.run_session(
             session, participant, seed, first, resume=args.resume is not None, lost=lost
         )
+        complete = True
     except TimeoutError as exc:
         print(f"nod experiment: {exc}", file=sys.stderr)
         return 1
@@ -257,6 +266,8 @@ def main(argv: list[str] | None = None) -> int:
             code = recorder.stop()
             log.info("recording %s (recorder exit %s)", recorder.path, code)
         node.close()
+        if not complete:  # interrupted, aborted, or never started: how to go on with it
+            say_how_to_resume(store, build_parser(), args, session)
         store.close()
     log.info("session %s complete: %s", session, json.dumps(str(args.db)))
     return 0

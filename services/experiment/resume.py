@@ -1,0 +1,71 @@
+"""The line a stopped session leaves for the operator: the command that goes on with it.
+
+`nod experiment` prints it when a session it ran (or resumed) ends before its last trial —
+Ctrl-C, SIGTERM, an abort, services that never came up — and the session is in the store:
+`resume with: nod experiment --resume SESSION --db DB …`, with the flags that reach the same
+rig and store (session, clock, parameters, rig file, clicks, console, recording). `nod run`
+prints its own form (`services.run`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+from services.store import Store
+
+# The flags a resumed conductor needs as they were (argparse dests): how it reaches the rig and
+# its clock, the parameters its trials ran with, and how the operator works. Not the new-session
+# ones (--participant, --seed, --session, --order, --again): a session keeps its own.
+RESUME_FLAGS = (
+    "mode", "connect", "listen", "config", "rig", "rig_file", "speed", "epoch_ns", "params",
+    "clicks", "console", "record", "wait_services",
+)
+
+
+def resume_argv(
+    parser: argparse.ArgumentParser,
+    args: argparse.Namespace,
+    session: str,
+    prog: tuple[str, ...] = ("nod", "experiment"),
+    flags: tuple[str, ...] = RESUME_FLAGS,
+) -> list[str]:
+    """The command line that resumes `session` with those of `args`' `flags` not at default."""
+    argv = [*prog, "--resume", session, "--db", str(args.db)]
+    for dest in flags:
+        value = getattr(args, dest, None)
+        if value is None or value is False or value == parser.get_default(dest):
+            continue
+        flag = "--" + dest.replace("_", "-")
+        if value is True:  # a switch
+            argv.append(flag)
+            continue
+        for v in value if isinstance(value, list) else [value]:
+            text = str(v)  # a value that looks like a flag (--monitor=--spawn) is joined to it
+            argv += [f"{flag}={text}"] if text.startswith("-") else [flag, text]
+    return argv
+
+
+def resume_line(argv: list[str]) -> str:
+    """`resume with: …`, quoted for a shell."""
+    return "resume with: " + shlex.join(argv)
+
+
+def stored_unfinished(db: Path | Store, session: str) -> bool:
+    """Whether `session` is in the store and not complete (a resume has something to do)."""
+    store = db if isinstance(db, Store) else Store(db)
+    try:
+        return any(s["session"] == session and s["status"] != "complete"
+                   for s in store.sessions())
+    finally:
+        if store is not db:
+            store.close()
+
+
+def say_how_to_resume(store: Store, parser: argparse.ArgumentParser,
+                      args: argparse.Namespace, session: str) -> None:
+    """Print the resume line on stderr if the session is stored and unfinished."""
+    if stored_unfinished(store, session):
+        print(resume_line(resume_argv(parser, args, session)), file=sys.stderr, flush=True)

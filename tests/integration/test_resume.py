@@ -1,0 +1,164 @@
+"""Every interruption prints how to resume, and the printed line does resume.
+
+`nod experiment` stopped by Ctrl-C while it asks for the counter clicks prints `resume with: nod
+experiment --resume …`; that command goes on at the trial in progress and its console shows the
+trials stored before. `nod run --sim` stopped mid-session prints its own `nod run --sim
+--resume …`, which runs the rest of the session: the store has each trial of it once.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import signal
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from tests.processes import run_nod, stop_all
+
+from .conftest import ROOT, SHORT, free_port, wait_for
+
+pytestmark = pytest.mark.integration
+SPEED = "4"
+
+
+class Output:
+    """Everything a process writes on one pipe, read as it comes (a prompt has no newline)."""
+
+    def __init__(self, pipe) -> None:
+        self.text = ""
+        self._pipe = pipe
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        while chunk := os.read(self._pipe.fileno(), 4096):
+            self.text += chunk.decode(errors="replace")
+
+
+def _resume_line(stderr: str) -> list[str]:
+    lines = [ln for ln in stderr.splitlines() if ln.startswith("resume with: ")]
+    assert len(lines) == 1, stderr
+    return shlex.split(lines[0].removeprefix("resume with: "))
+
+
+def _trials(db, session: str) -> list[tuple[int, int | None]]:
+    con = sqlite3.connect(db)
+    try:
+        return con.execute(
+            "SELECT trial, clicks FROM trials WHERE session = ? ORDER BY trial", (session,)
+        ).fetchall()
+    finally:
+        con.close()
+
+
+def _status(db, session: str) -> str:
+    con = sqlite3.connect(db)
+    try:
+        row = con.execute("SELECT status FROM sessions WHERE session = ?", (session,)).fetchone()
+        return row[0]
+    finally:
+        con.close()
+
+
+def test_ctrl_c_at_the_click_prompt_prints_the_resume_line_and_it_resumes(
+    router, endpoint, tmp_path
+):
+    params = tmp_path / "short.toml"
+    params.write_text(SHORT)
+    db = tmp_path / "s.sqlite"
+    clock = ["--speed", SPEED, "--epoch-ns", str(time.time_ns()), "--params", str(params)]
+    rig = []
+    for service in ("decision", "actuation", "eyes", "sim"):
+        safety = ["--stale-ms", "2000"] if service in ("actuation", "eyes") else []
+        rig.append(subprocess.Popen(
+            [sys.executable, "-m", "services.cli", service, "--connect", endpoint, *clock,
+             *safety],
+            cwd=ROOT, stdout=(tmp_path / f"{service}.log").open("w"), stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+        ))
+    conductor = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "experiment", "--connect", endpoint, *clock,
+         "--db", str(db), "--session", "s-ctrl-c", "--console", "lines"],
+        cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )
+    try:
+        out, err = Output(conductor.stdout), Output(conductor.stderr)
+        wait_for(lambda: "trial 1: counter clicks" in out.text, 120, "trial 1's prompt")
+        conductor.stdin.write(b"7\n")
+        conductor.stdin.flush()
+        wait_for(lambda: "trial 2: counter clicks" in out.text, 60, "trial 2's prompt")
+        conductor.send_signal(signal.SIGINT)  # the operator's Ctrl-C while asked
+        assert conductor.wait(10) == 130
+        wait_for(lambda: "resume with: " in err.text, 5, "the resume line")
+        # Normal trials raise no alarm: no warning before the operator's interruption.
+        before = err.text.split("WARNING nod.experiment: session s-ctrl-c interrupted")[0]
+        assert "WARNING" not in out.text and "WARNING" not in before, out.text + err.text
+        argv = _resume_line(err.text)
+        assert argv[:4] == ["nod", "experiment", "--resume", "s-ctrl-c"]
+        assert argv[argv.index("--db") + 1] == str(db)
+        assert argv[argv.index("--connect") + 1] == endpoint
+        assert "--epoch-ns" in argv and "--params" in argv and "--participant" not in argv
+        assert _status(db, "s-ctrl-c") == "aborted"
+
+        resumed = run_nod(*argv[1:], input="\n\n\n", timeout=180)
+        assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+        lines = resumed.stdout.splitlines()
+        # The console goes on from the stored trial 1, then runs trial 2 again and trial 3.
+        first = next(i for i, ln in enumerate(lines) if ln.startswith("trial 1: robot"))
+        assert first < next(i for i, ln in enumerate(lines) if ln.startswith("trial 2/3"))
+        assert _trials(db, "s-ctrl-c") == [(1, 7), (2, None), (3, None)]
+        assert _status(db, "s-ctrl-c") == "complete"
+    finally:
+        stop_all([conductor, *rig])
+
+
+def test_nod_run_interrupted_prints_its_resume_line_and_resumes(tmp_path):
+    params = tmp_path / "short.toml"
+    params.write_text(SHORT)
+    db = tmp_path / "run.sqlite"
+    listen = f"tcp/127.0.0.1:{free_port()}"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "run", "--sim", "--speed", SPEED, "--stale-ms",
+         "2000", "--params", str(params), "--db", str(db), "--listen", listen],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+    )
+    try:
+        out, err = Output(run.stdout), Output(run.stderr)
+        wait_for(lambda: "\n    1 " in out.text, 120, "trial 1 in the run's table")
+        run.send_signal(signal.SIGINT)
+        assert run.wait(30) == 130, out.text + err.text
+        wait_for(lambda: "resume with: " in err.text, 5, "the resume line")
+    finally:
+        stop_all([run])
+    argv = _resume_line(err.text)
+    assert argv[:5] == ["nod", "run", "--sim", "--resume", argv[4]]
+    session = argv[4]
+    assert argv[argv.index("--db") + 1] == str(db) and "--params" in argv
+    assert len(_trials(db, session)) < 3
+
+    resumed = run_nod(*argv[1:], timeout=300)
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert f"resuming session {session}" in resumed.stdout
+    assert "3 trials of 1 participant(s) stored" in resumed.stdout  # the table went on
+    assert [t for t, _ in _trials(db, session)] == [1, 2, 3]  # every trial of it, once
+    assert _status(db, session) == "complete"
+    con = sqlite3.connect(db)
+    assert con.execute("SELECT COUNT(*) FROM sessions").fetchone()[0] == 1
+    con.close()
+
+
+def test_a_bad_nod_run_resume_is_a_one_line_error(tmp_path):
+    db = tmp_path / "empty.sqlite"
+    for extra, says in (
+        (["--resume", "nope"], "no session 'nope'"),
+        (["--resume", "nope", "--participant", "P02"], "leave out --participant"),
+        (["--resume", "nope", "--participants", "2"], "leave out --participants"),
+    ):
+        res = run_nod("run", "--sim", "--db", str(db), *extra, timeout=60)
+        assert res.returncode == 2, res.stdout + res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1 and says in res.stderr, res.stderr
