@@ -125,7 +125,11 @@ def test_kill9_of_the_conductor_loses_nothing_and_the_session_resumes(
             session = f"k{run}"
             conductor = rig.start("experiment", "--db", str(db), "--session", session,
                                   "--params", str(params), "--clicks", "10")
-            time.sleep(rng.uniform(1.5, 4.0))  # somewhere in trial 1 or 2 at 4x
+            # Once the session runs (its start takes longer on a loaded machine), somewhere in
+            # trial 1 or 2 at 4x: a random point of the session, not of the process's start-up.
+            wait_for(lambda s=session: any(e.phase == "setup" and e.session == s
+                                           for e in events.messages), 60, f"{session} started")
+            time.sleep(rng.uniform(0.0, 2.5))
             t_kill = rig.kill9("experiment")
             assert conductor.returncode == -signal.SIGKILL
             with sqlite3.connect(db) as raw:  # the file as any reader finds it
