@@ -54,8 +54,10 @@ class ActuationService:
             cfg.layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
         )
         self.watchdog = Watchdog(safety, ("z_r", "hand"))
-        self.safe_stop = False
-        self.safety_reason = ""
+        # Stopped until the first check of the gate says otherwise: nothing reaches the arm before
+        # the watchdog has judged its inputs once.
+        self.safe_stop = True
+        self.safety_reason = "starting"
         self.last_cmd: ArmCommand | None = None
         # The service's own time (s) for Algorithm 2 and the arm: the rig clock, never a
         # message's timestamp (a peer's clock must not move the arm's timers), kept monotone.
@@ -159,7 +161,7 @@ class ActuationService:
         elif not status.safe_stop and self.safe_stop:
             log.info("safety clear: resuming")
             self.last_cmd = None  # re-send the behaviour's current command
-            if not self.robot.running:  # between trials: back to the rest pose
+            if not self.robot.running and self.robot.trial:  # between trials: the rest pose
                 self._send(self.arm.home())
         self.safe_stop, self.safety_reason = status.safe_stop, status.reason
         if not self.safe_stop:

@@ -46,6 +46,9 @@ def sign_colour(sign: float) -> Colour | None:
     return None
 
 
+TIE = 1e-9  # distances closer than this are equal (float rounding, not geometry)
+
+
 @dataclass(frozen=True, slots=True)
 class Box:
     """An axis-aligned box given by two corners (x1, y1) and (x2, y2), x1 ≤ x2 and y1 ≤ y2.
@@ -130,4 +133,6 @@ class TableLayout:
         """
         d_red = math.dist(p, self.red.center)
         d_blue = math.dist(p, self.blue.center)
-        return "blue" if d_blue < d_red else "red"
+        # A tie is a tie within rounding: the default boxes' centres come out 0.79 and
+        # 0.21000000000000002, which put the arm's home, midway, 1 ulp nearer blue.
+        return "blue" if d_blue < d_red - TIE else "red"
