@@ -31,6 +31,7 @@ class ParticipantOutcomes:
     status: str
     outcomes: Mapping[int, str | None]  # stored trials only; a missing trial has no key
     interrupted: frozenset[int] = frozenset()  # stored as interrupted (their outcome is None)
+    control_labels: str = "agreement"  # the rule that labelled its control trials (SPEC §6)
 
     def outcome(self, trial: int) -> str | None:
         """The trial's outcome, or None for a timeout or a trial never stored."""
@@ -120,6 +121,29 @@ def scheduled_trials(config: str | None) -> int:
     return len(trials) if isinstance(trials, list) and trials else len(TRIALS)
 
 
+def control_labels(config: str | None) -> str:
+    """The rule that labelled a session's control trials, as its stored protocol says.
+
+    A store written before the rule existed has no `control_labels`: its control trials were
+    labelled by switches, and are read as they were labelled.
+    """
+    try:
+        rule = json.loads(config or "{}")["protocol"].get("control_labels", "switches")
+    except (ValueError, KeyError, TypeError, AttributeError):
+        return "switches"
+    return rule if rule in ("agreement", "switches") else "switches"
+
+
+def describe_labels(rule: str) -> str:
+    """One sentence for a report: how the control trials were labelled."""
+    if rule == "agreement":
+        return ("control trials (1-3) labelled by agreement alone, C or D (SPEC §6; switches "
+                "counted, not labelled)")
+    if rule == "switches":
+        return "control trials (1-3) labelled C/CH/D/DH by switches, like the consensus trials"
+    return "control trials labelled by different rules in different sessions (see `sessions`)"
+
+
 def _status_reason(status: str, stored: int, scheduled: int) -> str:
     """Why an incomplete session is incomplete, in the words of the report."""
     if status == "aborted":
@@ -171,6 +195,7 @@ def select_sessions(store: Store, rule: InclusionRule | None = None) -> Selectio
             status=status,
             outcomes={t.trial: None if t.interrupted else t.outcome for t in trials},
             interrupted=frozenset(t.trial for t in trials if t.interrupted),
+            control_labels=control_labels(s.get("config")),
         )
         if pid in latest:
             old = latest[pid]

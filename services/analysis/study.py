@@ -46,6 +46,7 @@ from services.analysis.sessions import (
     ExcludedSession,
     InclusionRule,
     ParticipantOutcomes,
+    describe_labels,
     select_sessions,
 )
 from services.analysis.stuart_maxwell import stuart_maxwell
@@ -243,6 +244,8 @@ def analyze_study(
         pair = paired_table((p.outcome(a), p.outcome(b)) for p in parts)
         tests[f"trial_{a}_vs_{b}"] = stuart_maxwell_doc(pair)
     family = correct(tests, correction)
+    rules = sorted({p.control_labels for p in parts})
+    labels = rules[0] if len(rules) == 1 else "mixed"
     included = {p.participant for p in parts}
     left_out = {e.participant for e in excluded} - included
     answers = [q for q in questionnaires if q.participant not in left_out]
@@ -253,9 +256,16 @@ def analyze_study(
         "control_trials": list(CONTROL_TRIALS),
         "experiment_trials": list(EXPERIMENT_TRIALS),
         "inclusion": rule.as_dict(),
+        "control_labels": {
+            "rule": labels,
+            "description": describe_labels(labels),
+            "sessions": {r: sum(p.control_labels == r for p in parts) for r in rules},
+        },
         "participants": len(parts),
         "sessions": [
-            {"participant": p.participant, "session": p.session, "status": p.status} for p in parts
+            {"participant": p.participant, "session": p.session, "status": p.status,
+             "control_labels": p.control_labels}
+            for p in parts
         ],
         "excluded": [e.as_dict() for e in excluded],
         "notes": list(notes),

@@ -63,6 +63,7 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
         f"{doc['experiment_trials']}."
     )
     md += ["", f"Inclusion: {doc['inclusion']['description']}."]
+    md += ["", f"Labels: {doc['control_labels']['description']}."]
     gone = doc["excluded"]
     md += ["", f"Excluded sessions ({len(gone)}):" if gone else "Excluded sessions: none."]
     md += [f"- {e['participant']} (session {e['session']}): {e['reason']}" for e in gone]
@@ -174,6 +175,7 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
         "## Method",
         "",
         f"Inclusion: {doc['inclusion']['description']}. "
+        f"Labels: {doc['control_labels']['description']}. "
         "Phase category = most frequent outcome of the phase's trials, ties to the later "
         "trial; timeouts, interrupted and missing trials are excluded from every categorical "
         "test. Stuart-Maxwell drops categories empty in both margins. "

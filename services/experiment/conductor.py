@@ -429,7 +429,8 @@ class Conductor:
                     go = self.pub_trial.put(
                         phase="go", text=cue.text, session=self.session, **ev
                     )
-                    self.trial_samples = TrialSamples(go.t_ns, TrialJudge(self.cfg, self.layout))
+                    judge = TrialJudge(self.cfg, self.layout, spec.mode)
+                    self.trial_samples = TrialSamples(go.t_ns, judge)
             elif cue.kind == "end":
                 self._end_trial(spec, protocol)
                 cues.extend(protocol.judged(self._now_s()))

@@ -38,7 +38,10 @@ PROG = "nod export"
 MISSING = "NA"  # how a SQL NULL is written
 
 QUERIES: dict[str, str] = {
-    "sessions": "SELECT * FROM sessions ORDER BY started_ns, session",
+    # `control_labels`: the rule that labelled the session's control trials (SPEC §6); a session
+    # stored before the rule existed was labelled by switches.
+    "sessions": "SELECT *, COALESCE(json_extract(config, '$.protocol.control_labels'), "
+    "'switches') AS control_labels FROM sessions ORDER BY started_ns, session",
     "trials": (
         "SELECT t.session, s.participant, t.trial, t.mode, t.option, t.gaze_level, t.yaw, "
         "t.pitch, t.t_go_ns, t.t_end_ns, t.human, t.robot, t.outcome, t.switches, "

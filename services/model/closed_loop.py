@@ -120,7 +120,7 @@ class _Loop:
                 self.model.reset(spec.mode, spec.consensus_option)
                 self.robot.go(t)
                 self.person.go(t)
-                self.judge = TrialJudge(self.cfg, self.cfg.layout)
+                self.judge = TrialJudge(self.cfg, self.cfg.layout, spec.mode)
                 self.t_go = t
             elif cue.kind == "end" and spec is not None:
                 self._judge(t, spec.index, spec.mode, spec.option)

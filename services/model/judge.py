@@ -3,8 +3,9 @@
 One pure reactor for every runner of the protocol — the conductor on the fabric, the offline
 closed loop — so the rules of a trial's outcome live in one place:
 
-- `TrialJudge(cfg, layout)` at "go": the outcome tracker with the session's debounce, commit
-  line and switch dead band.
+- `TrialJudge(cfg, layout, mode)` at "go": the outcome tracker with the session's debounce,
+  commit line and switch dead band, and the labelling rule of the trial's mode (SPEC §6: control
+  trials by agreement alone, unless `control_labels = "switches"`).
 - `see_hand(landmarks, t)`: the first pose with a landmark inside a buzzer box is the human's
   press (its time is kept: ẑ_h counts up to it).
 - `observe(z_hat, center, t)`: a ẑ_h sample of a pose at time t; counted until the press.
@@ -20,15 +21,20 @@ from collections.abc import Sequence
 from services.model.geometry import Colour, Point, TableLayout
 from services.model.outcome import OutcomeTracker, TrialJudgement, judge_trial
 from services.model.params import NodConfig
-from services.model.protocol import TrialEnd
+from services.model.protocol import Mode, TrialEnd
 
 
 class TrialJudge:
     """Judges one trial from its "go"."""
 
-    def __init__(self, cfg: NodConfig, layout: TableLayout) -> None:
-        """A judge for a trial on `layout` (the geometry in use at its "go")."""
+    def __init__(self, cfg: NodConfig, layout: TableLayout, mode: Mode = "consensus") -> None:
+        """A judge for a `mode` trial on `layout` (the geometry in use at its "go").
+
+        A control (dissensus) trial is labelled by agreement alone unless the protocol says
+        `control_labels = "switches"` (SPEC §6).
+        """
         self.layout = layout
+        self.by_agreement = mode == "dissensus" and cfg.protocol.control_labels == "agreement"
         self.debounce = cfg.debounce
         self.target_clicks = cfg.protocol.target_clicks
         self.tracker = OutcomeTracker(
@@ -55,7 +61,9 @@ class TrialJudge:
     ) -> TrialJudgement:
         """The finished trial's judgement (`end`: how the protocol ended it)."""
         human = self.human if end is None else end.counted_press(self.human)
-        return judge_trial(self.tracker, human, robot, clicks, self.target_clicks)
+        return judge_trial(
+            self.tracker, human, robot, clicks, self.target_clicks, self.by_agreement
+        )
 
     @staticmethod
     def void() -> TrialJudgement:

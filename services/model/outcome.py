@@ -161,13 +161,19 @@ def judge_trial(
     robot: Colour | None,
     clicks: int | None,
     target_clicks: int,
+    by_agreement: bool = False,
 ) -> TrialJudgement:
     """Outcome and score of a finished trial (SPEC §6), as the conductor and offline loop store it.
 
     A trial the robot did not press has no outcome and scores as a different buzzer; one the
     human did not press has no outcome class either, but keeps its switch count and violations.
+    `by_agreement` labels by the buzzers alone (C same, D different), as SPEC §6 labels control
+    trials by default; the switches and violations are counted and scored all the same.
     """
     result = tracker.result(human, robot) if robot is not None else None
+    outcome = result.outcome if (result is not None and human is not None) else None
+    if outcome is not None and result is not None and by_agreement:
+        outcome = "C" if result.same_buzzer else "D"
     score = score_trial(
         result is not None and result.same_buzzer,
         clicks,
@@ -177,7 +183,7 @@ def judge_trial(
     return TrialJudgement(
         human=human,
         robot=robot,
-        outcome=result.outcome if (result is not None and human is not None) else None,
+        outcome=outcome,
         switches=result.switches if result else 0,
         violations=result.violations if result else 0,
         score=score.total,

@@ -22,6 +22,8 @@ from services.model.gaze import (
 from services.model.geometry import Colour
 
 Mode: TypeAlias = Literal["dissensus", "consensus"]
+ControlLabels: TypeAlias = Literal["agreement", "switches"]
+CONTROL_LABELS: tuple[ControlLabels, ...] = ("agreement", "switches")
 MODES: tuple[Mode, Mode] = ("dissensus", "consensus")
 # Upper bounds of the protocol's times (s). Each is far beyond any sensible setting and below
 # what its default becomes when typed in milliseconds (0.75 -> 750, 10 -> 10000, 1 -> 1000,
@@ -190,12 +192,22 @@ class ProtocolParams:
     # gate trials follow each other; the operator can still hold the next one
     # (`nod experiment pause`).
     gate: bool = False
+    # How control (dissensus) trials are labelled (SPEC §6): "agreement" — C or D by the buzzers
+    # alone, whatever the switches (the paper's Fig 8a has no DH and almost no CH in trials 1-3
+    # although its participants switched there); "switches" — the C/CH/D/DH rule of the
+    # consensus trials. Switches and violations are counted and stored either way.
+    control_labels: ControlLabels = "agreement"
     # The trials of a session, in order (indices 1..n).
     trials: tuple[TrialSpec, ...] = field(default_factory=default_schedule)
     # The attention gesture run before a trial that asks for it.
     gesture: AttentionGestureParams = field(default_factory=AttentionGestureParams)
 
     def __post_init__(self) -> None:
+        if self.control_labels not in CONTROL_LABELS:
+            raise ValueError(
+                f"ProtocolParams.control_labels must be one of {', '.join(CONTROL_LABELS)}, "
+                f"got {self.control_labels!r}"
+            )
         if not self.countdown or not all(isinstance(w, str) and w for w in self.countdown):
             raise ValueError("ProtocolParams.countdown needs at least one non-empty word")
         for name, top in MAX_S.items():

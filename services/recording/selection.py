@@ -31,6 +31,7 @@ NOT_INPUTS = {
     "rig/event": "the recorded launcher's account of its processes: replayed, it would "
     "interrupt trials for crashes that are not happening",
     "safety/estop": "an operator's act: replayed without its release it holds the rig",
+    "experiment/operator": "an operator's act: the live operator starts and holds the trials",
     "safety/release": "an operator's act, never replayed from a file: it could release an "
     "e-stop engaged live",
 }

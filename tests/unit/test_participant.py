@@ -68,11 +68,11 @@ def test_a_negative_discount_is_refused():
 # -- the claim docs/study.md makes about the control trials ---------------------------------
 
 
-def _control_config(traits: dict[str, float]) -> NodConfig:
-    """The default config with only the three control trials and the given traits."""
+def _control_config(traits: dict[str, float], labels: str = "switches") -> NodConfig:
+    """The default config with only the three control trials, the given traits and labelling."""
     control = tuple(t for t in default_schedule() if t.mode == "dissensus")
     cfg = NodConfig()
-    cfg = replace(cfg, protocol=replace(cfg.protocol, trials=control))
+    cfg = replace(cfg, protocol=replace(cfg.protocol, trials=control, control_labels=labels))
     return with_traits(cfg, traits)
 
 
@@ -88,9 +88,18 @@ def _control_config(traits: dict[str, float]) -> NodConfig:
 def test_no_person_the_calibration_can_reach_gets_c_in_a_control_trial(unit, seed):
     # With the robust observer the robot reads the hand's side from its first movement and heads
     # the other way; it turns only after the hand's reading changed side, which the outcome
-    # counts as a switch. So a control trial is D, CH or DH for every person in the fitted
-    # traits' ranges: the paper's ≈ 29 % C there is out of any fit's reach (docs/study.md).
+    # counts as a switch. So under the switch rule (`control_labels = "switches"`) a control
+    # trial is D, CH or DH for every person in the fitted traits' ranges — why SPEC §6 labels
+    # control trials by agreement alone, as the paper's Fig 8a does (docs/study.md).
     traits = {t.name: t.low + (t.high - t.low) * u for t, u in zip(TRAITS, unit, strict=True)}
     trials = run_offline_session(_control_config(traits), seed, cohort=True)
     assert [t.mode for t in trials] == ["dissensus"] * 3
     assert all(t.outcome != "C" for t in trials), [(t.outcome, t.switches) for t in trials]
+    # By agreement (the default): the same people, the same presses and switches, C or D only —
+    # C exactly where they pressed the robot's buzzer, which took a switch.
+    agreed = run_offline_session(_control_config(traits, "agreement"), seed, cohort=True)
+    for by_switches, by_agreement in zip(trials, agreed, strict=True):
+        assert (by_agreement.human, by_agreement.robot, by_agreement.switches) == (
+            by_switches.human, by_switches.robot, by_switches.switches)
+        expected = {"CH": "C", "DH": "D", "D": "D", None: None}[by_switches.outcome]
+        assert by_agreement.outcome == expected, (by_switches, by_agreement)
