@@ -20,19 +20,20 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypedDict
 
 from services.core import messages as m
 from services.core.node import Node
 from services.experiment.console import SessionConsole
+from services.experiment.fields import GazeFields, TrialFields
 from services.experiment.operator import OperatorGate
 from services.experiment.presses import RobotPresses
 from services.experiment.rig_watch import RigWatch
 from services.experiment.trial_samples import TrialSamples
+from services.experiment.waiting import wait_for_services
 from services.model.geometry import Colour
 from services.model.judge import TrialJudge
 from services.model.params import NodConfig
-from services.model.protocol import Cue, Mode, SessionProtocol, TrialEnd, TrialSpec
+from services.model.protocol import Cue, SessionProtocol, TrialEnd, TrialSpec
 from services.store import Interruption, Store, TrialRecord
 
 log = logging.getLogger("nod.experiment")
@@ -46,24 +47,6 @@ GAZE_KEEPALIVE_NS = 50_000_000
 # first gaze, then it settles 0.5 s): only a hold longer than this (wall s), or an e-stop, is
 # shown to the operator.
 START_QUIET_S = 3.0
-
-
-class GazeFields(TypedDict, total=False):
-    """The gaze command the conductor keeps repeating: fields of `m.GazeMsg`."""
-
-    yaw: float
-    pitch: float
-    level: str
-    gesture: bool
-    trial: int
-
-
-class TrialFields(TypedDict):
-    """The trial every `m.TrialEvent` of one cue names."""
-
-    trial: int
-    mode: Mode
-    option: Colour | None
 
 
 class Conductor:
@@ -203,25 +186,7 @@ class Conductor:
 
     def wait_for_services(self, timeout_s: float) -> None:
         """Block until every required service's liveliness token is seen (wall clock)."""
-        start = time.monotonic()
-        deadline, hinted = start + timeout_s, False
-        while not all(self.alive.get(s) for s in REQUIRED):
-            others = ""
-            if not any(self.alive.values()) and (
-                time.monotonic() - start > 3.0 or time.monotonic() > deadline
-            ):  # nothing of this rig at all: a wrong --rig is the likely cause, say what is there
-                others = self.node.other_rigs()
-                if others and not hinted:
-                    hinted = True
-                    log.warning("nothing of rig %r is alive; on this router: %s (--rig?)",
-                                self.node.keys.rig, others)
-            if time.monotonic() > deadline or self.node.stop.is_set():
-                missing = [s for s in REQUIRED if not self.alive.get(s)]
-                seen = f"; on this router: {others} (--rig?)" if others else ""
-                raise TimeoutError(
-                    f"services not alive after {timeout_s:.0f} s: {missing}{seen}"
-                )
-            time.sleep(0.02)
+        wait_for_services(self.node, self.alive, REQUIRED, timeout_s)
 
     def run_session(
         self,
