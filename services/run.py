@@ -47,7 +47,9 @@ from services.store import Store, StoreError
 from services.store.participants import next_free_ids, reuse_problem
 
 log = logging.getLogger("nod.run")
-SERVICES = ("decision", "actuation", "eyes", "sim")  # and the conductor, "experiment"
+# And the conductor, "experiment". The speaker (`--driver sim`: silent) is not required by a
+# trial; it reports the cues' onsets, stored with each trial. The sim comes last: it is per person.
+SERVICES = ("decision", "actuation", "eyes", "speaker", "sim")
 # The watchdogs judge freshness in wall time (250 ms): below 0.5x the sim camera (30 Hz of sim
 # time) and the gaze keep-alive (20 Hz) come too slowly; above 10x a 2-core host cannot carry
 # the message rates (30 Hz x speed poses, each answered three times) without late inputs.
@@ -238,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     session = args.resume
     try:
         rig = [*SERVICES[:-1], *(["vision"] if args.render else [])]
-        for service in rig:  # the rig: decision, actuation, eyes (, vision) stay up throughout
+        for service in rig:  # the rig: decision, actuation, eyes, speaker (, vision) stay up
             supervisor.start(_spec(service, args, epoch_ns, logs))
         for i in range(args.participants):
             person = _participant(args, i)

@@ -72,8 +72,8 @@ class Topic(Generic[M]):
 
 BASE = ("seq", "t_ns")
 # Every long-running process of a rig sends a heartbeat on rig/status.
-EVERY_SERVICE = ("decision", "actuation", "eyes", "vision", "sim", "experiment", "monitor",
-                 "launcher")
+EVERY_SERVICE = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "experiment",
+                 "monitor", "launcher")
 
 VISION_HAND = Topic(
     "vision/hand", m.HandPose, ("vision", "sim"), ("decision", "actuation", "experiment"),
@@ -133,7 +133,7 @@ EYES_STATE = Topic(
 )
 EXPERIMENT_TRIAL = Topic(
     "experiment/trial", m.TrialEvent, ("experiment",),
-    ("decision", "actuation", "sim", "run", "launcher", "operator"),
+    ("decision", "actuation", "sim", "speaker", "run", "launcher", "operator"),
     "per event", CONTROL,
     "`phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, `mode`, "
     "`option`, `text`, `session`",
@@ -148,6 +148,12 @@ EXPERIMENT_OPERATOR = Topic(
     "experiment/operator", m.OperatorCmd, ("operator",), ("experiment",), "on demand", CONTROL,
     "the operator's start gate: `action` start (the waiting trial) or pause (hold the next "
     "one), `trial` (the trial a start is for; 0: whichever waits), `source` (user@host)",
+)
+SPEAKER_PLAYED = Topic(
+    "speaker/played", m.CuePlayed, ("speaker",), ("experiment",), "per countdown word and go",
+    RELIABLE,
+    "the participant's audio cue as played: `trial`, `cue` (the word), `planned_ns` (the "
+    "`experiment/trial` event's t_ns), `played_ns` (rig clock when the sound started)",
 )
 RIG_STATUS = Topic(
     "rig/status", m.NodeStatus, EVERY_SERVICE, ("status", "experiment"),
@@ -185,8 +191,8 @@ SAFETY_LATCH = Topic(
 _TOPICS: tuple[Topic[m.Message], ...] = (
     VISION_HAND, VISION_LAYOUT, VISION_FRAME, SIM_CAMERA, DECISION_Z_H, DECISION_Z_R, DECISION_B_R,
     ACTUATION_CMD, ACTUATION_STATE, ACTUATION_PRESS, EYES_CMD, EYES_STATE, EXPERIMENT_TRIAL,
-    EXPERIMENT_RESULT, EXPERIMENT_OPERATOR, RIG_STATUS, RIG_EVENT, SAFETY_ESTOP, SAFETY_RELEASE,
-    SAFETY_LATCH,
+    EXPERIMENT_RESULT, EXPERIMENT_OPERATOR, SPEAKER_PLAYED, RIG_STATUS, RIG_EVENT, SAFETY_ESTOP,
+    SAFETY_RELEASE, SAFETY_LATCH,
 )
 TOPICS: dict[str, Topic[m.Message]] = {t.name: t for t in _TOPICS}
 

@@ -270,6 +270,19 @@ class TrialResult(Message, frozen=True, kw_only=True):
     interrupted: bool = False  # broken by a safe stop or e-stop and not repeated: not scored
 
 
+# --- speaker ----------------------------------------------------------------------------------
+
+
+class CuePlayed(Message, frozen=True, kw_only=True):
+    """A countdown word or go as the speaker actually played it (rig-clock ns)."""
+
+    KIND: ClassVar[str] = "played"
+    trial: Trial = 0
+    cue: Annotated[str, msgspec.Meta(min_length=1, max_length=32)] = "go"  # the word said
+    planned_ns: Counter = 0  # the cue's `experiment/trial` event's t_ns
+    played_ns: Counter = 0  # when the driver started the sound
+
+
 # --- safety -----------------------------------------------------------------------------------
 
 

@@ -18,6 +18,7 @@
     [actuation] driver = "feetech"; port = "/dev/ttyUSB0"; config = "arm.toml"
     [eyes]     driver = "maestro"; port = "/dev/ttyACM0"; config = "eyes.toml"
                # state_dir = "/var/lib/nod/state": the e-stop latch (default $NOD_STATE_DIR)
+    [speaker]  driver = "sounddevice"       # the participant's countdown (sim, wav + out = FILE)
     [monitor]  args = ["--serve-web"]
 
 Relative paths are relative to the rig file (every key of FILE_KEYS and FOLDER_KEYS, and
@@ -50,7 +51,7 @@ from services.model.safety import SafetyParams
 
 # Services a rig file may place on a host. The conductor (`nod experiment`) is not one: the
 # operator starts it per participant; `sim` stands in for vision (a rig without a camera).
-SERVICES = ("decision", "actuation", "eyes", "vision", "sim", "monitor")
+SERVICES = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "monitor")
 # What a rig cannot run a trial without (vision or the sim that stands in for it).
 REQUIRED = ("decision", "actuation", "eyes", "vision")
 # The choices each service accepts. The rig file is read below the services (on any host, by
@@ -58,6 +59,7 @@ REQUIRED = ("decision", "actuation", "eyes", "vision")
 ARM_DRIVERS = ("sim", "feetech")
 EYES_DRIVERS = ("sim", "maestro", "arduino")
 TRACKERS = ("aruco", "mediapipe", "sim")
+SPEAKER_DRIVERS = ("sim", "wav", "sounddevice")
 WILDCARD_HOSTS = ("0.0.0.0", "::", "")  # "every interface": never where a router listens unasked
 _PORTED = ("tcp", "tls", "udp", "quic", "ws")  # endpoint schemes that take host:port
 
@@ -152,6 +154,7 @@ _SECTION_KEYS: dict[str, set[str]] = {
     "eyes": {"driver", "port", "config", "trims", "stale_ms", "state_dir", "args"},
     "vision": {"source", "tracker", "calibration", "args"},
     "sim": {"seed", "args"},
+    "speaker": {"driver", "out", "args"},  # out: the wav driver's file
     "monitor": {"args"},
 }
 
@@ -250,7 +253,7 @@ def load_rig(path: str | Path) -> Rig:
         sections[service] = dict(sec)
     for service, key, choices in (
         ("actuation", "driver", ARM_DRIVERS), ("eyes", "driver", EYES_DRIVERS),
-        ("vision", "tracker", TRACKERS),
+        ("vision", "tracker", TRACKERS), ("speaker", "driver", SPEAKER_DRIVERS),
     ):
         value = sections[service].get(key)
         if value is not None and value not in choices:
@@ -258,6 +261,10 @@ def load_rig(path: str | Path) -> Rig:
     for service, key in (*FILE_KEYS, *FOLDER_KEYS):
         if service != "rig" and key in sections[service]:
             sections[service][key] = file(sections[service][key], f"{service}.{key}")
+    if "out" in sections["speaker"]:  # a file to write, not one that must exist
+        sections["speaker"]["out"] = file(sections["speaker"]["out"], "speaker.out")
+    if sections["speaker"].get("driver") == "wav" and "out" not in sections["speaker"]:
+        raise fail("speaker.out", "the wav driver needs a file to write (out = \"cues.wav\")")
     source = sections["vision"].get("source")
     if source is not None and not isinstance(source, str):
         raise fail("vision.source", "must be a string: a camera index, a video file or a URL")

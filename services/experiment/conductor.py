@@ -24,6 +24,7 @@ from pathlib import Path
 from services.core import messages as m
 from services.core.node import Node
 from services.experiment.console import SessionConsole
+from services.experiment.cues import CueLog
 from services.experiment.fields import GazeFields, TrialFields
 from services.experiment.operator import OperatorGate
 from services.experiment.presses import RobotPresses
@@ -108,6 +109,8 @@ class Conductor:
         node.subscribe("rig/event", lambda msg: self.rig.rig_event(self._now_ns(), msg))
         self.gate = OperatorGate()
         node.subscribe("experiment/operator", self.gate.command)
+        self.cues = CueLog()  # the countdown as played, stored with its trial
+        node.subscribe("speaker/played", self.cues.on_played)
         for service in REQUIRED:
             node.watch_liveliness(service, functools.partial(self._liveliness, service))
         # An e-stop engaged while no conductor ran (or before this one started) holds the session
@@ -384,6 +387,7 @@ class Conductor:
                     self.presses.begin(spec.index)
                     self.trial_samples = None
                     self.rig.begin(spec.index, protocol.attempt)
+                    self.cues.begin(spec.index, protocol.attempt)
                     self._seq_regressions = 0
                     self._trial_start_ns = started
                     self.pub_trial.put(phase="setup", text=cue.text, session=self.session, **ev)
@@ -406,7 +410,7 @@ class Conductor:
         """Store the broken start of a trial; the session pauses until the rig is safe."""
         with self.node.lock:
             self.trial_samples = None
-            events = self.rig.take_events()
+            events, cues = self.rig.take_events(), self.cues.take()
             now = self._now_ns()
         log.warning("trial %d (attempt %d) INTERRUPTED: %s", spec.index, protocol.attempt, why)
         self.pub_trial.put(
@@ -418,7 +422,7 @@ class Conductor:
             session=self.session,
         )
         record = Interruption(spec.index, protocol.attempt, self._trial_start_ns, now, why)
-        self.store.write_interruption(self.session, record, events)
+        self.store.write_interruption(self.session, record, events, cues)
         last_chance = (
             not self.proto.repeat_interrupted or protocol.attempt >= self.proto.max_attempts
         )
@@ -466,7 +470,7 @@ class Conductor:
         else:
             j = rec.judge.verdict(end, robot, clicks)
         with self.node.lock:
-            events = self.rig.take_events()
+            events, cues = self.rig.take_events(), self.cues.take()
         # The judgement's fields (presses, outcome, switches, violations, score) are stored and
         # published as they are.
         verdict = dataclasses.asdict(j)
@@ -480,7 +484,7 @@ class Conductor:
         samples = rec.decimated(SAMPLE_HZ) if rec is not None else []
         if rec is not None:  # poses beyond the trial's cap: their count goes on record
             events += rec.drop_records(spec.index, attempt, self._now_ns())
-        self.store.write_trial(self.session, record, samples, events)
+        self.store.write_trial(self.session, record, samples, events, cues)
         self.records.append(record)
         self.console.result(spec.index, spec.mode, spec.option, j.robot, j.human, j.outcome,
                             j.score, interrupted)

@@ -1,11 +1,12 @@
 """`nod export`: a session database as CSV files that pandas and R read directly.
 
 Writes sessions.csv, trials.csv, samples.csv, questionnaires.csv, safety_events.csv,
-rig_events.csv and interruptions.csv into one directory, each with a header row of the
-database's column names (the per-session tables gain a `participant` column after `session`
-for convenience). A trial with `interrupted` = 1 was broken by a safe stop or an e-stop and
-never scored. Conventions, chosen so that `pandas.read_csv(path)` and R's `read.csv(path)`
-need no options:
+rig_events.csv, interruptions.csv and cues.csv (the countdown words and go as `nod speaker`
+played them: planned and played onset, rig-clock ns) into one directory, each with a header
+row of the database's column names (the per-session tables gain a `participant` column after
+`session` for convenience). A trial with `interrupted` = 1 was broken by a safe stop or an
+e-stop and never scored. Conventions, chosen so that `pandas.read_csv(path)` and R's
+`read.csv(path)` need no options:
 
 - UTF-8, comma separated, LF line ends, fields quoted only when needed (the sessions'
   `config` column is JSON text and gets quoted);
@@ -69,6 +70,11 @@ QUERIES: dict[str, str] = {
         "SELECT i.session, s.participant, i.trial, i.attempt, i.t_start_ns, i.t_ns, i.reason "
         "FROM interruptions i LEFT JOIN sessions s ON s.session = i.session "
         "ORDER BY s.started_ns, i.session, i.trial, i.attempt"
+    ),
+    "cues": (
+        "SELECT c.session, s.participant, c.trial, c.attempt, c.cue, c.planned_ns, c.played_ns "
+        "FROM cues c LEFT JOIN sessions s ON s.session = c.session "
+        "ORDER BY s.started_ns, c.session, c.trial, c.attempt, c.planned_ns"
     ),
 }
 

@@ -55,6 +55,11 @@ def command(
         cmd += ["--source", str(sec.get("source", "0")), "--tracker", sec.get("tracker", "aruco")]
         if "calibration" in sec:
             cmd += ["--calibration", str(sec["calibration"])]
+    elif name == "speaker":
+        driver = "sim" if sim_hardware else sec.get("driver", "sim")
+        cmd += ["--driver", driver]
+        if driver == "wav":
+            cmd += ["--out", str(sec["out"])]
     elif name == "sim" and "seed" in sec:
         cmd += ["--seed", str(int(sec["seed"]))]
     cmd += list(sec.get("args", []))

@@ -1,6 +1,7 @@
 """The session store: one SQLite file per study, written by the conductor, read by the tools."""
 
 from services.store.records import (
+    CueRecord,
     Interruption,
     QuestionnaireRecord,
     RigEventRecord,
@@ -13,6 +14,7 @@ from services.store.records import (
 from services.store.store import Store, StoreError
 
 __all__ = [
+    "CueRecord",
     "Interruption",
     "QuestionnaireRecord",
     "RigEventRecord",

@@ -108,6 +108,17 @@ class RigEventRecord:
 
 
 @dataclass(frozen=True, slots=True)
+class CueRecord:
+    """A countdown word or go as the speaker played it (`speaker/played`), rig-clock ns."""
+
+    trial: int
+    attempt: int  # which start of that trial
+    cue: str  # the word: "1", "2", "3", "go"
+    planned_ns: int  # the cue's `experiment/trial` event
+    played_ns: int  # when the sound started
+
+
+@dataclass(frozen=True, slots=True)
 class Interruption:
     """One start of a trial that a safe stop or an e-stop broke."""
 

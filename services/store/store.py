@@ -1,6 +1,7 @@
 """The session store: one SQLite file (WAL) with sessions, trials, samples and questionnaires.
 
-Samples are decimated; questionnaires hold the post-session answers Q1-Q5 of paper Sec 8;
+Samples are decimated; cues hold the participant's countdown as the speaker played it;
+questionnaires hold the post-session answers Q1-Q5 of paper Sec 8;
 recordings link a session to the MCAP files `nod record` wrote of it (`nod experiment --record`);
 participants hold consent and demographics, session_orders the O order each session ran and why
 a participant got another session (`services.store.participants`).
@@ -24,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from services.store.records import (
+    CueRecord,
     Interruption,
     QuestionnaireRecord,
     RigEventRecord,
@@ -96,6 +98,15 @@ CREATE TABLE IF NOT EXISTS interruptions (
     reason     TEXT NOT NULL,
     PRIMARY KEY (session, trial, attempt)
 );
+CREATE TABLE IF NOT EXISTS cues (
+    session    TEXT NOT NULL,
+    trial      INTEGER NOT NULL,
+    attempt    INTEGER NOT NULL,
+    cue        TEXT NOT NULL,
+    planned_ns INTEGER NOT NULL,
+    played_ns  INTEGER NOT NULL
+);
+CREATE INDEX IF NOT EXISTS cues_by_trial ON cues (session, trial, planned_ns);
 CREATE TABLE IF NOT EXISTS open_attempts (
     session    TEXT PRIMARY KEY REFERENCES sessions(session),
     trial      INTEGER NOT NULL,
@@ -287,8 +298,9 @@ class Store:
         rec: TrialRecord,
         samples: Iterable[Sample],
         events: Iterable[SafetyEvent | RigEventRecord] = (),
+        cues: Iterable[CueRecord] = (),
     ) -> None:
-        """Store one trial, its samples and the safety events since the last write atomically."""
+        """Store one trial, its samples and cues, and the events since the last write, at once."""
         with self.db:
             self.db.execute("BEGIN")
             self.db.execute(
@@ -297,6 +309,7 @@ class Store:
                 (session, *astuple_record(rec)),
             )
             self._events(session, events)
+            self._cues(session, cues)
             self._close_attempt(session, rec.trial)
             self.db.execute(
                 "DELETE FROM samples WHERE session = ? AND trial = ?", (session, rec.trial)
@@ -325,9 +338,13 @@ class Store:
             )
 
     def write_interruption(
-        self, session: str, rec: Interruption, events: Iterable[SafetyEvent | RigEventRecord] = ()
+        self,
+        session: str,
+        rec: Interruption,
+        events: Iterable[SafetyEvent | RigEventRecord] = (),
+        cues: Iterable[CueRecord] = (),
     ) -> None:
-        """Store a broken start of a trial with the safety events that broke it, atomically."""
+        """Store a broken start of a trial, the events that broke it and its cues atomically."""
         with self.db:
             self.db.execute("BEGIN")
             self.db.execute(
@@ -335,6 +352,7 @@ class Store:
                 (session, *astuple_record(rec)),
             )
             self._events(session, events)
+            self._cues(session, cues)
             self._close_attempt(session, rec.trial)
 
     def write_events(
@@ -354,6 +372,12 @@ class Store:
         self.db.executemany(
             "INSERT INTO rig_events VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
             [(session, *astuple_record(e)) for e in events if isinstance(e, RigEventRecord)],
+        )
+
+    def _cues(self, session: str, cues: Iterable[CueRecord]) -> None:
+        self.db.executemany(
+            "INSERT INTO cues VALUES (?, ?, ?, ?, ?, ?)",
+            [(session, *astuple_record(c)) for c in cues],
         )
 
     def rig_events(self, session: str) -> list[RigEventRecord]:

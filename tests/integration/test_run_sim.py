@@ -95,6 +95,14 @@ def test_full_session_on_the_simulator(tmp_path):
     assert con.execute("SELECT COUNT(*) FROM samples WHERE theta IS NOT NULL").fetchone()[0] > 0
     status = con.execute("SELECT status FROM sessions").fetchall()
     assert status == [("complete",)]
+    # The silent speaker reports every cue, stored with its trial (trial 1's countdown may come
+    # before the speaker listens: the conductor does not wait for it).
+    cues = con.execute("SELECT trial, cue, planned_ns, played_ns FROM cues").fetchall()
+    later = [c for c in cues if c[0] >= 2]
+    assert sorted((t, c) for t, c, _, _ in later) == [
+        (t, c) for t in range(2, 9) for c in ("1", "2", "3", "go")
+    ]
+    assert all(0 <= (played - planned) / 8 <= 200e6 for *_, planned, played in cues)
 
 
 def test_ctrl_c_stops_every_child(tmp_path):

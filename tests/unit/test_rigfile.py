@@ -135,11 +135,13 @@ def test_the_rig_file_accepts_exactly_what_the_services_accept() -> None:
     from services.actuation.drivers import ARM_DRIVERS
     from services.core import rigfile
     from services.eyes.drivers import EYES_DRIVERS
+    from services.speaker.drivers import DRIVERS as SPEAKER_DRIVERS
     from services.vision.trackers import TRACKERS
 
     assert rigfile.ARM_DRIVERS == ARM_DRIVERS
     assert rigfile.EYES_DRIVERS == EYES_DRIVERS
     assert set(rigfile.TRACKERS) == set(TRACKERS)
+    assert rigfile.SPEAKER_DRIVERS == SPEAKER_DRIVERS
 
 
 def test_endpoints_split_into_scheme_host_and_port() -> None:
@@ -149,3 +151,18 @@ def test_endpoints_split_into_scheme_host_and_port() -> None:
     for bad in ("192.168.10.1:7447", "tcp/host", "tcp/host:0", "tcp/host:65536", "tcp/h:x"):
         with pytest.raises(ValueError):
             split_endpoint(bad)
+
+
+def test_a_rig_may_place_the_speaker_and_its_wav_file_is_relative_to_the_rig(
+    tmp_path: Path,
+) -> None:
+    text = GOOD.replace('services = ["monitor"]', 'services = ["monitor", "speaker"]')
+    rig = load_rig(write(tmp_path, text + '[speaker]\ndriver = "wav"\nout = "cues.wav"\n'))
+    cmd = command(rig, "speaker")
+    assert cmd[cmd.index("--driver") + 1 :][:3] == ["wav", "--out", str(tmp_path / "cues.wav")]
+    assert "speaker" not in rig.required  # a trial runs without its cue
+    assert command(rig, "speaker", sim_hardware=True)[-2:] == ["--driver", "sim"]
+    with pytest.raises(RigFileError, match="speaker.out"):
+        load_rig(write(tmp_path, text + '[speaker]\ndriver = "wav"\n'))
+    with pytest.raises(RigFileError, match="speaker.driver"):
+        load_rig(write(tmp_path, text + '[speaker]\ndriver = "alsa"\n'))

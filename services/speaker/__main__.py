@@ -1,0 +1,5 @@
+"""`python -m services.speaker`: the same as `nod speaker`."""
+
+from services.speaker.service import main
+
+raise SystemExit(main())
