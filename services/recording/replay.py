@@ -23,8 +23,9 @@ publishes — `vision/hand` and `vision/layout` — less `rig/event` (the record
 account of its processes: replayed, it would interrupt trials for crashes that are not
 happening) and `safety/*` (operator acts: an e-stop replayed would hold the rig, and a release
 is never replayed from a file — it could release an e-stop engaged live; `safety/release` is
-left out of every replay unless named with `--only`) and `experiment/operator` (the live operator
-starts and holds the trials). A replay of vision keys holds the
+left out of every replay unless named with `--only`), `experiment/operator` (the live operator
+starts and holds the trials) and `speaker/played` (the recorded countdown's onsets: they would
+be stored under the replayed trials). A replay of vision keys holds the
 `vision` liveliness token, as the sim participant does, so the services that require vision
 accept it.
 

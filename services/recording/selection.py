@@ -32,6 +32,8 @@ NOT_INPUTS = {
     "interrupt trials for crashes that are not happening",
     "safety/estop": "an operator's act: replayed without its release it holds the rig",
     "experiment/operator": "an operator's act: the live operator starts and holds the trials",
+    "speaker/played": "the onsets of the recorded countdown: a live speaker reports those of "
+    "the replayed one, and the old ones would be stored under the new trials",
     "safety/release": "an operator's act, never replayed from a file: it could release an "
     "e-stop engaged live",
 }
