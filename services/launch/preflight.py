@@ -7,7 +7,8 @@ camera and no trims): each file exists, is readable and parses as what it is, wi
 services' own loaders (the arm file with the arm's, the eyes file and the trims with the eyes',
 the vision calibration with vision's, each zenoh identity of rig.tls with zenoh's, and the
 certificates it names with `cryptography`); each serial port is a character device this user
-may read and write; each camera is there (an index N is /dev/videoN). Every problem is one line
+may read and write; each camera is there (an index N is /dev/videoN); the speaker's WAV folder
+is writable, or its sound library installed. Every problem is one line
 that starts with the rig file's key (`actuation.port: …`); `nod up --dry-run` prints them all
 and exits 2. Nothing is opened for I/O: a device in use by a running service stays untouched.
 """
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import datetime
 import getpass
+import importlib.util
 import json
 import os
 import stat
@@ -48,7 +50,23 @@ def problems(
             out += _camera("vision.source", str(sec.get("source", "0")))
             if "calibration" in sec:
                 out += _parsed("vision.calibration", sec["calibration"], _calibration_file)
+        elif service == "speaker":
+            out += _speaker(sec, sim_hardware)
     return out
+
+
+def _speaker(sec: dict[str, Any], sim_hardware: bool) -> list[str]:
+    """The speaker's WAV file's folder, or its sound library (found, not loaded: PortAudio)."""
+    driver = "sim" if sim_hardware else sec.get("driver", "sim")
+    if driver == "wav":
+        folder = Path(sec["out"]).parent
+        if not folder.is_dir():
+            return [f"speaker.out: the folder {folder} does not exist: create it"]
+        return _folder("speaker.out", folder)
+    if driver == "sounddevice" and importlib.util.find_spec("sounddevice") is None:
+        return ["speaker.driver: the sounddevice driver needs the audio extra: pip install "
+                "'nod-hri[audio]' (and PortAudio: apt install libportaudio2)"]
+    return []
 
 
 def _device_service(service: str, sec: dict[str, Any], sim_hardware: bool) -> list[str]:

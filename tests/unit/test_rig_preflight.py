@@ -8,6 +8,7 @@ are one line each.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 from collections.abc import Iterator
@@ -205,3 +206,22 @@ def test_tls_identities_and_their_certificates(rig: Path, capsys) -> None:
     code, lines = dry_run(rig, capsys, "--host", "control")
     assert code == 2 and lines[0].startswith("nod up: rig.tls (the router's config): ")
     assert "is not a zenoh config" in lines[0], lines
+
+
+def test_the_speaker_needs_its_wav_folder_or_its_sound_library(rig: Path, capsys) -> None:
+    _edit(rig, 'services = ["monitor"]', 'services = ["monitor", "speaker"]')
+    text = rig.read_text()
+    rig.write_text(text + '[speaker]\ndriver = "wav"\nout = "audio/cues.wav"\n')
+    code, lines = dry_run(rig, capsys)
+    assert code == 2 and any(ln.startswith("nod up: speaker.out: ") and "audio does not exist"
+                             in ln for ln in lines), lines
+    (rig.parent / "audio").mkdir()
+    assert dry_run(rig, capsys) == (0, [])
+    rig.write_text(text + '[speaker]\ndriver = "sounddevice"\n')
+    if importlib.util.find_spec("sounddevice") is None:  # not installed (as in CI)
+        code, lines = dry_run(rig, capsys)
+        assert code == 2 and lines == [
+            "nod up: speaker.driver: the sounddevice driver needs the audio extra: pip install "
+            "'nod-hri[audio]' (and PortAudio: apt install libportaudio2)"
+        ]
+    assert dry_run(rig, capsys, "--sim-hardware") == (0, [])
