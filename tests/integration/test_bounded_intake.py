@@ -66,8 +66,16 @@ def _only_small_ones_arrive(sender: zenoh.Session, receiver: zenoh.Session) -> N
     sub = receiver.declare_subscriber(
         KEYS.all, lambda s: raw.append((str(s.key_expr), len(s.payload)))
     )
-    pubs = {k: sender.declare_publisher(KEYS.topic(k)) for k in (*keys, "vision/frame")}
-    time.sleep(0.3)  # declarations propagate (nothing to poll for on a key that may stay silent)
+    pubs = {
+        k: sender.declare_publisher(
+            KEYS.topic(k), congestion_control=zenoh.CongestionControl.BLOCK  # none lost to load
+        )
+        for k in (*keys, "vision/frame")
+    }
+    # The subscriber's route is up for every key before anything is sent (a loaded machine
+    # takes longer than any fixed pause).
+    wait_for(lambda: all(p.matching_status.matching for p in pubs.values()), 10,
+             "the receiver's subscription at the sender")
     for i in range(3):
         for k in keys:
             pubs[k].put(b"\x00" * 60_000)
