@@ -143,3 +143,69 @@ def test_a_cue_message_is_ranged(bad: dict) -> None:
     assert m.decode(m.CuePlayed, msgspec.msgpack.encode(fields)).cue == "go"
     with pytest.raises(m.MessageError):
         m.decode(m.CuePlayed, msgspec.msgpack.encode({**fields, **bad}))
+
+
+class _FakeStream:
+    """A PortAudio output stream: 10 ms buffers whose first sample leaves 20 ms later."""
+
+    def __init__(self, *, callback, samplerate: int, **_: object) -> None:
+        import threading
+        import time as _time
+
+        self.callback, self.rate, self._t0 = callback, samplerate, _time.monotonic()
+        self._clock = _time.monotonic
+        self.out: list[np.ndarray] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    @property
+    def time(self) -> float:
+        return self._clock() - self._t0
+
+    def _run(self) -> None:
+        from types import SimpleNamespace
+
+        frames = self.rate // 100
+        while not self._stop.wait(0.01):
+            buf = np.zeros((frames, 1), np.float32)
+            self.callback(buf, frames, SimpleNamespace(outputBufferDacTime=self.time + 0.02), None)
+            self.out.append(buf[:, 0].copy())
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_sounddevice_driver_reports_the_first_samples_output_time(monkeypatch) -> None:
+    import sys
+    from types import SimpleNamespace
+
+    streams: list[_FakeStream] = []
+
+    def output_stream(**kw):
+        streams.append(_FakeStream(**kw))
+        return streams[-1]
+
+    monkeypatch.setitem(sys.modules, "sounddevice", SimpleNamespace(OutputStream=output_stream))
+    clock = Clock(speed=2.0)
+    with SoundDeviceSpeaker() as speaker:
+        speaker.connect(clock)
+        before = clock.now_ns()
+        onset = speaker.play(render(GO))
+        after = clock.now_ns()
+    # The tone leaves 20 ms (wall) after the buffer that takes it, which comes within ~10 ms:
+    # on a clock at 2x, 40-60 ms of rig time after the call (less the lock hand-over).
+    assert before + 39e6 <= onset <= after + 45e6, (onset - before) / 1e6
+    # The tone went out from the start of one buffer, silence before it (the stream was closed
+    # at its onset: only its first buffers went out).
+    played, tone = np.concatenate(streams[0].out), render(GO)
+    start = (int(np.flatnonzero(played)[0]) - 1) // 480 * 480
+    n = min(len(tone), len(played) - start)
+    assert n >= 480 and np.array_equal(played[start : start + n], tone[:n])
+    assert not np.any(played[:start])
