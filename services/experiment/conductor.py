@@ -4,9 +4,9 @@ It drives the protocol state machine (`services.model.protocol.SessionProtocol`,
 the offline loop drives) and does what its cues say: command the gaze (the attention gesture's
 poses too), announce the setup (decision and actuation reset), count "1, 2, 3, go", record the
 streams, and at the end of a trial (the human's press or the timeout, then the robot's press)
-judge it (`services.model.judge.TrialJudge`), store it with its samples in one SQLite
-transaction, and publish the result. `nod experiment` (`services.experiment.service`) is its
-command line.
+judge it (`services.model.judge.TrialJudge`), store it with its samples and its cues as played
+(`nod speaker`, `services.experiment.cues`) in one SQLite transaction, and publish the
+result. `nod experiment` (`services.experiment.service`) is its command line.
 """
 
 from __future__ import annotations
