@@ -180,10 +180,12 @@ def test_through_decision_with_another_b_star_changes_b_r_in_consensus_trials(re
         assert res.returncode == 0, res.stderr
         assert len([ln for ln in res.stdout.splitlines() if ln.startswith("trial ")]) == 3
 
+    gap: dict[int, int] = {}  # trial → the first hand seq after its "go" the recording lacks
+
     def per_trial(path: Path) -> tuple[dict[int, dict[int, float]], int]:
         """b_r by trial (from "go" to "end") and by the pose it answers; the hand count."""
         b_r: dict[int, dict[int, float]] = {}
-        trial, hands = 0, 0
+        trial, hands, last = 0, 0, None
         for e in McapIn(path):
             topic = topic_of(e.key)
             if topic == "experiment/trial":
@@ -191,6 +193,10 @@ def test_through_decision_with_another_b_star_changes_b_r_in_consensus_trials(re
                 trial = ev.trial if ev.phase == "go" else 0
             elif topic == "vision/hand":
                 hands += 1
+                seq = m.decode(m.HandPose, e.message.data).seq
+                if trial and last is not None and seq > last + 1:
+                    gap.setdefault(trial, last + 1)
+                last = seq
             elif topic == "decision/b_r" and trial:
                 msg = m.decode(m.Scalar, e.message.data)
                 b_r.setdefault(trial, {})[msg.src_seq] = msg.value
@@ -205,11 +211,15 @@ def test_through_decision_with_another_b_star_changes_b_r_in_consensus_trials(re
         return [(a[k], b[k]) for k in sorted(set(a) & set(b))]
 
     for trial in (2, 3):  # consensus trials
-        # The recording's own parameters give the recorded b_r again. (A pose the recorder's
-        # link dropped under load can change the values after it a little.)
+        # The recording's own parameters give the recorded b_r again, up to the first pose the
+        # recorder missed (a loaded machine drops some on the recorder's link, and the values
+        # after one differ a little), and close at the end.
         pairs = common(orig[trial], again[trial])
         assert len(pairs) > 20
-        assert sum(x == y for x, y in pairs) >= 0.9 * len(pairs)
+        first_gap = gap.get(trial, 2**62)
+        whole = [(x, y) for k, (x, y) in zip(sorted(set(orig[trial]) & set(again[trial])), pairs,
+                                             strict=True) if k < first_gap]
+        assert whole and sum(x == y for x, y in whole) >= 0.9 * len(whole), (len(whole), gap)
         assert pairs[-1][1] == pytest.approx(pairs[-1][0], abs=0.05)
         # b* = u_r instead of u_r + 2.3: another bias
         assert max(abs(x - y) for x, y in common(orig[trial], changed[trial])) > 0.1
