@@ -121,3 +121,18 @@ class FakeConductor:
         self.quit.set()
         self.thread.join()
         self.token.undeclare()
+
+
+def connect_when_listening(
+    endpoint: str, timeout_s: float = 30.0, alive: Callable[[], bool] | None = None
+):
+    """A client session on a router that is starting up (`nod run`, `nod router`), once it
+    listens; ConnectionError after `timeout_s`, or as soon as `alive()` says its process died."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return open_session(make_config(mode="client", connect=[endpoint]))
+        except ConnectionError:
+            if time.monotonic() > deadline or (alive is not None and not alive()):
+                raise
+            time.sleep(0.05)

@@ -18,7 +18,7 @@ from services.core.keys import Keys
 from services.core.session import make_config, open_session
 from tests.processes import ROOT, stop_all
 
-from .conftest import Collector, wait_for
+from .conftest import Collector, connect_when_listening, wait_for
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
@@ -41,18 +41,6 @@ def _rss_kb(pid: int) -> int:
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
     raise AssertionError("no VmRSS")
-
-
-def _connect_when_listening(endpoint: str, router: subprocess.Popen) -> zenoh.Session:
-    """A rig client of the router process, as soon as it listens."""
-    deadline = time.monotonic() + 20
-    while True:
-        try:
-            return open_session(make_config(mode="client", connect=[endpoint]))
-        except ConnectionError:
-            if router.poll() is not None or time.monotonic() > deadline:
-                raise
-            time.sleep(0.05)
 
 
 def _gaze(seq: int) -> bytes:
@@ -118,7 +106,7 @@ def test_a_burst_of_large_messages_leaves_router_and_eyes_within_20_mb(endpoint,
     attackers: list[zenoh.Session] = []
     client = None
     try:
-        client = _connect_when_listening(endpoint, router)
+        client = connect_when_listening(endpoint, 20, alive=lambda: router.poll() is None)
         eyes = spawn("eyes", "--driver", "sim")
         states = Collector(client, KEYS.topic("eyes/state"), m.EyesStateMsg)
         wait_for(lambda: len(states.items) > 20, 30, "the eyes publishing their state")

@@ -19,30 +19,17 @@ from services.actuation.calibrate import config_toml
 from services.actuation.feetech_arm import FeetechArmConfig
 from services.core import messages as m
 from services.core.keys import Keys
-from services.core.session import make_config, open_session
 from services.store import Store
 from tests.emulators.feetech_emulator import IDS, POSES, FeetechBusEmulator
 from tests.emulators.links import FAST
 from tests.emulators.maestro_emulator import MaestroEmulator
 from tests.processes import stop_all
 
-from .conftest import ROOT, SHORT, Collector, free_port, wait_for
+from .conftest import ROOT, SHORT, Collector, connect_when_listening, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
 FAULT_BOUND_S = 0.3
-
-
-def _connect(endpoint: str, timeout_s: float = 30.0):
-    """A client session on `nod run`'s router, once it listens."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            return open_session(make_config(mode="client", connect=[endpoint]))
-        except Exception:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.1)
 
 
 def _go_of(events: Collector, trial: int, after: int = 0) -> bool:
@@ -83,7 +70,7 @@ def test_a_silent_and_an_unplugged_bus_interrupt_their_trials(tmp_path, device):
         )
         client = None
         try:
-            client = _connect(endpoint)
+            client = connect_when_listening(endpoint)
             events = Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
             arm = Collector(client, KEYS.topic(f"{device}/state"), state_cls)
             delays = {}

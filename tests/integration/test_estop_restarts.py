@@ -21,11 +21,18 @@ import pytest
 
 from services.core import messages as m
 from services.core.keys import Keys
-from services.core.session import make_config, open_session
 from services.store import Store
 from tests.processes import run_nod, stop_all
 
-from .conftest import ROOT, SHORT, Collector, FakeConductor, free_port, wait_for
+from .conftest import (
+    ROOT,
+    SHORT,
+    Collector,
+    FakeConductor,
+    connect_when_listening,
+    free_port,
+    wait_for,
+)
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
@@ -67,17 +74,6 @@ class Procs:
         stop_all(self.procs.values())
 
 
-def _connect(endpoint: str):
-    deadline = time.monotonic() + 30
-    while True:
-        try:
-            return open_session(make_config(mode="client", connect=[endpoint]))
-        except ConnectionError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.1)
-
-
 def estop(endpoint: str, *extra: str) -> subprocess.CompletedProcess:
     return run_nod("estop", "--connect", endpoint, "--timeout", "5", *extra, timeout=60)
 
@@ -97,7 +93,7 @@ def test_an_estop_survives_kill9_of_devices_and_router_until_released(tmp_path):
     rig.start("router")
     client = conductor = None
     try:
-        client = _connect(endpoint)
+        client = connect_when_listening(endpoint)
         for service in ("decision", "actuation", "eyes", "sim"):
             rig.start(service)
         conductor = FakeConductor(client)
@@ -162,7 +158,7 @@ def test_an_estop_survives_kill9_of_the_launcher(tmp_path):
     launcher = up()
     client = None
     try:
-        client = _connect(endpoint)
+        client = connect_when_listening(endpoint)
         arm = Collector(client, KEYS.topic("actuation/state"), m.ArmStateMsg)
         wait_for(lambda: arm.items and not arm.items[-1][1].safe_stop, 60, "the arm free to run")
         engaged = estop(endpoint, "--devices", "actuation")
@@ -215,7 +211,7 @@ def test_an_estop_survives_kill9_of_the_conductor_alone_and_with_a_device(tmp_pa
         return proc
 
     try:
-        client = _connect(endpoint)
+        client = connect_when_listening(endpoint)
         for service in ("decision", "actuation", "eyes", "sim"):
             rig.start(service)
         events = Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)

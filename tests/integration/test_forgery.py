@@ -15,10 +15,9 @@ import pytest
 
 from services.core import messages as m
 from services.core.keys import Keys
-from services.core.session import make_config, open_session
 from services.store import Store
 
-from .conftest import ROOT, free_port
+from .conftest import ROOT, connect_when_listening, free_port
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
@@ -67,18 +66,9 @@ def _session_with(tmp_path, attack) -> tuple[subprocess.CompletedProcess, Store,
     return run, Store(db), logs_text
 
 
-def _connect(endpoint: str):
-    for _ in range(100):
-        try:
-            return open_session(make_config(mode="client", connect=[endpoint]))
-        except ConnectionError:
-            time.sleep(0.1)
-    raise AssertionError("no router")
-
-
 def test_forged_robot_presses_are_refused(tmp_path):
     def attack(endpoint: str, stop: threading.Event) -> None:
-        session = _connect(endpoint)
+        session = connect_when_listening(endpoint)
         press = session.declare_publisher(KEYS.topic("actuation/press"))
         seq = 0
         while not stop.wait(0.02):  # both buzzers, every trial, 50 times a second
@@ -105,7 +95,7 @@ def test_forged_robot_presses_are_refused(tmp_path):
 
 def test_a_second_hand_stream_voids_the_trials_instead_of_scoring_them(tmp_path):
     def attack(endpoint: str, stop: threading.Event) -> None:
-        session = _connect(endpoint)
+        session = connect_when_listening(endpoint)
         hand = session.declare_publisher(KEYS.topic("vision/hand"))
         seq = 0
         while not stop.wait(1 / 30):  # a hand parked on the red buzzer, with its own numbering
