@@ -187,6 +187,23 @@ class Conductor:
     def _now_s(self) -> float:
         return self.node.clock.now_ns() * NS
 
+    def hear_the_devices(self, timeout_s: float) -> bool:
+        """Block until a state of each device has arrived, or `timeout_s` (wall) has passed.
+
+        Call it before `node.ready()`. A device in a safe stop because no conductor was alive
+        clears it as soon as it sees this conductor's liveliness token; a state carrying that
+        reason must reach this conductor first, or the stop during the gap is never stored
+        (seen under load: the token and the subscription reached the arm in one batch).
+        Devices not up yet are waited for later, by `wait_for_services`.
+        """
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and not self.node.stop.is_set():
+            with self.node.lock:
+                if self.rig.heard_every_device():
+                    return True
+            time.sleep(0.01)
+        return False
+
     def wait_for_services(self, timeout_s: float) -> None:
         """Block until every required service's liveliness token is seen (wall clock)."""
         wait_for_services(self.node, self.alive, REQUIRED, timeout_s)

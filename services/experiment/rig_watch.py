@@ -123,6 +123,10 @@ class RigWatch:
         fresh = all(mono - self._seen.get(d, -(2**62)) < self.settle_ns for d in DEVICES)
         return fresh and self._safe_since is not None and mono - self._safe_since >= self.settle_ns
 
+    def heard_every_device(self) -> bool:
+        """Whether a state of every device has arrived (since this conductor started)."""
+        return all(d in self._seen for d in DEVICES)
+
     @property
     def estop_engaged(self) -> bool:
         """Whether an e-stop holds the rig (until a release)."""

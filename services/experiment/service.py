@@ -35,6 +35,7 @@ from services.store.participants import next_free_ids, record_order
 
 log = logging.getLogger("nod.experiment")
 RECORDER_READY_S = 30.0  # wall seconds for `nod record` to start and subscribe
+HEAR_DEVICES_S = 5.0  # wall seconds to hear the devices before declaring this conductor alive
 
 
 def ask_clicks(trial: int, read_line: Callable[[str], str] = input) -> int | None:
@@ -225,6 +226,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     params_check = ParamsCheck(node)
     conductor = Conductor(node, cfg, store, clicks, console, resume_at=resume_at)
+    # The devices' states first, then this conductor's liveliness: a safe stop they hold
+    # because no conductor ran is stored before they clear it (see `hear_the_devices`).
+    conductor.hear_the_devices(min(args.wait_services, HEAR_DEVICES_S))
     node.ready()
     session = args.resume or args.session or uuid.uuid4().hex[:12]
     recorder = None

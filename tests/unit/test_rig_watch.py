@@ -131,3 +131,16 @@ def test_a_forged_state_flipping_safe_stop_is_followed_but_its_records_are_bound
     assert len(dropped) == 1 and dropped[0].kind == "dropped"
     assert dropped[0].code == limit.dropped == flips - len(stored)
     assert "safety events dropped" in dropped[0].text and dropped[0].trial == 2
+
+
+def test_every_device_is_heard_only_once_each_has_sent_a_state():
+    rig, clock = watch()
+    assert not rig.heard_every_device()
+    rig.device_state("actuation", True, "experiment not alive", 0)
+    assert not rig.heard_every_device()  # the eyes not yet
+    rig.device_state("eyes", False, "", 0)
+    assert rig.heard_every_device()
+    # The safe stop held while no conductor ran is on record, to be filed under the open trial.
+    assert [(e.device, e.event, e.reason) for e in rig.take_events()] == [
+        ("actuation", "safe_stop", "experiment not alive")
+    ]
