@@ -92,6 +92,11 @@ class Watchdog:
     # not know yet stays stopped, whatever its inputs.
     latch_known: bool = False
     latch_warning: str = ""  # e.g. the latch could not be saved (its host's disk is full)
+    # The id acknowledged while the last command obeyed is not yet saved (None: it is saved).
+    # An engage stops the device at once, before its latch reaches the disk (a slow fsync must
+    # not delay a stop), but is acknowledged only once saved: an acknowledged e-stop survives
+    # a restart.
+    _unsaved_ack: str | None = None
     fault: str | None = None  # the device driver's fault, while it has one
     clock_faults: int = 0  # messages refused for their timestamp
 
@@ -123,8 +128,15 @@ class Watchdog:
 
     def command(self, engaged: bool, reason: str, source: str, command_id: str) -> Verdict:
         """An e-stop command (engage or release): obeyed, a repeat, or refused (a stale release)."""
+        before = self.latch.id
         self.latch, verdict = self.latch.command(engaged, reason, source, command_id)
+        if verdict == "obeyed" and self._unsaved_ack is None:
+            self._unsaved_ack = before
         return verdict
+
+    def latch_saved(self) -> None:
+        """The latch is on disk (or could not be, and says so): acknowledge its last command."""
+        self._unsaved_ack = None
 
     def estop(self, engaged: bool, reason: str = "", command_id: str = "") -> Verdict:
         """Engage or release the e-stop (`command` without a source)."""
@@ -146,8 +158,8 @@ class Watchdog:
 
     @property
     def estop_id(self) -> str:
-        """The last e-stop command obeyed (engage or release), for acknowledgements."""
-        return self.latch.id
+        """The last e-stop command obeyed (engage or release) and saved, for acknowledgements."""
+        return self.latch.id if self._unsaved_ack is None else self._unsaved_ack
 
     def required(self) -> tuple[str, ...]:
         """Every service whose liveliness is needed now."""

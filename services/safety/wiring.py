@@ -30,11 +30,11 @@ def watch_safety_inputs(
 
     The latch comes from `latch_file` (None: kept in memory only, for in-process tests) merged
     with what the rig's other devices answer on `safety/latch`; until both are in, the watchdog
-    keeps the device stopped. Every e-stop command obeyed is saved to the file before the device
-    acts on it (and so before it acknowledges it). Liveliness is watched for every service in the
-    watchdog's `require_alive` and in `also_watch` (services it requires only at times, e.g. the
-    conductor during a trial); an e-stop (or its release) is acted on at once rather than at the
-    next periodic tick.
+    keeps the device stopped. An engage is acted on at once, then saved to the file, then
+    acknowledged; a release is saved before the device acts on it (moves again). Liveliness is
+    watched for every service in the watchdog's `require_alive` and in `also_watch` (services it
+    requires only at times, e.g. the conductor during a trial); an e-stop (or its release) is
+    acted on at once rather than at the next periodic tick.
     """
     with node.lock:
         if latch_file is not None:
@@ -44,14 +44,14 @@ def watch_safety_inputs(
                             latch_file.path, watchdog.latch.reason)
 
     def save() -> None:
-        if latch_file is None:
-            return
-        try:
-            latch_file.save(watchdog.latch)
-            watchdog.latch_warning = ""
-        except OSError as exc:
-            watchdog.latch_warning = f"e-stop latch not saved: {exc}"
-            log.error("%s: %s", node.service, watchdog.latch_warning)
+        if latch_file is not None:
+            try:
+                latch_file.save(watchdog.latch)
+                watchdog.latch_warning = ""
+            except OSError as exc:
+                watchdog.latch_warning = f"e-stop latch not saved: {exc}"
+                log.error("%s: %s", node.service, watchdog.latch_warning)
+        watchdog.latch_saved()
 
     def on_command(msg: m.Estop, engage: bool) -> None:
         if msg.engaged != engage:  # each key carries one direction (an ACL may guard release)
@@ -61,10 +61,12 @@ def watch_safety_inputs(
             return  # `nod estop` repeats a command until every device has acknowledged it
         if verdict == "refused":
             raise ValueError(f"a release without a fresh id ({msg.id!r}: replayed?) is refused")
-        save()
+        if engage:  # stop at once: two fsyncs on a busy disk took over a second under load
+            act_now(node.clock.now_ns())
+        save()  # a release is saved before the device moves again
         state = "ENGAGED" if engage else "released"
         log.warning("%s: e-stop %s by %s: %s", node.service, state, msg.source or "?", msg.reason)
-        act_now(node.clock.now_ns())
+        act_now(node.clock.now_ns())  # and acknowledged (estop_id) once saved
 
     def latch_msg() -> m.LatchMsg:
         latch = watchdog.latch

@@ -150,9 +150,18 @@ def test_a_trial_can_require_the_conductor_and_release_it():
     assert not wd.check(0).safe_stop
 
 
-def test_the_estop_command_id_is_kept_for_the_acknowledgement():
+def test_the_estop_command_id_is_acknowledged_only_once_its_latch_is_saved():
     wd = make()
     wd.estop(True, "operator", "cmd-1")
-    assert wd.estopped and wd.estop_id == "cmd-1"
+    # Obeyed (the device stops at once) but not acknowledged until the latch is on disk.
+    assert wd.estopped and wd.check(0).safe_stop and wd.estop_id == ""
+    wd.latch_saved()
+    assert wd.estop_id == "cmd-1"
+    assert wd.estop(True, "operator", "cmd-1") == "repeat" and wd.estop_id == "cmd-1"
     wd.estop(False, "", "cmd-2")
-    assert not wd.estopped and wd.estop_id == "cmd-2"
+    assert not wd.estopped and wd.estop_id == "cmd-1"
+    # A second command before the first was saved: the last saved one is still what is shown.
+    wd.estop(True, "again", "cmd-3")
+    assert wd.estop_id == "cmd-1"
+    wd.latch_saved()
+    assert wd.estopped and wd.estop_id == "cmd-3"
