@@ -22,6 +22,7 @@ from services.core import messages as m
 from services.core.cli import Parser, add_service_args, fail
 from services.core.config import load_params, params_hash
 from services.core.node import Node, setup_logging
+from services.core.priority import raise_priority
 from services.core.session import Fabric
 from services.model.arm import ArmDriver
 from services.model.behaviour import ArmCommand
@@ -211,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
         return calibrate(argv[1:])
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
+    raise_priority("actuation")
     try:
         cfg = load_params(args.params)
         safety = cfg.safety

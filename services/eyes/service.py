@@ -19,6 +19,7 @@ from services.core import messages as m
 from services.core.cli import Parser, add_service_args, fail
 from services.core.config import load_params, params_hash
 from services.core.node import Node, setup_logging
+from services.core.priority import raise_priority
 from services.core.session import Fabric
 from services.eyes.drivers import add_driver_args, make_eyes_driver
 from services.eyes.servos import ServoDriver
@@ -152,6 +153,7 @@ def main(argv: list[str] | None = None) -> int:
         return calibrate(argv[1:])
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
+    raise_priority("eyes")
     try:
         cfg = load_params(args.params)
         safety = eyes_safety(cfg, args.stale_ms)
