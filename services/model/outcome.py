@@ -120,13 +120,22 @@ class OutcomeTracker:
         if self._sign.feed(z_hat if abs(z_hat) > self.dead_band else 0.0):
             self._switch_indices.append(self._sign.onset)
 
-    def result(self, human: Colour | None, robot: Colour) -> TrialOutcome:
-        """The outcome so far, given what the human (None: never pressed) and robot pressed."""
-        late = [
+    def _late(self) -> list[bool]:
+        """Per confirmed switch: whether it began after the hand crossed the commit line."""
+        return [
             self._crossed_at is not None and onset >= self._crossed_at
             for onset in self._switch_indices
         ]
-        violations = sum(1 for k, is_late in enumerate(late) if k >= 1 or is_late)
+
+    @property
+    def violations(self) -> int:
+        """Rule violations so far: every switch after the first, and every late one (SPEC §6)."""
+        return sum(1 for k, is_late in enumerate(self._late()) if k >= 1 or is_late)
+
+    def result(self, human: Colour | None, robot: Colour) -> TrialOutcome:
+        """The outcome so far, given what the human (None: never pressed) and robot pressed."""
+        late = self._late()
+        violations = self.violations
         switches = len(self._switch_indices)
         return TrialOutcome(
             outcome=classify(switches, human, robot),
@@ -166,7 +175,8 @@ def judge_trial(
     """Outcome and score of a finished trial (SPEC §6), as the conductor and offline loop store it.
 
     A trial the robot did not press has no outcome and scores as a different buzzer; one the
-    human did not press has no outcome class either, but keeps its switch count and violations.
+    human did not press has no outcome class either. Both keep the human's switch count and
+    violations (SPEC §6: counted and stored for every trial), and the violations cost points.
     `by_agreement` labels by the buzzers alone (C same, D different), as SPEC §6 labels control
     trials by default; the switches and violations are counted and scored all the same.
     """
@@ -175,17 +185,14 @@ def judge_trial(
     if outcome is not None and result is not None and by_agreement:
         outcome = "C" if result.same_buzzer else "D"
     score = score_trial(
-        result is not None and result.same_buzzer,
-        clicks,
-        result.violations if result else 0,
-        target_clicks,
+        result is not None and result.same_buzzer, clicks, tracker.violations, target_clicks
     )
     return TrialJudgement(
         human=human,
         robot=robot,
         outcome=outcome,
-        switches=result.switches if result else 0,
-        violations=result.violations if result else 0,
+        switches=tracker.switches,
+        violations=tracker.violations,
         score=score.total,
     )
 

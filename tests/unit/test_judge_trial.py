@@ -98,6 +98,19 @@ def test_a_trial_the_robot_did_not_press_has_no_outcome_and_scores_as_different(
     assert judge_trial(tracked(STRAIGHT), human, None, None, 10).score == -1
 
 
+@pytest.mark.parametrize(
+    ("z_hats", "switches", "violations", "score"),
+    [(STRAIGHT, 0, 0, 0), (ONE_SWITCH, 1, 0, 0), (TWO_SWITCHES, 2, 1, -1)],
+)
+def test_a_trial_the_robot_did_not_press_keeps_the_humans_switches(
+    z_hats, switches, violations, score
+):
+    # SPEC §6: switches and violations are counted and stored for every trial; the violations
+    # are the person's and cost their point whatever the arm did.
+    j = judge_trial(tracked(z_hats), "red", None, 10, 10)
+    assert (j.outcome, j.switches, j.violations, j.score) == (None, switches, violations, score)
+
+
 @settings(max_examples=200, deadline=None)
 @given(
     z_hats=st.lists(st.sampled_from([-1.0, 0.0, 1.0]), max_size=30),
