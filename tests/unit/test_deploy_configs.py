@@ -1,10 +1,13 @@
 """The deploy folder's Zenoh configs load, and every systemd unit points at a real role."""
 
+import json
 import re
 from pathlib import Path
 
 import pytest
 import zenoh
+
+from services.core.limits import low_pass_filters
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 
@@ -15,6 +18,12 @@ def test_zenoh_configs_parse(name):
     assert conf.get_json("mode") in ('"router"', '"client"', "router", "client")
     assert conf.get_json("scouting/multicast/enabled") in ("false", False)
     assert int(conf.get_json("transport/link/rx/max_message_size")) == 1 << 20
+    # A stock zenohd with this file bounds every key of the contract as `nod` sessions do, and
+    # keeps shared memory off (scripts/sync-zenoh-limits writes the rules from the contract).
+    rules = [{k: v for k, v in r.items() if v is not None}
+             for r in json.loads(conf.get_json("low_pass_filter"))]
+    assert rules == low_pass_filters(), "out of date: run scripts/sync-zenoh-limits"
+    assert conf.get_json("transport/shared_memory/enabled") == "false"
 
 
 def _unit(name: str) -> dict[str, dict[str, str]]:
