@@ -295,6 +295,26 @@ class Conductor:
             self.console.stop()
         return self.records
 
+    def stop_mid_trial(self, why: str) -> bool:
+        """The conductor is stopped (SIGINT, SIGTERM): store the attempt under way as interrupted.
+
+        Without this a stop by the operator looked like a crash: the resumed session filed the
+        open attempt as "conductor lost". Returns whether an attempt was open.
+        """
+        lost = self.store.open_attempt(self.session) if self.session else None
+        if lost is None:
+            return False
+        trial, attempt, t_start_ns = lost
+        with self.node.lock:
+            self.trial_samples = None
+            events, cues = self.rig.take_events(), self.cues.take()
+        log.warning("trial %d (attempt %d) INTERRUPTED: %s", trial, attempt, why)
+        self.store.write_interruption(
+            self.session, Interruption(trial, attempt, t_start_ns, self._now_ns(), why),
+            events, cues,
+        )
+        return True
+
     def _attempts_so_far(
         self, first_trial: int, lost: tuple[int, int, int] | None
     ) -> tuple[int, int]:

@@ -264,6 +264,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         log.warning("session %s interrupted", session)
+        # A stop mid-trial is on record as the operator's, not as a lost conductor.
+        conductor.stop_mid_trial("the conductor was stopped (Ctrl-C or SIGTERM) mid-trial")
         return 130
     finally:
         if recorder is not None:

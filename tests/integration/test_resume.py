@@ -113,6 +113,14 @@ def test_ctrl_c_at_the_click_prompt_prints_the_resume_line_and_it_resumes(
         assert first < next(i for i, ln in enumerate(lines) if ln.startswith("trial 2/3"))
         assert _trials(db, "s-ctrl-c") == [(1, 7), (2, None), (3, None)]
         assert _status(db, "s-ctrl-c") == "complete"
+        # The stopped attempt is on record as the operator's stop, not as a lost conductor.
+        con = sqlite3.connect(db)
+        try:
+            broken = con.execute("SELECT trial, attempt, reason FROM interruptions").fetchall()
+        finally:
+            con.close()
+        assert [(t, a) for t, a, _ in broken] == [(2, 1)], broken
+        assert "stopped (Ctrl-C or SIGTERM)" in broken[0][2], broken
     finally:
         stop_all([conductor, *rig])
 
