@@ -1,0 +1,225 @@
+"""N_o-option dynamics: reduction to eq 1-2 and to the live decision model, the subspace, the
+options' symmetry, the Jacobian and the bifurcation points."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from services.analysis.observer_eval import frames, paths
+from services.model.bias import BiasParams
+from services.model.decision import DecisionModel, DecisionParams
+from services.model.dynamics import AgentParams, PairParams, pair_rhs, rk4_pair, thresholds
+from services.model.options import (
+    OptionsParams,
+    jacobian,
+    network_rate,
+    on_subspace,
+    option_vector,
+    rk4_network,
+    subspace_basis,
+)
+from services.model.options_bias import advance_robot, split_span
+from services.model.options_thresholds import option_thresholds, restricted_jacobian
+
+value = st.floats(min_value=-4.0, max_value=4.0, allow_nan=False)
+weight = st.floats(min_value=-3.0, max_value=3.0, allow_nan=False)
+n_options = st.integers(min_value=2, max_value=6)
+
+
+def pair_vector(x: float) -> np.ndarray:
+    """The two-option opinion x as (z_red, z_blue) = (x, −x)."""
+    return np.array([x, -x])
+
+
+def stream(mode_seed: int) -> list[tuple[int, list[tuple[float, float]]]]:
+    """A representative pose stream: jittered reaches (one a change of mind) at 30 Hz, with the
+    camera's uneven frame times, one after another as the trials of a session."""
+    rng = np.random.default_rng(mode_seed)
+    out: list[tuple[int, list[tuple[float, float]]]] = []
+    t_ns = 1_000_000_000
+    for path in paths()[:4]:
+        for _, landmarks, _ in frames(path, 30.0, 2.0, rng):
+            t_ns += int(rng.integers(25_000_000, 42_000_000))
+            out.append((t_ns, landmarks))
+    return out
+
+
+@pytest.mark.parametrize(("mode", "option"), [("dissensus", None), ("consensus", "red"),
+                                              ("consensus", "blue")])
+def test_two_options_follow_the_live_eq1_trajectory(mode: str, option: str | None) -> None:
+    """Driven by the same ẑ_h sequence, the N_o = 2 robot is today's decision model to 1e-12."""
+    live = DecisionModel(DecisionParams())
+    live.reset(mode, option)  # type: ignore[arg-type]
+    p = OptionsParams(pair=live.params.pair, n_options=2)
+    dt_ns = round(live.params.dt * 1e9)
+    max_gap_ns = round(live.params.max_gap_s * 1e9)
+    index = {None: None, "red": 0, "blue": 1}[option]
+    z_r, s = np.zeros(2), 0.0
+    held, last_t = np.zeros(2), None
+    moving = 0
+    poses = stream(7)
+    for t_ns, landmarks in poses:
+        out = live.on_hand(t_ns, landmarks)
+        if last_t is not None:
+            steps = split_span(min(t_ns - last_t, max_gap_ns), dt_ns)
+            z_r, s = advance_robot(z_r, s, held, steps, p, index, live.params.bias)
+        last_t, held = t_ns, pair_vector(out.z_hat)
+        sign_o = 1.0 if option != "blue" else -1.0
+        assert z_r[0] == pytest.approx(out.z_r, abs=1e-12)
+        assert z_r[1] == -z_r[0]
+        assert s * sign_o == pytest.approx(out.b_r, abs=1e-12)
+        moving += abs(out.z_r) > 0.02
+    assert moving > len(poses) // 3  # the stream moved the robot: the comparison was not of zeros
+    if mode == "consensus":
+        assert abs(live.b_r) > 1.0  # and the controller ran
+
+
+@settings(max_examples=60, deadline=None)
+@given(value, value, value, value)
+def test_two_option_rates_are_eq_1_and_2(z_r: float, z_h: float, b_r: float, b_h: float) -> None:
+    pair = PairParams(robot=AgentParams(u=3.1, alpha=0.4), human=AgentParams(gamma=-2.0))
+    p = OptionsParams(pair=pair, n_options=2)
+    z = np.array([pair_vector(z_r), pair_vector(z_h)])
+    b = np.array([pair_vector(b_r), pair_vector(b_h)])
+    rate = network_rate(z, b, p)
+    want_r, want_h = pair_rhs(z_r, z_h, b_r, b_h, pair)
+    np.testing.assert_allclose(rate[:, 0], [want_r, want_h], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(rate[:, 1], -rate[:, 0], rtol=0, atol=1e-12)
+
+
+def test_two_option_network_integrates_like_rk4_pair() -> None:
+    p = OptionsParams(n_options=2)
+    b_r, b_h = np.linspace(-5, 5, 7), np.linspace(4, -3, 7)
+    z0 = np.zeros((7, 2, 2))
+    z0[:, 0] = [1e-3, -1e-3]
+    z = rk4_network(z0, np.stack([np.stack([b_r, -b_r], -1), np.stack([b_h, -b_h], -1)], 1),
+                    p, 0.005, 400)
+    zr, zh = rk4_pair(np.full(7, 1e-3), np.zeros(7), b_r, b_h, p.pair, 0.005, 400)
+    np.testing.assert_allclose(z[:, 0, 0], zr, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(z[:, 1, 0], zh, rtol=0, atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n_options, st.lists(value, min_size=24, max_size=24), weight, weight)
+def test_the_subspace_is_kept_exactly(n: int, raw: list[float], beta: float, delta: float) -> None:
+    p = OptionsParams(n_options=n, beta=beta, delta=delta)
+    z0 = on_subspace(np.array(raw[: 2 * n]).reshape(2, n))
+    b = on_subspace(np.array(raw[-2 * n :]).reshape(2, n))
+    z = rk4_network(z0, b, p, 0.002, 200)
+    assert np.all(z.sum(axis=-1) == 0.0)  # by construction, not to a tolerance
+    assert np.all(np.isfinite(z))
+    assert np.abs(network_rate(z, b, p).sum(axis=-1)).max() < 1e-12
+
+
+@settings(max_examples=40, deadline=None)
+@given(n_options, st.lists(value, min_size=24, max_size=24), weight, weight, st.randoms())
+def test_relabelling_options_relabels_the_flow(
+    n: int, raw: list[float], beta: float, delta: float, rnd: object
+) -> None:
+    p = OptionsParams(n_options=n, beta=beta, delta=delta)
+    perm = list(range(n))
+    rnd.shuffle(perm)  # type: ignore[attr-defined]
+    z = on_subspace(np.array(raw[: 2 * n]).reshape(2, n))
+    b = on_subspace(np.array(raw[-2 * n :]).reshape(2, n))
+    np.testing.assert_allclose(
+        network_rate(z[:, perm], b[:, perm], p), network_rate(z, b, p)[:, perm], atol=1e-12
+    )
+    after = rk4_network(z[:, perm], b[:, perm], p, 0.002, 100)
+    np.testing.assert_allclose(after, rk4_network(z, b, p, 0.002, 100)[:, perm], atol=1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(n_options, st.lists(value, min_size=12, max_size=12), weight, weight)
+def test_jacobian_is_the_derivative(n: int, raw: list[float], beta: float, delta: float) -> None:
+    p = OptionsParams(n_options=n, beta=beta, delta=delta)
+    z = on_subspace(np.array(raw[: 2 * n]).reshape(2, n)) * 0.3
+    jac = jacobian(z, p)
+    eps = 1e-6
+    for c in range(2 * n):
+        dz = np.zeros((2, n))
+        dz.flat[c] = eps
+        no_bias = np.zeros((2, n))
+        column = (network_rate(z + dz, no_bias, p) - network_rate(z - dz, no_bias, p)) / (2 * eps)
+        np.testing.assert_allclose(jac[:, c], column.ravel(), atol=1e-6)
+
+
+def test_two_option_thresholds_are_todays() -> None:
+    today = thresholds(PairParams())
+    th = option_thresholds(OptionsParams(n_options=2))
+    assert th.u_disagreement == pytest.approx(today.u_d_star, abs=1e-12)
+    assert th.u_agreement is None and today.u_star[1] is None
+    assert sorted(m.jacobian_eigenvalue for m in th.modes) == pytest.approx(
+        today.origin_jacobian_eigenvalues, abs=1e-12
+    )
+    assert th.dissensus_regime is today.dissensus_regime is True
+
+
+@pytest.mark.parametrize("n", [3, 4, 5])
+def test_paper_parameters_keep_u_d_star_for_any_number_of_options(n: int) -> None:
+    th = option_thresholds(OptionsParams(n_options=n))
+    assert th.u_disagreement == pytest.approx(thresholds(PairParams()).u_d_star, abs=1e-12)
+    assert [(m.pattern, m.multiplicity) for m in th.modes] == [
+        ("agreement", n - 1),
+        ("disagreement", n - 1),
+    ]
+    # every eigenvalue of the restricted Jacobian is one of the modes'
+    eig = np.sort(np.linalg.eigvals(restricted_jacobian(OptionsParams(n_options=n))).real)
+    want = np.sort(np.repeat([m.jacobian_eigenvalue for m in th.modes], n - 1))
+    np.testing.assert_allclose(eig, want, atol=1e-10)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n_options, weight, weight, st.floats(0.1, 2.0), st.floats(0.1, 2.0),
+       st.floats(-10.0, 10.0), st.floats(-1.0, 1.0))
+def test_modes_match_the_closed_form(
+    n: int, beta: float, delta: float, a_rh: float, a_hr: float, gamma: float, alpha: float
+) -> None:
+    agent = AgentParams(gamma=gamma, alpha=alpha)
+    p = OptionsParams(pair=PairParams(robot=agent, human=agent, a_rh=a_rh, a_hr=a_hr),
+                      n_options=n, beta=beta, delta=delta)
+    th = option_thresholds(p)
+    lam = math.sqrt(a_rh * a_hr)
+    want = sorted(alpha - beta + (gamma - delta) * x for x in (lam, -lam))
+    got = [m.kappa for m in th.modes]
+    if abs(want[1] - want[0]) < 1e-6:
+        return  # the two modes coincide (γ = δ): one eigenvalue, no pattern to tell apart
+    assert got == pytest.approx(want, abs=1e-9)
+    for m in th.modes:
+        agree = m.adjacency_eigenvalue is not None and m.adjacency_eigenvalue > 0
+        assert m.pattern == ("agreement" if agree else "disagreement")
+        assert m.multiplicity == n - 1
+        assert m.u_star == (pytest.approx(agent.d / m.kappa) if m.kappa > 0 else None)
+
+
+def test_subspace_basis_is_orthonormal_and_zero_sum() -> None:
+    for n in range(2, 7):
+        q = subspace_basis(n)
+        np.testing.assert_allclose(q.T @ q, np.eye(n - 1), atol=1e-12)
+        np.testing.assert_allclose(q.sum(axis=0), 0.0, atol=1e-12)
+
+
+def test_option_vector_leads_by_two_for_any_number_of_options() -> None:
+    np.testing.assert_array_equal(option_vector(0, 2), [1.0, -1.0])
+    np.testing.assert_array_equal(option_vector(1, 2), [-1.0, 1.0])
+    for n in range(2, 7):
+        for j in range(n):
+            v = option_vector(j, n)
+            assert abs(v.sum()) < 1e-12
+            assert np.delete(v[j] - v, j) == pytest.approx(np.full(n - 1, 2.0))
+    with pytest.raises(ValueError, match="option must be in 0..2"):
+        option_vector(3, 3)
+
+
+def test_bias_params_reach_advance_robot() -> None:
+    """A zero-gain controller leaves s at zero: the parameters passed in are the ones used."""
+    p = OptionsParams(n_options=3)
+    z_hat = 6.0 * option_vector(0, 3)
+    _, s = advance_robot(np.zeros(3), 0.0, z_hat, [0.001] * 500, p, 1, BiasParams(sigma=0.0))
+    assert s == 0.0
+    _, s = advance_robot(np.zeros(3), 0.0, z_hat, [0.001] * 500, p, 1)
+    assert s > 1.0
