@@ -42,9 +42,23 @@ def _build_parser() -> Parser:
         "thresholds",
         parents=[cfg],
         help="u*, u_d* and the origin's eigenvalues",
-        description="Bifurcation thresholds of Sec 4.3.",
+        description="Bifurcation thresholds of Sec 4.3. With --options N (N > 2) or --beta / "
+        "--delta: the N-option model's agreement and disagreement points, each with the "
+        "eigenvalues it comes from (docs/multi-option.md).",
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument(
+        "--options", type=int_in(2, 64), default=2, metavar="N",
+        help="number of options N_o (default 2: the paper's two-option report)",
+    )
+    p.add_argument(
+        "--beta", type=finite_float, default=0.0,
+        help="weight of an agent's own opinion of the other options (multi-option β; 0)",
+    )
+    p.add_argument(
+        "--delta", type=finite_float, default=0.0,
+        help="weight of the neighbour's opinion of the other options (multi-option δ; 0)",
+    )
 
     p = sub.add_parser(
         "sweep",

@@ -30,9 +30,22 @@ def pair_params(path: str | None) -> PairParams:
 
 
 def thresholds(args: argparse.Namespace) -> int:
-    """`nod analyze thresholds`: u*, u_d* and the origin's eigenvalues (Sec 4.3)."""
+    """`nod analyze thresholds`: u*, u_d* and the origin's eigenvalues (Sec 4.3).
+
+    With more than two options (or β, δ ≠ 0) the N_o-option model's report instead.
+    """
     from services.analysis.thresholds_report import format_thresholds, thresholds_report
 
+    if args.options != 2 or args.beta != 0.0 or args.delta != 0.0:
+        from services.analysis.options_report import (
+            format_options_thresholds,
+            options_thresholds_report,
+        )
+
+        pair = pair_params(args.params)
+        report = options_thresholds_report(pair, args.options, args.beta, args.delta)
+        print(json.dumps(report, indent=2) if args.json else format_options_thresholds(report))
+        return 0
     report = thresholds_report(pair_params(args.params))
     print(json.dumps(report, indent=2) if args.json else format_thresholds(report))
     return 0
