@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eyes": ("services.eyes.service", "gaze / servo eyes service (Section 5)"),
     "sim": ("services.sim.service", "synthetic participant publishing hand poses"),
     "speaker": ("services.speaker.service", "the participant's audio countdown and go tone"),
+    "display": ("services.display.service", "the participant's screen: a web page for a kiosk"),
     "cohort": ("services.sim.cohort", "a simulated cohort, offline on every core, as a study"),
     "calibrate-cohort": ("services.sim.calibrate", "fit the sim participant to outcome shares"),
     "vision": ("services.vision.service", "camera capture and hand tracking"),

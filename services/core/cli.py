@@ -81,6 +81,16 @@ def int_in(low: int, high: int | None = None) -> Callable[[str], int]:
     return parse
 
 
+def host_port(text: str) -> tuple[str, int]:
+    """`HOST:PORT` (`[::1]:8090` for IPv6; port 0: any free one) as (host, port); ValueError."""
+    host, colon, port = text.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not colon or not host or not port.isdigit() or int(port) > 65535:
+        raise ValueError(f"{text!r} is not HOST:PORT such as 127.0.0.1:8090 (port 0: any free)")
+    return host, int(port)
+
+
 SEED = int_in(0, MAX_SEED)
 PORT = int_in(1, 65535)
 

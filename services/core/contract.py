@@ -72,8 +72,8 @@ class Topic(Generic[M]):
 
 BASE = ("seq", "t_ns")
 # Every long-running process of a rig sends a heartbeat on rig/status.
-EVERY_SERVICE = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "experiment",
-                 "monitor", "launcher")
+EVERY_SERVICE = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "display",
+                 "experiment", "monitor", "launcher")
 
 VISION_HAND = Topic(
     "vision/hand", m.HandPose, ("vision", "sim"), ("decision", "actuation", "experiment"),
@@ -133,14 +133,14 @@ EYES_STATE = Topic(
 )
 EXPERIMENT_TRIAL = Topic(
     "experiment/trial", m.TrialEvent, ("experiment",),
-    ("decision", "actuation", "sim", "speaker", "run", "launcher", "operator"),
+    ("decision", "actuation", "sim", "speaker", "display", "run", "launcher", "operator"),
     "per event", CONTROL,
     "`phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, `mode`, "
     "`option`, `text`, `session`",
 )
 EXPERIMENT_RESULT = Topic(
-    "experiment/result", m.TrialResult, ("experiment",), ("run", "launcher"), "per trial",
-    RELIABLE,
+    "experiment/result", m.TrialResult, ("experiment",), ("display", "run", "launcher"),
+    "per trial", RELIABLE,
     "`trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, `violations`, "
     "`score`, `session`, `interrupted`",
 )

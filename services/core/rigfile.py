@@ -19,6 +19,7 @@
     [eyes]     driver = "maestro"; port = "/dev/ttyACM0"; config = "eyes.toml"
                # state_dir = "/var/lib/nod/state": the e-stop latch (default $NOD_STATE_DIR)
     [speaker]  driver = "sounddevice"       # the participant's countdown (sim, wav + out = FILE)
+    [display]  http = "127.0.0.1:8090"      # the participant's screen, a page for a kiosk browser
     [monitor]  args = ["--serve-web"]
 
 Relative paths are relative to the rig file (every key of FILE_KEYS and FOLDER_KEYS, and
@@ -45,13 +46,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from services.core.cli import MAX_SEED
+from services.core.cli import MAX_SEED, host_port
 from services.core.keys import check_rig
 from services.model.safety import SafetyParams
 
 # Services a rig file may place on a host. The conductor (`nod experiment`) is not one: the
 # operator starts it per participant; `sim` stands in for vision (a rig without a camera).
-SERVICES = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "monitor")
+SERVICES = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "display", "monitor")
 # What a rig cannot run a trial without (vision or the sim that stands in for it).
 REQUIRED = ("decision", "actuation", "eyes", "vision")
 # The choices each service accepts. The rig file is read below the services (on any host, by
@@ -155,6 +156,7 @@ _SECTION_KEYS: dict[str, set[str]] = {
     "vision": {"source", "tracker", "calibration", "args"},
     "sim": {"seed", "args"},
     "speaker": {"driver", "out", "args"},  # out: the wav driver's file
+    "display": {"http", "args"},  # http: HOST:PORT the page is served on
     "monitor": {"args"},
 }
 
@@ -265,6 +267,12 @@ def load_rig(path: str | Path) -> Rig:
         sections["speaker"]["out"] = file(sections["speaker"]["out"], "speaker.out")
     if sections["speaker"].get("driver") == "wav" and "out" not in sections["speaker"]:
         raise fail("speaker.out", "the wav driver needs a file to write (out = \"cues.wav\")")
+    http = sections["display"].get("http")
+    if http is not None:
+        try:
+            host_port(http if isinstance(http, str) else "")
+        except ValueError:
+            raise fail("display.http", f"{http!r} is not HOST:PORT, e.g. 127.0.0.1:8090") from None
     source = sections["vision"].get("source")
     if source is not None and not isinstance(source, str):
         raise fail("vision.source", "must be a string: a camera index, a video file or a URL")

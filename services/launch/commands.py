@@ -60,6 +60,8 @@ def command(
         cmd += ["--driver", driver]
         if driver == "wav":
             cmd += ["--out", str(sec["out"])]
+    elif name == "display" and "http" in sec:
+        cmd += ["--http", sec["http"]]
     elif name == "sim" and "seed" in sec:
         cmd += ["--seed", str(int(sec["seed"]))]
     cmd += list(sec.get("args", []))

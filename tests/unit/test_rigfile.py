@@ -166,3 +166,15 @@ def test_a_rig_may_place_the_speaker_and_its_wav_file_is_relative_to_the_rig(
         load_rig(write(tmp_path, text + '[speaker]\ndriver = "wav"\n'))
     with pytest.raises(RigFileError, match="speaker.driver"):
         load_rig(write(tmp_path, text + '[speaker]\ndriver = "alsa"\n'))
+
+
+def test_a_rig_may_place_the_display_on_its_http_address(tmp_path: Path) -> None:
+    text = GOOD.replace('services = ["monitor"]', 'services = ["monitor", "display"]')
+    rig = load_rig(write(tmp_path, text + '[display]\nhttp = "0.0.0.0:8090"\n'))
+    cmd = command(rig, "display")
+    assert cmd[cmd.index("--http") + 1] == "0.0.0.0:8090"
+    assert "display" not in rig.required  # a trial runs without the participant's screen
+    assert "--http" not in command(load_rig(write(tmp_path, text)), "display")  # its default
+    for bad in ('"8090"', '"host:99999"', "8090", '":8090"'):
+        with pytest.raises(RigFileError, match="display.http"):
+            load_rig(write(tmp_path, text + f"[display]\nhttp = {bad}\n"))

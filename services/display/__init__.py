@@ -1,0 +1,1 @@
+"""The participant's screen: a web page on the rig with the countdown, go and points."""

@@ -1,0 +1,5 @@
+"""`python -m services.display`: the same as `nod display`."""
+
+from services.display.service import main
+
+raise SystemExit(main())

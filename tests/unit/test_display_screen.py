@@ -1,0 +1,259 @@
+"""What the participant's screen may show (services.display.screen), and the page's server."""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from services.core import messages as m
+from services.display.screen import WAIT, DisplayState, Screen, points
+from services.display.web import (
+    MAX_STREAMS,
+    SECURITY_HEADERS,
+    DisplayServer,
+    ScreenFeed,
+    load_static,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+# Words that would tell a participant the condition or the robot's opinion.
+REVEALING = re.compile(r"red|blue|consensus|dissensus|low|significant|none|\b(C|CH|D|DH)\b", re.I)
+
+
+def ev(phase: str, trial: int = 1, text: str = "", session: str = "S1") -> m.TrialEvent:
+    return m.TrialEvent(seq=0, t_ns=0, phase=phase, trial=trial, mode="consensus", option="red",
+                        text=text, session=session)  # type: ignore[arg-type]
+
+
+def res(trial: int, score: int, session: str = "S1", interrupted: bool = False) -> m.TrialResult:
+    return m.TrialResult(seq=0, t_ns=0, trial=trial, mode="consensus", option="blue",
+                         robot="blue", human="red", outcome="D", score=score, session=session,
+                         interrupted=interrupted)
+
+
+def live(session: str = "S1") -> DisplayState:
+    """A display whose conductor is up and has begun `session`."""
+    state = DisplayState()
+    state.on_conductor(True)
+    state.on_trial(ev("setup", 1, session=session))
+    return state
+
+
+def test_a_trial_shows_ready_the_countdown_go_then_wait_then_its_points():
+    state = live()
+    seen = []
+    for msg in (ev("setup", text="significant"), ev("countdown", text="1"),
+                ev("countdown", text="2"), ev("countdown", text="3"), ev("go", text="go"),
+                ev("end", text="human pressed")):
+        state.on_trial(msg)
+        seen.append((state.screen.kind, state.screen.big))
+    state.on_result(res(1, 2))
+    seen.append((state.screen.kind, state.screen.big, state.screen.small))
+    assert seen == [("ready", "Get ready"), ("countdown", "1"), ("countdown", "2"),
+                    ("countdown", "3"), ("go", "GO"), ("wait", "Please wait"),
+                    ("score", "+2 points", "Total: +2 points")]
+
+
+def test_the_conductor_gone_means_please_wait_even_mid_go_and_late_events_do_not_revive_go():
+    state = live()
+    state.on_trial(ev("go"))
+    assert state.screen.kind == "go"
+    assert state.on_conductor(False) and state.screen == WAIT
+    assert not state.on_trial(ev("go"))  # a late event of the conductor gone
+    assert not state.on_result(res(1, 2))
+    assert state.screen == WAIT
+    state.on_conductor(True)  # back: nothing is shown until its next event
+    assert state.screen == WAIT
+    state.on_trial(ev("setup", 2))
+    assert state.screen.kind == "ready"
+
+
+def test_thank_you_stays_when_the_conductor_exits_after_the_session():
+    state = live()
+    state.on_trial(ev("setup"))
+    state.on_result(res(1, 2))
+    state.on_trial(ev("session_end", text="complete"))
+    assert state.screen == Screen("done", "Thank you", "Total: +2 points")
+    state.on_conductor(False)
+    assert state.screen.kind == "done"
+
+
+def test_no_total_unless_every_earlier_result_was_seen():
+    state = DisplayState()
+    state.on_conductor(True)
+    state.on_trial(ev("setup", 3))  # joined at trial 3: trials 1-2 never seen
+    state.on_result(res(3, 2))
+    assert state.screen == Screen("score", "+2 points", "")
+    state = live()
+    for trial, score in ((1, 2), (2, -1)):
+        state.on_trial(ev("setup", trial))
+        state.on_result(res(trial, score))
+    assert state.screen == Screen("score", "−1 point", "Total: +1 point")
+    state.on_trial(ev("setup", 3))
+    state.on_result(res(3, 0, interrupted=True))  # never scored: waits, counts as 0
+    assert state.screen == WAIT
+    state.on_trial(ev("setup", 4))
+    state.on_result(res(4, 2))
+    assert state.screen.small == "Total: +3 points"
+
+
+def test_a_new_session_starts_a_new_total_and_a_stale_sessions_result_is_ignored():
+    state = live("A")
+    state.on_result(res(1, 2, session="A"))
+    state.on_trial(ev("setup", 1, session="B"))
+    assert not state.on_result(res(2, 2, session="A"))
+    state.on_result(res(1, 0, session="B"))
+    assert state.screen == Screen("score", "0 points", "Total: 0 points")
+    state.on_trial(ev("go", 2, session="C"))  # joined mid-trial: waits for the next setup
+    assert state.screen == WAIT
+
+
+@pytest.mark.parametrize("bad", [ev("countdown", text=""), ev("countdown", text="x" * 13),
+                                 ev("go", trial=0), ev("setup", trial=0)])
+def test_events_it_cannot_show_honestly_are_refused(bad):
+    state = live()
+    state.on_trial(ev("go"))
+    with pytest.raises(ValueError):
+        state.on_trial(bad)
+    assert state.screen.kind == "go"  # refused: nothing changed
+    with pytest.raises(ValueError, match="trials count from 1"):
+        state.on_result(res(0, 2))
+
+
+@pytest.mark.parametrize("score,text", [(2, "+2 points"), (1, "+1 point"), (0, "0 points"),
+                                        (-1, "−1 point"), (-3, "−3 points")])
+def test_points_read_as_a_participant_reads_them(score, text):
+    assert points(score) == text
+
+
+PHASES = ("setup", "countdown", "go", "end", "interrupted", "abort", "session_end")
+step = st.one_of(
+    st.tuples(st.just("alive"), st.booleans()),
+    # a countdown's text is its word; every other event's text may name the condition
+    st.tuples(st.just("event"), st.sampled_from(PHASES), st.integers(1, 8),
+              st.sampled_from(["1", "2", "3"]),
+              st.sampled_from(["go", "low", "significant", "none", "red", "complete"]),
+              st.sampled_from(["S1", "S2"])),
+    st.tuples(st.just("result"), st.integers(1, 8), st.integers(-2, 2),
+              st.sampled_from(["S1", "S2"]), st.booleans()),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(step, max_size=40))
+def test_any_sequence_never_shows_go_without_a_conductor_nor_a_wrong_total_nor_the_condition(
+    steps,
+):
+    state = DisplayState()
+    alive, last_go, session_now = False, False, ""
+    scores: dict[str, dict[int, int]] = {}
+    for s in steps:
+        if s[0] == "alive":
+            alive = s[1]
+            state.on_conductor(alive)
+            last_go = last_go and alive
+        elif s[0] == "event":
+            _, phase, trial, word, label, session = s
+            text = word if phase == "countdown" else label
+            try:
+                state.on_trial(ev(phase, trial, text, session))
+            except ValueError:
+                continue
+            joined_mid_trial = session != session_now and phase != "setup"
+            session_now = session
+            last_go = alive and phase == "go" and not joined_mid_trial
+        else:
+            _, trial, score, session, interrupted = s
+            state.on_result(res(trial, score, session, interrupted))
+            if session == state.session:
+                scores.setdefault(session, {})[trial] = 0 if interrupted else score
+            last_go = last_go and session != state.session
+        screen = state.screen
+        assert (screen.kind == "go") == last_go, (s, screen)
+        if not alive:
+            assert screen.kind in ("wait", "done"), (s, screen)
+        assert not REVEALING.search(f"{screen.big} {screen.small}"), screen
+        seen = scores.get(state.session, {})
+        if screen.small.startswith("Total"):
+            assert set(seen) == set(range(1, len(seen) + 1))
+            assert screen.small == f"Total: {points(sum(seen.values()))}"
+
+
+# --- the page's server --------------------------------------------------------------------
+
+
+@pytest.fixture
+def server():
+    feed = ScreenFeed(WAIT.as_json(0))
+    srv = DisplayServer(("127.0.0.1", 0), feed, load_static())
+    thread = threading.Thread(target=srv.serve_forever, daemon=True)
+    thread.start()
+    yield srv
+    feed.close()
+    srv.shutdown()
+    srv.server_close()
+
+
+def _get(srv: DisplayServer, path: str):
+    return urllib.request.urlopen(f"http://127.0.0.1:{srv.port}{path}", timeout=5)
+
+
+def test_the_page_and_its_files_are_served_with_a_self_only_policy(server):
+    for path, kind in (("/", "text/html"), ("/display.js", "text/javascript"),
+                       ("/display.css", "text/css")):
+        with _get(server, path) as r:
+            assert r.headers["Content-Type"].startswith(kind)
+            assert r.headers["Content-Security-Policy"] == SECURITY_HEADERS[
+                "Content-Security-Policy"]
+            assert r.read()
+    with pytest.raises(urllib.error.HTTPError) as err:
+        _get(server, "/../pyproject.toml")
+    assert err.value.code == 404
+
+
+def test_the_shipped_page_fetches_nothing_from_outside():
+    for name, body in load_static().items():
+        text = body.decode()
+        assert not re.search(r"(https?:)?//[a-z0-9.-]+\.[a-z]", text, re.I), name
+        assert "@import" not in text and "url(" not in text, name
+
+
+def _events(resp, n: int) -> list[dict]:
+    out = []
+    while len(out) < n:
+        line = resp.readline().decode()
+        assert line, "stream ended"
+        if line.startswith("data: "):
+            out.append(json.loads(line[6:]))
+    return out
+
+
+def test_the_stream_sends_the_screen_at_once_each_change_and_keepalives(server):
+    with _get(server, "/events") as r:
+        assert r.headers["Content-Type"] == "text/event-stream"
+        assert r.readline() == b"retry: 1000\n"
+        assert _events(r, 1)[0]["kind"] == "wait"
+        server.feed.publish(Screen("go", "GO").as_json(1))
+        assert _events(r, 1)[0] == {"kind": "go", "big": "GO", "small": "", "version": 1}
+        assert _events(r, 1)[0]["kind"] == "go"  # the keep-alive repeats the current screen
+
+
+def test_streams_beyond_the_limit_are_refused_and_the_rest_still_served(server):
+    opened = [_get(server, "/events") for _ in range(MAX_STREAMS)]
+    try:
+        for r in opened:
+            _events(r, 1)
+        with pytest.raises(urllib.error.HTTPError) as err:
+            _get(server, "/events")
+        assert err.value.code == 503
+    finally:
+        for r in opened:
+            r.close()
