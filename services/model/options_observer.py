@@ -1,0 +1,221 @@
+"""The observed human opinion over N_o boxes: eq 7 as an N_o-vector (docs/multi-option.md).
+
+The robust observer's reading (`services.model.observer_robust`), over any number of boxes:
+
+- the hand centre (mean of the landmarks) is smoothed with time constant `smooth_s`, and its
+  movement M is the smoothed centre's displacement over the last `window_s` seconds;
+- θ_j is the angle between M and the bearing from the hand to box j's centre; the target is
+  the box M points at most directly;
+- M slower than `min_speed`, or further than `max_angle_deg` from every box's bearing: the
+  hand heads for none, ẑ_h is held;
+- the reading leaves the current box only for one M points at by `switch_margin` (in cos θ)
+  more directly: jitter between two nearly equal bearings is not a change of mind. The margin
+  is capped at `neighbour_share` (½) of 1 − cos φ, φ the angle between the two boxes' bearings
+  from the hand: neighbours in a row of three or more boxes are only ~24° apart from where the
+  hand starts (1 − cos φ ≈ 0.08 < 0.15), and a fixed margin would hold the old reading until
+  the hand nears the boxes (docs/multi-option.md has the numbers);
+- ẑ_h = a · cos θ · tanh(k / d) · option_vector(target): eq 7's magnitude along the target's
+  zero-sum direction, so target j leads every other option by 2 a cos θ tanh(k/d).
+
+With the two boxes of a `TableLayout` (option 0 = red, 1 = blue) and `neighbour_share=None`
+ẑ_h is exactly (z, −z) for the robust observer's z. The reading is categorical on purpose: a
+vector graded by every box's cos θ_j would let jitter move the argmax between neighbouring
+boxes, whose bearings are closer with more boxes on the same table edge.
+
+Pure: time (s) is passed in with each pose.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from services.model.geometry import Box, CommitLine, Point, TableLayout
+from services.model.observer import ObserverParams, hand_center
+from services.model.options import option_vector
+
+# The paper's table edge: the two-option boxes span x 0.14-0.86 at y 0.12-0.26 (geometry.py).
+_EDGE = (0.21, 0.79)  # the outer boxes' centres
+_Y = (0.12, 0.26)
+_WIDTH = 0.14
+# The switch margin is capped at this share of the cos gap between two boxes' bearings
+NEIGHBOUR_SHARE = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class OptionsLayout:
+    """N_o boxes (option j's box is `boxes[j]`) and the commit line, as the camera sees them."""
+
+    boxes: tuple[Box, ...]
+    commit: CommitLine = field(default_factory=CommitLine)
+
+    def __post_init__(self) -> None:
+        if len(self.boxes) < 2:
+            raise ValueError(f"a layout needs at least 2 boxes, got {len(self.boxes)}")
+
+    @property
+    def n_options(self) -> int:
+        """How many boxes (options) the table has."""
+        return len(self.boxes)
+
+    @classmethod
+    def row(cls, n_options: int) -> OptionsLayout:
+        """N_o boxes in a row on the paper's far table edge, left to right, equally spaced.
+
+        Each is the paper's 0.14 wide, narrowed to 90 % of the spacing when they would touch.
+        """
+        if n_options < 2:
+            raise ValueError(f"a layout needs at least 2 boxes, got {n_options}")
+        centres = np.linspace(_EDGE[0], _EDGE[1], n_options)
+        half = 0.5 * min(_WIDTH, 0.9 * (centres[1] - centres[0]))
+        return cls(tuple(Box(float(c - half), _Y[0], float(c + half), _Y[1]) for c in centres))
+
+    @classmethod
+    def from_table(cls, layout: TableLayout) -> OptionsLayout:
+        """The two-option table as options (red, blue): option 0 is red, as z > 0 is."""
+        return cls((layout.red, layout.blue), layout.commit)
+
+
+class MotionWindow:
+    """The smoothed hand centre and its displacement over the last `window_s` seconds."""
+
+    def __init__(self, smooth_s: float, window_s: float):
+        self._smooth_s, self._window_s = smooth_s, window_s
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the centre and the window."""
+        self._smooth: Point | None = None
+        self._t: float | None = None
+        self._trail: deque[tuple[float, Point]] = deque()
+
+    def add(self, center: Point, t: float) -> tuple[Point, Point, float] | None:
+        """(smoothed centre, M, span) after one centre at t, or None until half a window is seen."""
+        if self._smooth is None or self._t is None or t <= self._t:
+            smooth = center if self._smooth is None else self._smooth
+        else:
+            tau = self._smooth_s
+            alpha = 1.0 - math.exp(-(t - self._t) / tau) if tau > 0 else 1.0
+            smooth = (
+                self._smooth[0] + alpha * (center[0] - self._smooth[0]),
+                self._smooth[1] + alpha * (center[1] - self._smooth[1]),
+            )
+        self._smooth, self._t = smooth, t
+        trail = self._trail
+        trail.append((t, smooth))
+        while len(trail) > 2 and trail[1][0] <= t - self._window_s:
+            trail.popleft()  # keep one sample at or before the window's start
+        t0, start = trail[0]
+        span = t - t0
+        if span < 0.5 * self._window_s:
+            return None
+        return smooth, (smooth[0] - start[0], smooth[1] - start[1]), span
+
+
+@dataclass(frozen=True, slots=True)
+class OptionsObservation:
+    """What the observer read from one pose: ẑ_h (held unless `moved`), target, θ, d."""
+
+    z_hat: np.ndarray
+    center: Point | None
+    target: int | None  # the box this pose read, None unless it gave a direction
+    theta: float | None
+    distance: float | None
+    moved: bool
+    detected: bool
+
+
+class OptionsObserver:
+    """ẑ_h over N_o boxes from hand poses (see module doc); the robust ObserverParams apply."""
+
+    def __init__(
+        self,
+        layout: OptionsLayout,
+        params: ObserverParams | None = None,
+        neighbour_share: float | None = NEIGHBOUR_SHARE,
+    ):
+        if neighbour_share is not None and not 0 < neighbour_share <= 1:
+            raise ValueError(f"neighbour_share must be in (0, 1] or None, got {neighbour_share}")
+        self._params = params if params is not None else ObserverParams()
+        self._layout = layout
+        self._share = neighbour_share
+        self._cos_min = math.cos(math.radians(self._params.max_angle_deg))
+        self._motion = MotionWindow(self._params.smooth_s, self._params.window_s)
+        self.reset()
+
+    @property
+    def layout(self) -> OptionsLayout:
+        """The boxes the hand is read against."""
+        return self._layout
+
+    @property
+    def z_hat(self) -> np.ndarray:
+        """The current ẑ_h (zero before any movement it could read); a copy."""
+        return self._z_hat.copy()
+
+    @property
+    def target(self) -> int | None:
+        """The box of the current reading (None before the first)."""
+        return self._target
+
+    def reset(self) -> None:
+        """Forget all history: ẑ_h = 0, no target, an empty window."""
+        self._z_hat = np.zeros(self._layout.n_options)
+        self._target: int | None = None
+        self._motion.reset()
+
+    def update(self, landmarks: Sequence[Point] | None, t: float = 0.0) -> OptionsObservation:
+        """Read one pose at time t (s): the landmarks of one hand, or None when none was seen."""
+        if not landmarks:
+            return OptionsObservation(self.z_hat, None, None, None, None, False, False)
+        center = hand_center(landmarks)
+        window = self._motion.add(center, t)
+        reading = None
+        if window is not None:
+            here, movement, span = window
+            length = math.hypot(*movement)
+            if length >= self._params.min_speed * span:
+                reading = self._read(here, movement, length)
+        if reading is None:
+            return OptionsObservation(self.z_hat, center, None, None, None, False, True)
+        target, theta, distance = reading
+        p = self._params
+        self._target = target
+        magnitude = p.a * math.cos(theta) * math.tanh(p.k / distance)
+        self._z_hat = magnitude * option_vector(target, self._layout.n_options)
+        return OptionsObservation(self.z_hat, center, target, theta, distance, True, True)
+
+    def _read(self, here: Point, movement: Point, length: float) -> tuple[int, float, float] | None:
+        """(target, θ, d) if the movement heads for a box, else None."""
+        d_min = self._params.d_min
+        cosines: list[float] = []
+        dists: list[float] = []
+        bearings: list[Point] = []
+        for j, box in enumerate(self._layout.boxes):
+            bx, by = box.center[0] - here[0], box.center[1] - here[1]
+            dist = math.hypot(bx, by)
+            if dist < d_min:  # on the box: it is the target, head-on
+                return j, 0.0, d_min
+            cosines.append((movement[0] * bx + movement[1] * by) / (length * dist))
+            dists.append(dist)
+            bearings.append((bx / dist, by / dist))
+        best = max(range(len(cosines)), key=cosines.__getitem__)
+        current = self._target
+        if current is not None and best != current:
+            margin = self._params.switch_margin
+            if self._share is not None:
+                # The most a movement can favour `best` over `current` is 1 − cos φ, φ the angle
+                # between their bearings: a margin above that would forbid the switch until
+                # the hand is near the boxes. Neighbours in a row of boxes are that close.
+                (ax, ay), (cx, cy) = bearings[best], bearings[current]
+                margin = min(margin, self._share * (1.0 - (ax * cx + ay * cy)))
+            if cosines[best] - cosines[current] < margin:
+                best = current  # not clearly another box: stay with the current reading
+        if cosines[best] < self._cos_min:
+            return None  # heading for no box
+        theta = math.acos(max(-1.0, min(1.0, cosines[best])))
+        return best, theta, max(dists[best], d_min)
