@@ -18,6 +18,8 @@ Where each piece lives (services call these; the tests test these):
     geometry.py     table layout, boxes, commit line, the hand template
     participant.py  the simulated participant (eq 2 driving a hand)
     params.py       NodConfig: every SPEC default in one typed tree
+    options*.py     more than two options (docs/multi-option.md): N_o-option dynamics and
+                    thresholds, the N_o-box observer, eq 6 toward O among N_o options
 
 Nothing here imports zenoh, OpenCV, serial, Rerun, SQLite, msgpack, threads or clocks: time is
 passed in (import-linter holds this; see pyproject.toml).

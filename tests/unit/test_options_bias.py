@@ -11,8 +11,8 @@ from services.model.options_bias import advance_robot, bias_rate, disagrees
 
 THREE = OptionsParams(n_options=3)  # the paper's d, u, α, γ, a_rh = a_hr = 1; β = δ = 0
 MS = [0.001] * 4000  # 4 s at the decision model's 1 ms step
-# ẑ_h magnitudes a cos θ tanh(k/d) of a hesitant, a moderate and a straight-on reach (a = 8)
-HUMAN = [1.0, 4.0, 8.0]
+# ẑ_h magnitudes a cos θ tanh(k/d): a barely read hand, a hesitant one, a straight-on reach
+HUMAN = [0.2, 1.0, 8.0]
 
 
 @pytest.mark.parametrize("o", [0, 1, 2])
