@@ -72,11 +72,11 @@ class Topic(Generic[M]):
 
 BASE = ("seq", "t_ns")
 # Every long-running process of a rig sends a heartbeat on rig/status.
-EVERY_SERVICE = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "display",
+EVERY_SERVICE = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "display", "lsl",
                  "experiment", "monitor", "launcher")
 
 VISION_HAND = Topic(
-    "vision/hand", m.HandPose, ("vision", "sim"), ("decision", "actuation", "experiment"),
+    "vision/hand", m.HandPose, ("vision", "sim"), ("decision", "actuation", "experiment", "lsl"),
     "camera (30 Hz)", STREAM,
     "`detected` bool, `center` [x,y] (mean of the landmarks) or nil, `landmarks` up to 64 "
     "[x,y] (21 from a hand model), normalised image coords, `source`",
@@ -95,16 +95,17 @@ SIM_CAMERA = Topic(
     "a rendered camera frame: `jpeg`, `width`, `height`, `hand_seq`, `detected`",
 )
 DECISION_Z_H = Topic(
-    "decision/z_h", m.Observed, ("decision",), ("experiment",), "per pose", STREAM,
+    "decision/z_h", m.Observed, ("decision",), ("experiment", "lsl"), "per pose", STREAM,
     "`value` ẑ_h, `src_seq` (the pose's seq), `theta` θ and `distance` d of eq 7 when "
     "this pose set ẑ_h (else nil)",
 )
 DECISION_Z_R = Topic(
-    "decision/z_r", m.Scalar, ("decision",), ("actuation", "experiment"), "per pose", STREAM,
+    "decision/z_r", m.Scalar, ("decision",), ("actuation", "experiment", "lsl"), "per pose",
+    STREAM,
     "`value` z_r, `src_seq`",
 )
 DECISION_B_R = Topic(
-    "decision/b_r", m.Scalar, ("decision",), ("experiment",), "per pose", STREAM,
+    "decision/b_r", m.Scalar, ("decision",), ("experiment", "lsl"), "per pose", STREAM,
     "`value` b_r, `src_seq`",
 )
 ACTUATION_CMD = Topic(
@@ -112,7 +113,8 @@ ACTUATION_CMD = Topic(
     "`action` idle/stop/move/press, `direction` ±1/0, `target`, `reason`",
 )
 ACTUATION_STATE = Topic(
-    "actuation/state", m.ArmStateMsg, ("actuation",), ("sim", "experiment", "estop"), "50 Hz",
+    "actuation/state", m.ArmStateMsg, ("actuation",), ("sim", "experiment", "estop", "lsl"),
+    "50 Hz",
     STREAM,
     "`ee` [x,y], `phase`, `moving`, `target`, `safe_stop`, `safety_reason`, `fault`, "
     "`estop` (latched), `estop_id` (the last e-stop command obeyed), `trial`",
@@ -127,19 +129,20 @@ EYES_CMD = Topic(
     "attention gesture), `trial`",
 )
 EYES_STATE = Topic(
-    "eyes/state", m.EyesStateMsg, ("eyes",), ("experiment", "estop"), "50 Hz", STREAM,
+    "eyes/state", m.EyesStateMsg, ("eyes",), ("experiment", "estop", "lsl"), "50 Hz", STREAM,
     "`angles_deg` ×4, `pulses_us` ×4, `clamped`, `safe_stop`, `safety_reason`, `fault`, "
     "`estop`, `estop_id`",
 )
 EXPERIMENT_TRIAL = Topic(
     "experiment/trial", m.TrialEvent, ("experiment",),
-    ("decision", "actuation", "sim", "speaker", "display", "run", "launcher", "operator"),
+    ("decision", "actuation", "sim", "speaker", "display", "lsl", "run", "launcher",
+     "operator"),
     "per event", CONTROL,
     "`phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, `mode`, "
     "`option`, `text`, `session`",
 )
 EXPERIMENT_RESULT = Topic(
-    "experiment/result", m.TrialResult, ("experiment",), ("display", "run", "launcher"),
+    "experiment/result", m.TrialResult, ("experiment",), ("display", "lsl", "run", "launcher"),
     "per trial", RELIABLE,
     "`trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, `violations`, "
     "`score`, `session`, `interrupted`",
@@ -169,13 +172,14 @@ RIG_EVENT = Topic(
     "code; negative: the signal), `restarts`, `text`",
 )
 SAFETY_ESTOP = Topic(
-    "safety/estop", m.Estop, ("estop",), ("actuation", "eyes", "experiment"), "on demand",
+    "safety/estop", m.Estop, ("estop",), ("actuation", "eyes", "experiment", "lsl"), "on demand",
     SAFETY,
     "engage only (`engaged` true; false is refused here): `engaged`, `reason`, `source` "
     "(user@host), `id` (acknowledged on the state keys)",
 )
 SAFETY_RELEASE = Topic(
-    "safety/release", m.Estop, ("estop",), ("actuation", "eyes", "experiment"), "on demand",
+    "safety/release", m.Estop, ("estop",), ("actuation", "eyes", "experiment", "lsl"),
+    "on demand",
     SAFETY,
     "release only (`engaged` false), a key of its own so an ACL can let every host engage "
     "and only the control station release: `engaged`, `reason`, `source`, `id`",

@@ -20,6 +20,7 @@
                # state_dir = "/var/lib/nod/state": the e-stop latch (default $NOD_STATE_DIR)
     [speaker]  driver = "sounddevice"       # the participant's countdown (sim, wav + out = FILE)
     [display]  http = "127.0.0.1:8090"      # the participant's screen, a page for a kiosk browser
+    (and "lsl" among a host's services: the signals and markers for LabRecorder, no section)
     [monitor]  args = ["--serve-web"]
 
 Relative paths are relative to the rig file (every key of FILE_KEYS and FOLDER_KEYS, and
@@ -52,7 +53,9 @@ from services.model.safety import SafetyParams
 
 # Services a rig file may place on a host. The conductor (`nod experiment`) is not one: the
 # operator starts it per participant; `sim` stands in for vision (a rig without a camera).
-SERVICES = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "display", "monitor")
+SERVICES = (
+    "decision", "actuation", "eyes", "vision", "sim", "speaker", "display", "lsl", "monitor",
+)
 # What a rig cannot run a trial without (vision or the sim that stands in for it).
 REQUIRED = ("decision", "actuation", "eyes", "vision")
 # The choices each service accepts. The rig file is read below the services (on any host, by
@@ -157,6 +160,7 @@ _SECTION_KEYS: dict[str, set[str]] = {
     "sim": {"seed", "args"},
     "speaker": {"driver", "out", "args"},  # out: the wav driver's file
     "display": {"http", "args"},  # http: HOST:PORT the page is served on
+    "lsl": {"args"},  # LSL's own settings: lsl_api.cfg ($LSLAPICFG)
     "monitor": {"args"},
 }
 

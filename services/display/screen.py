@@ -66,8 +66,8 @@ class DisplayState:
     version: int = 0  # bumped on every change of `screen`
 
     def total(self) -> int | None:
-        """The session's total so far, if the results of trials 1..n were all seen."""
-        if set(self.scores) != set(range(1, len(self.scores) + 1)):
+        """The session's total so far, if the results of trials 1..n (n ≥ 1) were all seen."""
+        if not self.scores or set(self.scores) != set(range(1, len(self.scores) + 1)):
             return None
         return sum(self.scores.values())
 

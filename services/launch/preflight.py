@@ -52,6 +52,8 @@ def problems(
                 out += _parsed("vision.calibration", sec["calibration"], _calibration_file)
         elif service == "speaker":
             out += _speaker(sec, sim_hardware)
+        elif service == "lsl" and importlib.util.find_spec("pylsl") is None:
+            out.append("lsl: the LSL outlet needs the lsl extra: pip install 'nod-hri[lsl]'")
     return out
 
 

@@ -19,7 +19,9 @@ from services.core.contract import (
 )
 
 ROOT = Path(__file__).resolve().parents[2]
-SERVICES = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "display", "experiment")
+SERVICES = (
+    "decision", "actuation", "eyes", "vision", "sim", "speaker", "display", "lsl", "experiment",
+)
 
 
 def test_readme_table_is_the_generated_one():

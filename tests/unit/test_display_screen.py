@@ -84,6 +84,9 @@ def test_thank_you_stays_when_the_conductor_exits_after_the_session():
     assert state.screen == Screen("done", "Thank you", "Total: +2 points")
     state.on_conductor(False)
     assert state.screen.kind == "done"
+    late = live()  # started just before the end: no result seen, no total (not "0 points")
+    late.on_trial(ev("session_end", text="complete"))
+    assert late.screen == Screen("done", "Thank you", "")
 
 
 def test_no_total_unless_every_earlier_result_was_seen():
@@ -168,6 +171,8 @@ def test_any_sequence_never_shows_go_without_a_conductor_nor_a_wrong_total_nor_t
             except ValueError:
                 continue
             joined_mid_trial = session != session_now and phase != "setup"
+            if session != session_now:  # a session (again) new here: counted from now on
+                scores[session] = {}
             session_now = session
             last_go = alive and phase == "go" and not joined_mid_trial
         else:
@@ -183,7 +188,7 @@ def test_any_sequence_never_shows_go_without_a_conductor_nor_a_wrong_total_nor_t
         assert not REVEALING.search(f"{screen.big} {screen.small}"), screen
         seen = scores.get(state.session, {})
         if screen.small.startswith("Total"):
-            assert set(seen) == set(range(1, len(seen) + 1))
+            assert seen and set(seen) == set(range(1, len(seen) + 1))
             assert screen.small == f"Total: {points(sum(seen.values()))}"
 
 

@@ -225,3 +225,13 @@ def test_the_speaker_needs_its_wav_folder_or_its_sound_library(rig: Path, capsys
             "'nod-hri[audio]' (and PortAudio: apt install libportaudio2)"
         ]
     assert dry_run(rig, capsys, "--sim-hardware") == (0, [])
+
+
+def test_the_lsl_outlet_needs_pylsl(rig: Path, capsys, monkeypatch) -> None:
+    _edit(rig, 'services = ["monitor"]', 'services = ["monitor", "lsl"]')
+    assert dry_run(rig, capsys) == (0, [])  # installed here (the test extra has it)
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "pylsl" else real(name, *a))
+    assert dry_run(rig, capsys) == (
+        2, ["nod up: lsl: the LSL outlet needs the lsl extra: pip install 'nod-hri[lsl]'"])

@@ -178,3 +178,11 @@ def test_a_rig_may_place_the_display_on_its_http_address(tmp_path: Path) -> None
     for bad in ('"8090"', '"host:99999"', "8090", '":8090"'):
         with pytest.raises(RigFileError, match="display.http"):
             load_rig(write(tmp_path, text + f"[display]\nhttp = {bad}\n"))
+
+
+def test_a_rig_may_place_the_lsl_outlet(tmp_path: Path) -> None:
+    text = GOOD.replace('services = ["monitor"]', 'services = ["monitor", "lsl"]')
+    rig = load_rig(write(tmp_path, text + '[lsl]\nargs = ["-v"]\n'))
+    assert command(rig, "lsl")[-1] == "-v" and "lsl" not in rig.required
+    with pytest.raises(RigFileError, match="lsl.rate"):
+        load_rig(write(tmp_path, text + "[lsl]\nrate = 100\n"))
