@@ -40,21 +40,59 @@ from services.model.observer import (
 )
 
 
+class MotionWindow:
+    """The smoothed hand centre and its displacement over the last `window_s` seconds.
+
+    The robust reading's motion, shared with the N_o-box observer (`options_observer`).
+    """
+
+    def __init__(self, smooth_s: float, window_s: float):
+        self._smooth_s, self._window_s = smooth_s, window_s
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the centre and the window."""
+        self._smooth: Point | None = None
+        self._t: float | None = None
+        self._trail: deque[tuple[float, Point]] = deque()
+
+    def add(self, center: Point, t: float) -> tuple[Point, Point, float] | None:
+        """(smoothed centre, M, span) after one centre at t; None until half a window is seen."""
+        if self._smooth is None or self._t is None or t <= self._t:
+            smooth = center if self._smooth is None else self._smooth
+        else:
+            tau = self._smooth_s
+            alpha = 1.0 - math.exp(-(t - self._t) / tau) if tau > 0 else 1.0
+            smooth = (
+                self._smooth[0] + alpha * (center[0] - self._smooth[0]),
+                self._smooth[1] + alpha * (center[1] - self._smooth[1]),
+            )
+        self._smooth, self._t = smooth, t
+        trail = self._trail
+        trail.append((t, smooth))
+        while len(trail) > 2 and trail[1][0] <= t - self._window_s:
+            trail.popleft()  # keep one sample at or before the window's start
+        t0, start = trail[0]
+        span = t - t0
+        if span < 0.5 * self._window_s:
+            return None
+        return smooth, (smooth[0] - start[0], smooth[1] - start[1]), span
+
+
 class RobustObserver(ObserverBase):
     """Eq 7 on a smoothed, windowed movement against the boxes' bearings (see module doc)."""
 
     def __init__(self, params: ObserverParams | None = None, layout: TableLayout | None = None):
         super().__init__(params, layout)
         self._cos_min = math.cos(math.radians(self._params.max_angle_deg))
+        self._motion = MotionWindow(self._params.smooth_s, self._params.window_s)
         self.reset()
 
     def reset(self) -> None:
         """Forget all history: ẑ_h = 0, no smoothed centre, an empty window."""
         self._z_hat = 0.0
         self._sign = 0
-        self._smooth: Point | None = None
-        self._t: float | None = None
-        self._trail: deque[tuple[float, Point]] = deque()
+        self._motion.reset()
         self._last: Observation | None = None
 
     def update(self, landmarks: Sequence[Point] | None, t: float = 0.0) -> Observation:
@@ -65,24 +103,10 @@ class RobustObserver(ObserverBase):
             return obs
         center = hand_center(landmarks)
         p = self._params
-        if self._smooth is None or self._t is None or t <= self._t:
-            smooth = center if self._smooth is None else self._smooth
-        else:
-            alpha = 1.0 - math.exp(-(t - self._t) / p.smooth_s) if p.smooth_s > 0 else 1.0
-            smooth = (
-                self._smooth[0] + alpha * (center[0] - self._smooth[0]),
-                self._smooth[1] + alpha * (center[1] - self._smooth[1]),
-            )
-        self._smooth, self._t = smooth, t
-        trail = self._trail
-        trail.append((t, smooth))
-        while len(trail) > 2 and trail[1][0] <= t - p.window_s:
-            trail.popleft()  # keep one sample at or before the window's start
-        t0, start = trail[0]
-        span = t - t0
-        if span < 0.5 * p.window_s:  # not enough history yet for a direction
+        window = self._motion.add(center, t)
+        if window is None:  # not enough history yet for a direction
             return self._hold(center, None)
-        movement = (smooth[0] - start[0], smooth[1] - start[1])
+        smooth, movement, span = window
         length = math.hypot(*movement)
         if length < p.min_speed * span:
             return self._hold(center, movement)

@@ -28,7 +28,6 @@ Pure: time (s) is passed in with each pose.
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -36,6 +35,7 @@ import numpy as np
 
 from services.model.geometry import Box, CommitLine, Point, TableLayout
 from services.model.observer import ObserverParams, hand_center
+from services.model.observer_robust import MotionWindow
 from services.model.options import option_vector
 
 # The paper's table edge: the two-option boxes span x 0.14-0.86 at y 0.12-0.26 (geometry.py).
@@ -78,42 +78,6 @@ class OptionsLayout:
     def from_table(cls, layout: TableLayout) -> OptionsLayout:
         """The two-option table as options (red, blue): option 0 is red, as z > 0 is."""
         return cls((layout.red, layout.blue), layout.commit)
-
-
-class MotionWindow:
-    """The smoothed hand centre and its displacement over the last `window_s` seconds."""
-
-    def __init__(self, smooth_s: float, window_s: float):
-        self._smooth_s, self._window_s = smooth_s, window_s
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget the centre and the window."""
-        self._smooth: Point | None = None
-        self._t: float | None = None
-        self._trail: deque[tuple[float, Point]] = deque()
-
-    def add(self, center: Point, t: float) -> tuple[Point, Point, float] | None:
-        """(smoothed centre, M, span) after one centre at t, or None until half a window is seen."""
-        if self._smooth is None or self._t is None or t <= self._t:
-            smooth = center if self._smooth is None else self._smooth
-        else:
-            tau = self._smooth_s
-            alpha = 1.0 - math.exp(-(t - self._t) / tau) if tau > 0 else 1.0
-            smooth = (
-                self._smooth[0] + alpha * (center[0] - self._smooth[0]),
-                self._smooth[1] + alpha * (center[1] - self._smooth[1]),
-            )
-        self._smooth, self._t = smooth, t
-        trail = self._trail
-        trail.append((t, smooth))
-        while len(trail) > 2 and trail[1][0] <= t - self._window_s:
-            trail.popleft()  # keep one sample at or before the window's start
-        t0, start = trail[0]
-        span = t - t0
-        if span < 0.5 * self._window_s:
-            return None
-        return smooth, (smooth[0] - start[0], smooth[1] - start[1]), span
 
 
 @dataclass(frozen=True, slots=True)
