@@ -13,6 +13,7 @@ import sys
 
 from services.analysis.commands import COMMANDS, UsageError
 from services.analysis.multiplicity import CORRECTIONS
+from services.compute.engine import add_engine_args
 from services.core.cli import SEED, Parser, fail, finite_float, int_in, positive_float
 
 PROG = "nod analyze"
@@ -208,8 +209,9 @@ def _build_parser() -> Parser:
         help="adjust each drawn study's p-values as `nod analyze study` does (default holm)",
     )
     p.add_argument("--seed", type=SEED, default=1, help="seed of the population and the draws")
-    p.add_argument("--params", metavar="FILE.toml", help="cohort parameters (calibrated traits)")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
+    p.add_argument("--params", metavar="FILE.toml",
+                   help="cohort parameters (default: the person fitted to the paper)")
+    add_engine_args(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--out", metavar="DIR", help="write power.json and power.png (and .pdf)")
 

@@ -230,11 +230,11 @@ def bstar(args: argparse.Namespace) -> int:
 
 def power(args: argparse.Namespace) -> int:
     """`nod analyze power`: the study size for the paper's effects (simulated cohorts)."""
-    import os
     import time
 
     from services.analysis.power import TESTS, plot, population, power
-    from services.core.config import load_params
+    from services.cohort.person import load_cohort_params
+    from services.compute.engine import EngineError, engine_from_args
 
     try:
         sizes = [int(x) for x in args.participants.split(",") if x.strip()]
@@ -246,9 +246,13 @@ def power(args: argparse.Namespace) -> int:
         raise UsageError("--participants: sizes between 2 and 10000")
     if not (1 <= args.runs <= 100_000 and 10 <= args.population <= 1_000_000 and args.alpha < 1):
         raise UsageError("--runs 1-100000, --population 10-1000000, --alpha in (0, 1)")
-    cfg = load_params(args.params)
+    cfg = load_cohort_params(args.params)
     t0 = time.monotonic()
-    pop = population(cfg, args.population, args.seed, args.workers or os.cpu_count() or 1)
+    try:
+        with engine_from_args(args) as engine:
+            pop = population(engine, cfg, args.population, args.seed)
+    except EngineError as exc:
+        raise UsageError(str(exc)) from None
     results = power(pop, sizes, args.runs, args.alpha, args.seed, args.correction)
     doc = {
         "method": "one simulated population, studies drawn with replacement",

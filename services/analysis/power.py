@@ -1,7 +1,8 @@
 """Power analysis: how likely a study of N participants detects the effects of Sec 7.
 
 Method (resampling from one simulated population): a population of simulated participants is
-run once, offline (the calibrated cohort: `--params`); a study of N participants is then drawn
+run once, offline, on the compute engine (the default simulated person is the one fitted to the
+paper, `services.cohort.person`; `--params` for another); a study of N participants is then drawn
 from it with replacement, `runs` times, and each drawn study is analysed exactly as a real one
 (phase categories, paired tables, Stuart–Maxwell, the p-values adjusted over the family of
 defined tests as `nod analyze study` adjusts them: Holm by default). The power of a test at N
@@ -16,7 +17,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -30,7 +30,8 @@ from services.analysis.study import (
     paired_table,
     phase_category,
 )
-from services.model.closed_loop import run_offline_session
+from services.cohort.outcomes import session_outcomes
+from services.compute.engine import Engine
 from services.model.params import NodConfig
 
 if TYPE_CHECKING:
@@ -39,23 +40,16 @@ if TYPE_CHECKING:
 TESTS = ("control_vs_experiment", *(f"trial_{a}_vs_{b}" for a, b in ADJACENT_PAIRS))
 
 
-def _outcomes(args: tuple[NodConfig, int]) -> list[str | None]:
-    cfg, seed = args
-    return [t.outcome for t in run_offline_session(cfg, seed, cohort=True)]
-
-
 def population(
-    cfg: NodConfig, size: int, seed: int, workers: int,
+    engine: Engine, cfg: NodConfig, size: int, seed: int,
     progress: Callable[[], None] | None = None,
 ) -> list[list[str | None]]:
     """`size` simulated participants' outcomes (trials 1..8), seeds seed..seed+size-1."""
     out: list[list[str | None]] = []
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        jobs = [(cfg, seed + i) for i in range(size)]
-        for outcomes in pool.map(_outcomes, jobs, chunksize=8):
-            out.append(outcomes)
-            if progress:
-                progress()
+    for outcomes in engine.imap(session_outcomes, [(cfg, seed + i) for i in range(size)]):
+        out.append(outcomes)
+        if progress:
+            progress()
     return out
 
 

@@ -50,27 +50,13 @@ from services.analysis.sessions import (
     select_sessions,
 )
 from services.analysis.stuart_maxwell import stuart_maxwell
+from services.model.phases import CONTROL_TRIALS, EXPERIMENT_TRIALS, phase_category
 from services.store import QuestionnaireRecord, Store
 
-CONTROL_TRIALS: tuple[int, ...] = (1, 2, 3)
-EXPERIMENT_TRIALS: tuple[int, ...] = (4, 5, 6, 7, 8)
 ADJACENT_PAIRS: tuple[tuple[int, int], ...] = ((4, 5), (5, 6), (6, 7), (7, 8))
 LIKERT_MIDPOINT = 5.5
 LIKERT_KEYS: tuple[str, ...] = ("q1", "q2", "q4", "q5")
 Q3_CHOICES: tuple[str, ...] = ("Yes", "No", "Maybe")
-
-
-def phase_category(outcomes: Sequence[str | None]) -> str | None:
-    """The most frequent outcome of a phase's trials (in trial order); ties go to the later trial.
-
-    None entries (timeouts, missing trials) are ignored; None if nothing is left.
-    """
-    counts = Counter(o for o in outcomes if o is not None)
-    if not counts:
-        return None
-    top = max(counts.values())
-    last_seen = {o: i for i, o in enumerate(outcomes) if o is not None}
-    return max((o for o, n in counts.items() if n == top), key=lambda o: last_seen[o])
 
 
 def paired_table(pairs: Iterable[tuple[str | None, str | None]]) -> np.ndarray:

@@ -1,23 +1,25 @@
-"""`nod cohort`: a simulated cohort in one process pool, stored like a real study.
+"""`nod cohort`: a simulated cohort on the compute engine, stored like a real study.
 
 Each participant is one offline session (`services.model.closed_loop`: the same protocol machine and
 model code the services run, in lock step, no fabric), with person-to-person variation drawn
-from its seed; sessions run on every core and go into the same SQLite store the conductor
-writes (sessions, trials, samples), so `nod report`, `nod export` and `nod analyze study` work
-on the result. A simulated cohort is a model, not data: its sessions carry rig "offline".
+from its seed around the default simulated person (the traits fitted to the paper,
+`services.cohort.person`, unless `--params` says otherwise); sessions run on every core of a
+local Dask cluster (or a lab's, `--scheduler`) and go, in seed order, into the same SQLite store
+the conductor writes (sessions, trials, samples), so `nod report`, `nod export` and `nod analyze
+study` work on the result. A simulated cohort is a model, not data: its sessions carry rig
+"offline".
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+from services.cohort.person import load_cohort_params
+from services.compute.engine import Engine, EngineError, add_engine_args, engine_from_args
 from services.core.cli import SEED, Parser, fail, int_in
-from services.core.config import load_params
 from services.model.closed_loop import OfflineTrial, run_offline_session
 from services.model.params import NodConfig
 from services.model.protocol import TrialSpec
@@ -36,9 +38,9 @@ class Job:
     record: bool
 
 
-def simulate(job: Job) -> tuple[int, list[OfflineTrial]]:
-    """Run one participant's session (in a worker process)."""
-    return job.index, run_offline_session(job.cfg, job.seed, cohort=True, record=job.record)
+def simulate(job: Job) -> list[OfflineTrial]:
+    """Run one participant's session (a task on the engine)."""
+    return run_offline_session(job.cfg, job.seed, cohort=True, record=job.record)
 
 
 def offline_record(t: OfflineTrial, spec: TrialSpec, t_go_ns: int) -> TrialRecord:
@@ -81,11 +83,11 @@ def store_session(store: Store, job: Job, trials: list[OfflineTrial], prefix: st
 
 
 def run_cohort(
+    engine: Engine,
     n: int,
     seed: int,
     db: Path,
     cfg: NodConfig,
-    workers: int,
     record: bool = True,
     prefix: str = "cohort",
     show: bool = True,
@@ -100,13 +102,10 @@ def run_cohort(
     columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
                TimeRemainingColumn())
     try:
-        with (
-            ProcessPoolExecutor(max_workers=workers) as pool,
-            Progress(*columns, disable=not show, transient=True) as bar,
-        ):
+        with Progress(*columns, disable=not show, transient=True) as bar:
             task = bar.add_task("participants", total=n)
-            for index, trials in pool.map(simulate, jobs, chunksize=max(1, n // (8 * workers))):
-                store_session(store, jobs[index], trials, prefix)
+            for job, trials in zip(jobs, engine.imap(simulate, jobs), strict=True):
+                store_session(store, job, trials, prefix)
                 stored += len(trials)
                 bar.advance(task)
     finally:
@@ -118,15 +117,16 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod cohort`."""
     p = Parser(
         prog="nod cohort",
-        description="Simulate a cohort offline on every core and store it like a real study.",
+        description="Simulate a cohort offline on every core (or a Dask cluster) and store it "
+        "like a real study; participants are the fitted person unless --params says otherwise.",
     )
     p.add_argument("--participants", type=int_in(1, 10**5), required=True,
                    help="how many (1-100000)")
     p.add_argument("--seed", type=SEED, default=1, help="first seed (participant i: seed + i)")
     p.add_argument("--db", type=Path, required=True, help="session database to write")
-    p.add_argument("--workers", type=int_in(1, 1024), default=os.cpu_count() or 1,
-                   help="processes (default: cores)")
-    p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
+    p.add_argument("--params", type=Path, default=None,
+                   help="TOML overriding the fitted person and SPEC defaults")
+    add_engine_args(p)
     p.add_argument("--no-samples", action="store_true", help="store trials only (smaller, faster)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
@@ -135,21 +135,26 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run `nod cohort`."""
     args = build_parser().parse_args(argv)
-    if not 1 <= args.participants <= 100_000 or not 1 <= args.workers <= 256:
-        return fail("nod cohort", "--participants must be 1-100000, --workers 1-256")
     try:
-        cfg = load_params(args.params)
+        cfg = load_cohort_params(args.params)
         Store(args.db).close()
     except (ValueError, OSError, StoreError) as exc:
         return fail("nod cohort", exc)
-    stored, seconds = run_cohort(
-        args.participants, args.seed, args.db, cfg, args.workers,
-        record=not args.no_samples, show=not args.quiet,
-    )
+    t0 = time.monotonic()
+    try:
+        with engine_from_args(args) as engine:
+            stored, seconds = run_cohort(
+                engine, args.participants, args.seed, args.db, cfg,
+                record=not args.no_samples, show=not args.quiet,
+            )
+            where = engine.where
+    except EngineError as exc:
+        return fail("nod cohort", exc)
+    total = time.monotonic() - t0
     rate = args.participants / seconds * 60
     print(
         f"{args.participants} simulated participants ({stored} trials) in {seconds:.1f} s "
-        f"({rate:.0f}/min on {args.workers} workers) -> {args.db}"
+        f"({rate:.0f}/min on {where}; {total:.1f} s with its start and stop) -> {args.db}"
     )
     return 0
 

@@ -4,7 +4,8 @@ It stands in for the camera and the person: at camera rate it publishes 21 noisy
 `vision/hand`, and the table geometry on `vision/layout`. It watches the protocol (trial events),
 the gaze cue (`eyes/cmd`) and the arm (`actuation/state`, `actuation/press`) the way a person
 watches the rig, and its opinion (eq 2) steers the hand. Seeded: the same seed and the same
-robot give the same participant.
+robot give the same participant. The participant is the default simulated person (the traits
+fitted to the paper, `services.cohort.person`) unless `--params` sets `[participant]` keys.
 """
 
 from __future__ import annotations
@@ -17,9 +18,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from services.cohort.person import load_cohort_params
 from services.core import messages as m
 from services.core.cli import SEED, Parser, add_service_args, fail
-from services.core.config import load_params
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.model.geometry import colour_sign
@@ -173,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if not 1.0 <= args.rate <= 1000.0:
             raise ValueError(f"--rate must be in [1, 1000] Hz, got {args.rate}")
-        cfg = load_params(args.params)
+        cfg = load_cohort_params(args.params)
         stands_in = () if args.render else ("vision",)
         node = Node("sim", Fabric.from_args(args), stands_in_for=stands_in, retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:

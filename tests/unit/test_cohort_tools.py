@@ -1,4 +1,4 @@
-"""nod cohort, the cohort calibration's scoring, and the power analysis."""
+"""nod cohort (the fitted person by default), cohort outcome shares, and the power analysis."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import math
 import pytest
 
 from services.analysis.power import TESTS, p_values, power, wilson
+from services.cohort.outcomes import CATEGORIES, load_shares, shares, tvd
+from services.cohort.person import FIG8A, FITTED_TRAITS, load_cohort_params
 from services.model.closed_loop import run_offline_session
-from services.model.params import NodConfig
-from services.sim.calibrate import CATEGORIES, calibrate, evaluate, load_target, shares, tvd
 from services.sim.cohort import main as cohort_main
 from services.store import Store
 
@@ -20,6 +20,12 @@ def test_nod_cohort_stores_a_study_that_the_tools_read(tmp_path, capsys):
     assert cohort_main(["--participants", "4", "--seed", "3", "--db", str(db), "--quiet",
                         "--workers", "1"]) == 0
     assert "4 simulated participants (32 trials)" in capsys.readouterr().out
+    # The same cohort from the shipped fitted traits given as a file: the default is the fit.
+    fitted = tmp_path / "fitted.toml"
+    fitted.write_text(FITTED_TRAITS.read_text())
+    again = tmp_path / "again.sqlite"
+    assert cohort_main(["--participants", "4", "--seed", "3", "--db", str(again), "--quiet",
+                        "--workers", "1", "--no-samples", "--params", str(fitted)]) == 0
     store = Store(db)
     try:
         sessions = store.sessions()
@@ -30,10 +36,16 @@ def test_nod_cohort_stores_a_study_that_the_tools_read(tmp_path, capsys):
         first = sessions[0]["session"]
         trials = [t for _, t in store.trials(first)]
         assert [t.trial for t in trials] == list(range(1, 9))
-        direct = run_offline_session(NodConfig(), 3, cohort=True)
+        direct = run_offline_session(load_cohort_params(None), 3, cohort=True)
         assert [t.outcome for t in trials] == [t.outcome for t in direct]  # the same model
         samples = store.samples(first, 4)
         assert len(samples) > 20 and all(math.isfinite(s.z_r) for s in samples)
+        other = Store(again)
+        try:
+            assert [[t.outcome for _, t in other.trials(x["session"])] for x in other.sessions()
+                    ] == [[t.outcome for _, t in store.trials(x["session"])] for x in sessions]
+        finally:
+            other.close()
     finally:
         store.close()
 
@@ -48,28 +60,12 @@ def test_tvd_and_shares():
     assert set(got[1]) == set(CATEGORIES)
 
 
-def test_a_refit_starts_from_the_base_traits():
-    # The base cohort's own shares as the target: the base traits fit it exactly (Σ TVD 0), so a
-    # search that tries them first must return them, whatever its random candidates do.
-    cfg = NodConfig()
-    target = evaluate(cfg, 3, 7, workers=1)
-    logged: list[str] = []
-    values, got = calibrate(cfg, target, 3, 7, starts=1, iterations=0, workers=1,
-                            log=logged.append)
-    assert sum(tvd(got[k], w) for k, w in target.items()) == 0.0
-    for name, value in values.items():
-        assert value == pytest.approx(getattr(cfg.participant, name), abs=1e-9)
-    assert "the base traits: Σ TVD 0.000" in logged[0]
-
-
-def test_the_paper_target_loads_and_adds_up(tmp_path):
-    target = load_target(__import__("pathlib").Path("deploy/cohort/paper_fig8a.json"))
+def test_the_paper_target_loads_and_adds_up():
+    target = load_shares(FIG8A.read_text(), "Fig 8a")
     assert sorted(target) == list(range(1, 9))
     assert target[8]["C"] == pytest.approx(0.8627) and target[1]["D"] == pytest.approx(0.7059)
-    bad = tmp_path / "bad.json"
-    bad.write_text(json.dumps({"trials": {"1": {"C": 0.7}}}))
     with pytest.raises(ValueError, match="add up"):
-        load_target(bad)
+        load_shares(json.dumps({"trials": {"1": {"C": 0.7}}}), "bad.json")
 
 
 def test_power_grows_with_n_on_a_population_with_a_real_effect():

@@ -1,0 +1,77 @@
+"""The compute engine: a real local Dask cluster keeps input order, passes errors on, and an
+unreachable scheduler is one clear line."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from services.compute.engine import Engine, EngineError, code_fingerprint, open_engine
+from tests.processes import free_port
+
+
+def slow_square(x: int) -> int:
+    # The first items take longest, so they finish last: order must come from the engine.
+    time.sleep(0.02 * (10 - x) if x < 10 else 0)
+    return x * x
+
+
+def fails_on_three(x: int) -> int:
+    if x == 3:
+        raise ValueError("three is not allowed")
+    return x
+
+
+@pytest.fixture(scope="module")
+def engine() -> Iterator[Engine]:
+    with open_engine(workers=2) as e:
+        yield e
+
+
+def test_map_keeps_the_input_order(engine: Engine) -> None:
+    items = list(range(40))
+    assert engine.map(slow_square, items, chunk=1) == [x * x for x in items]
+    assert engine.map(slow_square, items) == [x * x for x in items]  # chunked by default
+    assert engine.map(slow_square, []) == []
+    assert engine.threads() == 2 and "local cluster of 2 workers" in engine.where
+
+
+def test_imap_yields_in_order_and_an_early_stop_leaves_no_work(engine: Engine) -> None:
+    it = engine.imap(slow_square, list(range(12)), chunk=1)
+    assert [next(it) for _ in range(3)] == [0, 1, 4]
+    it.close()  # the rest is cancelled, not left running on the cluster
+    assert engine.map(slow_square, [5, 6]) == [25, 36]  # and the engine goes on
+
+
+def test_a_task_error_reaches_the_caller(engine: Engine) -> None:
+    with pytest.raises(ValueError, match="three is not allowed"):
+        engine.map(fails_on_three, list(range(6)), chunk=2)
+
+
+def test_an_unreachable_scheduler_is_one_clear_line() -> None:
+    address = f"tcp://127.0.0.1:{free_port()}"  # nobody listens there
+    t0 = time.monotonic()
+    with pytest.raises(EngineError) as err, open_engine(address, timeout_s=1.0):
+        pass
+    message = str(err.value)
+    assert "\n" not in message and address in message
+    assert "dask scheduler" in message and "--scheduler" in message
+    assert time.monotonic() - t0 < 30
+
+
+def test_the_code_fingerprint_changes_with_any_source(tmp_path: Path) -> None:
+    (tmp_path / "model").mkdir()
+    (tmp_path / "model" / "a.py").write_text("x = 1\n")
+    (tmp_path / "notes.txt").write_text("not code")
+    first = code_fingerprint(tmp_path)
+    assert len(first) == 12 and code_fingerprint(tmp_path) == first
+    (tmp_path / "notes.txt").write_text("still not code")
+    assert code_fingerprint(tmp_path) == first
+    (tmp_path / "model" / "a.py").write_text("x = 2\n")
+    assert code_fingerprint(tmp_path) != first
+    (tmp_path / "model" / "a.py").write_text("x = 1\n")
+    (tmp_path / "model" / "a.py").rename(tmp_path / "model" / "b.py")
+    assert code_fingerprint(tmp_path) != first
