@@ -5,11 +5,13 @@ the router's access-control list (deny by default) is derived from the contract
 (`services.core.contract`): an identity may put exactly the keys whose publishers include one
 of its services (not those only ever queried), declare liveliness tokens only for its own
 services, and answer queries only on the queryable keys of its services (the contract's
-`queried_only`, or "queryable" in its rate). Three kinds of identity:
+`queried_only`, or "queryable" in its rate). Every identity belongs to the rigs it serves and
+touches only their keys (`nod/<rig>/…`): the router forwards it nothing of another rig, and
+refuses whatever it puts, declares or answers there. The kinds of identity:
 
-- a **host role** (`control`, `camera`, `arm`, `eyes`): the services of that host. Each may also
-  engage the e-stop (`safety/estop`: stopping is always safe); only `control` runs `nod estop`'s
-  release, so only it may put `safety/release`.
+- a **host role** of a rig (`control`, `camera`, `arm`, `eyes`): the services of that host.
+  Each may also engage its rig's e-stop (`safety/estop`: stopping is always safe); only
+  `control` runs `nod estop`'s release, so only it may put its rig's `safety/release`.
 - a **launcher** per host role (`<role>-launcher`): `nod up`'s own session, the only publisher
   of `rig/event` in the contract, so the only identity that may put it (a host's services
   cannot forge the launchers' account of what died and restarted). It engages nothing.
@@ -21,7 +23,13 @@ services, and answer queries only on the queryable keys of its services (the con
   interrupt the trial under way and need the control station to release it, and nothing the
   monitor runs ever engages one. Stopping stays with every rig host and the hardware e-stop.
 
-The router's own session (the control station's `nod up` or `nod router`) is inside the
+A lab of several rigs (`nod lab secure --rigs rig1,rig2`) has these identities per rig, named
+`<rig>.<identity>` (a rig name has no dot, so no two collide), and two lab-wide ones that serve
+every rig: `lab.monitor`, the monitor's rights on every rig (`nod lab status`, a lab screen),
+and `lab.estop`, `nod estop`'s rights on every rig — it engages and, as the contract lets
+`nod estop` do, releases any rig's e-stop, and nothing else.
+
+The router's own session (`nod router`, the control station's `nod up`) is inside the
 boundary: zenoh applies the ACL to its network faces, not to the router process itself.
 """
 
@@ -37,6 +45,9 @@ ALL_MESSAGES = (
 )
 LAUNCHER = "launcher"  # the contract's name of a `nod up` process
 MONITOR = "monitor"
+ESTOP = "estop"  # the contract's name of `nod estop`
+LAB = "lab"  # the lab-wide identities' folder and name prefix: no rig may be called so
+EVERY_RIG = "*"  # the rig chunk of a lab-wide identity's keys: any rig on the lab's router
 
 
 @dataclass(frozen=True)
@@ -46,14 +57,16 @@ class Identity:
     name: str  # the certificate's common name: what the ACL matches
     services: tuple[str, ...]  # the contract's publishers it speaks for
     folder: str  # where its files are, relative to the `nod lab secure` folder
-    engages_estop: bool = False  # may put safety/estop
+    rigs: tuple[str, ...]  # the rigs whose keys it may touch
+    engages_estop: bool = False  # may put safety/estop though none of its services does
 
     def _own(self) -> list[str]:
         return sorted(t.name for t in TOPICS.values() if set(t.publishers) & set(self.services))
 
     def publishes(self) -> list[str]:
         """The topics it may put: those the contract gives to one of its services."""
-        return [t for t in self._own() if not TOPICS[t].queried_only]
+        own = [t for t in self._own() if not TOPICS[t].queried_only]
+        return sorted({*own, "safety/estop"}) if self.engages_estop else own
 
     def answers(self) -> list[str]:
         """The topics of its services that are queried (the layout, the e-stop latch)."""
@@ -63,32 +76,59 @@ class Identity:
 # The hosts of a lab and the services of each. `nod up` runs as the host's launcher identity,
 # `nod monitor` as the monitor identity, everything else as the host's role.
 HOSTS: dict[str, tuple[str, ...]] = {
-    "control": ("experiment", "operator", "estop", "run", "record"),
+    "control": ("experiment", "operator", ESTOP, "run", "record"),
     "camera": ("vision", "sim"),
     "arm": ("decision", "actuation"),
     "eyes": ("eyes",),
 }
 
 
-def host_identity(role: str) -> Identity:
-    """A host's identity: its services' keys, and the e-stop's engage."""
-    return Identity(role, HOSTS[role], role, engages_estop=True)
+def _named(rig: str, name: str, folder: str, lab: bool) -> tuple[str, str]:
+    """An identity's common name and folder: bare for a single rig, under its rig in a lab."""
+    return (f"{rig}.{name}", f"{rig}/{folder}") if lab else (name, folder)
 
 
-def launcher_identity(role: str) -> Identity:
+def host_identity(role: str, rig: str, lab: bool = False) -> Identity:
+    """A host's identity: its services' keys, and the e-stop's engage, on its rig."""
+    name, folder = _named(rig, role, role, lab)
+    return Identity(name, HOSTS[role], folder, (rig,), engages_estop=True)
+
+
+def launcher_identity(role: str, rig: str, lab: bool = False) -> Identity:
     """The identity of `nod up` on a host: rig events and its heartbeat, nothing else."""
-    return Identity(f"{role}-{LAUNCHER}", (LAUNCHER,), f"{role}/{LAUNCHER}")
+    name, folder = _named(rig, f"{role}-{LAUNCHER}", f"{role}/{LAUNCHER}", lab)
+    return Identity(name, (LAUNCHER,), folder, (rig,))
 
 
-def monitor_identity() -> Identity:
-    """The read-only identity of monitors and lab screens."""
-    return Identity(MONITOR, (MONITOR,), MONITOR)
+def monitor_identity(rig: str, lab: bool = False) -> Identity:
+    """The read-only identity of one rig's monitors and screens."""
+    name, folder = _named(rig, MONITOR, MONITOR, lab)
+    return Identity(name, (MONITOR,), folder, (rig,))
 
 
-def identities(roles: list[str]) -> list[Identity]:
-    """Every identity a lab of these host roles needs: each role, its launcher, the monitor."""
-    out = [f(r) for r in roles for f in (host_identity, launcher_identity)]
-    return [*out, monitor_identity()]
+def identities(roles: list[str], rig: str) -> list[Identity]:
+    """Every identity a single rig of these host roles needs (bare names: `control`, …).
+
+    Each role, its launcher, the monitor.
+    """
+    out = [f(r, rig) for r in roles for f in (host_identity, launcher_identity)]
+    return [*out, monitor_identity(rig)]
+
+
+def lab_identities(roles: list[str], rigs: list[str]) -> list[Identity]:
+    """Every identity of a lab of several rigs (`rig1.control`, …, `lab.estop`).
+
+    Each rig's, under its name, and the lab's monitor and e-stop, which serve every rig.
+    """
+    out = [
+        f(r, rig, True) for rig in rigs for r in roles for f in (host_identity, launcher_identity)
+    ]
+    out += [monitor_identity(rig, True) for rig in rigs]
+    return [
+        *out,
+        Identity(f"{LAB}.{MONITOR}", (MONITOR,), f"{LAB}/{MONITOR}", (EVERY_RIG,)),
+        Identity(f"{LAB}.{ESTOP}", (ESTOP,), f"{LAB}/{ESTOP}", (EVERY_RIG,)),
+    ]
 
 
 def _rule(rule_id: str, messages: list[str], keys: list[str], flow: str = "ingress") -> dict:
@@ -98,30 +138,42 @@ def _rule(rule_id: str, messages: list[str], keys: list[str], flow: str = "ingre
     }
 
 
-def acl(rig: str, ids: list[Identity]) -> dict:
+def acl(ids: list[Identity]) -> dict:
     """The router's access_control section: deny by default, allow what each identity needs."""
-    ns = f"nod/{rig}"
+    rigs = sorted({r for ident in ids for r in ident.rigs})
+    # zenoh's ACL admits a declaration only inside an allowed key expression, and a client puts
+    # only what it knows someone subscribes to: the router tells every face of every
+    # subscription in the lab (who listens is no secret), or a rig's camera would never send to
+    # the lab view's `nod/*/rig/status`. The samples themselves go only where `deliver` allows.
     rules: list[dict] = [
-        # What the router may forward to any authenticated identity: everything of the rig.
-        _rule("deliver", list(ALL_MESSAGES), [f"{ns}/**"], flow="egress"),
-        # Every identity may listen, see who is alive, and query (the layout, the latch).
-        _rule("observe", ["declare_subscriber", "declare_liveliness_subscriber",
-                          "liveliness_query", "query"], [f"{ns}/**"]),
-        _rule("engage-estop", ["put"], [f"{ns}/safety/estop"]),
+        _rule("interest", ["declare_subscriber", "declare_liveliness_subscriber"], ["nod/**"],
+              flow="egress"),
     ]
+    for rig in rigs:
+        ns = f"nod/{rig}"
+        rules += [
+            # What the router may forward to an identity of the rig: everything of the rig.
+            _rule(f"deliver:{rig}", list(ALL_MESSAGES), [f"{ns}/**"], flow="egress"),
+            # Every identity may listen to its rig, see who is alive, and query (the layout,
+            # the latch).
+            _rule(f"observe:{rig}", ["declare_subscriber", "declare_liveliness_subscriber",
+                                     "liveliness_query", "query"], [f"{ns}/**"]),
+        ]
     subjects, policies = [], []
     for ident in ids:
         n = ident.name
-        rules.append(_rule(f"{n}-publish", ["put"],
-                           [f"{ns}/{t}" for t in ident.publishes()] or [f"{ns}/-none-"]))
+
+        def keys(names: list[str], ident: Identity = ident) -> list[str]:
+            return [f"nod/{rig}/{k}" for rig in ident.rigs for k in names]
+
+        rules.append(_rule(f"{n}-publish", ["put"], keys(ident.publishes()) or keys(["-none-"])))
         rules.append(_rule(f"{n}-alive", ["liveliness_token"],
-                           [f"{ns}/alive/{s}" for s in ident.services]))
-        names = [f"{n}-publish", f"{n}-alive", "deliver", "observe"]
-        if ident.engages_estop:
-            names.append("engage-estop")
+                           keys([f"alive/{s}" for s in ident.services])))
+        names = [f"{n}-publish", f"{n}-alive", "interest"]
+        names += [f"{what}:{rig}" for rig in ident.rigs for what in ("deliver", "observe")]
         if ident.answers():
             rules.append(_rule(f"{n}-answer", ["declare_queryable", "reply"],
-                               [f"{ns}/{t}" for t in ident.answers()]))
+                               keys(ident.answers())))
             names.append(f"{n}-answer")
         subjects.append({"id": n, "cert_common_names": [n]})
         policies.append({"id": n, "rules": names, "subjects": [n]})

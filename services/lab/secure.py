@@ -18,6 +18,14 @@ only the launchers publish rig events; the monitor publishes nothing but its hea
     out/monitor/…                      the read-only identity (monitors, `nod status`, screens)
     out/control/router.json5           the router's config (`nod router --config …`)
 
+A lab of several rigs on one router (`--rigs rig1,rig2`): each rig's identities in a folder of
+its own (`out/<rig>/…`, the layout above: a rig file's `rig.tls = "out/<rig>"`), each touching
+only its own rig's keys, and the lab's:
+
+    out/lab/monitor/…                  read-only on every rig (`nod lab status`, lab screens)
+    out/lab/estop/…                    `nod estop` on every rig: engages and releases any rig
+    out/router/router.json5            the lab router's config, with its certificate
+
 Where the router listens: `--listen tls/HOST:PORT`, by default the address the hosts reach it
 by (`--router-host`, `--port`, or the rig file's `rig.router` with `--rig-file`), never every
 interface unless `--listen` says so. Copy `out/<role>/` to the same path on each host, and
@@ -45,7 +53,9 @@ from services.core.keys import check_rig
 from services.core.limits import low_pass_filters
 from services.core.rigfile import WILDCARD_HOSTS, RigFileError, load_rig, split_endpoint
 from services.core.session import MAX_MESSAGE_BYTES, SHARED_MEMORY
-from services.lab.acl import HOSTS, Identity, acl, identities
+from services.lab.acl import HOSTS, LAB, Identity, acl, identities, lab_identities
+
+ROUTER = "router"  # the lab router's folder (`--rigs`)
 
 
 def _key() -> ec.EllipticCurvePrivateKey:
@@ -166,33 +176,56 @@ def _common(tls: dict) -> dict:
 
 
 def secure(
-    out: Path, roles: list[str], rig: str, router_host: str, port: int, days: int,
+    out: Path, roles: list[str], rig: str | list[str], router_host: str, port: int, days: int,
     install_dir: Path, listen: str | None = None,
 ) -> list[Path]:
     """Write the CA, every identity with its client config, and the router's; return the files.
 
-    The router listens on `listen` (default `tls/<router_host>:<port>`); clients connect to
-    `tls/<router_host>:<port>`.
+    `rig` is one rig's name (the single-rig layout) or the rigs of a lab (`--rigs`: each rig's
+    identities under its name, the lab's own, and a router of its own). The router listens on
+    `listen` (default `tls/<router_host>:<port>`); clients connect to `tls/<router_host>:<port>`.
     """
     out.mkdir(parents=True, exist_ok=True)
     ca_key, ca = make_ca(days)
     _write_pem(out / "ca.pem", _cert_pem(ca))
     _write_pem(out / "ca.key", _key_pem(ca_key), private=True)
     written = [out / "ca.pem", out / "ca.key"]
-    ids = identities(roles)
+    lab = not isinstance(rig, str)
+    ids = lab_identities(roles, list(rig)) if lab else identities(roles, str(rig))
     for ident in ids:
         written += _write_identity(out, install_dir, ident, router_host, port, ca_key, ca, days)
+    # The router speaks with a certificate that names its address: in a lab one of its own (no
+    # rig's control station is the lab's), on a single rig the control station's.
+    where = ROUTER if lab else "control"
+    if lab:
+        written += _write_cert(out / ROUTER, f"{LAB}.{ROUTER}", router_host, ca_key, ca, days)
     router = {
         "mode": "router",
         "listen": {"endpoints": [listen or f"tls/{router_host}:{port}"]},
-        **_common(_tls(install_dir / "control", listen=True)),
-        "access_control": acl(rig, ids),
+        **_common(_tls(install_dir / where, listen=True)),
+        "access_control": acl(ids),
     }
-    (out / "control" / "router.json5").write_text(
-        _json5(router, "the control station's router: mutual TLS, access control by identity")
+    what = "the lab's router" if lab else "the control station's router"
+    (out / where / "router.json5").write_text(
+        _json5(router, f"{what}: mutual TLS, access control by identity")
     )
-    written.append(out / "control" / "router.json5")
+    written.append(out / where / "router.json5")
     return written
+
+
+def _write_cert(
+    folder: Path, name: str, router_host: str | None, ca_key: ec.EllipticCurvePrivateKey,
+    ca: x509.Certificate, days: int,
+) -> list[Path]:
+    """An identity's key, certificate and the CA's certificate, in its folder."""
+    folder.mkdir(parents=True, exist_ok=True)
+    # The router's certificate names the router's address (the clients verify it).
+    hosts = [] if router_host is None else [router_host, "localhost", "127.0.0.1"]
+    key, cert = make_host(name, hosts, ca_key, ca, days)
+    _write_pem(folder / "key.pem", _key_pem(key), private=True)
+    _write_pem(folder / "cert.pem", _cert_pem(cert))
+    _write_pem(folder / "ca.pem", _cert_pem(ca))
+    return [folder / n for n in ("cert.pem", "key.pem", "ca.pem")]
 
 
 def _write_identity(
@@ -200,20 +233,16 @@ def _write_identity(
     ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate, days: int,
 ) -> list[Path]:
     folder = out / ident.folder
-    folder.mkdir(parents=True, exist_ok=True)
-    # The router speaks with the control station's certificate: it names the router's address.
-    hosts = [router_host, "localhost", "127.0.0.1"] if ident.name == "control" else []
-    key, cert = make_host(ident.name, hosts, ca_key, ca, days)
-    _write_pem(folder / "key.pem", _key_pem(key), private=True)
-    _write_pem(folder / "cert.pem", _cert_pem(cert))
-    _write_pem(folder / "ca.pem", _cert_pem(ca))
+    # On a single rig the router speaks with the control station's certificate.
+    serves = router_host if ident.name == "control" else None
+    written = _write_cert(folder, ident.name, serves, ca_key, ca, days)
     client = {
         "mode": "client",
         "connect": {"endpoints": [f"tls/{router_host}:{port}"]},
         **_common(_tls(install_dir / ident.folder, listen=False)),
     }
     (folder / "zenoh.json5").write_text(_json5(client, f"{ident.name}: client of the router"))
-    return [folder / n for n in ("cert.pem", "key.pem", "ca.pem", "zenoh.json5")]
+    return [*written, folder / "zenoh.json5"]
 
 
 def _json5(data: dict, what: str) -> str:
@@ -240,6 +269,13 @@ def build_parser() -> argparse.ArgumentParser:
         "rig.router) instead of --rig, --router-host and --port",
     )
     p.add_argument("--rig", type=check_rig, default=None, help="rig name scoping every key (rig1)")
+    p.add_argument(
+        "--rigs",
+        default=None,
+        metavar="RIG,RIG,…",
+        help="a lab of several rigs on one router: each rig's identities in out/<rig>/, touching "
+        "only its own keys, plus the lab's monitor and e-stop (out/lab/) and router (out/router/)",
+    )
     p.add_argument(
         "--router-host",
         default=None,
@@ -299,6 +335,23 @@ def where(args: argparse.Namespace) -> tuple[str, str, int, str]:
     return rig, host, port, args.listen
 
 
+def lab_rigs(text: str | None, rig: str | None) -> list[str] | None:
+    """The rigs of `--rigs` (None without it); ValueError in one line."""
+    if text is None:
+        return None
+    if rig is not None:
+        raise ValueError("--rigs names every rig of the lab: leave out --rig")
+    rigs = [r for r in text.split(",") if r]
+    for r in rigs:
+        check_rig(r)
+    if not rigs or len(set(rigs)) != len(rigs):
+        raise ValueError(f"--rigs takes distinct rig names, comma separated; got {text!r}")
+    if LAB in rigs or ROUTER in rigs:
+        raise ValueError(f"a rig may not be called {LAB!r} or {ROUTER!r} (the lab's own "
+                         "identities and router live in those folders): rename it")
+    return rigs
+
+
 def main(argv: list[str] | None = None) -> int:
     """Generate a lab's identities and configs."""
     args = build_parser().parse_args(argv)
@@ -314,26 +367,45 @@ def main(argv: list[str] | None = None) -> int:
     if not 1 <= args.days <= 3650:
         return fail("nod lab secure", "--days must be 1-3650")
     try:
+        rigs = lab_rigs(args.rigs, args.rig)
         rig, host, port, listen = where(args)
+        if rigs is not None and args.rig_file is not None and rig not in rigs:
+            raise ValueError(f"--rig-file's rig {rig!r} is not among --rigs {args.rigs!r}")
     except ValueError as exc:
         return fail("nod lab secure", exc)
     install = (args.install_dir or args.out).absolute()
     try:
-        written = secure(args.out, names, rig, host, port, args.days, install, listen)
+        written = secure(args.out, names, rig if rigs is None else rigs, host, port, args.days,
+                         install, listen)
     except OSError as exc:
         return fail("nod lab secure", f"cannot write to {args.out}: {exc.strerror}")
-    print(f"wrote {len(written)} files to {args.out}/ (rig {rig!r}; hosts connect to "
+    scope = f"rig {rig!r}" if rigs is None else f"rigs {', '.join(rigs)}"
+    print(f"wrote {len(written)} files to {args.out}/ ({scope}; hosts connect to "
           f"tls/{host}:{port}; the router listens on {listen}):")
     if split_endpoint(listen)[1] in WILDCARD_HOSTS:
         print("  WARNING: the router listens on every interface of the control station "
               "(--listen): any network it is on can reach it")
-    print(f"  control station: nod router --config {install}/control/router.json5")
-    for n in names:
-        print(f"  {n:<8} services: --config {install}/{n}/zenoh.json5; "
-              f"nod up: {install}/{n}/launcher/zenoh.json5")
-    print(f"  monitors, nod status, lab screens: --config {install}/monitor/zenoh.json5")
+    if rigs is None:
+        print(f"  control station: nod router --config {install}/control/router.json5")
+        _print_rig(install, names)
+    else:
+        print(f"  the lab's router: nod router --config {install}/{ROUTER}/router.json5 (the "
+              "rig files' control hosts: router = false)")
+        for r in rigs:
+            print(f"  rig {r}: rig.tls = \"{install}/{r}\"")
+            _print_rig(install / r, names)
+        print(f"  the lab view, lab screens: --config {install}/{LAB}/monitor/zenoh.json5")
+        print(f"  the lab e-stop (every rig): nod estop --rig RIG --config "
+              f"{install}/{LAB}/estop/zenoh.json5")
     print(f"  keep {args.out}/ca.key offline: whoever holds it can mint identities")
     return 0
+
+
+def _print_rig(folder: Path, roles: list[str]) -> None:
+    for n in roles:
+        print(f"  {n:<8} services: --config {folder}/{n}/zenoh.json5; "
+              f"nod up: {folder}/{n}/launcher/zenoh.json5")
+    print(f"  monitors, nod status, rig screens: --config {folder}/monitor/zenoh.json5")
 
 
 if __name__ == "__main__":
