@@ -14,6 +14,11 @@ speed scaled by conviction |z_h| (low conviction = hesitation). Once past the co
 rule-abiding participant keeps its choice; it switches at most `max_switches` times. The hand is
 published as 21 landmarks around its centre with Gaussian noise, exactly as vision would.
 
+In a control trial a strategist (`late_switch_*`, off by default) may instead play the paper's
+"quick, strategic end-moment switch": keep to the first side whatever the arm does, then, just
+before the commit line, turn quickly for the side the arm is on, too late for it to follow. The
+more control trials have shown the arm opposing them, the likelier they play it.
+
 Pure: time is an argument, randomness comes from a seeded numpy Generator.
 """
 
@@ -26,7 +31,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from services.model.dynamics import AgentParams, opinion_rate, rk4_step
-from services.model.geometry import HAND_TEMPLATE, Colour, Point, TableLayout, colour_sign
+from services.model.geometry import (
+    HAND_TEMPLATE,
+    Colour,
+    Point,
+    TableLayout,
+    colour_sign,
+    sign_colour,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,6 +72,27 @@ class ParticipantParams:
     # Probability that a person allows themselves that change in a control (dissensus) trial;
     # the paper saw almost no hesitation there (no DH, ~1% CH in trials 1-3).
     control_switch_prob: float = 1.0
+    # The strategic late switch of the control trials (the paper's Sec 6: "quick, strategic
+    # end-moment switches" gave some people the robot's buzzer although it disagreed; its Fig 8a
+    # has ~29 % C in trials 1-3, and 16 of its 51 people are C in most control trials, so the C
+    # gather in the same people). A strategist heads for their own side as a feint, keeps to it,
+    # and just before the commit line turns at speed for the side the arm is on: the arm, parked
+    # on that side, needs ~1.3 s to notice, pause and cross back past the middle (docs/study.md).
+    # Share of people who are strategists (drawn once per person); 0 = nobody (the SPEC person).
+    late_switch_share: float = 0.0
+    # Chance a strategist plays it in their first control trial, before seeing the arm oppose them.
+    late_switch_first: float = 0.5
+    # Share of a strategist's remaining doubt gone after each control trial in which the arm was
+    # seen heading against their first choice: the strategy grows as they learn it disagrees.
+    late_switch_learn: float = 0.5
+    # Hand speed during the switch, as a multiple of `speed`: the switch is quick (the paper's
+    # instructions list "switching too quickly" among the don'ts) so the arm cannot follow.
+    late_switch_speed: float = 1.5
+    # How far before the commit line (normalised image units) the turn starts: as late as the
+    # rules allow. The observer reads a turn only once the hand heads clearly sideways, ~0.3 s
+    # on, so a turn begun 0.03 before the line was read past it (a violation) in 4 of 5 trials,
+    # one begun 0.1 before it in none of 120.
+    late_switch_lead: float = 0.1
     rule_breaking: float = 0.05  # probability per trial of ignoring the commit-line rule
     hand_radius: float = 0.03  # landmark spread around the centre
     # Tracker jitter (sd, normalised units; 1 px = 1/640 in x, 1/480 in y). A tracker's error is
@@ -78,9 +111,14 @@ class ParticipantParams:
         for name in ("gaze_gain_spread", "gaze_over_robot"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"ParticipantParams.{name} must be >= 0")
-        for name in ("rule_breaking", "control_switch_prob", "min_conviction"):
+        for name in ("rule_breaking", "control_switch_prob", "min_conviction",
+                     "late_switch_share", "late_switch_first", "late_switch_learn"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"ParticipantParams.{name} must be in [0, 1]")
+        if not 1 <= self.late_switch_speed <= 5:
+            raise ValueError("ParticipantParams.late_switch_speed must be in [1, 5] (× speed)")
+        if not 0 <= self.late_switch_lead <= 0.3:
+            raise ValueError("ParticipantParams.late_switch_lead must be in [0, 0.3]")
 
 
 class Participant:
@@ -110,6 +148,17 @@ class Participant:
         self._gaze_pull = 0.0
         self._last_seen = 0.0
         self._max_switches = params.max_switches
+        # The strategic late switch (ParticipantParams.late_switch_*). Drawn only when anyone can
+        # be a strategist, so the SPEC person's random stream, hence its sessions, are unchanged.
+        share = params.late_switch_share
+        self.strategist = share > 0 and bool(self.rng.random() < share)
+        self.opposed_trials = 0  # control trials in which the arm headed against the first choice
+        self._control = False
+        self._feint = False  # playing the late switch this trial: first side until the line
+        self._quick = False  # turned late toward the arm: straight on, at the switch's speed
+        self._first: Colour | None = None  # the side the hand first headed for this trial
+        self._arm_side = 0  # the side the arm was last seen heading for (it stays there parked)
+        self._opposed = False  # the arm was seen heading against the first side this trial
 
     # -- protocol events -------------------------------------------------------------------
 
@@ -134,6 +183,15 @@ class Participant:
         self._max_switches = self.p.max_switches if allowed else 0
         self._robot_seen.clear()
         self._last_seen = 0.0
+        self._control = option is None
+        chance = late_switch_chance(
+            self.p.late_switch_first, self.p.late_switch_learn, self.opposed_trials
+        )
+        self._feint = self._control and self.strategist and bool(self.rng.random() < chance)
+        self._quick = False
+        self._first = None
+        self._arm_side = 0
+        self._opposed = False
 
     def go(self, t: float) -> None:
         """The countdown said "go": the bias is today's preference plus the gaze cue's pull.
@@ -148,7 +206,13 @@ class Participant:
         self.t_go = t
 
     def trial_ended(self, robot: Colour | None) -> None:
-        """Learn from the trial: following the gaze and agreeing with the robot builds trust."""
+        """Learn from the trial: following the gaze and agreeing with the robot builds trust.
+
+        A control trial whose arm headed against the person's first choice teaches a strategist
+        that the robot disagrees (`late_switch_chance`).
+        """
+        if self._control and self._opposed:
+            self.opposed_trials += 1
         if self._gaze_sign and robot is not None and self.pressed is not None:
             followed = colour_sign(self.pressed) == self._gaze_sign
             if followed and self.pressed == robot:
@@ -185,10 +249,15 @@ class Participant:
         if self.pressed is not None:
             return
         r_hat = self._robot_perceived()
+        if r_hat:
+            self._arm_side = 1 if r_hat > 0 else -1
+            if self._first is not None and self._arm_side != colour_sign(self._first):
+                self._opposed = True
         if r_hat * self._gaze_sign < 0:  # the arm goes against the eyes: believed less
             r_hat /= 1.0 + self.p.gaze_over_robot * self.trust
         committed = self._heading is not None and (
-            self.switches >= self._max_switches
+            self._quick
+            or self.switches >= self._max_switches
             or (self._obeys_commit and self.layout.commit.crossed((self._x, self._y)))
         )
 
@@ -201,7 +270,9 @@ class Participant:
             return
         wanted: Colour = "red" if self.z_h > 0 else "blue"
         if self._heading is None:
-            self._heading = wanted
+            self._heading = self._first = wanted
+        elif self._feint:
+            self._turn_at_the_line()
         elif wanted != self._heading and not committed:
             self._heading = wanted
             self.switches += 1
@@ -211,9 +282,10 @@ class Participant:
         dx, dy = tx - px, ty - py
         dist = math.hypot(dx, dy)
         conviction = min(1.0, max(self.p.min_conviction, abs(self.z_h) / self.p.full_conviction))
-        if committed:
-            conviction = 1.0  # a committed hand goes straight on
-        gain = self.p.speed * conviction / max(dist, 1e-9)
+        if committed or self._feint:
+            conviction = 1.0  # a committed hand (or a feint) goes straight on
+        speed = self.p.speed * (self.p.late_switch_speed if self._quick else 1.0)
+        gain = speed * conviction / max(dist, 1e-9)
         ax, ay = dx * gain - self._vx, dy * gain - self._vy
         dv = math.hypot(ax, ay)
         max_dv = self.p.accel * h
@@ -222,6 +294,22 @@ class Participant:
         self._vx, self._vy = self._vx + ax, self._vy + ay
         self._x, self._y = px + self._vx * h, py + self._vy * h
         self.pressed = self._press_test()
+
+    def _turn_at_the_line(self) -> None:
+        """The feint's end: within `late_switch_lead` of the commit line, turn toward the arm.
+
+        Decided once, at the line: if the arm is not seen on the other side, keep going.
+        """
+        line = self.layout.commit
+        ahead = -self.p.late_switch_lead if line.start_side == "below" else self.p.late_switch_lead
+        if not line.crossed((self._x, self._y + ahead)):
+            return
+        self._feint = False
+        arm = sign_colour(self._arm_side) if self._arm_side else None
+        if arm is not None and arm != self._heading:
+            self._heading = arm
+            self.switches += 1
+            self._quick = True
 
     def _press_test(self) -> Colour | None:
         """A landmark of the (noise-free) hand inside a buzzer box; cheap when far from both."""
@@ -250,6 +338,15 @@ class Participant:
             common = self.rng.normal(0.0, self.p.common_noise, 2)
             pts = pts + common + self.rng.normal(0.0, self.p.landmark_noise, pts.shape)
         return np.clip(pts, 0.0, 1.0)
+
+
+def late_switch_chance(first: float, learn: float, opposed_trials: int) -> float:
+    """A strategist's chance of playing the late switch in a control trial.
+
+    `first` before any opposition; each control trial in which the arm headed against their
+    first choice removes the share `learn` of the remaining doubt: 1 − (1 − first)(1 − learn)^n.
+    """
+    return 1.0 - (1.0 - first) * (1.0 - learn) ** opposed_trials
 
 
 def jittered(base: ParticipantParams, rng: np.random.Generator) -> ParticipantParams:
