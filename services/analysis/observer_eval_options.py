@@ -26,7 +26,8 @@ from services.analysis.observer_eval import GRACE_S, HAND_RADIUS, HEIGHT, LANDMA
 from services.model.geometry import HAND_TEMPLATE, Point
 from services.model.observer import ObserverParams
 from services.model.options import leading_option
-from services.model.options_observer import OptionsLayout, OptionsObserver
+from services.model.options_geometry import OptionsLayout
+from services.model.options_observer import OptionsObserver
 
 REST: Point = (0.5, 0.85)  # where the hand waits, on the participant's side of the table
 

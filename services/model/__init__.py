@@ -19,7 +19,8 @@ Where each piece lives (services call these; the tests test these):
     participant.py  the simulated participant (eq 2 driving a hand)
     params.py       NodConfig: every SPEC default in one typed tree
     options*.py     more than two options (docs/multi-option.md): N_o-option dynamics and
-                    thresholds, the N_o-box observer, eq 6 toward O among N_o options
+                    thresholds, the N_o-box table and observer, eq 6 toward O among N_o
+                    options, Algorithm 2 over N_o boxes
 
 Nothing here imports zenoh, OpenCV, serial, Rerun, SQLite, msgpack, threads or clocks: time is
 passed in (import-linter holds this; see pyproject.toml).

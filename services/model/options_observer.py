@@ -22,63 +22,26 @@ With the two boxes of a `TableLayout` (option 0 = red, 1 = blue) and `neighbour_
 vector graded by every box's cos θ_j would let jitter move the argmax between neighbouring
 boxes, whose bearings are closer with more boxes on the same table edge.
 
-Pure: time (s) is passed in with each pose.
+Pure: time (s) is passed in with each pose. The boxes are an `OptionsLayout`
+(`services.model.options_geometry`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from services.model.geometry import Box, CommitLine, Point, TableLayout
+from services.model.geometry import Point
 from services.model.observer import ObserverParams, hand_center
 from services.model.observer_robust import MotionWindow
 from services.model.options import option_vector
+from services.model.options_geometry import OptionsLayout
 
-# The paper's table edge: the two-option boxes span x 0.14-0.86 at y 0.12-0.26 (geometry.py).
-_EDGE = (0.21, 0.79)  # the outer boxes' centres
-_Y = (0.12, 0.26)
-_WIDTH = 0.14
 # The switch margin is capped at this share of the cos gap between two boxes' bearings
 NEIGHBOUR_SHARE = 0.5
-
-
-@dataclass(frozen=True, slots=True)
-class OptionsLayout:
-    """N_o boxes (option j's box is `boxes[j]`) and the commit line, as the camera sees them."""
-
-    boxes: tuple[Box, ...]
-    commit: CommitLine = field(default_factory=CommitLine)
-
-    def __post_init__(self) -> None:
-        if len(self.boxes) < 2:
-            raise ValueError(f"a layout needs at least 2 boxes, got {len(self.boxes)}")
-
-    @property
-    def n_options(self) -> int:
-        """How many boxes (options) the table has."""
-        return len(self.boxes)
-
-    @classmethod
-    def row(cls, n_options: int) -> OptionsLayout:
-        """N_o boxes in a row on the paper's far table edge, left to right, equally spaced.
-
-        Each is the paper's 0.14 wide, narrowed to 90 % of the spacing when they would touch.
-        """
-        if n_options < 2:
-            raise ValueError(f"a layout needs at least 2 boxes, got {n_options}")
-        centres = np.linspace(_EDGE[0], _EDGE[1], n_options)
-        half = 0.5 * min(_WIDTH, 0.9 * (centres[1] - centres[0]))
-        return cls(tuple(Box(float(c - half), _Y[0], float(c + half), _Y[1]) for c in centres))
-
-    @classmethod
-    def from_table(cls, layout: TableLayout) -> OptionsLayout:
-        """The two-option table as options (red, blue): option 0 is red, as z > 0 is."""
-        return cls((layout.red, layout.blue), layout.commit)
-
 
 @dataclass(frozen=True, slots=True)
 class OptionsObservation:

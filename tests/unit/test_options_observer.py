@@ -11,7 +11,8 @@ from services.model.geometry import TableLayout
 from services.model.observer import ObserverParams
 from services.model.observer_robust import RobustObserver
 from services.model.options import leading_option
-from services.model.options_observer import OptionsLayout, OptionsObserver
+from services.model.options_geometry import OptionsLayout
+from services.model.options_observer import OptionsObserver
 
 
 @pytest.mark.parametrize("hz", [30.0, 60.0])
