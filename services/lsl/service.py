@@ -128,16 +128,18 @@ def main(argv: list[str] | None = None) -> int:
         fabric = Fabric.from_args(args)
     except (ImportError, ValueError, OSError) as exc:
         return fail("nod lsl", exc)
-    try:
-        node = Node("lsl", fabric, retry_s=math.inf)
-    except (ValueError, OSError, ConnectionError) as exc:
-        return fail("nod lsl", exc)
-    anchor = read_anchor(node.clock.now_ns, pylsl.local_clock, node.clock.speed)
+    # The outlets open first: LabRecorder lists the streams while the rig is still coming up.
+    clock = fabric.clock()
+    anchor = read_anchor(clock.now_ns, pylsl.local_clock, clock.speed)
     try:
         outlets = Outlets(fabric.rig, socket.gethostname(), anchor.offset_s())
     except RuntimeError as exc:  # liblsl could not open its sockets
-        node.close()
         return fail("nod lsl", f"cannot open the LSL outlets: {exc}")
+    try:
+        node = Node("lsl", fabric, retry_s=math.inf)
+    except (ValueError, OSError, ConnectionError) as exc:
+        outlets.close()
+        return fail("nod lsl", exc)
     log.info("lsl: outlets nod-%s-signals and nod-%s-markers (liblsl %s); LSL − rig clock "
              "%+.6f s (±%.1f µs)", fabric.rig, fabric.rig, pylsl.library_version(),
              anchor.offset_s(), anchor.uncertainty_s * 1e6)
