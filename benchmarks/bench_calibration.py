@@ -12,7 +12,7 @@ process: wall time, cluster start and stop included, against the issue's 60 s on
 Exit status 1 if the speed-up is below `--min-speedup` (default 1.5) or the cohort takes more
 than `--max-cohort-s` (default 60).
 
-    .venv/bin/python benchmarks/bench_calibration.py [--participants 40] [--repeat 2]
+    .venv/bin/python benchmarks/bench_calibration.py [--participants 32] [--repeat 2]
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def generation_seconds(workers: int, popsize: int, participants: int, repeat: in
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--participants", type=int, default=40, help="per candidate (40)")
+    ap.add_argument("--participants", type=int, default=32, help="per candidate (32)")
     ap.add_argument("--popsize", type=int, default=default_popsize(len(TRAITS)))
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--cohort", type=int, default=300, help="nod cohort --participants (300)")

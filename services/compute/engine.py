@@ -11,10 +11,10 @@ after checking that every worker runs this machine's nod-hri code (a fingerprint
 `Engine.map(fn, items)` returns `[fn(x) for x in items]` in input order, computed on the
 cluster; `Engine.imap` yields the same results in the same order as they arrive (a progress
 bar, a store written as it goes). Items travel in chunks (about `TASKS_PER_WORKER` tasks per
-worker thread), so a cohort of 10⁵ people is not 10⁵ scheduler tasks, while the last chunks
-still keep every worker busy. `fn` and the items must pickle (a module-level function; Dask
-pickles a lambda by value). Every failure to reach or use a cluster is an `EngineError` whose
-message is one line saying what to do.
+worker thread, at most `MAX_CHUNK` items each), so a cohort of 10⁵ people is not 10⁵ scheduler
+tasks, while the last chunks still keep every worker busy. `fn` and the items must pickle (a
+module-level function; Dask pickles a lambda by value). Every failure to reach or use a cluster
+is an `EngineError` whose message is one line saying what to do.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import hashlib
 import logging
 import math
 import os
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
@@ -33,12 +34,13 @@ from typing import TYPE_CHECKING, Any, TypeVar
 from services.core.cli import int_in
 
 if TYPE_CHECKING:
-    from distributed import Client
+    from distributed import Client, Future
 
 T = TypeVar("T")
 R = TypeVar("R")
 
 TASKS_PER_WORKER = 16  # chunks per worker thread: small enough tails, few enough tasks
+MAX_CHUNK = 16  # items per task at most: a chunk of stored sessions stays a few MB
 CONNECT_TIMEOUT_S = 10.0  # a scheduler that does not answer in 10 s is not there
 QUIET = logging.ERROR  # distributed logs every worker's start and stop at INFO
 # The local workers log a heartbeat that races the scheduler's shutdown as an ERROR; a worker's
@@ -83,18 +85,29 @@ class Engine:
     def imap(
         self, fn: Callable[[T], R], items: Sequence[T], chunk: int | None = None
     ) -> Iterator[R]:
-        """fn(x) for each item, yielded in input order as the results arrive."""
+        """fn(x) for each item, yielded in input order as the results arrive.
+
+        At most TASKS_PER_WORKER tasks per worker thread are in flight, and each result is
+        released on the cluster once yielded: a cohort of any size holds a bounded amount of
+        results in memory, however slowly the caller consumes them.
+        """
         items = list(items)
-        if not items:
-            return
-        size = chunk or max(1, math.ceil(len(items) / (self.threads() * TASKS_PER_WORKER)))
-        chunks = [items[i : i + size] for i in range(0, len(items), size)]
-        futures = [self.client.submit(_run_chunk, fn, c, pure=False) for c in chunks]
+        threads = self.threads()
+        size = chunk or min(MAX_CHUNK, max(1, math.ceil(len(items) / (threads * TASKS_PER_WORKER))))
+        chunks = deque(items[i : i + size] for i in range(0, len(items), size))
+        running: deque[Future] = deque()
         try:
-            for future in futures:
-                yield from future.result()
+            while chunks or running:
+                while chunks and len(running) < threads * TASKS_PER_WORKER:
+                    running.append(self.client.submit(_run_chunk, fn, chunks.popleft(),
+                                                      pure=False))
+                future = running.popleft()
+                results = future.result()
+                future.release()
+                yield from results
         finally:  # a consumer that stops early (an error, Ctrl-C) leaves no work queued
-            self.client.cancel([f for f in futures if not f.done()])
+            if running:
+                self.client.cancel(list(running))
 
     def map(self, fn: Callable[[T], R], items: Sequence[T], chunk: int | None = None) -> list[R]:
         """[fn(x) for x in items], computed on the cluster, in input order."""

@@ -155,11 +155,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", type=Path, default=None,
                    help="base parameters (TOML); its person is the search's start (default: the "
                    "shipped fit)")
-    p.add_argument("--participants", type=int_in(2, 10**5), default=40,
-                   help="cohort size per candidate (40)")
+    p.add_argument("--participants", type=int_in(2, 10**5), default=32,
+                   help="cohort size per candidate (32)")
     p.add_argument("--seed", type=SEED, default=1, help="first seed of the fit's cohort (1)")
-    p.add_argument("--generations", type=int_in(1, 10**4), default=16,
-                   help="CMA-ES generations (16)")
+    p.add_argument("--generations", type=int_in(1, 10**4), default=14,
+                   help="CMA-ES generations (14)")
     p.add_argument("--popsize", type=int_in(2, 1000), default=None,
                    help=f"candidates per generation (pycma's default: "
                    f"{default_popsize(len(TRAITS))})")
