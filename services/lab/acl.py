@@ -76,7 +76,9 @@ class Identity:
 # The hosts of a lab and the services of each. `nod up` runs as the host's launcher identity,
 # `nod monitor` as the monitor identity, everything else as the host's role.
 HOSTS: dict[str, tuple[str, ...]] = {
-    "control": ("experiment", "operator", ESTOP, "run", "record"),
+    # The participant-facing services (speaker, display) and the LSL outlet sit by the control
+    # station: only a liveliness token and a heartbeat of their own to put.
+    "control": ("experiment", "operator", ESTOP, "run", "record", "speaker", "display", "lsl"),
     "camera": ("vision", "sim"),
     "arm": ("decision", "actuation"),
     "eyes": ("eyes",),

@@ -106,3 +106,15 @@ def test_bad_rigs_are_one_line(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and says in err, err
     assert not (tmp_path / "x").exists()
+
+
+def test_the_control_station_runs_the_participants_speaker_and_screen_and_the_lsl_outlet() -> None:
+    doc = acl(identities(["control", "arm"], "rig1"))
+    rules = _rules_of(doc, "control")
+    tokens = {k for r in rules if "liveliness_token" in r["messages"] for k in r["key_exprs"]}
+    puts = {k for r in rules if "put" in r["messages"] and r["flows"] == ["ingress"]
+            for k in r["key_exprs"]}
+    assert {f"nod/rig1/alive/{s}" for s in ("speaker", "display", "lsl")} <= tokens
+    assert {"nod/rig1/speaker/played", "nod/rig1/rig/status"} <= puts
+    arm = _rules_of(doc, "arm")
+    assert "nod/rig1/alive/display" not in {k for r in arm for k in r["key_exprs"]}
