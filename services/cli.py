@@ -42,7 +42,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "record": ("services.recording.record", "record every key of a rig into an MCAP file"),
     "replay": ("services.recording.replay", "replay a recording, or re-run decision on it"),
     "ports": ("services.tools.ports", "serial devices with their USB ids"),
-    "lab": ("services.lab.cli", "lab deployment tools: `nod lab secure` (mutual TLS, ACL)"),
+    "lab": ("services.lab.cli", "lab tools: `nod lab secure` (mutual TLS, ACL), `nod lab status`"),
 }
 
 

@@ -136,7 +136,7 @@ EYES_STATE = Topic(
 EXPERIMENT_TRIAL = Topic(
     "experiment/trial", m.TrialEvent, ("experiment",),
     ("decision", "actuation", "sim", "speaker", "display", "lsl", "run", "launcher",
-     "operator"),
+     "operator", "lab"),
     "per event", CONTROL,
     "`phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, `mode`, "
     "`option`, `text`, `session`",
@@ -159,11 +159,12 @@ SPEAKER_PLAYED = Topic(
     "`experiment/trial` event's t_ns), `played_ns` (rig clock when the sound started)",
 )
 RIG_STATUS = Topic(
-    "rig/status", m.NodeStatus, EVERY_SERVICE, ("status", "experiment"),
+    "rig/status", m.NodeStatus, EVERY_SERVICE, ("status", "experiment", "lab"),
     "1 Hz per service (wall time)", RELIABLE,
     "`service`, `host`, `pid`, `version`, `started_ns`, `wall_ns` (host wall clock: clock "
     "offsets), `restarts`, `received`, `dropped`, `params_hash` (12 hex digits of its "
-    "parameters' SHA-256, or nil: the conductor refuses a decision or actuation with another)",
+    "parameters' SHA-256, or nil: the conductor refuses a decision or actuation with another), "
+    "`session`, `participant`, `trial` (the conductor's, for the lab view; else empty)",
 )
 RIG_EVENT = Topic(
     "rig/event", m.RigEvent, ("launcher",), ("experiment", "status"), "on change",
@@ -252,7 +253,8 @@ def markdown_table() -> str:
     """The README's contract table, generated from `TOPICS`."""
 
     def names(who: tuple[str, ...]) -> str:
-        tools = {"estop": "`nod estop`", "run": "`nod run`", "operator": "`nod experiment next`"}
+        tools = {"estop": "`nod estop`", "run": "`nod run`", "operator": "`nod experiment next`",
+                 "lab": "`nod lab status`"}
         return ", ".join(tools.get(w, w) for w in who) or "—"
 
     rows = [

@@ -344,6 +344,10 @@ class NodeStatus(Message, frozen=True, kw_only=True):
     received: Counter = 0  # messages handled so far
     dropped: Counter = 0  # bad messages dropped so far
     params_hash: ParamsHash | None = None  # its effective parameters; None: it has none
+    # What the conductor is running (empty for every other service): the lab view's source.
+    session: Text = ""
+    participant: Text = ""
+    trial: Trial = 0
 
 
 RigEventKind = Literal["started", "exited", "restarting", "gave_up", "stopped"]

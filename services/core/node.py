@@ -117,6 +117,9 @@ class Node:
         # The launcher (`nod up`, `nod run`) tells a restarted service how often it restarted it.
         self.restarts = _env_int("NOD_RESTARTS")
         self._heartbeat: threading.Thread | None = None
+        # What the service is doing, sent with every heartbeat (set under `lock`; the
+        # conductor's session, participant and trial, for `nod lab status`).
+        self.activity: dict[str, Any] = {}
         log.info("%s up on rig %r (clock speed %.3g)", service, self.keys.rig, self.clock.speed)
 
     # -- pub/sub -------------------------------------------------------------------------------
@@ -296,12 +299,13 @@ class Node:
                 if self.session is None:
                     return
                 received, dropped = sum(self.received.values()), sum(self.bad.values())
+                activity = dict(self.activity)
             try:
                 status.put(
                     service=self.service, host=host[:200], pid=pid, version=version,
                     started_ns=self.started_ns, wall_ns=time.time_ns(),
                     restarts=self.restarts, received=received, dropped=dropped,
-                    params_hash=self.params_hash,
+                    params_hash=self.params_hash, **activity,
                 )
             except Exception as exc:  # a heartbeat must never take the service down
                 log.debug("%s: heartbeat not sent: %s", self.service, exc)

@@ -45,8 +45,10 @@ SHARED_MEMORY = False
 log = logging.getLogger(__name__)
 
 
-def add_zenoh_args(parser: argparse.ArgumentParser, *, default_mode: str = "client") -> None:
-    """Add the shared session flags to a service's argument parser."""
+def add_zenoh_args(
+    parser: argparse.ArgumentParser, *, default_mode: str = "client", rig: bool = True
+) -> None:
+    """Add the shared session flags to a service's argument parser (`rig`: with --rig)."""
     g = parser.add_argument_group("zenoh session")
     g.add_argument(
         "--mode",
@@ -66,7 +68,8 @@ def add_zenoh_args(parser: argparse.ArgumentParser, *, default_mode: str = "clie
         "-l", "--listen", action="append", default=None, metavar="ENDPOINT", help="listen endpoint"
     )
     g.add_argument("--config", type=Path, default=None, help="a zenoh JSON5 configuration file")
-    g.add_argument("--rig", type=check_rig, default="rig1", help="rig name scoping every key")
+    if rig:  # a tool of every rig at once (`nod lab status`) has none
+        g.add_argument("--rig", type=check_rig, default="rig1", help="rig name scoping every key")
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,7 +93,7 @@ class Fabric:
     def from_args(cls, args: argparse.Namespace) -> Fabric:
         """The fabric the shared flags describe (clock flags optional)."""
         return cls(
-            rig=args.rig,
+            rig=getattr(args, "rig", "rig1"),
             mode=args.mode,
             connect=tuple(args.connect or ()),
             listen=tuple(args.listen or ()),

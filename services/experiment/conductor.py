@@ -233,6 +233,8 @@ class Conductor:
             self.store.add_recording(session, *self.recording)
         self.session = session
         self.records = []
+        with self.node.lock:
+            self.node.activity = {"session": session, "participant": participant[:200]}
         self.console.start(session, participant, len(self.proto.trials))
         for _, t in self.store.trials(session) if resume else []:  # the panel goes on from them
             self.console.result(t.trial, t.mode, t.option, t.robot, t.human, t.outcome, t.score,
@@ -286,6 +288,7 @@ class Conductor:
             self.store.finish_session(session, self.node.clock.now_ns(), status)
             with self.node.lock:
                 self.gaze_msg = None
+                self.node.activity = {}  # no session under way
             self.pub_trial.put(
                 phase="session_end" if status == "complete" else "abort",
                 trial=self.trial,
@@ -421,6 +424,7 @@ class Conductor:
                 self.store.begin_attempt(self.session, spec.index, protocol.attempt, started)
                 with self.node.lock:
                     self.trial = spec.index
+                    self.node.activity["trial"] = spec.index
                     self.presses.begin(spec.index)
                     self.trial_samples = None
                     self.rig.begin(spec.index, protocol.attempt)

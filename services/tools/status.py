@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -213,11 +214,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=2.0, metavar="S", help="listen S seconds (2)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--watch", action="store_true", help="refresh until Ctrl-C")
+    p.add_argument("--lab", action="store_true",
+                   help="every rig on the network instead of one: `nod lab status` (its flags)")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     """Listen, report; exit 1 if a required service is down."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--lab" in argv:
+        from services.tools.lab_status import main as lab
+
+        return lab([a for a in argv if a != "--lab"])
     args = build_parser().parse_args(argv)
     if not 0.5 <= args.duration <= 600:
         return fail(PROG, "--duration must be in [0.5, 600] s")

@@ -10,6 +10,7 @@ allowed one has arrived at the observer, a refused one that had passed would hav
 from __future__ import annotations
 
 import subprocess
+import threading
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -184,3 +185,30 @@ def test_a_rigs_hosts_see_nothing_of_another_rig_and_the_lab_monitor_sees_both(
     assert [str(r.ok.key_expr) for r in alive if r.ok] == [], "rig2 saw rig1 alive"
     layout.undeclare()
     token.undeclare()
+
+
+def test_the_lab_view_lists_both_rigs_with_the_labs_identity_only(
+    lab: Opener, tmp_path: Path,
+) -> None:
+    from services.core.node import Node
+    from services.core.session import Fabric
+    from services.tools import lab_status
+
+    lab_monitor = lab("lab/monitor")  # once it connects, the router listens
+    nodes = [Node("decision", Fabric(rig=rig, config_file=tmp_path / "lab" / rig / "arm" /
+                                     "zenoh.json5")) for rig in ("rig1", "rig2")]
+    try:
+        for node in nodes:
+            node.ready()
+        stop = threading.Event()
+
+        def rigs(session: zenoh.Session) -> list[str]:
+            seen = lab_status.observe(session, 1.5, stop)
+            return sorted({r for r, _ in seen.heartbeats} & set(seen.alive))
+
+        wait_for(lambda: rigs(lab_monitor) == ["rig1", "rig2"], 15, "both rigs in the lab view")
+        # A rig's own identity may not listen across rigs at all: the lab view needs the lab's.
+        assert rigs(lab("rig1/monitor")) == []
+    finally:
+        for node in nodes:
+            node.close()
