@@ -27,7 +27,7 @@ pylsl = pytest.importorskip("pylsl", reason="the lsl extra: pip install 'nod-hri
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
 STEP_NS = 100_000_000  # the events' stamps, 100 ms apart, all before they are sent
-TOLERANCE_S = 0.002  # stamp mapped by the service vs by this test, both on this host
+TOLERANCE_S = 0.0005  # stamp mapped by the service vs by this test, both on this host (~1 µs)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -147,11 +147,15 @@ def test_the_inlet_gets_a_trials_markers_in_order_on_the_rigs_clock_and_one_samp
     assert texts[0] == {"event": "setup", "trial": 4, "session": "S9", "mode": "consensus",
                              "option": "blue", "gaze": "low"}
     assert texts[-1]["outcome"] == "C" and texts[-1]["score"] == 2
-    for (_, stamp), (event, t_ns) in zip(got, sent, strict=True):
-        assert abs(stamp - (t_ns / 1e9 + offset)) < TOLERANCE_S, (event, stamp, t_ns)
+    errors = [stamp - (t_ns / 1e9 + offset) for (_, stamp), (_, t_ns) in zip(got, sent,
+                                                                               strict=True)]
+    assert all(abs(e) < TOLERANCE_S for e in errors), errors
     gaps = [b[1] - a[1] for a, b in zip(got, got[1:], strict=False)]
     want = [(b[1] - a[1]) / 1e9 for a, b in zip(sent, sent[1:], strict=False)]
-    assert all(abs(g - w) < 1e-4 for g, w in zip(gaps, want, strict=True)), (gaps, want)
+    slips = [abs(g - w) for g, w in zip(gaps, want, strict=True)]
+    assert max(slips) < 1e-4, (gaps, want)
+    print(f"marker stamp − event time mapped here: max {max(map(abs, errors)) * 1e6:.1f} µs; "
+          f"interval error max {max(slips) * 1e6:.2f} µs")
 
     rows = _pull(signals, 2)
     assert [values for values, _ in rows][0] == [0.5, -0.25, 1.5, 0.25, 0.75]
