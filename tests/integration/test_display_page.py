@@ -109,17 +109,22 @@ def test_the_page_shows_countdown_go_and_points_and_waits_when_the_conductor_is_
 
     browser.get(url)
 
-    def screen() -> tuple[str, str, str]:
-        body = browser.find_element("tag name", "body")
-        return (body.get_attribute("data-screen") or "",
-                browser.find_element("id", "big").text, browser.find_element("id", "small").text)
+    def screen() -> tuple[str, str, str]:  # what is drawn, in one WebDriver round trip
+        kind, big, small = browser.execute_script(
+            "return [document.body.dataset.screen, document.getElementById('big').innerText,"
+            " document.getElementById('small').innerText];")
+        return kind or "", big, small
 
     def shows(kind: str, big: str, small: str | None = None) -> bool:
         now = screen()
         return now[:2] == (kind, big) and (small is None or now[2] == small)
 
+    latencies: list[float] = []  # event published → the browser shows it (s)
+
     def expect(kind: str, big: str, small: str | None = None) -> None:
+        start = time.monotonic()
         wait_for(lambda: shows(kind, big, small), 10, f"{kind} {big!r} {small!r}, not {screen()}")
+        latencies.append(time.monotonic() - start)
 
     expect("wait", "Please wait")  # no conductor yet
     conductor.alive(True)
@@ -138,6 +143,9 @@ def test_the_page_shows_countdown_go_and_points_and_waits_when_the_conductor_is_
         conductor.result(trial, score)
         expect("score", "+2 points" if score == 2 else "0 points", total)
     browser.save_screenshot(str(tmp_path / "score.png"))
+    shown = sorted(latencies[1:])  # the first is the page's own load
+    print(f"event published → drawn in the browser: median {shown[len(shown) // 2] * 1e3:.0f} ms, "
+          f"max {shown[-1] * 1e3:.0f} ms over {len(shown)} screens")
     assert not re.search(r"red|blue|consensus|significant|\bC\b", browser.page_source)
 
     # The conductor dies during a trial's go: the page must not keep saying "go".
