@@ -8,24 +8,28 @@ services' own loaders (the arm file with the arm's, the eyes file and the trims 
 the vision calibration with vision's, each zenoh identity of rig.tls with zenoh's, and the
 certificates it names with `cryptography`); each serial port is a character device this user
 may read and write; each camera is there (an index N is /dev/videoN); the speaker's WAV folder
-is writable, or its sound library installed. Every problem is one line
-that starts with the rig file's key (`actuation.port: …`); `nod up --dry-run` prints them all
-and exits 2. Nothing is opened for I/O: a device in use by a running service stays untouched.
+is writable, or its sound library installed; the display's address can be served on (bound
+for an instant: the one socket this opens); the LSL outlet's library is installed. Every
+problem is one line that starts with the rig file's key (`actuation.port: …`); `nod up
+--dry-run` prints them all and exits 2. Nothing is opened for I/O: a device in use by a
+running service stays untouched.
 """
 
 from __future__ import annotations
 
 import datetime
+import errno
 import getpass
 import importlib.util
 import json
 import os
+import socket
 import stat
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from services.core.cli import one_line
+from services.core.cli import host_port, one_line
 from services.core.rigfile import CONTROL, LAUNCHER, Rig, identity
 
 # The TLS files a zenoh config may name, and what each must hold.
@@ -52,6 +56,8 @@ def problems(
                 out += _parsed("vision.calibration", sec["calibration"], _calibration_file)
         elif service == "speaker":
             out += _speaker(sec, sim_hardware)
+        elif service == "display" and "http" in sec:
+            out += _http("display.http", sec["http"])
         elif service == "lsl" and importlib.util.find_spec("pylsl") is None:
             out.append("lsl: the LSL outlet needs the lsl extra: pip install 'nod-hri[lsl]'")
     return out
@@ -68,6 +74,24 @@ def _speaker(sec: dict[str, Any], sim_hardware: bool) -> list[str]:
     if driver == "sounddevice" and importlib.util.find_spec("sounddevice") is None:
         return ["speaker.driver: the sounddevice driver needs the audio extra: pip install "
                 "'nod-hri[audio]' (and PortAudio: apt install libportaudio2)"]
+    return []
+
+
+def _http(key: str, address: str) -> list[str]:
+    """An address a service will serve on: this host can bind it now (bound, then let go)."""
+    host, port = host_port(address)
+    if port == 0:
+        return []
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server will
+        try:
+            probe.bind((host, port))
+        except OSError as exc:
+            why = exc.strerror or str(exc)
+            hint = " (a display already running, or another server)" \
+                if exc.errno == errno.EADDRINUSE else ""
+            return [f"{key}: cannot serve on {address}: {why}{hint}"]
     return []
 
 

@@ -235,3 +235,23 @@ def test_the_lsl_outlet_needs_pylsl(rig: Path, capsys, monkeypatch) -> None:
                         lambda name, *a: None if name == "pylsl" else real(name, *a))
     assert dry_run(rig, capsys) == (
         2, ["nod up: lsl: the LSL outlet needs the lsl extra: pip install 'nod-hri[lsl]'"])
+
+
+def test_the_display_needs_an_address_it_can_serve_on(rig: Path, capsys) -> None:
+    import socket
+
+    _edit(rig, 'services = ["monitor"]', 'services = ["monitor", "display"]')
+    text = rig.read_text()
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        rig.write_text(text + f'[display]\nhttp = "127.0.0.1:{port}"\n')
+        code, lines = dry_run(rig, capsys)
+        assert code == 2 and lines == [
+            f"nod up: display.http: cannot serve on 127.0.0.1:{port}: Address already in use "
+            "(a display already running, or another server)"], lines
+    assert dry_run(rig, capsys) == (0, [])  # free again
+    rig.write_text(text + '[display]\nhttp = "192.0.2.1:8090"\n')  # not an address of this host
+    code, lines = dry_run(rig, capsys)
+    assert code == 2 and lines[0].startswith("nod up: display.http: cannot serve on 192.0.2.1")
