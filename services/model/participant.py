@@ -90,8 +90,8 @@ class ParticipantParams:
     late_switch_speed: float = 1.5
     # How far before the commit line (normalised image units) the turn starts: as late as the
     # rules allow. The observer reads a turn only once the hand heads clearly sideways, ~0.3 s
-    # on, so a turn begun 0.03 before the line was read past it (a violation) in 4 of 5 trials,
-    # one begun 0.1 before it in none of 120.
+    # on, so most turns begun 0.03 before the line were read past it (a violation), none of 180
+    # begun 0.1 before it (at 1.5× speed; a quicker turn needs more).
     late_switch_lead: float = 0.1
     rule_breaking: float = 0.05  # probability per trial of ignoring the commit-line rule
     hand_radius: float = 0.03  # landmark spread around the centre
