@@ -29,14 +29,26 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from services.cohort.outcomes import cohort_outcomes, flows, shares  # noqa: E402
+from services.cohort.outcomes import (  # noqa: E402
+    cohort_outcomes,
+    flows,
+    session_outcomes,
+    shares,
+)
 from services.cohort.person import load_cohort_params  # noqa: E402
 from services.compute.engine import open_engine  # noqa: E402
 from services.sim.fit import TRAITS, CohortObjective, default_popsize, to_unit  # noqa: E402
 
 
+def session_cpu(job: tuple) -> float:
+    """One session's CPU seconds on its worker (to tell a slow machine from a loaded one)."""
+    t = time.process_time()
+    session_outcomes(job)
+    return time.process_time() - t
+
+
 def generation_seconds(workers: int, popsize: int, participants: int, repeat: int) -> tuple:
-    """(cluster start s, best generation s) on a local cluster of `workers`."""
+    """(cluster start s, best generation s, CPU s per session) on a local cluster of `workers`."""
     cfg = load_cohort_params(None)
     t0 = time.perf_counter()
     with open_engine(workers=workers) as engine:
@@ -51,7 +63,8 @@ def generation_seconds(workers: int, popsize: int, participants: int, repeat: in
             t = time.perf_counter()
             objective(candidates)
             best = min(best, time.perf_counter() - t)
-    return start, best
+        cpu = engine.map(session_cpu, [(cfg, seed) for seed in range(1, 1 + 4 * workers)])
+    return start, best, sum(cpu) / len(cpu)
 
 
 def main() -> int:
@@ -69,10 +82,14 @@ def main() -> int:
           f"{sessions} sessions")
     times = {}
     for workers in (1, 2):
-        start, best = generation_seconds(workers, args.popsize, args.participants, args.repeat)
+        start, best, cpu = generation_seconds(workers, args.popsize, args.participants,
+                                              args.repeat)
         times[workers] = best
+        # busy: the share of the workers' wall time spent computing (< 1: the cores are shared)
+        busy = sessions * cpu / (best * workers)
         print(f"  {workers} worker{'s' if workers > 1 else ' '}: {best:6.1f} s "
-              f"({sessions / best:5.1f} sessions/s; cluster start {start:.1f} s)")
+              f"({sessions / best:5.1f} sessions/s; {cpu:.3f} CPU s per session, workers busy "
+              f"{busy:.0%}; cluster start {start:.1f} s)")
     speedup = times[1] / times[2]
     print(f"  speed-up 2 vs 1 workers: {speedup:.2f}x")
 
