@@ -15,9 +15,12 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from types import TracebackType
+from typing import Generic, TypeVar
 
 from services.model.behaviour import ArmCommand
 from services.model.geometry import Colour, Point, TableLayout
+
+Target = TypeVar("Target")  # what a simulated arm's targets are named by: a colour, an option
 
 
 class ArmNotConnectedError(RuntimeError):
@@ -118,20 +121,19 @@ class SimArmParams:
 _ARRIVED = 1e-6  # distance (normalised) under which the arm snaps onto its goal
 
 
-class SimArm(ArmDriver):
+class PointArm(Generic[Target]):
     """A point end effector with speed and acceleration limits, moving over the table.
 
-    "move" heads for the centre of that colour's box; "press" does the same, then holds the
-    buzzer for `press_duration_s` and reports it pressed. "stop" brakes at `max_accel` (a real
-    arm cannot stop instantly, so neither does this one) and then holds. Commands take effect
-    at the arm's current time: call `advance(t)` (or `state(t)`) first.
+    The kinematics and the press hold of every simulated arm, whatever names its targets: a
+    colour (`SimArm`, the paper's two buzzers) or an option index (`OptionsSimArm`, N_o boxes).
+    `_head` drives toward a target's point, and holds it `press_duration_s` when it is a
+    press; `_brake` brakes at `max_accel` (a real arm cannot stop instantly, so neither does
+    this one) and then holds. Motion takes effect at the arm's current time: call `advance(t)`
+    first.
     """
 
-    def __init__(
-        self, layout: TableLayout, params: SimArmParams | None = None, t0: float = 0.0
-    ) -> None:
+    def __init__(self, params: SimArmParams | None = None, t0: float = 0.0) -> None:
         """Place the arm at home, at rest, at time t0 (s); not yet connected."""
-        self.layout = layout
         self.params = params if params is not None else SimArmParams()
         if not math.isfinite(t0):
             raise ValueError(f"t0 must be finite, got {t0!r}")
@@ -140,12 +142,11 @@ class SimArm(ArmDriver):
         self._pos: Point = self.params.home
         self._vel: Point = (0.0, 0.0)
         self._goal: Point | None = None  # None: brake to rest and hold
-        self._target: Colour | None = None
-        self._press: Colour | None = None  # buzzer committed to press
+        self._target: Target | None = None
+        self._press: Target | None = None  # buzzer committed to press
         self._press_started: float | None = None
-        self._pressed: Colour | None = None
+        self._pressed: Target | None = None
         self._fault: str | None = None
-        self._applied: ArmCommand = ArmCommand.idle("at home")
 
     # -- connection ------------------------------------------------------------------------
     @property
@@ -182,44 +183,12 @@ class SimArm(ArmDriver):
         """|velocity| (normalised units/s)."""
         return math.hypot(*self._vel)
 
-    # -- commands --------------------------------------------------------------------------
-    def send(self, cmd: ArmCommand) -> ArmCommand:
-        """Apply a command at the arm's current time; return what was actually applied.
+    @property
+    def moving(self) -> bool:
+        """Whether the end effector has non-zero velocity."""
+        return self._vel != (0.0, 0.0)
 
-        Refused (the returned command says what happens instead): anything but idle/stop while
-        faulted (→ stop); a move, or a press of the other buzzer, once a press is committed
-        (→ the committed press). A stop always applies and cancels an unfinished press.
-        """
-        self._require_connected()
-        if cmd.action == "idle":
-            return cmd
-        if cmd.action == "stop":
-            self._brake()
-            return self._apply(cmd)
-        if self._fault is not None:
-            self._brake()
-            return self._apply(ArmCommand.stop(f"refused {cmd.action}: fault {self._fault}"))
-        if self._press is not None and cmd.target != self._press:
-            return ArmCommand.press(self._press, f"refused {cmd.action}: press already committed")
-        assert cmd.target is not None  # move and press always carry a target
-        if cmd.action == "press" and self._press is None:
-            self._press = cmd.target
-            self._press_started = None
-        self._goal = self.layout.box(cmd.target).center
-        self._target = cmd.target
-        return self._apply(cmd)
-
-    def home(self) -> ArmCommand:
-        """Drive back to the home pose and clear the trial's press (refused while faulted)."""
-        self._require_connected()
-        if self._fault is not None:
-            self._brake()
-            return self._apply(ArmCommand.stop(f"refused home: fault {self._fault}"))
-        self._press = self._pressed = self._press_started = None
-        self._goal = self.params.home
-        self._target = None
-        return self._apply(ArmCommand.idle("going home"))
-
+    # -- faults ----------------------------------------------------------------------------
     def inject_fault(self, reason: str) -> None:
         """Simulate a hardware fault: brake, then refuse motion until `clear_fault`."""
         self._fault = reason
@@ -228,19 +197,6 @@ class SimArm(ArmDriver):
     def clear_fault(self) -> None:
         """Clear a simulated fault; the arm stays at rest until the next command."""
         self._fault = None
-
-    def state(self, t: float) -> ArmState:
-        """Advance to time t (s) and report."""
-        self._require_connected()
-        self.advance(t)
-        return ArmState(
-            t=self._t,
-            ee=self._pos,
-            moving=self._vel != (0.0, 0.0),
-            target=self._target,
-            pressed=self._pressed,
-            fault=self._fault,
-        )
 
     # -- kinematics ------------------------------------------------------------------------
     def advance(self, t: float) -> None:
@@ -306,6 +262,20 @@ class SimArm(ArmDriver):
             self._pressed = self._press
 
     # -- internals -------------------------------------------------------------------------
+    def _head(self, target: Target, goal: Point, press: bool) -> None:
+        """Drive toward `goal`, the point of `target`; commit to pressing it if `press`."""
+        if press and self._press is None:
+            self._press = target
+            self._press_started = None
+        self._goal = goal
+        self._target = target
+
+    def _go_home(self) -> None:
+        """Drive back to the home pose and clear the trial's press."""
+        self._press = self._pressed = self._press_started = None
+        self._goal = self.params.home
+        self._target = None
+
     def _brake(self) -> None:
         self._goal = None
         self._target = None
@@ -313,10 +283,71 @@ class SimArm(ArmDriver):
             self._press = None  # an unfinished press is cancelled by a stop
             self._press_started = None
 
-    def _apply(self, cmd: ArmCommand) -> ArmCommand:
-        self._applied = cmd
-        return cmd
-
     def _require_connected(self) -> None:
         if not self._connected:
             raise ArmNotConnectedError("the arm is not connected; call connect() first")
+
+
+class SimArm(PointArm[Colour], ArmDriver):
+    """The paper's simulated arm: `PointArm` over the two buzzers, driven by `ArmCommand`s.
+
+    "move" heads for the centre of that colour's box; "press" does the same, then holds the
+    buzzer for `press_duration_s` and reports it pressed. "stop" brakes and then holds.
+    """
+
+    def __init__(
+        self, layout: TableLayout, params: SimArmParams | None = None, t0: float = 0.0
+    ) -> None:
+        """Place the arm at home, at rest, at time t0 (s); not yet connected."""
+        super().__init__(params, t0)
+        self.layout = layout
+        self._applied: ArmCommand = ArmCommand.idle("at home")
+
+    # -- commands --------------------------------------------------------------------------
+    def send(self, cmd: ArmCommand) -> ArmCommand:
+        """Apply a command at the arm's current time; return what was actually applied.
+
+        Refused (the returned command says what happens instead): anything but idle/stop while
+        faulted (→ stop); a move, or a press of the other buzzer, once a press is committed
+        (→ the committed press). A stop always applies and cancels an unfinished press.
+        """
+        self._require_connected()
+        if cmd.action == "idle":
+            return cmd
+        if cmd.action == "stop":
+            self._brake()
+            return self._apply(cmd)
+        if self._fault is not None:
+            self._brake()
+            return self._apply(ArmCommand.stop(f"refused {cmd.action}: fault {self._fault}"))
+        if self._press is not None and cmd.target != self._press:
+            return ArmCommand.press(self._press, f"refused {cmd.action}: press already committed")
+        assert cmd.target is not None  # move and press always carry a target
+        self._head(cmd.target, self.layout.box(cmd.target).center, cmd.action == "press")
+        return self._apply(cmd)
+
+    def home(self) -> ArmCommand:
+        """Drive back to the home pose and clear the trial's press (refused while faulted)."""
+        self._require_connected()
+        if self._fault is not None:
+            self._brake()
+            return self._apply(ArmCommand.stop(f"refused home: fault {self._fault}"))
+        self._go_home()
+        return self._apply(ArmCommand.idle("going home"))
+
+    def state(self, t: float) -> ArmState:
+        """Advance to time t (s) and report."""
+        self._require_connected()
+        self.advance(t)
+        return ArmState(
+            t=self._t,
+            ee=self._pos,
+            moving=self._vel != (0.0, 0.0),
+            target=self._target,
+            pressed=self._pressed,
+            fault=self._fault,
+        )
+
+    def _apply(self, cmd: ArmCommand) -> ArmCommand:
+        self._applied = cmd
+        return cmd

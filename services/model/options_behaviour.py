@@ -23,7 +23,7 @@ import numpy as np
 
 from services.model.behaviour import Action, BehaviourParams, Phase
 from services.model.debounce import DebounceParams
-from services.model.geometry import Point
+from services.model.geometry import TIE, Point
 from services.model.options import leading_option
 from services.model.options_geometry import OptionsLayout
 
@@ -67,9 +67,12 @@ class LeaderDebouncer:
 
     def feed(self, z: np.ndarray) -> bool:
         """Take one opinion vector; True when it confirms a change of the leading option."""
+        return self.feed_leader(leading_option(z))
+
+    def feed_leader(self, lead: int | None) -> bool:
+        """Take one sample's leading option (None: none); True when it confirms a change."""
         i = self._n
         self._n += 1
-        lead = leading_option(z)
         if lead is None:
             return False
         if self._leader is None:
@@ -103,6 +106,41 @@ class OptionsCommand:
             raise ValueError(f"a move or a press needs a target box, idle and stop none: {self}")
 
 
+# Opinions within this of z_r's largest are tied for it (`leader_or_nearest_tie`): an exact tie
+# among the options other than the human's, which the dynamics keep by symmetry, comes out of
+# the integrator ~1e-16 apart (the last option is minus the sum of the others), and those ulps
+# must not pick the robot's box. Opinions are O(0.1-1), so 1e-9 is far above the rounding and
+# far below any real lead.
+TIE_TOLERANCE = 1e-9
+
+
+def leader_or_nearest_tie(
+    z: np.ndarray, layout: OptionsLayout, ee: Point, tol: float = TIE_TOLERANCE
+) -> int | None:
+    """The leading option of z; when several but not all tie for the top, the nearest of them.
+
+    The tie rule of a dissensus robot (docs/multi-option.md): with the controller off and the
+    human on h, γ < 0 raises every other option equally, so z_r ties among them; the robot
+    follows the tied box nearest its end effector (a tie in distance to the lower index, as
+    `OptionsLayout.nearest`). Once it moves there that box gets nearer, so the choice holds.
+    All options tied (z = 0) is no leader, as a zero z_r carries no sign; with two options a
+    tie is always that, so two boxes read exactly as `leading_option` outside ±tol.
+    """
+    flat = np.asarray(z, dtype=float)
+    top = float(flat.max())
+    tied = [j for j in range(flat.size) if flat[j] >= top - tol]
+    if len(tied) == 1:
+        return tied[0]
+    if len(tied) == flat.size:
+        return None
+    best, best_d = tied[0], math.dist(ee, layout.boxes[tied[0]].center)
+    for j in tied[1:]:
+        d = math.dist(ee, layout.boxes[j].center)
+        if d < best_d - TIE:
+            best, best_d = j, d
+    return best
+
+
 class OptionsBehaviour:
     """Algorithm 2 as a state machine over (t, z_r, human press, end effector), N_o boxes."""
 
@@ -111,11 +149,17 @@ class OptionsBehaviour:
         layout: OptionsLayout,
         params: BehaviourParams | None = None,
         debounce: DebounceParams | None = None,
+        break_ties: bool = False,
     ) -> None:
-        """Create the machine for a table of N_o boxes (needed to find the nearest one)."""
+        """Create the machine for a table of N_o boxes (needed to find the nearest one).
+
+        `break_ties`: a tie for z_r's largest among some options leads with the nearest of
+        them (`leader_or_nearest_tie`); off, a tie carries no option (`leading_option`).
+        """
         self.layout = layout
         self.params = params if params is not None else BehaviourParams()
         self.debounce = debounce if debounce is not None else DebounceParams()
+        self.break_ties = break_ties
         self.reset()
 
     def reset(self) -> None:
@@ -180,7 +224,13 @@ class OptionsBehaviour:
             self._target, self._phase = box, "pressing"
             why = f"human pressed {pressed}" if pressed is not None else "timeout"
             return self._emit(OptionsCommand("press", box, f"{why}: nearest box is {box}"))
-        changed = self._leader.feed(z_r) if z_r is not None else False
+        changed = False
+        if z_r is not None:
+            if self.break_ties:
+                lead = leader_or_nearest_tie(z_r, self.layout, ee)
+            else:
+                lead = leading_option(z_r)
+            changed = self._leader.feed_leader(lead)
         leader = self._leader.leader
         if self._phase == "waiting":
             if leader is None:

@@ -1,0 +1,58 @@
+"""The option set of a session: `[protocol] options` in a params file, or `--options N`.
+
+A params file whose `[protocol]` table has `options = [...]` runs that many options
+(`services.model.options_schedule`); its `trials` then name options, and everything else in
+the file is the paper's `NodConfig` as `load_params` reads it. Without `options` the file is
+the paper's, and `--options N` (N > 2) picks the default schedule of N options. Two options
+are always the paper's study, with its own code (None here).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from services.core.config import ConfigError, from_mapping, load_toml
+from services.model.options_schedule import OptionsSchedule, schedule_from_table
+from services.model.params import NodConfig
+
+
+def split_options(data: dict[str, Any]) -> tuple[dict[str, Any], OptionsSchedule | None]:
+    """A params mapping without its option set, and the option set's schedule (None: none)."""
+    protocol = data.get("protocol")
+    if not isinstance(protocol, dict) or "options" not in protocol:
+        return data, None
+    try:
+        schedule = schedule_from_table(protocol)
+    except ValueError as exc:
+        raise ConfigError(f"protocol: {exc}") from None
+    rest = {k: v for k, v in protocol.items() if k not in ("options", "trials")}
+    return {**data, "protocol": rest}, schedule
+
+
+def load_with_options(
+    path: str | Path | None, n_options: int | None = None
+) -> tuple[NodConfig, OptionsSchedule | None]:
+    """The parameters and, for more than two options, the N_o-option schedule.
+
+    `n_options` (the `--options` flag; None: the file's, or 2) must agree with a file's list.
+    """
+    data = load_toml(path) if path is not None else {}
+    rest, schedule = split_options(data)
+    cfg = from_mapping(NodConfig, rest)
+    if schedule is not None and n_options is not None and n_options != schedule.n_options:
+        raise ConfigError(
+            f"--options {n_options} but {path} lists {schedule.n_options} options "
+            f"{list(schedule.names)}: drop --options or make them agree"
+        )
+    if schedule is None and n_options is not None and n_options != 2:
+        try:
+            schedule = OptionsSchedule.default(n_options)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    if schedule is not None and schedule.n_options == 2:
+        raise ConfigError(
+            "two options are the paper's study: drop [protocol] options (red and blue are "
+            "its buzzers) or list three or more"
+        )
+    return cfg, schedule

@@ -1,0 +1,65 @@
+"""The offline session over three options, and the params file that selects it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from services.core.config import ConfigError
+from services.core.options_config import load_with_options
+from services.model.options_loop import OptionsOfflineTrial, run_options_session
+from services.model.options_schedule import OptionsSchedule
+from services.model.params import NodConfig
+
+SCHEDULE = OptionsSchedule.default(3)
+
+
+@pytest.fixture(scope="module")
+def sessions() -> dict[int, list[OptionsOfflineTrial]]:
+    return {seed: run_options_session(NodConfig(), SCHEDULE, seed) for seed in (1, 2)}
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_three_option_sessions_reach_consensus_on_o_and_dissent_in_control(
+    sessions: dict[int, list[OptionsOfflineTrial]], seed: int
+) -> None:
+    results = sessions[seed]
+    assert [r.trial for r in results] == list(range(1, 9))
+    for r in results:
+        assert r.human in (0, 1, 2) and r.robot in (0, 1, 2), r
+        assert r.option == SCHEDULE.trial(r.trial).option
+    control = [r for r in results if r.mode == "dissensus"]
+    consensus = [r for r in results if r.mode == "consensus"]
+    assert sum(r.outcome in ("D", "DH") for r in control) >= 2, control
+    assert sum(r.human == r.option == r.robot for r in consensus) >= 4, consensus
+
+
+def test_the_dissensus_robot_takes_the_tied_box_nearest_its_home(
+    sessions: dict[int, list[OptionsOfflineTrial]],
+) -> None:
+    # A human heading for h ties the robot among the other two (γ < 0 raises them equally);
+    # from home, midway, the nearest of them is the middle box, or box 0 when h is the middle.
+    nearest_tied = {0: 1, 1: 0, 2: 1}
+    checked = 0
+    for results in sessions.values():
+        for r in results:
+            if r.mode == "dissensus" and r.switches == 0 and r.human is not None:
+                assert r.robot == nearest_tied[r.human], r
+                checked += 1
+    assert checked >= 3
+
+
+def test_a_params_file_selects_the_options(tmp_path: Path) -> None:
+    f = tmp_path / "p.toml"
+    f.write_text('[protocol]\noptions = ["a", "b", "c", "d"]\ntrial_timeout_s = 8.0\n')
+    cfg, schedule = load_with_options(f)
+    assert schedule is not None and schedule.names == ("a", "b", "c", "d")
+    assert cfg.protocol.trial_timeout_s == 8.0 and len(schedule.trials) == 8
+    assert load_with_options(None, 3)[1] == OptionsSchedule.default(3)
+    assert load_with_options(None)[1] is None and load_with_options(None, 2)[1] is None
+    with pytest.raises(ConfigError, match="--options 3 but .* lists 4 options"):
+        load_with_options(f, 3)
+    f.write_text('[protocol]\noptions = ["red", "blue"]\n')
+    with pytest.raises(ConfigError, match="paper's study"):
+        load_with_options(f)

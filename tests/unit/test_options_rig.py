@@ -1,0 +1,240 @@
+"""The N_o-option rig's pure parts: arm, gaze, schedule, float integrator, tie rule, judge."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from services.model.arm import SimArm
+from services.model.behaviour import ArmCommand, BehaviourParams
+from services.model.bias import BiasParams
+from services.model.debounce import DebounceParams
+from services.model.gaze import GAZE_LEVEL_NAMES
+from services.model.geometry import CommitLine, TableLayout
+from services.model.options import OptionsParams, leading_option, option_vector
+from services.model.options_arm import OptionsSimArm
+from services.model.options_behaviour import OptionsCommand, leader_or_nearest_tie
+from services.model.options_bias import advance_robot
+from services.model.options_floats import advance
+from services.model.options_gaze import cue_strength, gaze_toward, read_gaze
+from services.model.options_geometry import OptionsLayout
+from services.model.options_judge import OptionsOutcomeTracker
+from services.model.options_robot import OptionsRobotTrial
+from services.model.options_schedule import OptionsSchedule, schedule_from_table
+from services.model.outcome import OutcomeTracker
+
+opinions = st.floats(-2.0, 2.0, allow_nan=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(2, 5), st.lists(opinions, min_size=10, max_size=10), st.floats(-5.5, 5.5),
+    st.sampled_from([None, 0, 1]), st.integers(0, 4), st.floats(0.05, 3.0),
+)
+def test_the_float_integrator_is_advance_robot(
+    n: int, raw: list[float], s: float, option: int | None, h: int, m: float
+) -> None:
+    z_r = np.array(raw[:n]) - np.mean(raw[:n])
+    z_hat = m * option_vector(h % n, n)
+    p, bias = OptionsParams(n_options=n), BiasParams()
+    steps = [0.001] * 40 + [0.0004]
+    want_z, want_s = advance_robot(z_r, s, z_hat, steps, p, option, bias)
+    got_z, got_s = advance(z_r, s, z_hat, steps, p, option, bias)
+    assert np.max(np.abs(got_z - want_z)) < 1e-12
+    assert abs(got_s - want_s) < 1e-12
+    assert got_z.sum() == pytest.approx(0.0, abs=1e-15)
+
+
+def test_a_dissensus_tie_goes_to_the_nearest_tied_box() -> None:
+    layout = OptionsLayout.row(3)
+    # the human on box 1 (the middle): the robot ties boxes 0 and 2 up to rounding
+    z = np.array([0.3, -0.6, 0.3 + 1e-16])
+    assert leading_option(z) == 2  # the ulp alone would pick box 2
+    assert leader_or_nearest_tie(z, layout, layout.boxes[0].center) == 0
+    assert leader_or_nearest_tie(z, layout, layout.boxes[2].center) == 2
+    assert leader_or_nearest_tie(z, layout, (0.5, 0.08)) == 0  # midway: the lower index
+    assert leader_or_nearest_tie(np.zeros(3), layout, (0.5, 0.08)) is None
+    assert leader_or_nearest_tie(np.array([0.1, 0.3, -0.4]), layout, (0.9, 0.2)) == 1
+
+
+@given(st.floats(-3, 3, allow_nan=False), st.floats(0.0, 1.0))
+def test_two_boxes_tie_rule_is_the_sign_outside_the_tolerance(x: float, ex: float) -> None:
+    layout = OptionsLayout.from_table(TableLayout())
+    z = np.array([x, -x])
+    got = leader_or_nearest_tie(z, layout, (ex, 0.2))
+    if abs(x) > 1e-9:
+        assert got == leading_option(z)
+    else:
+        assert got is None
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["move", "press", "stop", "idle"]),
+                          st.sampled_from(["red", "blue"]), st.floats(0.01, 0.4)),
+                min_size=1, max_size=12))
+def test_two_box_options_arm_moves_as_the_paper_arm(
+    cmds: list[tuple[str, str, float]]
+) -> None:
+    table = TableLayout()
+    paper, options = SimArm(table), OptionsSimArm(OptionsLayout.from_table(table))
+    paper.connect()
+    options.connect()
+    index = {"red": 0, "blue": 1}
+    t = 0.0
+    for action, colour, dt in cmds:
+        sign = 1 if colour == "red" else -1
+        if action == "move":
+            a, b = ArmCommand.move(sign), OptionsCommand("move", index[colour])
+        elif action == "press":
+            a, b = ArmCommand.press(colour), OptionsCommand("press", index[colour])  # type: ignore[arg-type]
+        elif action == "stop":
+            a, b = ArmCommand.stop(), OptionsCommand("stop")
+        else:
+            a, b = ArmCommand.idle(), OptionsCommand("idle")
+        applied_a, applied_b = paper.send(a), options.send(b)
+        assert applied_b.action == applied_a.action
+        t += dt
+        sa, sb = paper.state(t), options.state(t)
+        assert sa.ee == sb.ee
+        assert sb.pressed == (None if sa.pressed is None else index[sa.pressed])
+
+
+def test_the_options_arm_presses_any_box_and_refuses_after_a_press() -> None:
+    layout = OptionsLayout.row(4)
+    arm = OptionsSimArm(layout)
+    arm.connect()
+    arm.send(OptionsCommand("press", 2))
+    assert arm.send(OptionsCommand("move", 0)) == OptionsCommand(
+        "press", 2, "refused: press already committed"
+    )
+    t = 0.0
+    while arm.state(t).pressed is None and t < 10:
+        t += 0.05
+    assert arm.state(t).pressed == 2 and arm.position == layout.boxes[2].center
+    arm.home()
+    with pytest.raises(ValueError, match="not on this table"):
+        arm.send(OptionsCommand("move", 7))
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 6])
+def test_the_gaze_toward_a_box_reads_back_as_that_box(n: int) -> None:
+    layout = OptionsLayout.row(n)
+    commands = set()
+    for level in GAZE_LEVEL_NAMES:
+        for j in range(n):
+            gaze = gaze_toward(layout, j, level)
+            option, strength = read_gaze(layout, gaze)
+            if level == "neutral":
+                assert (option, strength) == (None, 0.0)
+                continue
+            assert option == j
+            assert strength == pytest.approx(cue_strength(level), abs=1e-9)
+            commands.add((round(gaze.yaw, 9), round(gaze.pitch, 9)))
+    assert len(commands) == n * (len(GAZE_LEVEL_NAMES) - 1)  # every cue a distinct pose
+
+
+def test_the_middle_box_is_told_from_neutral_by_pitch() -> None:
+    layout = OptionsLayout.row(3)
+    middle = gaze_toward(layout, 1, "extreme")
+    assert abs(middle.yaw) < 1e-12 and middle.pitch < -0.3
+    right, left = gaze_toward(layout, 2, "low"), gaze_toward(layout, 0, "low")
+    assert right.yaw > 0 > left.yaw and right.yaw == pytest.approx(-left.yaw)  # +x: red's side
+
+
+def test_the_default_schedule_has_every_option_as_o() -> None:
+    s = OptionsSchedule.default(3)
+    assert s.names == ("red", "blue", "green")
+    assert [t.mode for t in s.trials] == ["dissensus"] * 3 + ["consensus"] * 5
+    assert {t.option for t in s.trials if t.option is not None} == {0, 1, 2}
+    assert s.trials[3].attention_gesture and s.trials[3].gaze_level == "minimal"
+    specs = s.timing_specs(OptionsLayout.row(3))
+    assert [sp.index for sp in specs] == list(range(1, 9))
+    assert specs[0].yaw == 0.0 and specs[5].gaze == gaze_toward(OptionsLayout.row(3), 2,
+                                                                "moderate")
+
+
+def test_a_params_table_names_options_and_trials() -> None:
+    s = schedule_from_table({
+        "options": ["left", "mid", "right"],
+        "trials": [{"index": 1, "mode": "dissensus"},
+                   {"index": 2, "mode": "consensus", "option": "right", "gaze_level": "low"}],
+    })
+    assert s.n_options == 3 and s.trial(2).option == 2 and s.name(2) == "right"
+    with pytest.raises(ValueError, match="'far' is not in"):
+        schedule_from_table({"options": ["a", "b"], "trials": [
+            {"index": 1, "mode": "consensus", "option": "far"}]})
+    with pytest.raises(ValueError, match="unknown key"):
+        schedule_from_table({"options": ["a", "b"], "trials": [{"index": 1, "mood": "x"}]})
+    with pytest.raises(ValueError, match="distinct"):
+        schedule_from_table({"options": ["a", "a"]})
+    with pytest.raises(ValueError, match="2..8"):
+        OptionsSchedule.default(9)
+
+
+samples = st.lists(
+    st.tuples(st.sampled_from([-1.0, -0.3, -0.02, 0.0, 0.02, 0.4, 1.0]), st.floats(0.1, 0.9)),
+    min_size=1, max_size=60,
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(samples, st.integers(1, 5), st.sampled_from([0.0, 0.05]))
+def test_two_box_switches_and_violations_are_the_papers(
+    stream: list[tuple[float, float]], c_max: int, dead_band: float
+) -> None:
+    line = CommitLine()
+    paper = OutcomeTracker(DebounceParams(c_max), line, dead_band)
+    options = OptionsOutcomeTracker(c_max, line, dead_band)
+    for z, y in stream:
+        paper.add(z, (0.5, y))
+        options.add(np.array([z, -z]), (0.5, y))
+        assert (options.switches, options.violations) == (paper.switches, paper.violations)
+
+
+def test_three_boxes_count_a_change_of_leading_option() -> None:
+    tracker = OptionsOutcomeTracker(2, CommitLine(), 0.0)
+    to = [0.5 * option_vector(j, 3) for j in range(3)]
+    for z in [to[0], to[0], to[2], to[1], to[1], to[1], to[2], to[2]]:
+        tracker.add(z, (0.5, 0.8))
+    assert tracker.first == 0 and tracker.switches == 2 and tracker.violations == 1
+    assert math.isclose(float(to[1][1] - to[1][0]), 1.0)
+
+
+def dissensus_press(h: int, break_ties: bool) -> int | None:
+    """The box a dissensus robot presses with ẑ_h held on h, stepped as the decision engine."""
+    layout, p = OptionsLayout.row(3), OptionsParams(n_options=3)
+    z_hat = 0.8 * option_vector(h, 3)
+    arm = OptionsSimArm(layout)
+    arm.connect()
+    robot = OptionsRobotTrial(layout, BehaviourParams(), DebounceParams(), 3.0)
+    robot.machine.break_ties = break_ties
+    robot.go(0.0)
+    z_r, t = np.zeros(3), 0.0
+    while arm.state(t).pressed is None and t < 6.0:
+        t += 1 / 30
+        z_r, _ = advance(z_r, 0.0, z_hat, [0.001] * 33 + [1 / 30 - 0.033], p, None)
+        cmd = robot.step(t, z_r, arm.state(t).ee)
+        if cmd is not None:
+            arm.send(cmd)
+    return arm.state(t).pressed
+
+
+def test_a_dissensus_robot_held_against_a_human_takes_the_nearest_other_box() -> None:
+    """Controller off, ẑ_h held on h: z_r ties among the other two boxes (up to rounding).
+
+    With the tie rule the robot heads for the tied box nearest its home at once; without it,
+    rounding or the timeout decide: it presses the human's box or the farther one.
+    """
+    layout, home = OptionsLayout.row(3), (0.5, 0.08)
+    ruled, unruled = [], []
+    for h in range(3):
+        others = sorted(set(range(3)) - {h},
+                        key=lambda j: (math.dist(home, layout.boxes[j].center), j))
+        ruled.append(dissensus_press(h, True))
+        unruled.append(dissensus_press(h, False))
+        assert ruled[-1] == others[0]
+    assert ruled == [1, 0, 1] and unruled != ruled
