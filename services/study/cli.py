@@ -296,7 +296,8 @@ def _note(s: Standing) -> str:
     notes = []
     last = s.session
     if s.status in ("running", "aborted") and last is not None:
-        notes.append(f"resume: nod experiment --resume {last.session}")
+        notes.append(f"resume: nod experiment --resume {last.session}, or nod run --sim "
+                     f"--resume {last.session} if simulated")
     if len(s.sessions) > 1:
         notes.append(f"{len(s.sessions)} sessions")
     if s.order_mismatch and last is not None and last.options is not None:
