@@ -226,7 +226,11 @@ def _build_parser() -> Parser:
         "reason. Timeouts and interrupted trials are excluded from the categorical tests and "
         "listed. The Stuart-Maxwell p-values are corrected for multiple comparisons (Holm).",
     )
-    p.add_argument("--db", required=True, metavar="FILE", help="session database (nod run)")
+    p.add_argument(
+        "--db", required=True, action="append", metavar="FILE",
+        help="session database (nod run); repeat it to analyse several rigs' stores as one study "
+        "(a participant id in two stores or on two rigs is refused)",
+    )
     p.add_argument(
         "--min-trials", type=int_in(1, 10_000), default=None, metavar="N",
         help="include any session with at least N scored trials (default: complete sessions "

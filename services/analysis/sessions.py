@@ -32,6 +32,7 @@ class ParticipantOutcomes:
     outcomes: Mapping[int, str | None]  # stored trials only; a missing trial has no key
     interrupted: frozenset[int] = frozenset()  # stored as interrupted (their outcome is None)
     control_labels: str = "agreement"  # the rule that labelled its control trials (SPEC §6)
+    rig: str = ""  # the rig its conductor ran it on
 
     def outcome(self, trial: int) -> str | None:
         """The trial's outcome, or None for a timeout or a trial never stored."""
@@ -196,6 +197,7 @@ def select_sessions(store: Store, rule: InclusionRule | None = None) -> Selectio
             outcomes={t.trial: None if t.interrupted else t.outcome for t in trials},
             interrupted=frozenset(t.trial for t in trials if t.interrupted),
             control_labels=control_labels(s.get("config")),
+            rig=str(s.get("rig") or ""),
         )
         if pid in latest:
             old = latest[pid]

@@ -51,7 +51,8 @@ from services.analysis.sessions import (
 )
 from services.analysis.stuart_maxwell import stuart_maxwell
 from services.model.phases import CONTROL_TRIALS, EXPERIMENT_TRIALS, phase_category
-from services.store import QuestionnaireRecord, Store
+from services.store import QuestionnaireRecord
+from services.store.study_stores import open_stores
 
 ADJACENT_PAIRS: tuple[tuple[int, int], ...] = ((4, 5), (5, 6), (6, 7), (7, 8))
 LIKERT_MIDPOINT = 5.5
@@ -250,9 +251,10 @@ def analyze_study(
         "participants": len(parts),
         "sessions": [
             {"participant": p.participant, "session": p.session, "status": p.status,
-             "control_labels": p.control_labels}
+             "control_labels": p.control_labels, "rig": p.rig}
             for p in parts
         ],
+        "rigs": {r: sum(p.rig == r for p in parts) for r in sorted({p.rig for p in parts})},
         "excluded": [e.as_dict() for e in excluded],
         "notes": list(notes),
         "grid": {p.participant: [p.outcome(t) for t in TRIALS] for p in parts},
@@ -281,15 +283,21 @@ def analyze_study(
 
 
 def load_study(
-    path: str, rule: InclusionRule | None = None, correction: Correction = "holm"
+    paths: str | Sequence[str], rule: InclusionRule | None = None,
+    correction: Correction = "holm",
 ) -> dict[str, Any]:
-    """Open a session database, select its sessions by the rule, analyse them, close it."""
-    store = Store(path)
-    try:
-        chosen = select_sessions(store, rule)
-        answers = store.questionnaires()
-    finally:
-        store.close()
-    return analyze_study(
-        chosen.participants, answers, chosen.notes, chosen.excluded, chosen.rule, correction
+    """Open the study's stores (one per rig, or one), select their sessions, analyse them as one.
+
+    A participant id in two stores or on two rigs is a ValueError (`open_stores`), not a merge.
+    """
+    names = [paths] if isinstance(paths, str) else list(paths)
+    with open_stores(names) as stores:
+        chosen = [select_sessions(store, rule) for _, store in stores]
+        answers = [q for _, store in stores for q in store.questionnaires()]
+    parts = sorted((p for c in chosen for p in c.participants), key=lambda p: p.participant)
+    doc = analyze_study(
+        parts, sorted(answers, key=lambda q: q.participant),
+        [n for c in chosen for n in c.notes], [e for c in chosen for e in c.excluded],
+        chosen[0].rule, correction,
     )
+    return {**doc, "stores": names}

@@ -63,6 +63,8 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
         f"{doc['experiment_trials']}."
     )
     md += ["", f"Inclusion: {doc['inclusion']['description']}."]
+    if sources(doc):
+        md += ["", f"Data: {sources(doc)}."]
     md += ["", f"Labels: {doc['control_labels']['description']}."]
     gone = doc["excluded"]
     md += ["", f"Excluded sessions ({len(gone)}):" if gone else "Excluded sessions: none."]
@@ -188,6 +190,15 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
     return "\n".join(md)
 
 
+def sources(doc: Mapping[str, Any]) -> str:
+    """Where a study of several stores or rigs came from ("" for one store of one rig)."""
+    stores, rigs = doc.get("stores", []), doc.get("rigs", {})
+    if len(stores) < 2 and len(rigs) < 2:
+        return ""
+    per_rig = ", ".join(f"{n} on {rig or 'an unnamed rig'}" for rig, n in rigs.items())
+    return f"{len(stores)} store(s) ({', '.join(stores)}), participants {per_rig}"
+
+
 def summary(doc: Mapping[str, Any]) -> str:
     """A few lines for the terminal."""
     lines = [
@@ -195,6 +206,8 @@ def summary(doc: Mapping[str, Any]) -> str:
         f"{len(doc['excluded'])} session(s) excluded, "
         f"{len(doc['excluded_trials'])} trial(s) excluded (timeout/interrupted/missing)"
     ]
+    if sources(doc):
+        lines.append(f"  from {sources(doc)}")
     lines += [f"  excluded {e['participant']} ({e['session']}): {e['reason']}"
               for e in doc["excluded"]]
     for t, r in doc["frequencies"].items():

@@ -32,8 +32,9 @@ from pathlib import Path
 from typing import Any
 
 from services.core.cli import Parser, fail
-from services.store import Store
+from services.store import StoreError
 from services.store.records import unpack_landmarks
+from services.store.study_stores import open_stores, union_of
 
 PROG = "nod export"
 MISSING = "NA"  # how a SQL NULL is written
@@ -124,7 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Write a session database as CSV: sessions.csv, trials.csv, samples.csv, "
         "questionnaires.csv (headers; NA = missing; pandas.read_csv / R read.csv).",
     )
-    p.add_argument("--db", type=Path, required=True, help="session database written by nod run")
+    p.add_argument("--db", type=Path, required=True, action="append",
+                   help="session database written by nod run; repeat it for one study of several "
+                   "rigs' stores (their rows as one; a participant in two is refused)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="directory for CSVs")
     return p
 
@@ -132,18 +135,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run `nod export`; returns the exit code (2 for bad input)."""
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    if not args.db.is_file():
-        return fail(PROG, f"error: no such database: {args.db}")
     try:
-        store = Store(args.db)
-    except (sqlite3.Error, OSError) as exc:
-        return fail(PROG, f"error: cannot open {args.db}: {exc}")
-    try:
-        counts = export(store.db, args.out)
+        with open_stores(args.db) as stores, union_of(stores) as db:
+            counts = export(db, args.out)
+    except ValueError as exc:
+        return fail(PROG, f"error: {exc}")
+    except (sqlite3.Error, StoreError) as exc:
+        return fail(PROG, f"error: cannot open {', '.join(map(str, args.db))}: {exc}")
     except OSError as exc:
         return fail(PROG, f"error: cannot write to {args.out}: {exc}")
-    finally:
-        store.close()
     for name, n in counts.items():
         print(f"{args.out / (name + '.csv')}: {n} rows")
     return 0
