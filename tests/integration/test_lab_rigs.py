@@ -10,8 +10,8 @@ allowed one has arrived at the observer, a refused one that had passed would hav
 from __future__ import annotations
 
 import subprocess
-import threading
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from services.core import messages as m
 from services.core.session import make_config
 from services.lab.secure import main as secure_main
 from tests.processes import stop_all
@@ -212,3 +213,45 @@ def test_the_lab_view_lists_both_rigs_with_the_labs_identity_only(
     finally:
         for node in nodes:
             node.close()
+
+
+def test_nod_estop_as_the_lab_stops_a_rigs_arm_and_as_another_rig_does_not(
+    lab: Opener, tmp_path: Path,
+) -> None:
+    """The real tools: rig2's actuation under rig2's arm identity, `nod estop` under two others."""
+    lab("lab/monitor")  # once it connects, the router listens
+    folder = tmp_path / "lab"
+    arm = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "actuation", "--rig", "rig2", "--config",
+         str(folder / "rig2" / "arm" / "zenoh.json5"), "--state-dir", str(tmp_path / "state")],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
+    )
+
+    def estop(identity: str, *args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [sys.executable, "-m", "services.cli", "estop", "--rig", "rig2", "--devices",
+             "actuation", "--config", str(folder / identity / "zenoh.json5"), *args],
+            cwd=ROOT, capture_output=True, text=True, timeout=60,
+        )
+
+    try:
+        watch = lab("rig2/monitor")
+        wait_for(lambda: any(r.ok for r in watch.liveliness().get("nod/rig2/alive/actuation",
+                                                                   timeout=0.5)),
+                 30, "rig2's actuation")
+        states: list[m.ArmStateMsg] = []
+        watch.declare_subscriber("nod/rig2/actuation/state", lambda s: states.append(
+            m.decode(m.ArmStateMsg, s.payload.to_bytes())))
+        other = estop("rig1/control", "--timeout", "1")  # rig1's control station
+        assert other.returncode == 1 and "NOT by every device" in other.stdout, other.stdout
+        seen = len(states)
+        wait_for(lambda: len(states) > seen, 10, "rig2's arm state after rig1's e-stop")
+        assert not states[-1].estop, "rig1's e-stop stopped rig2"
+        engaged = estop("lab/estop", "--timeout", "10")
+        assert engaged.returncode == 0 and "actuation: obeyed" in engaged.stdout, (
+            engaged.stdout + engaged.stderr)
+        wait_for(lambda: states[-1].estop, 5, "the arm's latch engaged in its state")
+        released = estop("lab/estop", "--release", "--timeout", "10")
+        assert released.returncode == 0, released.stdout + released.stderr
+    finally:
+        stop_all([arm])

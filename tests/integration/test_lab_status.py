@@ -28,7 +28,8 @@ pytestmark = pytest.mark.integration
 def two_rigs(router, endpoint) -> Iterator[dict[str, Node]]:
     """rig1: decision and actuation, idle; rig2: decision and a conductor in trial 3 of P07."""
     nodes: dict[str, Node] = {}
-    for rig, services in (("rig1", ("decision", "actuation")), ("rig2", ("decision", "experiment"))):
+    rigs = {"rig1": ("decision", "actuation"), "rig2": ("decision", "experiment")}
+    for rig, services in rigs.items():
         for service in services:
             node = Node(service, Fabric(rig=rig, connect=(endpoint,)))
             nodes[f"{rig}/{service}"] = node
