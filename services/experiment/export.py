@@ -1,8 +1,9 @@
 """`nod export`: a session database as CSV files that pandas and R read directly.
 
 Writes sessions.csv, trials.csv, samples.csv, questionnaires.csv, safety_events.csv,
-rig_events.csv, interruptions.csv and cues.csv (the countdown words and go as `nod speaker`
-played them: planned and played onset, rig-clock ns) into one directory, each with a header
+rig_events.csv, interruptions.csv, cues.csv (the countdown words and go as `nod speaker`
+played them: planned and played onset, rig-clock ns) and fits.csv (`nod fit`'s per-participant
+estimates and 90 % intervals, identifiable parameters only) into one directory, each with a header
 row of the database's column names (the per-session tables gain a `participant` column after
 `session` for convenience). A trial with `interrupted` = 1 was broken by a safe stop or an
 e-stop and never scored. Conventions, chosen so that `pandas.read_csv(path)` and R's
@@ -77,6 +78,7 @@ QUERIES: dict[str, str] = {
         "FROM cues c LEFT JOIN sessions s ON s.session = c.session "
         "ORDER BY s.started_ns, c.session, c.trial, c.attempt, c.planned_ns"
     ),
+    "fits": "SELECT * FROM fits ORDER BY participant, parameter",
 }
 
 

@@ -24,6 +24,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from services.store.fits import FITS_SCHEMA
 from services.store.records import (
     CueRecord,
     Interruption,
@@ -181,7 +182,7 @@ class Store:
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute("PRAGMA synchronous=NORMAL")
             self.db.execute("PRAGMA foreign_keys=ON")
-            self.db.executescript(SCHEMA)
+            self.db.executescript(SCHEMA + FITS_SCHEMA)
             self._migrate()
         except sqlite3.DatabaseError as exc:
             self.db.close()

@@ -1,0 +1,1 @@
+"""`nod fit`: each participant's model parameters from their trials, and a recovery study."""

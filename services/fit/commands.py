@@ -1,0 +1,139 @@
+"""`nod fit` and `nod fit recovery`, one function each (the parser is `services.fit.cli`)."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from services.cohort.person import load_cohort_params
+from services.compute.engine import engine_from_args
+from services.core.config import params_hash
+from services.fit.data import read_study
+from services.fit.estimator import LEVEL, GazeClassifier
+from services.fit.pipeline import Prepared, predictive, prepare
+from services.fit.report import fit_document, fit_table, press_times, recovery_table
+from services.fit.simulate import TABLE_SEED, default_cache, reference_table, simulate, without_gaze
+from services.model.params import NodConfig
+from services.model.recovery import recovery as recover
+from services.model.summaries import summarise
+from services.store import Store
+from services.store.fits import FitRecord, write_fits
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def _cache(args: argparse.Namespace) -> Path | None:
+    return None if args.no_cache else (args.cache or default_cache())
+
+
+def _prepared(args: argparse.Namespace, cfg: NodConfig, run: Any, where: str) -> Prepared:
+    t0 = time.monotonic()
+    prep = prepare(cfg, args.table, run, _cache(args))
+    how = "from the cache" if prep.cached else f"simulated on {where}"
+    _say(f"reference table: {args.table} simulated people {how}; estimator trained "
+         f"({time.monotonic() - t0:.0f} s)")
+    return prep
+
+
+def method(cfg: NodConfig, k: int) -> str:
+    """The fit's method, as stored with each estimate."""
+    return f"sbi quantile-boosting CQR, table K={k}, prior params {params_hash(cfg)}"
+
+
+def fit(args: argparse.Namespace) -> int:
+    """`nod fit`: every participant (or one), table / JSON, figures, stored in the database."""
+    cfg = load_cohort_params(args.params)
+    people, skipped = read_study(args.db, args.participant)
+    for line in skipped:
+        _say(f"nod fit: skipped: {line}")
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    with engine_from_args(args) as engine:
+        prep = _prepared(args, cfg, engine.map, engine.where)
+        summaries = np.stack([summarise(p.paths, p.layout) for p in people])
+        estimates = prep.estimator.predict(summaries)
+        sims = predictive(cfg, prep, estimates, args.predictive, engine.map)
+    observed = [press_times(s) for s in summaries]
+    doc = fit_document(people, estimates, prep.estimator.check, sims, observed, {
+        "method": method(cfg, args.table), "seconds": round(time.monotonic() - t0, 1),
+        "skipped": skipped,
+    })
+    if not args.no_store:
+        _store(args.db, doc)
+    if args.out is not None:
+        from services.fit.figures import write_figures
+
+        (args.out / "fit.json").write_text(json.dumps(doc, indent=2) + "\n")
+        _write_csv(args.out / "fit.csv", doc)
+        written = write_figures(doc, args.out)
+        _say(f"wrote fit.json, fit.csv, {', '.join(p.name for p in written)} to {args.out}")
+    print(json.dumps(doc, indent=2) if args.json else fit_table(doc))
+    return 0
+
+
+def _rows(doc: dict[str, Any]) -> list[tuple[str, str, str, float, float, float]]:
+    return [
+        (r["participant"], r["session"], name, v["estimate"], v["low"], v["high"])
+        for r in doc["participants"] for name, v in r["parameters"].items()
+    ]
+
+
+def _store(db: Path, doc: dict[str, Any]) -> None:
+    now = time.time_ns()
+    store = Store(db)
+    try:
+        write_fits(store, [FitRecord(*row, LEVEL, doc["method"], now) for row in _rows(doc)])
+    finally:
+        store.close()
+
+
+def _write_csv(path: Path, doc: dict[str, Any]) -> None:
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(["participant", "session", "parameter", "estimate", "low", "high"])
+        writer.writerows(_rows(doc))
+
+
+def recovery(args: argparse.Namespace) -> int:
+    """`nod fit recovery`: planted people fitted as `nod fit` fits, and the gaze-model check."""
+    cfg = load_cohort_params(args.params)
+    n = args.participants
+    with engine_from_args(args) as engine:
+        prep = _prepared(args, cfg, engine.map, engine.where)
+        t0 = time.monotonic()
+        people = engine.map(simulate, [(cfg, args.seed + i) for i in range(n)])
+        theta = np.stack([p.theta for p in people])
+        fit = prep.estimator.predict(np.stack([p.summaries for p in people]))
+        checks = [recover(name, theta[:, j], fit.estimate[:, j], fit.low[:, j], fit.high[:, j])
+                  for j, name in enumerate(fit.names)]
+        model = _model_recovery(args, cfg, prep, people, engine.map)
+        _say(f"{n} planted people simulated and fitted, model check done "
+             f"({time.monotonic() - t0:.0f} s)")
+    doc = {"parameters": [c.as_dict() for c in checks], "model_recovery": model,
+           "participants": n, "seed": args.seed, "method": method(cfg, args.table)}
+    print(json.dumps(doc, indent=2) if args.json else recovery_table(checks, model))
+    return 0
+
+
+def _model_recovery(args: argparse.Namespace, cfg: NodConfig, prep: Prepared,
+                    people: list[Any], run: Any) -> dict[str, Any]:
+    """Train on table sessions with and without the gaze term; test on held-out people."""
+    k = max(100, args.table // 4)
+    no_gaze_cfg = without_gaze(cfg)
+    no_gaze, _ = reference_table(no_gaze_cfg, k, run, _cache(args))
+    clf = GazeClassifier().train(prep.table.summaries[:k], no_gaze.summaries)
+    held_out = run(simulate, [(no_gaze_cfg, args.seed + i) for i in range(len(people))])
+    accuracy = clf.accuracy(np.stack([p.summaries for p in people]),
+                            np.stack([p.summaries for p in held_out]))
+    return {"accuracy": round(accuracy, 4), "sessions": 2 * len(people), "trained_on": 2 * k,
+            "table_seed": TABLE_SEED}

@@ -1,0 +1,109 @@
+"""The fit's steps, shared by `nod fit` and `nod fit recovery` so both fit people the same way.
+
+`prepare`: the reference table (cached) and the estimator trained on it. `posterior_draws`: a
+person's posterior sample, by semi-automatic ABC (Fearnhead & Prangle 2012): the table people
+whose estimated parameters lie nearest to the person's (the regression's estimates are the
+summary statistics) — their true parameters, jointly, so the dependence between parameters
+(gaze_gain × trust0) is kept. `predictive`: new sessions of those draws, for the
+posterior-predictive check.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pickle
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from services.fit.estimator import ESTIMATOR_VERSION, Estimates, QuantileEstimator
+from services.fit.simulate import (
+    DERIVED,
+    STRATEGIST,
+    Mapper,
+    Simulated,
+    Table,
+    reference_table,
+    simulate_given,
+    table_key,
+)
+from services.model.params import NodConfig
+
+PREDICTIVE_SEED = 2 * 10**9  # predictive sessions' seeds: never a study's or the table's
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A trained fit: its table and estimator."""
+
+    table: Table
+    estimator: QuantileEstimator
+    cached: bool  # the table came from the cache
+    table_estimates: Estimates  # the estimator on every table person (for posterior draws)
+
+    @property
+    def identifiable(self) -> dict[str, bool]:
+        """Each parameter's verdict on the table's held-out check."""
+        return {r.name: r.identifiable for r in self.estimator.check}
+
+
+def prepare(cfg: NodConfig, k: int, run: Mapper, cache: Path | None, seed: int = 0) -> Prepared:
+    """The reference table of K people and the estimator trained on it, each cached on disk."""
+    table, cached = reference_table(cfg, k, run, cache)
+    path = (cache / f"estimator-{table_key(cfg, k)}-{ESTIMATOR_VERSION}-{seed}.pickle"
+            if cache is not None else None)
+    estimator = _load(path) if cached and path is not None else None
+    if estimator is None:
+        estimator = QuantileEstimator(table.names, seed).train(table.theta, table.summaries)
+        if path is not None:
+            tmp = path.with_suffix(".tmp")
+            tmp.write_bytes(pickle.dumps(estimator))
+            tmp.replace(path)
+    return Prepared(table, estimator, cached, estimator.predict(table.summaries))
+
+
+def _load(path: Path) -> QuantileEstimator | None:
+    """A cached estimator (our own file in our own cache), None if absent or unreadable."""
+    try:
+        estimator = pickle.loads(path.read_bytes())
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
+        return None
+    return estimator if isinstance(estimator, QuantileEstimator) else None
+
+
+def posterior_draws(prep: Prepared, estimate: np.ndarray, n: int) -> np.ndarray:
+    """The parameters of the n table people nearest to a person's estimates (n × P)."""
+    est = prep.table_estimates.estimate
+    scale = np.std(prep.table.theta, axis=0)
+    scale[scale == 0] = 1.0
+    d = np.sum(((est - estimate) / scale) ** 2, axis=1)
+    return prep.table.theta[np.argsort(d)[:n]]
+
+
+def person_config(cfg: NodConfig, names: Sequence[str], theta: np.ndarray) -> NodConfig:
+    """The cohort's configuration with one person's traits (derived parameters ignored)."""
+    traits: dict[str, Any] = {}
+    for name, value in zip(names, theta, strict=True):
+        if name == STRATEGIST:
+            traits["late_switch_share"] = float(value >= 0.5)
+        elif name not in DERIVED:
+            traits[name] = float(value)
+    return dataclasses.replace(cfg, participant=dataclasses.replace(cfg.participant, **traits))
+
+
+def predictive(cfg: NodConfig, prep: Prepared, estimates: Estimates, draws: int,
+               run: Mapper) -> list[list[Simulated]]:
+    """Per person, `draws` new sessions of their posterior draws (empty lists for 0 draws)."""
+    draws = min(draws, len(prep.table.theta))
+    if draws <= 0:
+        return [[] for _ in range(len(estimates.estimate))]
+    jobs: list[tuple[NodConfig, int]] = []
+    for i, est in enumerate(estimates.estimate):
+        for j, theta in enumerate(posterior_draws(prep, est, draws)):
+            jobs.append((person_config(cfg, prep.table.names, theta),
+                         PREDICTIVE_SEED + i * draws + j))
+    sims = run(simulate_given, jobs)
+    return [sims[i * draws:(i + 1) * draws] for i in range(len(estimates.estimate))]

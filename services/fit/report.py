@@ -1,0 +1,136 @@
+"""`nod fit`'s and `nod fit recovery`'s results as JSON documents and as text tables.
+
+`nod fit --json`: {"participants": [{"participant", "session", "trials", "parameters": {NAME:
+{"estimate", "low", "high"}}, "predictive": {...}}], "not_identifiable": {NAME: {...}}, ...}:
+only parameters that passed the recovery check are under "parameters" — the others are named,
+with their check, and never given an estimate. `nod fit recovery --json`: {"parameters":
+[{"name", "correlation", "bias", "coverage", "identifiable", "n"}], "model_recovery": {...}}.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from services.fit.data import Person
+from services.fit.estimator import LEVEL, Estimates
+from services.fit.simulate import Simulated
+from services.model.recovery import Recovery
+from services.model.summaries import summary_names
+
+OUTCOME_KEYS = ("C", "CH", "D", "DH", "none")
+UNITS = {"speed": "image widths/s", "reaction_s": "s", "perception_delay_s": "s"}
+MEANING = {
+    "preference_mean": "strength of the person's own preference (|b_h| of eq 2)",
+    "gaze_gain": "use of the gaze: the eyes' pull per radian of yaw, per unit of trust",
+    "trust0": "trust in the eyes at the first gaze trial",
+    "gaze_use": "use of the gaze at the first gaze trial: gaze_gain × trust0",
+    "speed": "hand speed (peak, image widths per second)",
+    "reaction_s": "reaction time from go to the first movement (s)",
+    "perception_delay_s": "how late the person sees the arm's heading (s)",
+    "late_switcher": "plays the strategic late switch in control trials (0/1)",
+}
+
+
+def shares(outcomes: Sequence[str | None]) -> dict[str, float]:
+    """The share of each outcome (a timeout: "none") over a person's trials."""
+    counts = Counter(o or "none" for o in outcomes)
+    n = max(1, len(outcomes))
+    return {k: counts[k] / n for k in OUTCOME_KEYS}
+
+
+_PRESS = [i for i, n in enumerate(summary_names()) if n.startswith("press_") and n[6:].isdigit()]
+
+
+def press_times(summaries: np.ndarray) -> list[float]:
+    """A session's press times (s from go) as its summaries read them: one reading for all."""
+    return [float(summaries[i]) for i in _PRESS if math.isfinite(summaries[i])]
+
+
+def _press_times(sims: Sequence[Simulated]) -> list[float]:
+    return sorted(p for s in sims for p in press_times(s.summaries))
+
+
+def _r(x: float) -> float:
+    return round(float(x), 4)
+
+
+def fit_document(people: Sequence[Person], fit: Estimates, checks: Sequence[Recovery],
+                 sims: Sequence[Sequence[Simulated]], observed_press: Sequence[list[float]],
+                 meta: dict[str, Any]) -> dict[str, Any]:
+    """The JSON document of `nod fit`."""
+    ok = {c.name for c in checks if c.identifiable}
+    rows = []
+    for i, person in enumerate(people):
+        params = {
+            name: {"estimate": _r(fit.estimate[i, p]), "low": _r(fit.low[i, p]),
+                   "high": _r(fit.high[i, p])}
+            for p, name in enumerate(fit.names) if name in ok
+        }
+        row: dict[str, Any] = {
+            "participant": person.participant, "session": person.session,
+            "trials": sum(1 for t in person.paths if not t.interrupted),
+            "parameters": params,
+        }
+        if sims[i]:
+            simulated = [o for s in sims[i] for o in s.outcomes]
+            row["predictive"] = {
+                "observed": shares(person.outcomes), "simulated": shares(simulated),
+                "observed_press_s": [_r(p) for p in observed_press[i]],
+                "simulated_press_s": [_r(p) for p in _press_times(sims[i])],
+                "sessions": len(sims[i]),
+            }
+        rows.append(row)
+    return {
+        "participants": rows,
+        "identifiable": sorted(ok, key=list(fit.names).index),
+        "not_identifiable": {c.name: c.as_dict() for c in checks if not c.identifiable},
+        "check": [c.as_dict() for c in checks],
+        "level": LEVEL,
+        "meaning": {n: MEANING.get(n, n) for n in fit.names},
+        **meta,
+    }
+
+
+def fit_table(doc: dict[str, Any]) -> str:
+    """The per-participant table: estimate [low, high] of each identifiable parameter."""
+    names = doc["identifiable"]
+    lines = [f"{'participant':<12} {'trials':>6}  " + "  ".join(f"{n:>22}" for n in names)]
+    for row in doc["participants"]:
+        cells = []
+        for n in names:
+            v = row["parameters"][n]
+            cells.append(f"{v['estimate']:>8.3g} [{v['low']:.3g}, {v['high']:.3g}]".rjust(22))
+        lines.append(f"{row['participant']:<12} {row['trials']:>6}  " + "  ".join(cells))
+    lines.append(f"(estimate [{int(LEVEL * 100)} % interval]; {', '.join(names) or 'none'} "
+                 "recovered on held-out simulated people)")
+    for name, c in doc["not_identifiable"].items():
+        lines.append(
+            f"not identifiable from these trials, no estimate given: {name} "
+            f"({MEANING.get(name, name)}; recovery r = {_fmt(c['correlation'])}, "
+            f"coverage {_fmt(c['coverage'])})"
+        )
+    return "\n".join(lines)
+
+
+def _fmt(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.2f}"
+
+
+def recovery_table(checks: Sequence[Recovery], model: dict[str, Any] | None) -> str:
+    """The recovery study as text: one line per parameter, then the model-recovery check."""
+    lines = [f"{'parameter':<20} {'r':>6} {'bias':>8} {'coverage':>9}  identifiable"]
+    for c in checks:
+        d = c.as_dict()
+        lines.append(f"{c.name:<20} {_fmt(d['correlation']):>6} {_fmt(d['bias']):>8} "  # type: ignore[arg-type]
+                     f"{_fmt(d['coverage']):>9}  {'yes' if c.identifiable else 'NO'}")  # type: ignore[arg-type]
+    lines.append(f"(standard: r ≥ 0.7 and {int(LEVEL * 100)} % coverage within 0.80-0.98; "
+                 f"n = {checks[0].n if checks else 0})")
+    if model:
+        lines.append(f"model recovery (gaze term or not): accuracy {model['accuracy']:.2f} on "
+                     f"{model['sessions']} held-out sessions")
+    return "\n".join(lines)

@@ -1,0 +1,175 @@
+"""Simulated people for the fit: the prior, one session's task, and the cached reference table.
+
+The prior is the fitted cohort's population: person `seed` is exactly the participant `nod
+cohort` simulates with that seed (`closed_loop.run_offline_session(cohort=True)`: traits drawn
+by `participant.jittered` around the cohort's traits), so the fit's prior is the cohort fit
+itself (empirical Bayes: the population was fitted to the paper, each person is shrunk toward
+it). The parameters fitted are whichever traits `jittered` draws per person — found by drawing,
+not listed here, so a trait added to the model is fitted without a change here — plus the
+derived `gaze_use` (gaze_gain × trust0: the eyes' pull on the person at the first gaze trial)
+and, when the cohort has strategists (`late_switch_share` > 0), `late_switcher` (0/1).
+
+A session is one task on the engine (`services.compute.engine`); its result is small (traits,
+summaries, outcomes, press times), so thousands travel back cheaply. The reference table (K
+people) is cached on disk, keyed by the parameters, K, the summaries' names and the source of
+the model and the summaries: another model never reuses a stale table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from services.core.config import params_hash
+from services.model.closed_loop import run_offline_session
+from services.model.params import NodConfig
+from services.model.participant import Participant, ParticipantParams, jittered
+from services.model.summaries import from_offline, summarise, summary_names
+
+TABLE_SEED = 10**9  # reference-table person i has seed TABLE_SEED + i: never a study's seed
+DERIVED = ("gaze_use",)
+STRATEGIST = "late_switcher"
+
+
+def drawn_traits(base: ParticipantParams) -> tuple[str, ...]:
+    """The traits `jittered` draws per person (those that differ from `base` in some draw)."""
+    rng = np.random.default_rng(0)
+    draws = [jittered(base, rng) for _ in range(16)]
+    names = []
+    for f in dataclasses.fields(base):
+        value = getattr(base, f.name)
+        if isinstance(value, float) and any(getattr(d, f.name) != value for d in draws):
+            names.append(f.name)
+    return tuple(names)
+
+
+def parameter_names(base: ParticipantParams) -> tuple[str, ...]:
+    """Every parameter the fit estimates for this cohort, in output order."""
+    names = drawn_traits(base)
+    extra = [d for d in DERIVED if {"gaze_gain", "trust0"} <= set(names)]
+    if base.late_switch_share > 0:
+        extra.append(STRATEGIST)
+    return (*names, *extra)
+
+
+def true_person(cfg: NodConfig, seed: int) -> tuple[ParticipantParams, bool]:
+    """Person `seed` of the cohort: its traits and whether it is a strategist.
+
+    The same draws, in the same order, as `run_offline_session(cfg, seed, cohort=True)` makes
+    (a test holds the two together).
+    """
+    rng = np.random.default_rng(seed)
+    params = jittered(cfg.participant, rng)
+    person = Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
+    return params, person.strategist
+
+
+def truth(params: ParticipantParams, strategist: bool, names: Sequence[str]) -> np.ndarray:
+    """A person's parameter vector in `names` order."""
+    values = []
+    for n in names:
+        if n == "gaze_use":
+            values.append(params.gaze_gain * params.trust0)
+        elif n == STRATEGIST:
+            values.append(float(strategist))
+        else:
+            values.append(float(getattr(params, n)))
+    return np.asarray(values, dtype=float)
+
+
+@dataclass(frozen=True, slots=True)
+class Simulated:
+    """What one simulated session leaves for the fit."""
+
+    seed: int
+    theta: np.ndarray  # the person's parameters (`parameter_names` order)
+    summaries: np.ndarray  # `summary_names()` order
+    outcomes: tuple[str | None, ...]  # per trial (None: a timeout)
+    press_s: tuple[float | None, ...]  # per trial, from "go" (None: no press)
+
+
+def simulate(job: tuple[NodConfig, int]) -> Simulated:
+    """Person `seed` of the cohort `cfg`, simulated as `nod cohort` does (an engine task)."""
+    cfg, seed = job
+    names = parameter_names(cfg.participant)
+    params, strategist = true_person(cfg, seed)
+    trials = run_offline_session(cfg, seed, cohort=True, record=True)
+    return Simulated(
+        seed, truth(params, strategist, names), summarise(from_offline(trials), cfg.layout),
+        tuple(t.outcome for t in trials), tuple(t.press_s for t in trials),
+    )
+
+
+def simulate_given(job: tuple[NodConfig, int]) -> Simulated:
+    """A session of exactly `cfg.participant` (no person-to-person draw): predictive checks."""
+    cfg, seed = job
+    trials = run_offline_session(cfg, seed, cohort=False, record=True)
+    return Simulated(seed, np.zeros(0), summarise(from_offline(trials), cfg.layout),
+                     tuple(t.outcome for t in trials), tuple(t.press_s for t in trials))
+
+
+def without_gaze(cfg: NodConfig) -> NodConfig:
+    """The same cohort with the gaze term removed (nobody is pulled by the eyes)."""
+    return dataclasses.replace(cfg, participant=dataclasses.replace(cfg.participant, gaze_gain=0.0))
+
+
+Mapper = Callable[[Callable[[tuple[NodConfig, int]], Simulated], list[tuple[NodConfig, int]]],
+                  list[Simulated]]
+
+
+@dataclass(frozen=True, slots=True)
+class Table:
+    """K simulated people: parameters and summaries as arrays."""
+
+    names: tuple[str, ...]
+    theta: np.ndarray  # K × P
+    summaries: np.ndarray  # K × F
+
+
+def _source_digest() -> str:
+    """The model's and the summaries' source: a table made by other code is another table."""
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for path in sorted((root / "model").glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def table_key(cfg: NodConfig, k: int) -> str:
+    """The cache key of a reference table."""
+    text = "|".join((params_hash(cfg), str(k), str(TABLE_SEED), ",".join(summary_names()),
+                     _source_digest()))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def default_cache() -> Path:
+    """Where tables are kept: $NOD_CACHE_DIR, else $XDG_CACHE_HOME/nod/fit, else ~/.cache."""
+    if os.environ.get("NOD_CACHE_DIR"):
+        return Path(os.environ["NOD_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "nod" / "fit"
+
+
+def reference_table(cfg: NodConfig, k: int, run: Mapper, cache: Path | None) -> tuple[Table, bool]:
+    """K people of the prior, from the cache or simulated with `run`; (table, from cache)."""
+    names = parameter_names(cfg.participant)
+    path = cache / f"table-{table_key(cfg, k)}.npz" if cache is not None else None
+    if path is not None and path.is_file():
+        with np.load(path) as data:
+            if tuple(str(n) for n in data["names"]) == names:
+                return Table(names, data["theta"], data["summaries"]), True
+    sims = run(simulate, [(cfg, TABLE_SEED + i) for i in range(k)])
+    table = Table(names, np.stack([s.theta for s in sims]), np.stack([s.summaries for s in sims]))
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez(tmp, names=np.array(names), theta=table.theta, summaries=table.summaries)
+        tmp.replace(path)  # a table is whole or absent, never half written
+    return table, False

@@ -1,0 +1,69 @@
+"""Per-participant model fits in the store (`nod fit`): table `fits`, exported as fits.csv.
+
+One row per participant and identifiable parameter: the estimate and its interval, the session
+it was fitted from, the method and when. A parameter that the recovery check did not pass is
+not stored: an estimate that the data cannot pin down is no finding to export. Fitting a
+participant again replaces their rows. The table is created with the others
+(`FITS_SCHEMA`, part of every store's schema: an older file gets it when opened).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # store.py runs FITS_SCHEMA at open, so it imports this module
+    from services.store.store import Store
+
+FITS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS fits (
+    participant TEXT NOT NULL,
+    session     TEXT NOT NULL,
+    parameter   TEXT NOT NULL,
+    estimate    REAL NOT NULL,
+    low         REAL NOT NULL,
+    high        REAL NOT NULL,
+    level       REAL NOT NULL,
+    method      TEXT NOT NULL,
+    fitted_ns   INTEGER NOT NULL,
+    PRIMARY KEY (participant, parameter)
+);
+"""
+
+
+@dataclass(frozen=True, slots=True)
+class FitRecord:
+    """One participant's estimate of one parameter."""
+
+    participant: str
+    session: str
+    parameter: str
+    estimate: float
+    low: float
+    high: float
+    level: float  # the interval's nominal coverage (0.9)
+    method: str  # how it was fitted, e.g. "sbi-quantile-boosting K=2000 params=<hash>"
+    fitted_ns: int  # wall clock
+
+
+def write_fits(store: Store, records: Sequence[FitRecord]) -> None:
+    """Store fits, replacing every earlier row of the participants they are for, atomically."""
+    with store.db:
+        store.db.execute("BEGIN")
+        for who in sorted({r.participant for r in records}):
+            store.db.execute("DELETE FROM fits WHERE participant = ?", (who,))
+        store.db.executemany(
+            "INSERT INTO fits VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            [(r.participant, r.session, r.parameter, r.estimate, r.low, r.high, r.level,
+              r.method, r.fitted_ns) for r in records],
+        )
+
+
+def read_fits(store: Store) -> list[FitRecord]:
+    """Every stored fit, by participant and parameter."""
+    cur = store.db.execute(
+        "SELECT participant, session, parameter, estimate, low, high, level, method, fitted_ns "
+        "FROM fits ORDER BY participant, parameter"
+    )
+    return [FitRecord(*row) for row in cur]

@@ -1,0 +1,109 @@
+"""`nod fit` end to end on a tiny simulated study, and its one-line answers to bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+
+from services.experiment.export import main as export_main
+from services.fit.cli import main
+from services.sim import cohort
+from services.store import Sample, Store, TrialRecord
+from services.store.fits import read_fits
+
+
+def _record(trial: int, interrupted: bool = False) -> TrialRecord:
+    return TrialRecord(trial, "dissensus", None, "neutral", 0.0, 0.0, 10**9, 2 * 10**9, "red",
+                       "blue", "D", 0, 0, 10, 0, "human pressed", interrupted=interrupted)
+
+
+def _one_line(capsys: pytest.CaptureFixture[str]) -> str:
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("nod fit: error: ")
+    return err
+
+
+def test_an_empty_store_is_one_line(tmp_path, capsys):
+    db = tmp_path / "empty.sqlite"
+    Store(db).close()
+    assert main(["--db", str(db)]) == 2
+    assert "holds no sessions" in _one_line(capsys)
+
+
+def test_a_missing_database_is_one_line(tmp_path, capsys):
+    assert main(["--db", str(tmp_path / "nope.sqlite")]) == 2
+    assert "no such database" in _one_line(capsys)
+
+
+def test_a_store_without_landmarks_is_one_line(tmp_path, capsys):
+    db = tmp_path / "trials-only.sqlite"
+    store = Store(db)
+    store.begin_session("s1", "P01", "rig1", 1, 0, {})
+    for k in (1, 2):
+        store.write_trial("s1", _record(k), [])  # trials, but no hand sample kept
+    store.close()
+    assert main(["--db", str(db)]) == 2
+    assert "stores no hand samples (landmarks)" in _one_line(capsys)
+
+
+def test_a_participant_with_no_complete_trial_is_one_line(tmp_path, capsys):
+    db = tmp_path / "broken.sqlite"
+    store = Store(db)
+    store.begin_session("s1", "P01", "rig1", 1, 0, {})
+    store.write_trial("s1", _record(1, interrupted=True), [])
+    store.begin_session("s2", "P02", "rig1", 2, 1, {})
+    hand = [Sample(10**9 + i * 33_000_000, True, 0.5, 0.85 - 0.01 * i, None, None, None,
+                   None, None) for i in range(30)]
+    store.write_trial("s2", _record(1), hand)
+    store.close()
+    assert main(["--db", str(db), "--participant", "P01"]) == 2
+    line = _one_line(capsys)
+    assert "'P01'" in line and "no complete trial" in line
+    assert main(["--db", str(db), "--participant", "P09"]) == 2
+    assert "'P09' has no stored trials" in _one_line(capsys)
+
+
+def test_fit_a_small_study_stores_and_exports_it(tmp_path, capsys):
+    """Three simulated people, a tiny table: the JSON shape, the figures, the store, the CSV."""
+    db = tmp_path / "study.sqlite"
+    assert cohort.main(["--participants", "3", "--seed", "7", "--db", str(db), "--quiet",
+                        "--workers", "1"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "fit"
+    args = ["--db", str(db), "--table", "24", "--predictive", "2", "--workers", "1",
+            "--cache", str(tmp_path / "cache"), "--out", str(out), "--json"]
+    assert main(args) == 0
+    doc = json.loads(capsys.readouterr().out)
+    rows = doc["participants"]
+    assert [r["participant"] for r in rows] == ["P001", "P002", "P003"]
+    names = set(doc["identifiable"]) | set(doc["not_identifiable"])
+    assert {"speed", "preference_mean", "gaze_gain"} <= names
+    for r in rows:
+        assert set(r["parameters"]) == set(doc["identifiable"])  # never a non-identifiable one
+        for v in r["parameters"].values():
+            assert v["low"] <= v["estimate"] <= v["high"]
+        pred = r["predictive"]
+        assert pred["sessions"] == 2 and sum(pred["simulated"].values()) == pytest.approx(1)
+        assert len(pred["observed_press_s"]) >= 1
+    for name in ("fit.json", "fit.csv", "fit_intervals.png", "fit_predictive.png"):
+        assert (out / name).stat().st_size > 0
+    store = Store(db)
+    try:
+        stored = read_fits(store)
+    finally:
+        store.close()
+    expected = {(r["participant"], n) for r in rows for n in r["parameters"]}
+    assert {(f.participant, f.parameter) for f in stored} == expected
+    assert export_main(["--db", str(db), "--out", str(tmp_path / "csv")]) == 0
+    exported = list(csv.DictReader((tmp_path / "csv" / "fits.csv").open()))
+    assert len(exported) == len(expected)
+    # A second fit (from the cached table) replaces the rows, never doubles them.
+    assert main(args[:-1] + ["--participant", "P002"]) == 0
+    assert "P002" in capsys.readouterr().out
+    store = Store(db)
+    try:
+        assert len(read_fits(store)) == len(expected)
+    finally:
+        store.close()

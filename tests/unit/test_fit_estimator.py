@@ -1,0 +1,80 @@
+"""The estimator and the recovery metrics on synthetic data, where the truth is known."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from services.fit.estimator import GazeClassifier, QuantileEstimator
+from services.model.recovery import recovery
+
+
+def _synthetic(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two parameters: `planted` shows in the summaries (with noise), `hidden` does not."""
+    rng = np.random.default_rng(seed)
+    theta = np.column_stack([rng.uniform(0, 1, n), rng.uniform(0, 1, n)])
+    noise = rng.normal(0, 0.05, (n, 3))
+    summaries = np.column_stack([
+        theta[:, 0] + noise[:, 0],
+        np.exp(theta[:, 0]) + noise[:, 1],
+        noise[:, 2],  # nothing of either parameter
+    ])
+    summaries[rng.random(n) < 0.1, 1] = np.nan  # missing summaries, as a timeout leaves
+    return theta, summaries
+
+
+def test_the_estimator_recovers_a_planted_parameter_and_flags_a_hidden_one():
+    theta, summaries = _synthetic(1000, 1)
+    est = QuantileEstimator(("planted", "hidden"), seed=0).train(theta, summaries)
+    planted, hidden = est.check
+    assert planted.identifiable and planted.correlation > 0.95
+    assert not hidden.identifiable  # coverage fine, but nothing to correlate with
+    # Fresh people from the same prior: estimates near the truth, 90 % intervals cover ~90 %.
+    fresh_theta, fresh = _synthetic(600, 2)
+    fit = est.predict(fresh)
+    r = recovery("planted", fresh_theta[:, 0], fit.estimate[:, 0], fit.low[:, 0], fit.high[:, 0])
+    assert r.correlation > 0.95 and abs(r.bias) < 0.02
+    assert 0.84 <= r.coverage <= 0.96
+    width = np.median(fit.high[:, 0] - fit.low[:, 0])
+    assert width < 0.3  # informative: the prior's own 90 % interval is 0.9 wide
+    h = recovery("hidden", fresh_theta[:, 1], fit.estimate[:, 1], fit.low[:, 1], fit.high[:, 1])
+    assert 0.84 <= h.coverage <= 0.96  # honest: wide intervals, still calibrated
+    assert np.all(fit.low <= fit.estimate) and np.all(fit.estimate <= fit.high)
+
+
+def test_the_gaze_classifier_tells_two_models_apart_only_when_they_differ():
+    rng = np.random.default_rng(3)
+    with_gaze = rng.normal(1.0, 1.0, (400, 2))
+    without = rng.normal(0.0, 1.0, (400, 2))
+    clf = GazeClassifier().train(with_gaze[:300], without[:300])
+    assert clf.accuracy(with_gaze[300:], without[300:]) > 0.7  # Bayes rate ≈ 0.76
+    # Two labels of one model: nothing to learn, held-out accuracy near a coin's.
+    same = GazeClassifier().train(without[:150], without[150:300])
+    assert same.accuracy(with_gaze[300:] - 1.0, without[300:]) < 0.62
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(-10, 10), min_size=3, max_size=40, unique=True),
+       st.floats(0.1, 5))
+def test_recovery_of_exact_estimates(values, width):
+    """Estimates equal to the truth: r = 1, no bias, full coverage; shifted out: none."""
+    true = np.array(values)
+    r = recovery("x", true, true, true - width, true + width)
+    assert r.correlation == pytest.approx(1.0) and r.bias == 0.0 and r.coverage == 1.0
+    assert not r.identifiable  # coverage 1.0 is above 0.98: intervals too wide to trust
+    off = recovery("x", true, true + 3 * width, true + 2 * width, true + 4 * width)
+    assert off.coverage == 0.0 and off.bias == pytest.approx(3 * width)
+
+
+def test_identifiable_needs_both_correlation_and_coverage():
+    true = np.linspace(0, 1, 100)
+    inside = np.where(np.arange(100) % 10 == 0, 5.0, true)  # 90 % of intervals hold the truth
+    good = recovery("x", true, true, inside - 0.01, inside + 0.01)
+    assert good.coverage == pytest.approx(0.9) and good.identifiable
+    flat = recovery("x", true, np.full(100, 0.5), true - 0.01, true + 0.01)
+    assert math.isnan(flat.correlation) and not flat.identifiable
+    assert flat.as_dict()["correlation"] is None  # JSON has no NaN
