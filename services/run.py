@@ -37,9 +37,10 @@ from services.core.keys import Keys, check_rig
 from services.core.lifeline import nod_command
 from services.core.rigfile import Host, Rig
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
-from services.experiment.resume import resume_argv, resume_line, stored_unfinished
+from services.experiment.resume import flag_argv, resume_argv, resume_line, stored_unfinished
 from services.launch.commands import command
 from services.launch.events import RigEvents
+from services.launch.rigs import RIG_FLAGS, check_rigs, run_rigs
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
 from services.launch.view import SessionView
 from services.safety.latch_file import STATE_DIR_ENV
@@ -115,6 +116,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="run N simulated participants one after another (the first free ids P01.., seeds "
         "seed..seed+N-1, person-to-person variation drawn from each seed), all in one database",
     )
+    p.add_argument("--rigs", type=int_in(1, 16), default=1, metavar="N",
+                   help="run N simulated rigs at once on this router (rig1..rigN), the "
+                   "participants split across them, each rig's sessions in <db>-<rig>.sqlite")
+    p.add_argument("--join", action="store_true", help=argparse.SUPPRESS)  # a rig of --rigs
+    p.add_argument("--ids", type=lambda s: s.split(","), default=None, help=argparse.SUPPRESS)
     p.add_argument("--clicks", default="10", help="counter clicks per trial: N, 'prompt' or 'none'")
     p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
     p.add_argument("--stale-ms", type=float, default=None, help="safety staleness bound (ms)")
@@ -196,9 +202,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run the session(s) on the fabric; exit 0 when every trial is stored."""
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    problem = _check_args(args) or _preflight(args)
+    problem = _check_args(args) or check_rigs(args)
+    if problem is None and args.rigs == 1:  # with --rigs, each rig's own run checks the rest
+        problem = _preflight(args)
     if problem:
         return fail("nod run", f"{problem}")
+    if args.rigs > 1:  # several rigs, each a `nod run --join` of its own
+        return run_rigs(args, flag_argv(build_parser(), args, RIG_FLAGS))
     logs = args.logs or args.db.with_suffix(".logs")
     # A simulated device is a new device every run: its e-stop latch lives in a folder of this
     # run (still surviving the restarts of its service within the run). A real arm or real eyes
@@ -209,8 +219,9 @@ def main(argv: list[str] | None = None) -> int:
     ):
         sim_state = tempfile.TemporaryDirectory(prefix="nod-sim-state-")
         args.state_dir = Path(sim_state.name)
-    try:
-        router = open_session(make_config(mode="router", listen=[args.listen]))
+    try:  # a rig of `--rigs` joins the run's router as a client
+        router = open_session(make_config(mode="client", connect=[args.listen]) if args.join
+                              else make_config(mode="router", listen=[args.listen]))
     except ConnectionError as exc:
         return fail("nod run", f"cannot listen on {args.listen}: {exc}")
     n_trials = len(load_params(args.params).protocol.trials)
@@ -376,6 +387,8 @@ def _preflight(args: argparse.Namespace) -> str | None:
             args.ids = [known[args.resume]["participant"]]
             if known[args.resume]["seed"] is not None:
                 args.seed = known[args.resume]["seed"]
+        elif args.ids is not None:  # a rig of `--rigs`: its block of the study's ids
+            pass
         elif args.participant is None or args.participants > 1:
             args.ids = next_free_ids(store, args.participants)
         else:
@@ -399,7 +412,7 @@ def _participant(args: argparse.Namespace, i: int) -> argparse.Namespace:
     The launcher names the session, so a conductor it restarts can resume that very session.
     """
     extra: dict[str, object] = {"session": args.resume or uuid.uuid4().hex[:12]}
-    if args.participants > 1:
+    if args.participants > 1 or args.join:  # a rig of `--rigs` runs a share of a cohort
         extra |= {"seed": args.seed + i, "participant": args.ids[i], "cohort": True}
     return argparse.Namespace(**{**vars(args), **extra})
 

@@ -33,7 +33,14 @@ def resume_argv(
     flags: tuple[str, ...] = RESUME_FLAGS,
 ) -> list[str]:
     """The command line that resumes `session` with those of `args`' `flags` not at default."""
-    argv = [*prog, "--resume", session, "--db", str(args.db)]
+    return [*prog, "--resume", session, "--db", str(args.db), *flag_argv(parser, args, flags)]
+
+
+def flag_argv(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, flags: tuple[str, ...]
+) -> list[str]:
+    """Those of `args`' `flags` that are not at their default, as command-line arguments."""
+    argv: list[str] = []
     for dest in flags:
         value = getattr(args, dest, None)
         if value is None or value is False or value == parser.get_default(dest):

@@ -163,7 +163,11 @@ def reuse_problem(store: Store, participant: str, complete_only: bool = False) -
 
 def next_free_ids(store: Store, n: int, prefix: str = "P") -> list[str]:
     """The first n ids `<prefix>01`, `<prefix>02`, … that have no stored session."""
-    taken = set(sessions_by_participant(store))
+    return first_free_ids(set(sessions_by_participant(store)), n, prefix)
+
+
+def first_free_ids(taken: set[str], n: int, prefix: str = "P") -> list[str]:
+    """The first n ids `<prefix>01`, `<prefix>02`, … not in `taken`."""
     out: list[str] = []
     k = 0
     while len(out) < n:

@@ -1,0 +1,70 @@
+"""`nod run --sim --rigs 2`: two simulated rigs at once on one router, one study in two stores."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import subprocess
+import sys
+import threading
+
+import pytest
+
+from services.tools import lab_status
+from tests.processes import run_nod, stop_all
+
+from .conftest import ROOT, SHORT, connect_when_listening, free_port
+
+pytestmark = pytest.mark.integration
+
+
+def test_two_rigs_run_their_share_of_the_study_at_once_into_their_own_stores(tmp_path) -> None:
+    params = tmp_path / "short.toml"
+    params.write_text(SHORT)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    db = tmp_path / "study.sqlite"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "run", "--sim", "--rigs", "2", "--participants",
+         "3", "--seed", "5", "--speed", "8", "--params", str(params), "--listen", endpoint,
+         "--stale-ms", "2000", "--db", str(db)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+    together: set[str] = set()  # the rigs whose conductors ran a participant in one window
+    try:
+        session = connect_when_listening(endpoint, alive=lambda: run.poll() is None)
+        stop = threading.Event()
+        while run.poll() is None and together != {"rig1", "rig2"}:
+            doc = lab_status.report(lab_status.observe(session, 1.0, stop), 0)
+            together = {r["rig"] for r in doc["rigs"] if r["participant"]}
+        session.close()
+        out, _ = run.communicate(timeout=300)
+    finally:
+        stop_all([run])
+    assert run.returncode == 0, out[-3000:]
+    assert together == {"rig1", "rig2"}, "the two rigs never ran at once on the router"
+    stores = [tmp_path / "study-rig1.sqlite", tmp_path / "study-rig2.sqlite"]
+    rows = []
+    for path in stores:
+        con = sqlite3.connect(path)
+        rows += con.execute("SELECT participant, rig, seed, status, (SELECT COUNT(*) FROM trials "
+                            "t WHERE t.session = s.session) FROM sessions s").fetchall()
+        con.close()
+    # The study's people in contiguous blocks, each with the seed `--rigs 1` would give it.
+    assert sorted(rows) == [("P01", "rig1", 5, "complete", 3), ("P02", "rig1", 6, "complete", 3),
+                            ("P03", "rig2", 7, "complete", 3)]
+    assert f"nod analyze study --db {stores[0]} --db {stores[1]}" in out
+    study = run_nod("analyze", "study", "--db", str(stores[0]), "--db", str(stores[1]), "--json")
+    assert study.returncode == 0, study.stderr
+    doc = json.loads(study.stdout)
+    assert doc["participants"] == 3 and doc["rigs"] == {"rig1": 2, "rig2": 1}
+
+
+def test_what_rigs_cannot_take_is_one_line() -> None:
+    for args, says in ((["--rigs", "3", "--participants", "2"], "at least one participant"),
+                       (["--rigs", "2", "--participants", "2", "--participant", "P09"],
+                        "leave out --participant"),
+                       (["--rigs", "2", "--participants", "2", "--arm-driver", "feetech"],
+                        "one device cannot serve several rigs")):
+        res = run_nod("run", "--sim", *args, timeout=60)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1 and says in res.stderr, (
+            args, res.stderr)
