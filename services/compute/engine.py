@@ -181,15 +181,18 @@ def open_engine(
     from distributed import Client, LocalCluster
 
     n = workers or os.cpu_count() or 1
-    with (
-        LocalCluster(
+    try:
+        cluster = LocalCluster(
             n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
             # the scheduler's HTTP server always starts: on a free loopback port, no dashboard
             dashboard_address="127.0.0.1:0", scheduler_kwargs={"dashboard": False},
             silence_logs=WORKERS_QUIET,
-        ) as cluster,
-        Client(cluster, set_as_default=False) as client,
-    ):
+        )
+    except (RuntimeError, OSError, TimeoutError) as exc:
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise EngineError(f"cannot start a local Dask cluster of {n} workers ({why}): try "
+                          "fewer --workers, or a cluster of your own with --scheduler") from None
+    with cluster, Client(cluster, set_as_default=False) as client:
         yield Engine(client, f"a local cluster of {n} worker{'s' if n > 1 else ''}")
 
 

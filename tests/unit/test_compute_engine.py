@@ -9,7 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from services.compute.engine import Engine, EngineError, code_fingerprint, open_engine
+from services.compute.engine import (
+    Engine,
+    EngineError,
+    _check_code,
+    code_fingerprint,
+    open_engine,
+)
 from tests.processes import free_port
 
 
@@ -75,3 +81,22 @@ def test_the_code_fingerprint_changes_with_any_source(tmp_path: Path) -> None:
     (tmp_path / "model" / "a.py").write_text("x = 1\n")
     (tmp_path / "model" / "a.py").rename(tmp_path / "model" / "b.py")
     assert code_fingerprint(tmp_path) != first
+
+
+class FakeClient:
+    """What `Client.run(code_fingerprint)` answers: each worker's fingerprint (or its error)."""
+
+    def __init__(self, answers: dict) -> None:
+        self.answers = answers
+
+    def run(self, fn, on_error: str) -> dict:
+        return self.answers
+
+
+def test_a_worker_with_other_code_is_refused_in_one_line() -> None:
+    mine = code_fingerprint()
+    _check_code(FakeClient({"tcp://a:1": mine, "tcp://b:2": mine}), "tcp://s:8786")  # accepted
+    with pytest.raises(EngineError, match="tcp://b:2 of tcp://s:8786 runs other nod-hri code"):
+        _check_code(FakeClient({"tcp://a:1": mine, "tcp://b:2": "0123456789ab"}), "tcp://s:8786")
+    with pytest.raises(EngineError, match="cannot import services"):
+        _check_code(FakeClient({"tcp://a:1": ModuleNotFoundError("services")}), "tcp://s:8786")
