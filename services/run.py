@@ -32,17 +32,18 @@ import zenoh
 from services.core import messages as m
 from services.core.cli import SEED, Parser, fail, int_in
 from services.core.clock import Clock
-from services.core.config import load_params
 from services.core.keys import Keys, check_rig
 from services.core.lifeline import nod_command
+from services.core.options_config import add_options_arg, load_with_options
 from services.core.rigfile import Host, Rig
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
 from services.experiment.resume import flag_argv, resume_argv, resume_line, stored_unfinished
 from services.launch.commands import command
 from services.launch.events import RigEvents
+from services.launch.options_run import options_problem, with_options
+from services.launch.options_view import session_view
 from services.launch.rigs import RIG_FLAGS, check_rigs, run_rigs
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
-from services.launch.view import SessionView
 from services.safety.latch_file import STATE_DIR_ENV
 from services.store import Store, StoreError
 from services.store.participants import next_free_ids, reuse_problem
@@ -142,6 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     hw.add_argument(
         "--eyes-trims", type=Path, default=None, help="eyes trims file (`nod eyes calibrate`)"
     )
+    add_options_arg(p)
     p.add_argument("-v", "--verbose", action="store_true", help="services log at debug level")
     return p
 
@@ -183,6 +185,8 @@ def sim_rig(args: argparse.Namespace) -> Rig:
     if getattr(args, "record", None) is not None:
         conductor += ["--record", str(args.record)]
     sections["experiment"] = {"args": conductor}
+    if getattr(args, "options", None) is not None:  # a table of N boxes: every reader of it
+        with_options(sections, args.options)
     return Rig(
         path=Path("nod run --sim"),
         name=args.rig,
@@ -224,8 +228,7 @@ def main(argv: list[str] | None = None) -> int:
                               else make_config(mode="router", listen=[args.listen]))
     except ConnectionError as exc:
         return fail("nod run", f"cannot listen on {args.listen}: {exc}")
-    n_trials = len(load_params(args.params).protocol.trials)
-    view = SessionView(n_trials, compact=args.participants > 1)
+    view = session_view(*load_with_options(args.params, args.options), args.participants > 1)
     keys = Keys(args.rig)
     subs = view.subscribe(router, keys)
     epoch_ns = time.time_ns()
@@ -366,9 +369,11 @@ def _check_args(args: argparse.Namespace) -> str | None:
 def _preflight(args: argparse.Namespace) -> str | None:
     """Everything that can be checked before a process starts, as one line each."""
     try:
-        load_params(args.params)
+        _, schedule = load_with_options(args.params, args.options)
     except (ValueError, OSError) as exc:  # ConfigError is a ValueError
         return str(exc)
+    if schedule is not None and (problem := options_problem(args, schedule)):
+        return problem
     try:
         make_config(mode="router", listen=[args.listen])
     except zenoh.ZError:

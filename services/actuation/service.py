@@ -20,8 +20,9 @@ from pathlib import Path
 from services.actuation.drivers import ARM_DRIVERS, make_arm_driver
 from services.core import messages as m
 from services.core.cli import Parser, add_service_args, fail
-from services.core.config import load_params, params_hash
+from services.core.config import params_hash
 from services.core.node import Node, setup_logging
+from services.core.options_config import add_options_arg, load_with_options
 from services.core.priority import raise_priority
 from services.core.session import Fabric
 from services.model.arm import ArmDriver
@@ -199,6 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--stale-ms", type=float, default=None, help="input staleness bound (ms)")
     add_state_dir_arg(p)
+    add_options_arg(p)
     return p
 
 
@@ -214,7 +216,12 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose)
     raise_priority("actuation")
     try:
-        cfg = load_params(args.params)
+        cfg, schedule = load_with_options(args.params, args.options)
+        if schedule is not None and args.driver != "sim":
+            raise ValueError(
+                f"--options {schedule.n_options} runs the simulated arm only (--driver sim): no "
+                "real arm is calibrated for more than two boxes yet"
+            )
         safety = cfg.safety
         if args.stale_ms is not None:
             safety = dataclasses.replace(safety, stale_ms=args.stale_ms)
@@ -226,6 +233,19 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError, ConnectionError) as exc:
         return fail("nod actuation", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("behaviour", "sim_arm", "safety")))
+    if schedule is not None:  # a table of 3+ boxes: Algorithm 2 over N boxes, the sim arm
+        from services.actuation.options_service import OptionsActuationService
+        from services.model.options_loop import table_for
+
+        service = OptionsActuationService(
+            node, cfg, table_for(cfg, schedule.n_options), safety, latch_file
+        )
+        node.on_forced_exit(service.arm.hold)
+        try:
+            node.run()
+        finally:
+            service.arm.hold()
+        return 0
     try:
         arm = make_arm_driver(
             args.driver,

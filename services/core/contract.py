@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Any, Generic, Literal, TypeAlias, TypeVar, overload
 
 from services.core import messages as m
+from services.core import options_messages as om
 
 Congestion: TypeAlias = Literal["block", "drop"]
 Priority: TypeAlias = Literal["real_time", "interactive_high", "data_high", "data"]
@@ -193,11 +194,49 @@ SAFETY_LATCH = Topic(
     "starts is engaged if any is",
     queried_only=True,
 )
+# A table of three or more boxes (docs/multi-option.md): keys of their own, schema version 2,
+# so the paper's two-option keys and payloads stay as they are.
+OPTIONS_LAYOUT = Topic(
+    "options/layout", om.OptionsLayoutMsg, ("sim",), ("decision", "actuation", "experiment"),
+    "1 Hz", RELIABLE, "`names` of the options, `boxes` [x1,y1,x2,y2] one per option, `commit_y`",
+)
+OPTIONS_Z_H = Topic(
+    "options/z_h", om.OptionVector, ("decision",), ("experiment",), "per pose", STREAM,
+    "`values` ẑ_h, one per option, `src_seq`",
+)
+OPTIONS_Z_R = Topic(
+    "options/z_r", om.OptionVector, ("decision",), ("actuation",), "per pose", STREAM,
+    "`values` z_r, one per option, `src_seq`",
+)
+OPTIONS_B_R = Topic(
+    "options/b_r", om.OptionVector, ("decision",), (), "per pose", STREAM,
+    "`values` b_r, one per option, `src_seq`",
+)
+OPTIONS_ARM_STATE = Topic(
+    "options/arm_state", om.OptionsArmState, ("actuation",), ("sim",), "50 Hz", STREAM,
+    "`n_options`, `ee` [x,y], `phase`, `moving`, `target` (a box), `safe_stop`, "
+    "`safety_reason`, `trial`",
+)
+OPTIONS_PRESS = Topic(
+    "options/press", om.OptionsPress, ("actuation",), ("experiment", "sim"), "once per trial",
+    CONTROL, "`n_options`, `option` (the box the robot pressed), `trial`",
+)
+OPTIONS_TRIAL = Topic(
+    "options/trial", om.OptionsTrialEvent, ("experiment",),
+    ("decision", "actuation", "sim", "run"), "per event", CONTROL,
+    "`n_options`, `phase`, `trial`, `mode`, `option` (O, a box), `text`, `session`",
+)
+OPTIONS_RESULT = Topic(
+    "options/result", om.OptionsResult, ("experiment",), ("run",), "per trial", RELIABLE,
+    "`n_options`, `trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, "
+    "`violations`, `score`, `session`",
+)
 _TOPICS: tuple[Topic[m.Message], ...] = (
     VISION_HAND, VISION_LAYOUT, VISION_FRAME, SIM_CAMERA, DECISION_Z_H, DECISION_Z_R, DECISION_B_R,
     ACTUATION_CMD, ACTUATION_STATE, ACTUATION_PRESS, EYES_CMD, EYES_STATE, EXPERIMENT_TRIAL,
     EXPERIMENT_RESULT, EXPERIMENT_OPERATOR, SPEAKER_PLAYED, RIG_STATUS, RIG_EVENT, SAFETY_ESTOP,
-    SAFETY_RELEASE, SAFETY_LATCH,
+    SAFETY_RELEASE, SAFETY_LATCH, OPTIONS_LAYOUT, OPTIONS_Z_H, OPTIONS_Z_R, OPTIONS_B_R,
+    OPTIONS_ARM_STATE, OPTIONS_PRESS, OPTIONS_TRIAL, OPTIONS_RESULT,
 )
 TOPICS: dict[str, Topic[m.Message]] = {t.name: t for t in _TOPICS}
 

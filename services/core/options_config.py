@@ -9,11 +9,13 @@ are always the paper's study, with its own code (None here).
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 from typing import Any
 
+from services.core.cli import int_in
 from services.core.config import ConfigError, from_mapping, load_toml
-from services.model.options_schedule import OptionsSchedule, schedule_from_table
+from services.model.options_schedule import MAX_OPTIONS, OptionsSchedule, schedule_from_table
 from services.model.params import NodConfig
 
 
@@ -31,14 +33,22 @@ def split_options(data: dict[str, Any]) -> tuple[dict[str, Any], OptionsSchedule
 
 
 def load_with_options(
-    path: str | Path | None, n_options: int | None = None
+    path: str | Path | None,
+    n_options: int | None = None,
+    participant: dict[str, Any] | None = None,
 ) -> tuple[NodConfig, OptionsSchedule | None]:
     """The parameters and, for more than two options, the N_o-option schedule.
 
     `n_options` (the `--options` flag; None: the file's, or 2) must agree with a file's list.
+    `participant`: traits under the file's `[participant]` (the sim's fitted person).
     """
     data = load_toml(path) if path is not None else {}
     rest, schedule = split_options(data)
+    if participant is not None:
+        own = rest.get("participant", {})
+        if not isinstance(own, dict):
+            raise ConfigError(f"{path}: participant: expected a table, got {type(own).__name__}")
+        rest = {**rest, "participant": {**participant, **own}}
     cfg = from_mapping(NodConfig, rest)
     if schedule is not None and n_options is not None and n_options != schedule.n_options:
         raise ConfigError(
@@ -56,3 +66,12 @@ def load_with_options(
             "its buzzers) or list three or more"
         )
     return cfg, schedule
+
+
+def add_options_arg(parser: argparse.ArgumentParser) -> None:
+    """`--options N`: run a table of N boxes (default: the params file's, else the paper's 2)."""
+    parser.add_argument(
+        "--options", type=int_in(2, MAX_OPTIONS), default=None, metavar="N",
+        help="options (boxes) on the table: 2 is the paper's study (default), 3 or more run "
+        "the N-option rig (docs/multi-option.md); a params file may list them instead",
+    )

@@ -14,8 +14,9 @@ import math
 
 from services.core import messages as m
 from services.core.cli import Parser, add_service_args, fail
-from services.core.config import load_params, params_hash
+from services.core.config import params_hash
 from services.core.node import Node, setup_logging
+from services.core.options_config import add_options_arg, load_with_options
 from services.core.session import Fabric
 from services.model.decision import DecisionModel
 
@@ -91,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
         "its bias (eq 6), publish ẑ_h, z_r and b_r on every hand pose.",
     )
     add_service_args(p)
+    add_options_arg(p)
     return p
 
 
@@ -99,14 +101,21 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
     try:
-        cfg = load_params(args.params)
+        cfg, schedule = load_with_options(args.params, args.options)
         node = Node(
             "decision", Fabric.from_args(args), retry_s=math.inf, params_hash=params_hash(cfg)
         )
     except (ValueError, OSError, ConnectionError) as exc:
         return fail("nod decision", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("decision")))
-    DecisionService(node, DecisionModel(cfg.decision, cfg.layout), cfg.safety.skew_ms)
+    if schedule is not None:  # a table of 3+ boxes: the N_o-option engine on options/* keys
+        from services.decision.options_service import OptionsDecisionService
+        from services.model.options_loop import table_for
+
+        layout = table_for(cfg, schedule.n_options)
+        OptionsDecisionService(node, cfg.decision, layout, cfg.safety.skew_ms)
+    else:
+        DecisionService(node, DecisionModel(cfg.decision, cfg.layout), cfg.safety.skew_ms)
     node.run()
     return 0
 

@@ -19,8 +19,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from services.core.cli import SEED, Parser, add_service_args, fail
-from services.core.config import load_params, params_hash
+from services.core.config import params_hash
 from services.core.node import Node, setup_logging
+from services.core.options_config import add_options_arg, load_with_options
 from services.core.rigfile import CONTROL, Host, RigFileError, load_rig, session_flags
 from services.core.session import Fabric
 from services.experiment.conductor import Conductor
@@ -131,6 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="record the session's keys to DIR/<session>.mcap (a `nod record` child, stopped "
         "at the session's end; linked to the session in the store)",
     )
+    add_options_arg(p)
     return p
 
 
@@ -158,13 +160,20 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args([*flags, *(sys.argv[1:] if argv is None else argv)])
     setup_logging(args.verbose)
     try:
-        cfg = load_params(args.params)
+        cfg, schedule = load_with_options(args.params, args.options)
         own_hash = params_hash(cfg)  # the rig's parameters, before this session's --order
         console = make_console(args.console)
         clicks = clicks_source(args.clicks, console.read_line)
         store = Store(args.db)
     except (ValueError, OSError) as exc:
         return fail("nod experiment", exc)
+    if schedule is not None:  # a table of 3+ boxes: the N_o-option conductor
+        from services.experiment.options_session import run_options
+
+        try:
+            return run_options(args, cfg, schedule, clicks, store)
+        finally:
+            store.close()
     try:
         cfg = session_config(cfg, store, args.order, args.resume)
     except ValueError as exc:

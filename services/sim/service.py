@@ -18,10 +18,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from services.cohort.person import load_cohort_params
+from services.cohort.person import fitted_traits
 from services.core import messages as m
 from services.core.cli import SEED, Parser, add_service_args, fail
 from services.core.node import Node, setup_logging
+from services.core.options_config import add_options_arg, load_with_options
 from services.core.session import Fabric
 from services.model.geometry import colour_sign
 from services.model.params import NodConfig
@@ -164,6 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="publish rendered camera frames on sim/camera (for `nod vision --source "
         "zenoh:sim/camera`) instead of hand poses",
     )
+    add_options_arg(p)
     return p
 
 
@@ -174,13 +176,23 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if not 1.0 <= args.rate <= 1000.0:
             raise ValueError(f"--rate must be in [1, 1000] Hz, got {args.rate}")
-        cfg = load_cohort_params(args.params)
+        # the fitted person under the file's [participant], as `load_cohort_params` does
+        cfg, schedule = load_with_options(args.params, args.options, fitted_traits())
+        if schedule is not None and args.render:
+            raise ValueError("--render draws the paper's two boxes only; drop it for --options")
         stands_in = () if args.render else ("vision",)
         node = Node("sim", Fabric.from_args(args), stands_in_for=stands_in, retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
         return fail("nod sim", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("participant")))
-    SimService(node, cfg, args.seed, args.rate, args.cohort, render=args.render)
+    if schedule is not None:  # a table of 3+ boxes: the N_o-option person
+        from services.model.options_loop import table_for
+        from services.sim.options_service import OptionsSimService
+
+        layout = table_for(cfg, schedule.n_options)
+        OptionsSimService(node, cfg, schedule, layout, args.seed, args.rate, args.cohort)
+    else:
+        SimService(node, cfg, args.seed, args.rate, args.cohort, render=args.render)
     node.run()
     return 0
 

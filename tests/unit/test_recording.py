@@ -31,9 +31,10 @@ def _pose(seq: int, t_ns: int, x: float = 0.5, y: float = 0.8) -> m.HandPose:
 
 
 def test_inputs_are_what_the_services_under_test_need_from_outside():
-    assert input_topics() == ("vision/hand", "vision/layout")
+    # the camera's: the hand, the paper's two boxes, a table of N boxes (docs/multi-option.md)
+    assert input_topics() == ("vision/hand", "vision/layout", "options/layout")
     every = set(TOPICS)
-    assert select_topics(every, None, True) == {"vision/hand", "vision/layout"}
+    assert select_topics(every, None, True) == {"vision/hand", "vision/layout", "options/layout"}
     # a whole replay leaves the e-stop release out unless it is named
     assert "safety/release" not in select_topics(every, None, False)
     assert "safety/estop" in select_topics(every, None, False)

@@ -1,0 +1,250 @@
+"""The conductor of one participant's N_o-option session on the fabric (`--options N`).
+
+The paper's `SessionProtocol` clock (trials from `OptionsSchedule.timing_specs`) acted on
+over the `options/*` keys: the gaze toward O's box on `eyes/cmd` (kept alive at 20 Hz), the
+setup, countdown and "go" on `options/trial` (decision and actuation reset, the sim listens),
+then at the end `OptionsTrialJudge` on the poses (`vision/hand`) and ẑ_h vectors
+(`options/z_h`) from "go" to the human's press, with the robot's press (`options/press`); the
+trial goes into the store with the session's option set (`services.store.options`) and out on
+`options/result`.
+
+Not here yet (the paper's conductor has them): safety interruptions and their repeats, resume,
+the operator gate, samples, cues as played, the recorder. A safe stop holds the arm as ever; a
+trial it spoils ends on the timeout with the robot's press missing.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import replace
+from typing import TypedDict
+
+from services.core import messages as m
+from services.core import options_messages as om
+from services.core.node import Node
+from services.core.options_messages import check_count, same_count, values_for
+from services.experiment.fields import GazeFields
+from services.experiment.waiting import wait_for_services
+from services.model.geometry import Point
+from services.model.options_geometry import OptionsLayout
+from services.model.options_judge import OptionsTrialJudge
+from services.model.options_schedule import OptionsSchedule
+from services.model.params import NodConfig
+from services.model.protocol import Cue, Mode, SessionProtocol
+from services.store.options import OptionsStore, OptionsTrialRecord
+
+log = logging.getLogger("nod.experiment")
+NS = 1e-9
+REQUIRED = ("decision", "actuation", "eyes", "vision")
+GAZE_KEEPALIVE_S = 0.05  # rig seconds; the eyes' watchdog holds them neutral after 250 ms
+
+
+class TrialFields(TypedDict):
+    """The trial every `options/trial` event of one cue names."""
+
+    n_options: int
+    trial: int
+    mode: Mode
+    option: int | None
+    session: str
+
+
+class OptionsConductor:
+    """Runs an N_o-option session over the fabric and stores it."""
+
+    def __init__(
+        self,
+        node: Node,
+        cfg: NodConfig,
+        schedule: OptionsSchedule,
+        layout: OptionsLayout,
+        store: OptionsStore,
+        clicks: Callable[[int], int | None],
+    ) -> None:
+        self.node = node
+        self.cfg = cfg
+        self.schedule = schedule
+        self.n = schedule.n_options
+        self.layout = layout
+        self.store = store
+        self.clicks = clicks
+        self.params = replace(cfg.protocol, trials=schedule.timing_specs(layout))
+        self.alive: dict[str, bool] = {}
+        self.session = ""
+        self.judge: OptionsTrialJudge | None = None
+        self.robot: int | None = None
+        self.trial = 0
+        self.t_go_ns: int | None = None
+        self.gaze_msg: GazeFields | None = None
+        self.results: list[OptionsTrialRecord] = []
+        self._centers: OrderedDict[int, Point] = OrderedDict()  # recent poses' hand centres
+        self.pub_trial = node.publisher("options/trial")
+        self.pub_result = node.publisher("options/result")
+        self.pub_gaze = node.publisher("eyes/cmd")
+        node.subscribe("vision/hand", self.on_hand)
+        node.subscribe("options/z_h", self.on_z_h)
+        node.subscribe("options/press", self.on_press)
+        node.subscribe("options/layout", self.on_layout)
+        for service in REQUIRED:
+            node.watch_liveliness(service, functools.partial(self._liveliness, service))
+        threading.Thread(target=self._keep_gaze_alive, daemon=True).start()
+
+    # -- callbacks (under the node lock) ---------------------------------------------------
+
+    def _liveliness(self, service: str, alive: bool) -> None:
+        self.alive[service] = alive
+
+    def on_hand(self, pose: m.HandPose) -> None:
+        """Keep the pose's centre for its ẑ_h; the human's press, once a landmark is in a box."""
+        if not pose.detected or pose.center is None:
+            return
+        self._centers[pose.seq] = pose.center
+        while len(self._centers) > 256:
+            self._centers.popitem(last=False)
+        if self.judge is not None:
+            self.judge.see_hand(pose.landmarks, pose.t_ns * NS)
+
+    def on_z_h(self, msg: om.OptionVector) -> None:
+        """A ẑ_h vector: it counts toward the outcome until the human's press."""
+        z_hat = values_for(msg, self.n)
+        if self.judge is not None and self.t_go_ns is not None and msg.t_ns >= self.t_go_ns:
+            self.judge.observe(z_hat, self._centers.get(msg.src_seq), msg.t_ns * NS)
+
+    def on_press(self, msg: om.OptionsPress) -> None:
+        """The robot pressed a box (this trial's, once)."""
+        check_count(msg, self.n)
+        if msg.trial == self.trial and self.robot is None:
+            self.robot = msg.option
+
+    def on_layout(self, msg: om.OptionsLayoutMsg) -> None:
+        """The table the sim (or vision) sees: judged from the next trial."""
+        self.layout = same_count(msg.layout(), self.n)
+
+    # -- the script (main thread) ----------------------------------------------------------
+
+    def wait_for_services(self, timeout_s: float) -> None:
+        """Block until every required service's liveliness token is seen (wall clock)."""
+        wait_for_services(self.node, self.alive, REQUIRED, timeout_s)
+
+    def _now_s(self) -> float:
+        return self.node.clock.now_ns() * NS
+
+    def _keep_gaze_alive(self) -> None:
+        period_s = self.node.clock.wall_seconds(GAZE_KEEPALIVE_S)
+        while not self.node.stop.wait(period_s):
+            with self.node.lock:
+                if self.gaze_msg is not None and self.node.session is not None:
+                    self.pub_gaze.put(**self.gaze_msg)
+
+    def run_session(
+        self, session: str, participant: str, seed: int | None
+    ) -> list[OptionsTrialRecord]:
+        """Run every trial of the schedule; store and publish each."""
+        self.session = session
+        self.store.begin_session(
+            session, participant, self.node.keys.rig, seed, self.node.clock.now_ns(),
+            self.cfg.summary(), self.schedule.names,
+        )
+        status = "aborted"
+        protocol = SessionProtocol(self.params)
+        try:
+            with self.node.lock:
+                cues = protocol.start(self._now_s())
+            while True:
+                self._perform(protocol, cues)
+                if protocol.done:
+                    break
+                self._wait(protocol.next_due())
+                with self.node.lock:
+                    if protocol.waiting_for_operator:
+                        cues = protocol.open_gate(self._now_s())
+                        continue
+                    judge = self.judge
+                    cues = protocol.advance(
+                        self._now_s(),
+                        human_pressed=judge is not None and judge.human is not None,
+                        robot_pressed=self.robot is not None,
+                    )
+            status = "complete"
+        finally:
+            self.store.store.finish_session(session, self.node.clock.now_ns(), status)
+            with self.node.lock:
+                self.gaze_msg = None
+            self.pub_trial.put(n_options=self.n, phase="session_end" if status == "complete"
+                               else "abort", trial=self.trial, session=session, text=status)
+        return self.results
+
+    def _wait(self, due_s: float) -> None:
+        """Sleep until the protocol's next deadline, or at most 5 ms of rig time (presses)."""
+        now = self.node.clock.now_ns()
+        end_ns = now + 5_000_000
+        if math.isfinite(due_s):
+            end_ns = min(int(due_s * 1e9), end_ns)
+        if self.node.stop.wait(max(0.0, self.node.clock.wall_seconds((end_ns - now) * NS))):
+            raise KeyboardInterrupt
+
+    def _perform(self, protocol: SessionProtocol, cues: list[Cue]) -> None:
+        """Do what the protocol asks, in order (an "end" cue may bring the next trial's cues)."""
+        while cues:
+            cue = cues.pop(0)
+            if cue.trial is None:  # session_end: published by run_session once stored
+                continue
+            trial = self.schedule.trial(cue.trial.index)
+            ev: TrialFields = {"n_options": self.n, "trial": trial.index, "mode": trial.mode,
+                               "option": trial.option, "session": self.session}
+            if cue.kind == "gaze" and cue.gaze is not None:
+                with self.node.lock:
+                    self.gaze_msg = {"yaw": cue.gaze.yaw, "pitch": cue.gaze.pitch,
+                                     "level": trial.gaze_level, "gesture": cue.gesture,
+                                     "trial": trial.index}
+                    self.pub_gaze.put(**self.gaze_msg)
+            elif cue.kind == "setup":
+                with self.node.lock:
+                    self.trial, self.judge, self.robot, self.t_go_ns = trial.index, None, None, None
+                self.pub_trial.put(phase="setup", text=cue.text, **ev)
+                log.info("trial %d: %s, O = %s", trial.index, trial.mode,
+                         self.schedule.name(trial.option))
+            elif cue.kind == "countdown":
+                self.pub_trial.put(phase="countdown", text=cue.text, **ev)
+            elif cue.kind == "go":
+                with self.node.lock:
+                    go = self.pub_trial.put(phase="go", text=cue.text, **ev)
+                    self.judge = OptionsTrialJudge(self.cfg, self.layout, trial.mode)
+                    self.t_go_ns = go.t_ns
+            elif cue.kind == "end":
+                self._end_trial(protocol, cue.trial.yaw or 0.0, cue.trial.pitch or 0.0, ev)
+                cues.extend(protocol.judged(self._now_s()))
+
+    def _end_trial(
+        self, protocol: SessionProtocol, yaw: float, pitch: float, ev: TrialFields
+    ) -> None:
+        """Judge the trial, store it with the session's option set, publish the result."""
+        with self.node.lock:
+            judge, robot, t_go = self.judge, self.robot, self.t_go_ns
+            self.judge = None
+        trial = self.schedule.trial(self.trial)
+        end = protocol.end
+        assert judge is not None and end is not None  # set at "go", which precedes every "end"
+        self.pub_trial.put(phase="end", text=end.reason, **ev)
+        clicks = self.clicks(trial.index)
+        j = judge.verdict(end, robot, clicks)
+        rec = OptionsTrialRecord(
+            trial.index, trial.mode, trial.option, trial.gaze_level, yaw, pitch, t_go,
+            self.node.clock.now_ns(), j.human, j.robot, j.outcome, j.switches, j.violations,
+            clicks, j.score, end.reason,
+        )
+        self.store.write_trial(self.session, rec)
+        self.results.append(rec)
+        self.pub_result.put(
+            n_options=self.n, trial=trial.index, mode=trial.mode, option=trial.option,
+            robot=j.robot, human=j.human, outcome=j.outcome, switches=j.switches,
+            violations=j.violations, score=j.score, session=self.session,
+        )
+        name = self.schedule.name
+        log.info("trial %d: human %s, robot %s -> %s (%+d)", trial.index, name(j.human),
+                 name(j.robot), j.outcome, j.score)

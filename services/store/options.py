@@ -1,0 +1,145 @@
+"""N_o-option sessions in the store: the option set of a session and its trials.
+
+A session over three or more options is a row of `sessions` as any other (`Store.begin_session`,
+its config, its status), plus its option set in `option_sets` (the names, box j is `names[j]`)
+and its trials in `option_trials`, whose option, human and robot are box indices into that
+set. The paper's `trials` table keeps its CHECK (option IN ('red', 'blue')) and is untouched: a
+two-option store reads exactly as before. The tables are created when first used, so a store
+file of an older version gets them then. `nod export` writes them as option_sets.csv and
+option_trials.csv (`export_rows`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import astuple, dataclass
+from typing import Any
+
+from services.store.store import Store
+
+OPTIONS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS option_sets (
+    session   TEXT PRIMARY KEY REFERENCES sessions(session),
+    n_options INTEGER NOT NULL CHECK (n_options >= 2),
+    names     TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS option_trials (
+    session     TEXT NOT NULL REFERENCES option_sets(session),
+    trial       INTEGER NOT NULL,
+    mode        TEXT NOT NULL CHECK (mode IN ('dissensus', 'consensus')),
+    option      INTEGER,
+    gaze_level  TEXT NOT NULL,
+    yaw         REAL NOT NULL,
+    pitch       REAL NOT NULL,
+    t_go_ns     INTEGER,
+    t_end_ns    INTEGER,
+    human       INTEGER,
+    robot       INTEGER,
+    outcome     TEXT CHECK (outcome IN ('C', 'CH', 'D', 'DH')),
+    switches    INTEGER NOT NULL,
+    violations  INTEGER NOT NULL,
+    clicks      INTEGER,
+    score       INTEGER NOT NULL,
+    end_reason  TEXT NOT NULL,
+    PRIMARY KEY (session, trial)
+);
+"""
+
+
+@dataclass(frozen=True, slots=True)
+class OptionsTrialRecord:
+    """One stored N_o-option trial; option, human and robot index the session's option set."""
+
+    trial: int
+    mode: str
+    option: int | None
+    gaze_level: str
+    yaw: float
+    pitch: float
+    t_go_ns: int | None
+    t_end_ns: int | None
+    human: int | None
+    robot: int | None
+    outcome: str | None
+    switches: int
+    violations: int
+    clicks: int | None
+    score: int
+    end_reason: str
+
+
+class OptionsStore:
+    """The N_o-option tables of a `Store`."""
+
+    def __init__(self, store: Store) -> None:
+        self.store = store
+        self.db = store.db
+        self.db.executescript(OPTIONS_SCHEMA)
+
+    def begin_session(
+        self, session: str, participant: str, rig: str, seed: int | None, started_ns: int,
+        config: dict[str, Any], names: tuple[str, ...],
+    ) -> None:
+        """Record a new session as running, with its option set."""
+        self.store.begin_session(session, participant, rig, seed, started_ns,
+                                 {**config, "options": list(names)})
+        with self.db:
+            self.db.execute("BEGIN")
+            self.db.execute("INSERT INTO option_sets VALUES (?, ?, ?)",
+                            (session, len(names), json.dumps(list(names))))
+
+    def names(self, session: str) -> tuple[str, ...] | None:
+        """The option set of a session (None: a two-option session)."""
+        row = self.db.execute(
+            "SELECT names FROM option_sets WHERE session = ?", (session,)
+        ).fetchone()
+        return None if row is None else tuple(json.loads(row[0]))
+
+    def write_trial(self, session: str, rec: OptionsTrialRecord) -> None:
+        """Store one trial (its options checked against the session's set)."""
+        names = self.names(session)
+        if names is None:
+            raise ValueError(f"session {session!r} has no option set: begin it with begin_session")
+        for field in ("option", "human", "robot"):
+            value = getattr(rec, field)
+            if value is not None and not 0 <= value < len(names):
+                raise ValueError(f"trial {rec.trial}: {field} {value} is not one of {list(names)}")
+        with self.db:
+            self.db.execute("BEGIN")
+            self.db.execute(
+                "INSERT OR REPLACE INTO option_trials VALUES "
+                "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (session, *astuple(rec)),
+            )
+
+    def trials(self, session: str) -> list[OptionsTrialRecord]:
+        """A session's stored trials, in order."""
+        rows = self.db.execute(
+            "SELECT * FROM option_trials WHERE session = ? ORDER BY trial", (session,)
+        )
+        return [OptionsTrialRecord(*row[1:]) for row in rows]
+
+
+def export_rows(store: Store) -> dict[str, tuple[list[str], list[tuple[Any, ...]]]]:
+    """option_sets and option_trials as (header, rows), option indices with their names too.
+
+    Empty (no rows) when the store has no N_o-option session; the tables are not created by a
+    read.
+    """
+    have = {r[0] for r in store.db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    if "option_sets" not in have:
+        return {}
+    sets = [(s, n, names) for s, n, names in store.db.execute(
+        "SELECT session, n_options, names FROM option_sets ORDER BY session")]
+    named = {s: json.loads(names) for s, _, names in sets}
+    trial_cols = [c[1] for c in store.db.execute("PRAGMA table_info(option_trials)")]
+    rows = []
+    for row in store.db.execute("SELECT * FROM option_trials ORDER BY session, trial"):
+        rec = dict(zip(trial_cols, row, strict=True))
+        names = named[rec["session"]]
+        rows.append((*row, *(None if rec[f] is None else names[rec[f]]
+                             for f in ("option", "human", "robot"))))
+    return {
+        "option_sets": (["session", "n_options", "names"], sets),
+        "option_trials": (trial_cols + ["option_name", "human_name", "robot_name"], rows),
+    }
