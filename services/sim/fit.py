@@ -69,6 +69,12 @@ TRAITS: tuple[Trait, ...] = (
     Trait("speed", 0.2, 0.6),
     Trait("full_conviction", 0.1, 1.0),
     Trait("min_conviction", 0.0, 1.0),
+    # The strategic late switch of control trials (participant.py; its lead stays fixed at 0.1:
+    # turns started closer to the commit line are read past it, as rule violations).
+    Trait("late_switch_share", 0.0, 0.8),
+    Trait("late_switch_first", 0.0, 1.0),
+    Trait("late_switch_learn", 0.0, 1.0),
+    Trait("late_switch_speed", 1.0, 2.5),
 )
 
 
