@@ -53,7 +53,7 @@ class Prepared:
 def prepare(cfg: NodConfig, k: int, run: Mapper, cache: Path | None, seed: int = 0) -> Prepared:
     """The reference table of K people and the estimator trained on it, each cached on disk."""
     table, cached = reference_table(cfg, k, run, cache)
-    path = (cache / f"estimator-{table_key(cfg, k)}-{ESTIMATOR_VERSION}-{seed}.pickle"
+    path = (cache / f"estimator-{table_key(cfg)}-{k}-{ESTIMATOR_VERSION}-{seed}.pickle"
             if cache is not None else None)
     estimator = _load(path) if cached and path is not None else None
     if estimator is None:

@@ -17,6 +17,7 @@ the model and the summaries: another model never reuses a stale table.
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import hashlib
 import os
@@ -132,19 +133,42 @@ class Table:
     summaries: np.ndarray  # K × F
 
 
+def _model_sources() -> list[Path]:
+    """The model modules a simulated session runs.
+
+    The closed loop's and the summaries' imports, followed through `services.model` (found by
+    reading the sources, not by importing them).
+    """
+    root = Path(__file__).resolve().parents[1] / "model"
+    todo, seen = ["closed_loop", "summaries"], set()
+    while todo:
+        name = todo.pop()
+        if name in seen or not (root / f"{name}.py").is_file():
+            continue
+        seen.add(name)
+        tree = ast.parse((root / f"{name}.py").read_text())
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.module == "services.model":
+                todo += [alias.name for alias in node.names]
+            elif (node.module or "").startswith("services.model."):
+                todo.append(str(node.module).split(".")[2])
+    return [root / f"{n}.py" for n in sorted(seen)]
+
+
 def _source_digest() -> str:
-    """The model's and the summaries' source: a table made by other code is another table."""
-    root = Path(__file__).resolve().parents[1]
+    """The source a session's simulation and summaries run: other code makes another table."""
     digest = hashlib.sha256()
-    for path in sorted((root / "model").glob("*.py")):
+    for path in _model_sources():
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()
 
 
-def table_key(cfg: NodConfig, k: int) -> str:
-    """The cache key of a reference table."""
-    text = "|".join((params_hash(cfg), str(k), str(TABLE_SEED), ",".join(summary_names()),
+def table_key(cfg: NodConfig) -> str:
+    """The cache key of a cohort's reference tables (any K: person i is the same person)."""
+    text = "|".join((params_hash(cfg), str(TABLE_SEED), ",".join(summary_names()),
                      _source_digest()))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -157,19 +181,45 @@ def default_cache() -> Path:
     return Path(base) / "nod" / "fit"
 
 
+def _cached(cache: Path, key: str, names: tuple[str, ...]) -> Table | None:
+    """The largest cached table of this key (its first K rows are the table of K people)."""
+    best: Table | None = None
+    for path in cache.glob(f"table-{key}-*.npz"):
+        try:
+            with np.load(path) as data:
+                if tuple(str(n) for n in data["names"]) != names:
+                    continue
+                table = Table(names, data["theta"], data["summaries"])
+        except (OSError, ValueError, KeyError):
+            continue  # a torn or foreign file: simulate instead
+        if best is None or len(table.theta) > len(best.theta):
+            best = table
+    return best
+
+
 def reference_table(cfg: NodConfig, k: int, run: Mapper, cache: Path | None) -> tuple[Table, bool]:
-    """K people of the prior, from the cache or simulated with `run`; (table, from cache)."""
+    """K people of the prior; (table, whether all came from the cache).
+
+    Person i of every table is the same person (seed TABLE_SEED + i), so a cached table of more
+    people serves a smaller one and a smaller one is extended, never simulated again.
+    """
     names = parameter_names(cfg.participant)
-    path = cache / f"table-{table_key(cfg, k)}.npz" if cache is not None else None
-    if path is not None and path.is_file():
-        with np.load(path) as data:
-            if tuple(str(n) for n in data["names"]) == names:
-                return Table(names, data["theta"], data["summaries"]), True
-    sims = run(simulate, [(cfg, TABLE_SEED + i) for i in range(k)])
-    table = Table(names, np.stack([s.theta for s in sims]), np.stack([s.summaries for s in sims]))
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
+    key = table_key(cfg)
+    have = _cached(cache, key, names) if cache is not None else None
+    done = 0 if have is None else min(k, len(have.theta))
+    if have is not None and done == k:
+        return Table(names, have.theta[:k], have.summaries[:k]), True
+    sims = run(simulate, [(cfg, TABLE_SEED + i) for i in range(done, k)])
+    theta = np.stack([s.theta for s in sims])
+    summaries = np.stack([s.summaries for s in sims])
+    if have is not None:
+        theta = np.concatenate([have.theta[:done], theta])
+        summaries = np.concatenate([have.summaries[:done], summaries])
+    table = Table(names, theta, summaries)
+    if cache is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+        path = cache / f"table-{key}-{k}.npz"
+        tmp = cache / f".table-{key}-{k}.tmp.npz"
         np.savez(tmp, names=np.array(names), theta=table.theta, summaries=table.summaries)
         tmp.replace(path)  # a table is whole or absent, never half written
     return table, False

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -101,3 +102,28 @@ def test_an_interrupted_or_empty_trial_reads_nothing():
     assert read_trial(_path([], [], []), layout) is None
     values = summarise([_path([], [], [])], layout)
     assert np.isnan(values).all()  # nothing read: every summary missing, none made up
+
+
+def test_reference_tables_are_cached_and_extended_never_resimulated(tmp_path):
+    """Person i of every table is the same: a larger table extends a cached smaller one."""
+    from services.fit.simulate import TABLE_SEED, Simulated, reference_table
+
+    cfg = load_cohort_params(None)
+    p = len(parameter_names(cfg.participant))
+    asked: list[int] = []
+
+    def run(fn, jobs):  # stands in for the engine: records which people were simulated
+        asked.extend(seed for _, seed in jobs)
+        return [Simulated(seed, np.full(p, float(seed)), np.full(3, float(seed)), (), ())
+                for _, seed in jobs]
+
+    small, cached = reference_table(cfg, 5, run, tmp_path)
+    assert not cached and asked == [TABLE_SEED + i for i in range(5)]
+    big, cached = reference_table(cfg, 8, run, tmp_path)
+    assert not cached and asked[5:] == [TABLE_SEED + i for i in range(5, 8)]
+    assert np.array_equal(big.theta[:5], small.theta)
+    again, cached = reference_table(cfg, 6, run, tmp_path)
+    assert cached and len(asked) == 8 and np.array_equal(again.theta, big.theta[:6])
+    other = dataclasses.replace(cfg, participant=dataclasses.replace(cfg.participant, speed=0.4))
+    reference_table(other, 2, run, tmp_path)  # other traits: another table, simulated
+    assert len(asked) == 10
