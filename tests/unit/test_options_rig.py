@@ -227,7 +227,7 @@ def test_a_dissensus_robot_held_against_a_human_takes_the_nearest_other_box() ->
     """Controller off, ẑ_h held on h: z_r ties among the other two boxes (up to rounding).
 
     With the tie rule the robot heads for the tied box nearest its home at once; without it,
-    rounding or the timeout decide: it presses the human's box or the farther one.
+    the integrator's rounding picks one of them (here the farther one for h = 0).
     """
     layout, home = OptionsLayout.row(3), (0.5, 0.08)
     ruled, unruled = [], []
