@@ -13,7 +13,7 @@ from services.model.geometry import TableLayout
 from services.model.params import NodConfig
 from services.model.participant import Participant, ParticipantParams
 from services.model.protocol import default_schedule
-from services.sim.calibrate import TRAITS, with_traits
+from services.sim.fit import TRAITS, with_traits
 
 # A person with no private preference (so the seed cannot choose a side) whom the eyes pull
 # toward red with b_h = 1.5: weaker than the arm's largest pull (u = 2.24), so an arm seen
