@@ -2,8 +2,10 @@
 
 Writes sessions.csv, trials.csv, samples.csv, questionnaires.csv, safety_events.csv,
 rig_events.csv, interruptions.csv, cues.csv (the countdown words and go as `nod speaker`
-played them: planned and played onset, rig-clock ns) and fits.csv (`nod fit`'s per-participant
-estimates and 90 % intervals, identifiable parameters only) into one directory, each with a header
+played them: planned and played onset, rig-clock ns), fits.csv (`nod fit`'s per-participant
+estimates and 90 % intervals, identifiable parameters only) and, when the store holds sessions
+of three or more options, option_sets.csv and option_trials.csv (`services.store.options`)
+into one directory, each with a header
 row of the database's column names (the per-session tables gain a `participant` column after
 `session` for convenience). A trial with `interrupted` = 1 was broken by a safe stop or an
 e-stop and never scored. Conventions, chosen so that `pandas.read_csv(path)` and R's
@@ -34,6 +36,7 @@ from typing import Any
 
 from services.core.cli import Parser, fail
 from services.store import StoreError
+from services.store.options import export_rows
 from services.store.records import unpack_landmarks
 from services.store.study_stores import open_stores, union_of
 
@@ -117,6 +120,8 @@ def export(db: sqlite3.Connection, out: Path) -> dict[str, int]:
         cur = db.execute(query)
         header = [c[0] for c in cur.description]
         counts[name] = write_rows(out / f"{name}.csv", header, cur)
+    for name, (header, rows) in export_rows(db).items():  # sessions of 3+ options, if any
+        counts[name] = write_rows(out / f"{name}.csv", header, rows)
     return counts
 
 

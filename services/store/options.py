@@ -6,12 +6,13 @@ and its trials in `option_trials`, whose option, human and robot are box indices
 set. The paper's `trials` table keeps its CHECK (option IN ('red', 'blue')) and is untouched: a
 two-option store reads exactly as before. The tables are created when first used, so a store
 file of an older version gets them then. `nod export` writes them as option_sets.csv and
-option_trials.csv (`export_rows`).
+option_trials.csv (`export_rows`, with each option's name beside its index).
 """
 
 from __future__ import annotations
 
 import json
+import sqlite3
 from dataclasses import astuple, dataclass
 from typing import Any
 
@@ -120,21 +121,24 @@ class OptionsStore:
         return [OptionsTrialRecord(*row[1:]) for row in rows]
 
 
-def export_rows(store: Store) -> dict[str, tuple[list[str], list[tuple[Any, ...]]]]:
+def export_rows(db: sqlite3.Connection) -> dict[str, tuple[list[str], list[tuple[Any, ...]]]]:
     """option_sets and option_trials as (header, rows), option indices with their names too.
 
-    Empty (no rows) when the store has no N_o-option session; the tables are not created by a
-    read.
+    `db`: a store's connection, or `nod export`'s union of stores. Nothing (no tables) when no
+    session of N_o options was ever stored; a read never creates the tables.
     """
-    have = {r[0] for r in store.db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    have = {r[0] for r in db.execute(
+        "SELECT name FROM sqlite_master WHERE type IN ('table', 'view') "
+        "UNION SELECT name FROM sqlite_temp_master WHERE type = 'view'")}
     if "option_sets" not in have:
         return {}
-    sets = [(s, n, names) for s, n, names in store.db.execute(
+    sets = [(s, n, names) for s, n, names in db.execute(
         "SELECT session, n_options, names FROM option_sets ORDER BY session")]
     named = {s: json.loads(names) for s, _, names in sets}
-    trial_cols = [c[1] for c in store.db.execute("PRAGMA table_info(option_trials)")]
+    cur = db.execute("SELECT * FROM option_trials ORDER BY session, trial")
+    trial_cols = [c[0] for c in cur.description]
     rows = []
-    for row in store.db.execute("SELECT * FROM option_trials ORDER BY session, trial"):
+    for row in cur:
         rec = dict(zip(trial_cols, row, strict=True))
         names = named[rec["session"]]
         rows.append((*row, *(None if rec[f] is None else names[rec[f]]

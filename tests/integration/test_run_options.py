@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
 import pytest
@@ -32,7 +33,7 @@ def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> Non
         options = OptionsStore(store)
         assert options.names(session) == ("red", "blue", "green")
         trials = options.trials(session)
-        rows = export_rows(store)
+        rows = export_rows(store.db)
     finally:
         store.close()
     assert [t.trial for t in trials] == list(range(1, 9))
@@ -45,6 +46,14 @@ def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> Non
     header, exported = rows["option_trials"]
     assert len(exported) == 8 and header[-3:] == ["option_name", "human_name", "robot_name"]
     assert rows["option_sets"][1] == [(session, 3, '["red", "blue", "green"]')]
+    out = tmp_path / "csv"
+    export = run_nod("export", "--db", str(db), "--out", str(out), timeout=60)
+    assert export.returncode == 0, export.stderr
+    with (out / "option_trials.csv").open() as fh:
+        csv_rows = list(csv.DictReader(fh))
+    assert [r["trial"] for r in csv_rows] == [str(i) for i in range(1, 9)]
+    assert {r["human_name"] for r in csv_rows} <= {"red", "blue", "green"}
+    assert (out / "option_sets.csv").read_text().count("\n") == 2  # header and the session
 
 
 def test_flags_not_yet_there_for_options_are_refused_before_anything_starts(
