@@ -97,6 +97,14 @@ def run_cohort(
 
     jobs = [Job(i, seed + i, cfg, record) for i in range(n)]
     store = Store(db)
+    taken = {s["session"] for s in store.sessions()} & {f"{prefix}-{j.seed}" for j in jobs}
+    if taken:  # refused before any simulation, rather than a bare IntegrityError half-way
+        store.close()
+        first = min(taken, key=lambda s: int(s.rsplit("-", 1)[1]))
+        raise StoreError(
+            f"{db} already holds {len(taken)} of these sessions (e.g. {first}): choose another "
+            f"--seed (seeds {seed}-{seed + n - 1} are taken in part) or another --db"
+        )
     t0 = time.monotonic()
     stored = 0
     columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
@@ -148,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
                 record=not args.no_samples, show=not args.quiet,
             )
             where = engine.where
-    except EngineError as exc:
+    except (EngineError, StoreError) as exc:
         return fail("nod cohort", exc)
     total = time.monotonic() - t0
     rate = args.participants / seconds * 60

@@ -48,6 +48,17 @@ def test_nod_cohort_stores_a_study_that_the_tools_read(tmp_path, capsys):
             other.close()
     finally:
         store.close()
+    # The same seeds into the same store: one line, before anything is simulated or written.
+    capsys.readouterr()
+    assert cohort_main(["--participants", "6", "--seed", "1", "--db", str(db), "--quiet",
+                        "--workers", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cohort-3" in err and "another --seed" in err, err
+    store = Store(db)
+    try:
+        assert len(store.sessions()) == 4  # nothing half-written
+    finally:
+        store.close()
 
 
 def test_tvd_and_shares():
