@@ -197,8 +197,10 @@ SAFETY_LATCH = Topic(
 # A table of three or more boxes (docs/multi-option.md): keys of their own, schema version 2,
 # so the paper's two-option keys and payloads stay as they are.
 OPTIONS_LAYOUT = Topic(
-    "options/layout", om.OptionsLayoutMsg, ("sim",), ("decision", "actuation", "experiment"),
-    "1 Hz", RELIABLE, "`names` of the options, `boxes` [x1,y1,x2,y2] one per option, `commit_y`",
+    "options/layout", om.OptionsLayoutMsg, ("vision", "sim"),
+    ("decision", "actuation", "experiment"), "1 Hz", RELIABLE,
+    "`names` of the options, `boxes` [x1,y1,x2,y2] one per option (vision: found by colour), "
+    "`commit_y`",
 )
 OPTIONS_Z_H = Topic(
     "options/z_h", om.OptionVector, ("decision",), ("experiment",), "per pose", STREAM,

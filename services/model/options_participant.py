@@ -186,6 +186,11 @@ class OptionsParticipant:
         return None
 
     @property
+    def pos(self) -> np.ndarray:
+        """The hand centre (x, y)."""
+        return np.array((self._x, self._y))
+
+    @property
     def heading(self) -> int | None:
         """The box the hand heads for (None before it moves)."""
         return self._heading

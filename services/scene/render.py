@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from services.model.geometry import HAND_TEMPLATE, TableLayout
+from services.model.geometry import HAND_TEMPLATE, Box, TableLayout
 from services.scene.markers import MARKER_PER_RADIUS, aruco_dictionary, rotation
 
 _PALM = (0, 1, 5, 9, 13, 17)  # wrist, thumb CMC and the four MCPs
@@ -99,6 +99,9 @@ class SceneRenderer:
     dictionary: str = "DICT_4X4_50"
     noise: float = 0.0  # Gaussian pixel noise (grey levels) added to every frame
     seed: int = 0  # seeds the table's texture
+    # A table of N boxes instead of the layout's red and blue (each box with its BGR paint:
+    # `services.scene.option_colours.painted_boxes`); the commit line stays the layout's.
+    options: tuple[tuple[Box, tuple[int, int, int]], ...] | None = None
 
     def __post_init__(self) -> None:
         if not (16 <= self.width <= 8192 and 16 <= self.height <= 8192):
@@ -126,7 +129,8 @@ class SceneRenderer:
         img[:] = _TABLE
         grain = cv2.resize(self._rng.normal(0, 6, (h // 16 + 1, w // 16 + 1)), (w, h))
         img = np.clip(img + grain[..., None], 0, 255).astype(np.uint8)
-        for box, colour in ((self.layout.red, _RED), (self.layout.blue, _BLUE)):
+        boxes = self.options or ((self.layout.red, _RED), (self.layout.blue, _BLUE))
+        for box, colour in boxes:
             p1 = (round(box.x1 * w), round(box.y1 * h))
             p2 = (round(box.x2 * w) - 1, round(box.y2 * h) - 1)
             cv2.rectangle(img, p1, p2, colour, -1)

@@ -4,13 +4,16 @@
 camera rate it publishes 21 noisy landmarks on `vision/hand` and the table (option names and
 boxes) on `options/layout`; it follows `options/trial`, reads the gaze on `eyes/cmd` (the
 geometric gaze toward a box, `services.model.options_gaze`), watches the arm on
-`options/arm_state` and its press on `options/press`. Seeded as the two-option sim. No
-rendered camera yet: the vision tracker finds two boxes only.
+`options/arm_state` and its press on `options/press`. Seeded as the two-option sim. With
+`--render` it is the camera instead: frames of the table of N boxes (each in its option's
+colour, `services.scene.option_colours`) on `sim/camera`, for `nod vision --options N`, which
+publishes the hand and finds the boxes.
 """
 
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +27,10 @@ from services.model.options_participant import OptionsParticipant
 from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig
 from services.model.participant import jittered
+from services.sim.service import publish_frame
+
+if TYPE_CHECKING:  # imported at run time only with --render (it loads OpenCV)
+    from services.scene.render import SceneRenderer
 
 log = logging.getLogger("nod.sim")
 NS = 1e-9
@@ -41,6 +48,7 @@ class OptionsSimService:
         seed: int,
         rate_hz: float,
         cohort: bool,
+        render: bool = False,
     ) -> None:
         self.node = node
         self.names = schedule.names
@@ -51,14 +59,24 @@ class OptionsSimService:
         self.person = OptionsParticipant(params, layout, int(rng.integers(2**31)))
         self.person.advance(node.clock.now_ns() * NS)  # at rest: only sets its clock
         self.robot: int | None = None
-        self.pub_hand = node.publisher("vision/hand")
-        self.pub_layout = node.publisher("options/layout")
+        self.renderer: SceneRenderer | None = None
+        if render:  # the camera, not the tracker: `nod vision --options N` tracks the frames
+            from services.scene.option_colours import painted_boxes
+            from services.scene.render import SceneRenderer
+
+            self.renderer = SceneRenderer(layout=cfg.layout, noise=2.0, seed=seed,
+                                          options=painted_boxes(schedule.names, layout))
+            self.pub_camera = node.publisher("sim/camera")
+        else:
+            self.pub_hand = node.publisher("vision/hand")
+            self.pub_layout = node.publisher("options/layout")
         node.subscribe("options/trial", self.on_trial)
         node.subscribe("eyes/cmd", self.on_gaze)
         node.subscribe("options/arm_state", self.on_arm)
         node.subscribe("options/press", self.on_press)
         node.every(1.0 / rate_hz, self.frame)
-        node.every(1.0, self.publish_layout)
+        if not render:
+            node.every(1.0, self.publish_layout)
 
     def on_gaze(self, msg: m.GazeMsg) -> None:
         """The participant sees where the eyes look (the attention gesture is not a cue)."""
@@ -98,6 +116,9 @@ class OptionsSimService:
     def frame(self, now_ns: int) -> None:
         """One camera frame: advance the person and publish the hand."""
         self._advance(now_ns)
+        if self.renderer is not None:
+            publish_frame(self.pub_camera, self.renderer, self.person.pos, now_ns)
+            return
         pts = self.person.landmarks()
         center = pts.mean(axis=0)
         self.pub_hand.put(

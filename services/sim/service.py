@@ -21,7 +21,7 @@ import numpy as np
 from services.cohort.person import fitted_traits
 from services.core import messages as m
 from services.core.cli import SEED, Parser, add_service_args, fail
-from services.core.node import Node, setup_logging
+from services.core.node import Node, TopicPublisher, setup_logging
 from services.core.options_config import add_options_arg, load_with_options
 from services.core.session import Fabric
 from services.model.geometry import colour_sign
@@ -124,25 +124,25 @@ class SimService:
         )
 
     def _render(self, renderer: SceneRenderer, now_ns: int) -> None:
-        import cv2
-
-        x, y = (float(v) for v in self.person.pos)
-        image = renderer.render((x, y))
-        ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
-        if ok:
-            h, w = image.shape[:2]
-            self.pub_camera.put(
-                t_ns=now_ns,
-                jpeg=jpeg.tobytes(),
-                width=w,
-                height=h,
-                hand_seq=self.pub_camera.seq,
-                detected=True,
-            )
+        publish_frame(self.pub_camera, renderer, self.person.pos, now_ns)
 
     def publish_layout(self, now_ns: int) -> None:
         """The table geometry, for every service that needs the boxes."""
         self.pub_layout.put(t_ns=now_ns, **m.layout_fields(self.layout))
+
+
+def publish_frame(
+    pub: TopicPublisher, renderer: SceneRenderer, pos: np.ndarray, now_ns: int
+) -> None:
+    """One rendered camera frame with the hand at `pos`, as a JPEG on sim/camera."""
+    import cv2
+
+    image = renderer.render((float(pos[0]), float(pos[1])))
+    ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    if ok:
+        h, w = image.shape[:2]
+        pub.put(t_ns=now_ns, jpeg=jpeg.tobytes(), width=w, height=h, hand_seq=pub.seq,
+                detected=True)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -178,8 +178,6 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--rate must be in [1, 1000] Hz, got {args.rate}")
         # the fitted person under the file's [participant], as `load_cohort_params` does
         cfg, schedule = load_with_options(args.params, args.options, fitted_traits())
-        if schedule is not None and args.render:
-            raise ValueError("--render draws the paper's two boxes only; drop it for --options")
         stands_in = () if args.render else ("vision",)
         node = Node("sim", Fabric.from_args(args), stands_in_for=stands_in, retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
@@ -190,7 +188,8 @@ def main(argv: list[str] | None = None) -> int:
         from services.sim.options_service import OptionsSimService
 
         layout = table_for(cfg, schedule.n_options)
-        OptionsSimService(node, cfg, schedule, layout, args.seed, args.rate, args.cohort)
+        OptionsSimService(node, cfg, schedule, layout, args.seed, args.rate, args.cohort,
+                          render=args.render)
     else:
         SimService(node, cfg, args.seed, args.rate, args.cohort, render=args.render)
     node.run()

@@ -34,9 +34,10 @@ import zenoh
 from services.core import messages as m
 from services.core.cli import Parser, add_params_arg, fail, int_in
 from services.core.clock import add_clock_args
-from services.core.config import ConfigError, load_params
+from services.core.config import ConfigError
 from services.core.contract import check_publisher
 from services.core.node import Node, declare_publisher, setup_logging
+from services.core.options_config import add_options_arg, load_with_options
 from services.core.session import Fabric, add_zenoh_args
 from services.model.geometry import TableLayout
 from services.vision.calibration import load_calibration
@@ -224,7 +225,7 @@ def load_layout(calibration: Path | None, params: Path | None) -> tuple[TableLay
     if calibration is not None:
         return load_calibration(calibration), str(calibration)
     if params is not None:
-        return load_params(params).layout, f"{params} [layout]"
+        return load_with_options(params)[0].layout, f"{params} [layout]"
     return TableLayout(), "SPEC defaults"
 
 
@@ -272,6 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="wait up to S seconds for a hand-key subscriber before reading (file replays)",
     )
+    add_options_arg(p)
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
@@ -321,6 +323,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--frames-key-hz must be in [0, 30], got {args.frames_key_hz}")
         if not 16 <= args.frame_width <= 1920:
             raise ValueError(f"--frame-width must be in [16, 1920], got {args.frame_width}")
+        _, schedule = load_with_options(args.params, args.options)
         layout, layout_origin = load_layout(args.calibration, args.params)
         params = CaptureParams(
             width=args.width,
@@ -366,6 +369,8 @@ def main(argv: list[str] | None = None) -> int:
         return fail("nod vision", exc)
     service = VisionService(
         node, capture, tracker, layout, frames_hz=args.frames_key_hz, frame_width=args.frame_width
+    ) if schedule is None else _options_service(
+        node, capture, tracker, layout, schedule.names, args
     )
     if args.wait_for_subscriber > 0 and not service.wait_for_subscriber(args.wait_for_subscriber):
         log.warning("no subscriber on %s yet; starting anyway", service.pub_hand.key)
@@ -383,6 +388,19 @@ def main(argv: list[str] | None = None) -> int:
         "vision: %d hand poses published (%d with a hand)", service.published, service.detected
     )
     return service.exit_code
+
+
+def _options_service(
+    node: Node, capture: Capture, tracker: HandTracker, layout: TableLayout,
+    names: tuple[str, ...], args: argparse.Namespace,
+) -> VisionService:
+    """The camera path over N boxes, found by their colours (`services.vision.options_service`)."""
+    from services.vision.options_service import OptionsVisionService
+
+    return OptionsVisionService(
+        node, capture, tracker, layout, names=names, commit=layout.commit,
+        frames_hz=args.frames_key_hz, frame_width=args.frame_width,
+    )
 
 
 if __name__ == "__main__":

@@ -56,12 +56,32 @@ def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> Non
     assert (out / "option_sets.csv").read_text().count("\n") == 2  # header and the session
 
 
+def test_three_rendered_boxes_found_by_vision(tmp_path: Path) -> None:
+    """The camera path: the sim renders three coloured boxes, vision finds them and the hand."""
+    db = tmp_path / "s.sqlite"
+    run = run_nod("run", "--sim", "--options", "3", "--render", "--speed", "2", "--seed", "1",
+                  "--db", str(db), "--listen", f"tcp/127.0.0.1:{free_port()}",
+                  "--stale-ms", "2000", timeout=600)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "8 trials of 1 participant(s) stored" in run.stdout
+    vision_log = (tmp_path / "s.logs" / "vision.log").read_text()
+    assert "found the 3 boxes" in vision_log
+    store = Store(db)
+    try:
+        (session,) = [s["session"] for s in store.sessions()]
+        trials = OptionsStore(store).trials(session)
+    finally:
+        store.close()
+    assert len(trials) == 8 and all(t.robot in (0, 1, 2) for t in trials)
+    assert sum(t.human in (0, 1, 2) for t in trials) >= 7  # the hand is tracked to its press
+
+
 def test_flags_not_yet_there_for_options_are_refused_before_anything_starts(
     tmp_path: Path,
 ) -> None:
-    run = run_nod("run", "--sim", "--options", "3", "--render", "--db",
+    run = run_nod("run", "--sim", "--options", "3", "--order", "RBG", "--db",
                   str(tmp_path / "s.sqlite"), "--listen", f"tcp/127.0.0.1:{free_port()}",
                   timeout=60)
     assert run.returncode != 0
-    assert "--render: not yet with 3 options" in run.stderr
+    assert "--order: not yet with 3 options" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1
