@@ -214,7 +214,6 @@ def main(argv: list[str] | None = None) -> int:
         return calibrate(argv[1:])
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
-    raise_priority("actuation")
     try:
         cfg, schedule = load_with_options(args.params, args.options)
         if schedule is not None and args.driver != "sim":
@@ -233,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError, ConnectionError) as exc:
         return fail("nod actuation", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("behaviour", "sim_arm", "safety")))
+    raise_priority("actuation")  # once its configuration is good: errors stay one line
     if schedule is not None:  # a table of 3+ boxes: Algorithm 2 over N boxes, the sim arm
         from services.actuation.options_service import OptionsActuationService
         from services.model.options_loop import table_for

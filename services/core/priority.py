@@ -31,5 +31,5 @@ def raise_priority(service: str, nice: int = DEVICE_NICE) -> bool:
         log.info("%s: runs at its normal priority (nice %d wanted: %s; the systemd unit grants "
                  "it)", service, nice, exc.strerror or exc)
         return False
-    log.info("%s: nice %d (ahead of the rig's other work, for its safety bounds)", service, nice)
+    log.debug("%s: nice %d (ahead of the rig's other work, for its safety bounds)", service, nice)
     return True

@@ -153,7 +153,6 @@ def main(argv: list[str] | None = None) -> int:
         return calibrate(argv[1:])
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
-    raise_priority("eyes")
     try:
         cfg = load_params(args.params)
         safety = eyes_safety(cfg, args.stale_ms)
@@ -167,6 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError, ConnectionError) as exc:
         return fail("nod eyes", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("eyes", "safety")))
+    raise_priority("eyes")  # once its configuration is good: errors stay one line
     try:
         driver.connect()
     except (ValueError, OSError, ConnectionError) as exc:
