@@ -225,7 +225,7 @@ OPTIONS_PRESS = Topic(
 )
 OPTIONS_TRIAL = Topic(
     "options/trial", om.OptionsTrialEvent, ("experiment",),
-    ("decision", "actuation", "sim", "run"), "per event", CONTROL,
+    ("decision", "actuation", "sim", "speaker", "run"), "per event", CONTROL,
     "`n_options`, `phase`, `trial`, `mode`, `option` (O, a box), `text`, `session`",
 )
 OPTIONS_RESULT = Topic(

@@ -25,6 +25,8 @@ def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> Non
     assert run.returncode == 0, run.stdout + run.stderr
     assert "8 trials of 1 participant(s) stored" in run.stdout
     assert "green" in run.stdout  # the table names the options
+    speaker = (tmp_path / "s.logs" / "speaker.log").read_text()
+    assert "trial 8: go played" in speaker  # the countdown is heard on a table of three too
 
     store = Store(db)
     try:
