@@ -320,6 +320,16 @@ def trial(args: argparse.Namespace) -> int:
     return 0
 
 
+def options_study(args: argparse.Namespace) -> int:
+    """`nod analyze options-study`: the study over sessions of three or more options."""
+    from services.analysis.options_study import analyze_options_study, summary
+    from services.analysis.study_report import finite_json
+
+    doc = finite_json(analyze_options_study(args.db))
+    print(json.dumps(doc, indent=2, allow_nan=False) if args.json else summary(doc))
+    return 0
+
+
 COMMANDS = {
     "trial": trial,
     "power": power,
@@ -332,4 +342,5 @@ COMMANDS = {
     "square-claim": square_claim,
     "stuart-maxwell": stuart_maxwell,
     "study": study,
+    "options-study": options_study,
 }

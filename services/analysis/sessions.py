@@ -122,6 +122,14 @@ def scheduled_trials(config: str | None) -> int:
     return len(trials) if isinstance(trials, list) and trials else len(TRIALS)
 
 
+def is_options_session(config: str | None) -> bool:
+    """Whether a session ran a table of three or more options (its config lists them)."""
+    try:
+        return bool(json.loads(config or "{}").get("options"))
+    except (ValueError, AttributeError):
+        return False
+
+
 def control_labels(config: str | None) -> str:
     """The rule that labelled a session's control trials, as its stored protocol says.
 
@@ -163,6 +171,8 @@ def select_sessions(store: Store, rule: InclusionRule | None = None) -> Selectio
     notes: list[str] = []
     for s in store.sessions():  # oldest first, so later sessions supersede earlier ones
         sid, pid, status = str(s["session"]), str(s["participant"]), str(s["status"])
+        if is_options_session(s.get("config")):  # 3+ options: `nod analyze options-study`
+            continue
         trials = [t for _, t in store.trials(sid)]
         bad = sorted(
             {t.outcome for t in trials if t.outcome is not None and t.outcome not in OUTCOMES}

@@ -15,6 +15,7 @@ trial it spoils ends on the timeout with the robot's press missing.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import math
@@ -146,9 +147,10 @@ class OptionsConductor:
     ) -> list[OptionsTrialRecord]:
         """Run every trial of the schedule; store and publish each."""
         self.session = session
+        schedule = [dataclasses.asdict(t) for t in self.schedule.trials]  # the analysis reads it
         self.store.begin_session(
             session, participant, self.node.keys.rig, seed, self.node.clock.now_ns(),
-            self.cfg.summary(), self.schedule.names,
+            {**self.cfg.summary(), "option_schedule": schedule}, self.schedule.names,
         )
         status = "aborted"
         protocol = SessionProtocol(self.params)
