@@ -30,7 +30,9 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from services.core import messages as m
+from services.core import options_messages as om
 from services.model.servos import SERVO_NAMES
+from services.monitor import options_bridge as ob
 
 APPLICATION_ID = "nod_hri"
 TIMELINE = "time"  # the message's source timestamp, `t_ns`
@@ -186,6 +188,10 @@ class RerunBridge:
         self._cmd: tuple[Any, ...] | None = None
         self._gaze_state: str | None = None
         self.frames_dropped = 0  # vision frames that did not decode
+        # A table of N boxes (`services.monitor.options_bridge`): its names, layout, blueprint
+        self.option_names: tuple[str, ...] = ()
+        self.options_layout: tuple[Any, ...] | None = None
+        self.options_seen = False
 
     def log_styles(self) -> None:
         """Static names and colours of the series (once, before any data)."""
@@ -210,7 +216,7 @@ class RerunBridge:
         handler = getattr(self, f"_on_{msg.KIND}", None)
         if handler is None or topic in NOT_SHOWN:
             return
-        if isinstance(msg, m.TrialEvent | m.TrialResult):
+        if isinstance(msg, m.TrialEvent | m.TrialResult | om.OptionsTrialEvent | om.OptionsResult):
             self.trial = msg.trial  # before stamping: an event belongs to its own trial
         self._stamp(msg.t_ns)
         handler(topic, msg)
@@ -389,6 +395,13 @@ class RerunBridge:
             f"{msg.violations}, score {msg.score})"
         )
         self.rec.log(ENTITIES["log_result"], rr.TextLog(text, level="INFO"))
+
+    # a table of N boxes: `services.monitor.options_bridge`
+    _on_option_vector = ob.on_option_vector
+    _on_options_layout = ob.on_options_layout
+    _on_options_arm_state = ob.on_options_arm_state
+    _on_options_trial = ob.on_options_trial
+    _on_options_result = ob.on_options_result
 
     def _on_rig_event(self, topic: str, msg: m.RigEvent) -> None:
         level = {"gave_up": "ERROR", "restarting": "WARN", "exited": "WARN"}.get(msg.kind, "INFO")
