@@ -258,6 +258,8 @@ def _build_parser() -> Parser:
     )
     p.add_argument("--db", required=True, metavar="FILE", help="session database (nod run)")
     p.add_argument("--json", action="store_true", help="print every number as JSON")
+    p.add_argument("--out", metavar="DIR",
+                   help="write Figs 8a-8d, fig_option_shares.png and options_study.json here")
     return parser
 
 

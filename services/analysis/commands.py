@@ -322,11 +322,21 @@ def trial(args: argparse.Namespace) -> int:
 
 def options_study(args: argparse.Namespace) -> int:
     """`nod analyze options-study`: the study over sessions of three or more options."""
+    from services.analysis.options_figures import write_options_figures
     from services.analysis.options_study import analyze_options_study, summary
     from services.analysis.study_report import finite_json
 
     doc = finite_json(analyze_options_study(args.db))
+    if args.out:
+        out = Path(args.out)
+        try:
+            figures = write_options_figures(doc, out)
+            (out / "options_study.json").write_text(json.dumps(doc, indent=2) + "\n")
+        except OSError as exc:
+            raise UsageError(f"cannot write to --out {args.out!r}: {exc}") from None
     print(json.dumps(doc, indent=2, allow_nan=False) if args.json else summary(doc))
+    if args.out and not args.json:
+        print(f"wrote {Path(args.out) / 'options_study.json'} and {len(figures)} figures")
     return 0
 
 

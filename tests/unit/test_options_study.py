@@ -82,3 +82,22 @@ def test_one_option_set_at_a_time_and_no_store_no_study(tmp_path: Path) -> None:
                                                                "none": 0},
                                              "robot": {"red": 0, "blue": 0, "green": 0},
                                              "both_on_o": 0}
+
+
+def test_the_figures_are_written_and_mark_the_agreements(tmp_path: Path) -> None:
+    from services.analysis.options_figures import draw_option_shares, write_options_figures
+    from services.analysis.study_report import finite_json
+
+    db = tmp_path / "s.sqlite"
+    store = Store(db)
+    for k, (who, rows) in enumerate(SESSIONS.items()):
+        write(store, f"s{k}", who, rows)
+    store.close()
+    doc = finite_json(analyze_options_study(db))
+    paths = write_options_figures(doc, tmp_path / "fig")
+    assert set(paths) == {"8a", "8b", "8c", "8d", "shares"}
+    assert all(p.stat().st_size > 1000 for p in paths.values())
+    fig = draw_option_shares(doc)
+    labels = [t.get_text() for t in fig.axes[0].texts]
+    # control: both robots elsewhere in trial 1; consensus: trial 4 one of two on O, trial 6 both
+    assert labels[0] == "2/2" and labels[3] == "1/2" and labels[5] == "2/2"
