@@ -3,8 +3,8 @@
 The same equations and scheme (RK4 with ẑ_h held, the controller's freeze decided once per
 step from its start, |s| clamped after it, the last option set to minus the sum of the others
 after every step), written out on Python floats because NumPy's per-call overhead on vectors
-of three made one 30 Hz pose (33 steps of 1 ms) cost 8-18 ms on a loaded 2-core machine; this
-takes 1.1-2.4 ms there. Only for β = δ = 0 (the paper's, and the default); `advance` falls
+of three dominates: 4-6× faster per 30 Hz pose (`benchmarks/options_decision.py`). Only for
+β = δ = 0 (the paper's, and the default); `advance` falls
 back to the NumPy form otherwise. A test checks the two agree to 1e-12.
 """
 
