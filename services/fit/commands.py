@@ -39,7 +39,8 @@ def _prepared(args: argparse.Namespace, cfg: NodConfig, run: Any, where: str) ->
     t0 = time.monotonic()
     prep = prepare(cfg, args.table, run, _cache(args))
     how = "from the cache" if prep.cached else f"simulated on {where}"
-    _say(f"reference table: {args.table} simulated people {how}; estimator trained "
+    trained = "trained" if prep.trained else "from the cache"
+    _say(f"reference table: {args.table} simulated people {how}; estimator {trained} "
          f"({time.monotonic() - t0:.0f} s)")
     return prep
 

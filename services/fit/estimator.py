@@ -24,8 +24,9 @@ import numpy as np
 
 from services.model.recovery import Recovery, recovery
 
-ESTIMATOR_VERSION = 1  # bump when training changes: a cached estimator of another is retrained
+ESTIMATOR_VERSION = 3  # bump when training changes: a cached estimator of another is retrained
 LEVEL = 0.90  # the intervals' nominal coverage
+ALPHA_SET = 1 - LEVEL  # a 0/1 parameter's 90 % set: the values at least this likely
 SPLITS = (0.70, 0.15)  # train, calibrate; the rest checks
 # 120 rounds at rate 0.1: as good on the checks as 250 at 0.06, in half the time.
 BOOSTING: dict[str, Any] = dict(learning_rate=0.1, max_iter=120, max_leaf_nodes=15,
@@ -68,14 +69,33 @@ def _split(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return order[:a], order[a:b], order[b:]
 
 
+def _kind(values: np.ndarray) -> str:
+    """How a parameter is learnt: "binary" (0/1), "log" (positive, spanning a decade) or "linear".
+
+    A log-normal trait (gaze_gain) is learnt on its log, where its spread is even; quantiles
+    carry over through exp unchanged. A 0/1 trait gets a classifier: a quantile of a 0/1 value
+    is 0 or 1 and says nothing of how likely either is.
+    """
+    if np.isin(values, (0.0, 1.0)).all():
+        return "binary"
+    if values.min() > 0 and values.max() > 10 * values.min():
+        return "log"
+    return "linear"
+
+
 class QuantileEstimator:
-    """Trained once on a reference table; `predict` fits any number of people at once."""
+    """Trained once on a reference table; `predict` fits any number of people at once.
+
+    A 0/1 parameter's estimate is its probability, and its 90 % set is {0}, {1} or [0, 1]:
+    every value whose probability is at least 10 %.
+    """
 
     def __init__(self, names: Sequence[str], seed: int = 0) -> None:
         """An untrained estimator of these parameters."""
         self.names = tuple(names)
         self.seed = seed
-        self._models: list[tuple[object, object, object]] = []
+        self._models: list[tuple[Any, ...]] = []
+        self._kinds: list[str] = []
         self._margin = np.zeros(len(self.names))
         self._columns = np.zeros(0, dtype=int)
         self.check: list[Recovery] = []
@@ -86,7 +106,7 @@ class QuantileEstimator:
             return self._train(theta, summaries)
 
     def _train(self, theta: np.ndarray, summaries: np.ndarray) -> QuantileEstimator:
-        from sklearn.ensemble import HistGradientBoostingRegressor
+        from sklearn.ensemble import HistGradientBoostingClassifier, HistGradientBoostingRegressor
 
         train, calib, check = _split(len(theta), self.seed)
         # A summary the table never shows (a turn no one made) carries nothing, and
@@ -94,46 +114,71 @@ class QuantileEstimator:
         self._columns = np.flatnonzero(np.isfinite(summaries[train]).any(axis=0))
         summaries = summaries[:, self._columns]
         alpha = (1 - LEVEL) / 2
-        self._models = []
+        self._models, self._kinds = [], []
         for p in range(len(self.names)):
-            y = theta[train, p]
-            models = tuple(
-                HistGradientBoostingRegressor(
-                    loss="quantile", quantile=q, random_state=self.seed, **_boosting(len(y))
-                ).fit(summaries[train], y)
-                for q in (alpha, 0.5, 1 - alpha)
-            )
+            kind = _kind(theta[train, p])
+            y = np.log(theta[train, p]) if kind == "log" else theta[train, p]
+            if kind == "binary" and len(set(y)) < 2:
+                kind = "constant"  # everyone alike in the table: nothing to learn
+                models: tuple[Any, ...] = (float(y[0]),)
+            elif kind == "binary":
+                models = (HistGradientBoostingClassifier(
+                    random_state=self.seed, **_boosting(len(y))).fit(summaries[train], y),)
+            else:
+                models = tuple(
+                    HistGradientBoostingRegressor(
+                        loss="quantile", quantile=q, random_state=self.seed, **_boosting(len(y))
+                    ).fit(summaries[train], y)
+                    for q in (alpha, 0.5, 1 - alpha)
+                )
             self._models.append(models)
+            self._kinds.append(kind)
         self._margin = np.zeros(len(self.names))
-        raw = self._raw(summaries[calib], chosen=True)
-        for p in range(len(self.names)):
-            y = theta[calib, p]
+        raw = self._raw(summaries[calib])
+        for p, kind in enumerate(self._kinds):
+            if kind in ("binary", "constant"):
+                continue
+            y = np.log(theta[calib, p]) if kind == "log" else theta[calib, p]
             misses = np.maximum(raw.low[:, p] - y, y - raw.high[:, p])
-            n = len(y)
-            q = min(1.0, LEVEL * (1 + 1 / n))
+            q = min(1.0, LEVEL * (1 + 1 / len(y)))
             self._margin[p] = float(np.quantile(misses, q, method="higher"))
-        fit = self._widened(self._raw(summaries[check], chosen=True))
+        fit = self._finish(self._raw(summaries[check]))
         self.check = [
             recovery(n, theta[check, p], fit.estimate[:, p], fit.low[:, p], fit.high[:, p])
             for p, n in enumerate(self.names)
         ]
         return self
 
-    def _raw(self, summaries: np.ndarray, chosen: bool = False) -> Estimates:
-        if not chosen:
-            summaries = summaries[:, self._columns]
-        cols = [[m.predict(summaries) for m in models] for models in self._models]  # type: ignore[attr-defined]
-        q = np.sort(np.stack([np.stack(c, axis=1) for c in cols], axis=1), axis=2)  # n×P×3
+    def _raw(self, summaries: np.ndarray) -> Estimates:
+        """Per parameter (learning scale): the three quantiles, or p and its 90 % set."""
+        n = len(summaries)
+        q = np.zeros((n, len(self.names), 3))
+        for p, (kind, models) in enumerate(zip(self._kinds, self._models, strict=True)):
+            if kind == "constant":
+                q[:, p, :] = models[0]
+            elif kind == "binary":
+                prob = models[0].predict_proba(summaries)[:, 1]
+                q[:, p, 0] = np.where(prob > 1 - ALPHA_SET, 1.0, 0.0)
+                q[:, p, 1] = prob
+                q[:, p, 2] = np.where(prob >= ALPHA_SET, 1.0, 0.0)
+            else:
+                q[:, p, :] = np.sort(np.stack([m.predict(summaries) for m in models], axis=1),
+                                     axis=1)
         return Estimates(self.names, q[:, :, 1], q[:, :, 0], q[:, :, 2])
+
+    def _finish(self, raw: Estimates) -> Estimates:
+        """Widen by the conformal margins, back on the parameters' own scale."""
+        low, high = raw.low - self._margin, raw.high + self._margin
+        est = raw.estimate.copy()
+        for p, kind in enumerate(self._kinds):
+            if kind == "log":
+                est[:, p], low[:, p], high[:, p] = (np.exp(v[:, p]) for v in (est, low, high))
+        return Estimates(self.names, est, low, high)
 
     def predict(self, summaries: np.ndarray) -> Estimates:
         """Estimates and conformalised 90 % intervals for people's summaries (n × F)."""
         with one_thread():
-            return self._widened(self._raw(np.atleast_2d(summaries)))
-
-    def _widened(self, raw: Estimates) -> Estimates:
-        return Estimates(self.names, raw.estimate, raw.low - self._margin,
-                         raw.high + self._margin)
+            return self._finish(self._raw(np.atleast_2d(summaries)[:, self._columns]))
 
 
 class GazeClassifier:

@@ -35,8 +35,10 @@ def draw_intervals(doc: Mapping[str, Any]) -> Figure:
         est = [r["parameters"][name]["estimate"] for r in rows]
         low = [r["parameters"][name]["low"] for r in rows]
         high = [r["parameters"][name]["high"] for r in rows]
-        ax.errorbar(xs, est, yerr=[[e - lo for e, lo in zip(est, low, strict=True)],
-                                   [h - e for e, h in zip(est, high, strict=True)]],
+        # A 0/1 parameter's estimate is a probability and its set {0}, {1} or [0, 1]: the
+        # probability may lie outside a one-value set, so its bar is drawn from the point.
+        ax.errorbar(xs, est, yerr=[[max(0.0, e - lo) for e, lo in zip(est, low, strict=True)],
+                                   [max(0.0, h - e) for e, h in zip(est, high, strict=True)]],
                     fmt="o", ms=3, lw=1, color="#1565c0", ecolor="#90caf9")
         ax.set_ylabel(name, fontsize=8)
         ax.set_title(MEANING.get(name, name), loc="left", fontsize=8)
@@ -47,8 +49,8 @@ def draw_intervals(doc: Mapping[str, Any]) -> Figure:
         axes[0, 0].text(0.5, 0.5, "no parameter is identifiable from these trials",
                         ha="center", va="center", transform=axes[0, 0].transAxes)
     skipped = ", ".join(doc["not_identifiable"]) or "none"
-    fig.suptitle(f"Per-participant estimates, {int(doc['level'] * 100)} % intervals "
-                 f"(not identifiable, not shown: {skipped})", fontsize=9)
+    fig.suptitle(f"Per-participant estimates, {int(doc['level'] * 100)} % intervals\n"
+                 f"not identifiable, not shown: {skipped}", fontsize=9)
     fig.tight_layout()
     return fig
 
@@ -80,8 +82,7 @@ def draw_predictive(doc: Mapping[str, Any]) -> Figure:
     top.set_ylim(0, 1)
     top.set_title("(a) outcomes: observed (left, plain) | simulated from the fit (right, "
                   "hatched)", loc="left", fontsize=9)
-    top.legend(ncol=len(OUTCOME_KEYS), fontsize=7, loc="lower right",
-               bbox_to_anchor=(1.0, 1.0), frameon=False)
+    top.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
     bottom.set_ylabel("press time after go (s)")
     bottom.set_title("(b) press times: observed (dots) | simulated (box: quartiles, whiskers)",
                      loc="left", fontsize=9)

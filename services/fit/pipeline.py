@@ -42,6 +42,7 @@ class Prepared:
     table: Table
     estimator: QuantileEstimator
     cached: bool  # the table came from the cache
+    trained: bool  # the estimator was trained now (False: read from the cache)
     table_estimates: Estimates  # the estimator on every table person (for posterior draws)
 
     @property
@@ -56,13 +57,14 @@ def prepare(cfg: NodConfig, k: int, run: Mapper, cache: Path | None, seed: int =
     path = (cache / f"estimator-{table_key(cfg)}-{k}-{ESTIMATOR_VERSION}-{seed}.pickle"
             if cache is not None else None)
     estimator = _load(path) if cached and path is not None else None
+    trained = estimator is None
     if estimator is None:
         estimator = QuantileEstimator(table.names, seed).train(table.theta, table.summaries)
         if path is not None:
             tmp = path.with_suffix(".tmp")
             tmp.write_bytes(pickle.dumps(estimator))
             tmp.replace(path)
-    return Prepared(table, estimator, cached, estimator.predict(table.summaries))
+    return Prepared(table, estimator, cached, trained, estimator.predict(table.summaries))
 
 
 def _load(path: Path) -> QuantileEstimator | None:

@@ -32,7 +32,7 @@ MEANING = {
     "speed": "hand speed (peak, image widths per second)",
     "reaction_s": "reaction time from go to the first movement (s)",
     "perception_delay_s": "how late the person sees the arm's heading (s)",
-    "late_switcher": "plays the strategic late switch in control trials (0/1)",
+    "late_switcher": "probability that the person plays the strategic late switch (control)",
 }
 
 

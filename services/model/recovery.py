@@ -5,7 +5,9 @@ behavioral data") simulates people with known parameters, fits them as real peop
 and compares. Per parameter: the correlation of true and estimated values, the mean bias
 (estimated − true), and the coverage (share of true values inside their interval). A parameter
 is `identifiable` when the correlation is at least `MIN_CORRELATION` and the coverage of the
-90 % interval lies within `COVERAGE`: otherwise its estimates are not findings.
+90 % interval lies within `COVERAGE`: otherwise its estimates are not findings. Coverage above
+the range means intervals too wide to say much — unless they are single values (a 0/1
+parameter's set {0} or {1}) for most people: then the truth is named, and rightly.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ class Recovery:
     bias: float  # mean of estimated − true
     coverage: float  # share of true values within [low, high]
     n: int
+    exact: float = 0.0  # share of intervals that are one value (low == high)
 
     @property
     def identifiable(self) -> bool:
@@ -35,14 +38,15 @@ class Recovery:
         return (
             math.isfinite(self.correlation)
             and self.correlation >= MIN_CORRELATION
-            and COVERAGE[0] <= self.coverage <= COVERAGE[1]
+            and COVERAGE[0] <= self.coverage
+            and (self.coverage <= COVERAGE[1] or self.exact >= 0.5)
         )
 
     def as_dict(self) -> dict[str, float | bool | str | int | None]:
         """The JSON form `nod fit recovery --json` prints."""
         return {"name": self.name, "correlation": _num(self.correlation),
                 "bias": _num(self.bias), "coverage": _num(self.coverage),
-                "identifiable": self.identifiable, "n": self.n}
+                "identifiable": self.identifiable, "n": self.n, "exact": _num(self.exact)}
 
 
 def _num(x: float) -> float | None:
@@ -62,6 +66,7 @@ def recovery(name: str, true: np.ndarray, estimate: np.ndarray, low: np.ndarray,
              high: np.ndarray) -> Recovery:
     """Compare planted values with their estimates and intervals."""
     true, estimate = np.asarray(true, float), np.asarray(estimate, float)
-    inside = (np.asarray(low) <= true) & (true <= np.asarray(high))
+    low, high = np.asarray(low, float), np.asarray(high, float)
+    inside = (low <= true) & (true <= high)
     return Recovery(name, correlation(true, estimate), float(np.mean(estimate - true)),
-                    float(np.mean(inside)), int(true.size))
+                    float(np.mean(inside)), int(true.size), float(np.mean(low == high)))

@@ -78,3 +78,24 @@ def test_identifiable_needs_both_correlation_and_coverage():
     flat = recovery("x", true, np.full(100, 0.5), true - 0.01, true + 0.01)
     assert math.isnan(flat.correlation) and not flat.identifiable
     assert flat.as_dict()["correlation"] is None  # JSON has no NaN
+
+
+def test_a_0_1_parameter_named_exactly_is_identifiable_despite_full_coverage():
+    true = np.array([0.0, 1.0] * 50)
+    sharp = recovery("flag", true, true, true, true)  # every set is the one true value
+    assert sharp.coverage == 1.0 and sharp.exact == 1.0 and sharp.identifiable
+    vague = recovery("flag", true, true, np.zeros(100), np.ones(100))  # always "0 or 1"
+    assert vague.coverage == 1.0 and vague.exact == 0.0 and not vague.identifiable
+
+
+def test_a_0_1_parameter_gets_a_probability_and_a_set():
+    rng = np.random.default_rng(4)
+    flag = (rng.random(800) < 0.4).astype(float)
+    summaries = np.column_stack([flag + rng.normal(0, 0.2, 800), rng.normal(0, 1, 800)])
+    theta = np.column_stack([flag, rng.uniform(0, 1, 800)])
+    est = QuantileEstimator(("flag", "other"), seed=1).train(theta, summaries)
+    check = est.check[0]
+    assert check.identifiable and check.correlation > 0.9 and check.exact > 0.8
+    fit = est.predict(summaries[:50])
+    assert np.all((fit.estimate[:, 0] >= 0) & (fit.estimate[:, 0] <= 1))  # a probability
+    assert set(np.unique(fit.low[:, 0])) <= {0.0, 1.0} and np.all(fit.low <= fit.high)
