@@ -5,8 +5,9 @@ poses in, `OptionsRobotTrial` (Algorithm 2 with the dissensus tie rule) deciding
 `OptionsSimArm` with one pose per box moving. The same safety gate: the watchdog holds the arm
 while z_r or the hand is stale, a needed service's liveliness is lost (the conductor's during a
 trial) or an e-stop is engaged (`watch_safety_inputs`: the latch file, `safety/estop` and
-`safety/release`). The arm's state goes out on `options/arm_state` at 50 Hz and the robot's
-press once per trial on `options/press`. Only the simulated arm: no real arm is calibrated
+`safety/release`). The arm's state goes out on `options/arm_state` at 50 Hz (and its safety
+state on the paper's `actuation/state`, which acknowledges an e-stop) and the robot's press
+once per trial on `options/press`. Only the simulated arm: no real arm is calibrated
 for N poses yet.
 """
 
@@ -58,6 +59,9 @@ class OptionsActuationService:
         self.last_cmd: OptionsCommand | None = None
         self._t = node.clock.now_ns() * NS  # the rig clock, never a message's stamp, monotone
         self.pub_state = node.publisher("options/arm_state")
+        # The device's safety state on the paper's key too (no box there: target none), so the
+        # e-stop's acknowledgement, `nod estop`, `nod status` and the recorders work unchanged.
+        self.pub_device = node.publisher("actuation/state")
         self.pub_press = node.publisher("options/press")
         node.subscribe("options/z_r", self.on_z_r)
         node.subscribe("vision/hand", self.on_hand)
@@ -148,4 +152,10 @@ class OptionsActuationService:
             n_options=self.n, ee=state.ee, phase=self.robot.machine.phase, moving=state.moving,
             target=state.target, safe_stop=self.safe_stop,
             safety_reason=self.safety_reason[:400], trial=self.robot.trial,
+        )
+        self.pub_device.put(
+            ee=state.ee, phase=self.robot.machine.phase, moving=state.moving, target=None,
+            safe_stop=self.safe_stop, safety_reason=self.safety_reason[:400],
+            fault=(state.fault or "")[:400], estop=self.watchdog.estopped,
+            estop_id=self.watchdog.estop_id, trial=self.robot.trial,
         )

@@ -102,7 +102,9 @@ def analyze_options_study(path: str | Path) -> dict[str, Any]:
     (names,) = sets
     parts = [
         ParticipantOutcomes(pid, str(s["session"]), str(s["status"]),
-                            {t.trial: t.outcome for t in trials}, rig=str(s["rig"]))
+                            {t.trial: None if t.interrupted else t.outcome for t in trials},
+                            frozenset(t.trial for t in trials if t.interrupted),
+                            rig=str(s["rig"]))
         for pid, (s, trials) in latest.items()
     ]
     doc = analyze_study(parts, excluded=excluded)

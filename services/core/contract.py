@@ -215,7 +215,8 @@ OPTIONS_B_R = Topic(
     "`values` b_r, one per option, `src_seq`",
 )
 OPTIONS_ARM_STATE = Topic(
-    "options/arm_state", om.OptionsArmState, ("actuation",), ("sim",), "50 Hz", STREAM,
+    "options/arm_state", om.OptionsArmState, ("actuation",), ("sim", "experiment"), "50 Hz",
+    STREAM,
     "`n_options`, `ee` [x,y], `phase`, `moving`, `target` (a box), `safe_stop`, "
     "`safety_reason`, `trial`",
 )

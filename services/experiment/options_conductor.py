@@ -8,9 +8,12 @@ then at the end `OptionsTrialJudge` on the poses (`vision/hand`) and ẑ_h vecto
 trial goes into the store with the session's option set (`services.store.options`) and out on
 `options/result`.
 
-Not here yet (the paper's conductor has them): safety interruptions and their repeats, resume,
-the operator gate, samples, cues as played, the recorder. A safe stop holds the arm as ever; a
-trial it spoils ends on the timeout with the robot's press missing.
+Safety as the paper's conductor: the devices' states (`options/arm_state`, `eyes/state`), the
+e-stop and the services' liveliness feed a `RigWatch`; a stop breaks the running trial, which
+is stored as an interruption (`interruptions`, with its safety events) and repeated once the
+rig is safe again, up to `max_attempts` (then stored interrupted, never scored); no trial
+starts on an unsafe rig. Not here yet (the paper's conductor has them): resume, the operator
+gate beyond opening it at once, samples, cues as played, the recorder.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from services.core import options_messages as om
 from services.core.node import Node
 from services.core.options_messages import check_count, same_count, values_for
 from services.experiment.fields import GazeFields
+from services.experiment.rig_watch import RigWatch
 from services.experiment.waiting import wait_for_services
 from services.model.geometry import Point
 from services.model.options_geometry import OptionsLayout
@@ -37,6 +41,7 @@ from services.model.options_judge import OptionsTrialJudge
 from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig
 from services.model.protocol import Cue, Mode, SessionProtocol
+from services.store import Interruption
 from services.store.options import OptionsStore, OptionsTrialRecord
 
 log = logging.getLogger("nod.experiment")
@@ -84,6 +89,9 @@ class OptionsConductor:
         self.gaze_msg: GazeFields | None = None
         self.results: list[OptionsTrialRecord] = []
         self._centers: OrderedDict[int, Point] = OrderedDict()  # recent poses' hand centres
+        self.rig = RigWatch()
+        self._trial_start_ns = 0
+        self._held = False
         self.pub_trial = node.publisher("options/trial")
         self.pub_result = node.publisher("options/result")
         self.pub_gaze = node.publisher("eyes/cmd")
@@ -91,6 +99,10 @@ class OptionsConductor:
         node.subscribe("options/z_h", self.on_z_h)
         node.subscribe("options/press", self.on_press)
         node.subscribe("options/layout", self.on_layout)
+        node.subscribe("options/arm_state", self.on_arm)
+        node.subscribe("eyes/state", self.on_eyes)
+        node.subscribe("safety/estop", self.on_estop)
+        node.subscribe("safety/release", self.on_estop)
         for service in REQUIRED:
             node.watch_liveliness(service, functools.partial(self._liveliness, service))
         threading.Thread(target=self._keep_gaze_alive, daemon=True).start()
@@ -98,7 +110,24 @@ class OptionsConductor:
     # -- callbacks (under the node lock) ---------------------------------------------------
 
     def _liveliness(self, service: str, alive: bool) -> None:
+        was = self.alive.get(service, False)
         self.alive[service] = alive
+        if was and not alive:  # during a trial this breaks it; between trials it holds the next
+            self.rig.lost(service, self.node.clock.now_ns())
+
+    def on_arm(self, msg: om.OptionsArmState) -> None:
+        """The arm's safety state."""
+        check_count(msg, self.n)
+        self.rig.device_state("actuation", msg.safe_stop, msg.safety_reason,
+                              self.node.clock.now_ns())
+
+    def on_eyes(self, msg: m.EyesStateMsg) -> None:
+        """The eyes' safety state."""
+        self.rig.device_state("eyes", msg.safe_stop, msg.safety_reason, self.node.clock.now_ns())
+
+    def on_estop(self, msg: m.Estop) -> None:
+        """An e-stop command: it breaks a running trial and holds the session until released."""
+        self.rig.estop(msg.engaged, msg.reason, msg.source, self.node.clock.now_ns())
 
     def on_hand(self, pose: m.HandPose) -> None:
         """Keep the pose's centre for its ẑ_h; the human's press, once a landmark is in a box."""
@@ -155,6 +184,7 @@ class OptionsConductor:
         status = "aborted"
         protocol = SessionProtocol(self.params)
         try:
+            self._wait_for_a_safe_rig()
             with self.node.lock:
                 cues = protocol.start(self._now_s())
             while True:
@@ -163,6 +193,17 @@ class OptionsConductor:
                     break
                 self._wait(protocol.next_due())
                 with self.node.lock:
+                    now_ns = self.node.clock.now_ns()
+                    why = self.rig.interruption(now_ns) if protocol.running_trial else None
+                    if why is not None:
+                        cues = protocol.interrupt(self._now_s(), why)
+                        continue
+                    if protocol.phase in ("paused", "rest") and not self._rig_ready():
+                        cues = []  # no new trial, no repeat, on an unsafe rig
+                        continue
+                    if protocol.phase == "paused":
+                        cues = protocol.resume(self._now_s())
+                        continue
                     if protocol.waiting_for_operator:
                         cues = protocol.open_gate(self._now_s())
                         continue
@@ -174,12 +215,38 @@ class OptionsConductor:
                     )
             status = "complete"
         finally:
+            with self.node.lock:
+                events = self.rig.take_events()
+            self.store.store.write_events(session, events)
             self.store.store.finish_session(session, self.node.clock.now_ns(), status)
             with self.node.lock:
                 self.gaze_msg = None
             self.pub_trial.put(n_options=self.n, phase="session_end" if status == "complete"
                                else "abort", trial=self.trial, session=session, text=status)
         return self.results
+
+    def _rig_ready(self) -> bool:
+        """Is the rig safe (and settled)? Says once when it is not, and when it is again."""
+        if self.rig.safe(self.node.clock.now_ns()):
+            if self._held:
+                log.info("rig safe again: the session goes on")
+                self._held = False
+            return True
+        if not self._held:
+            log.warning("session held: %s", self.rig.why_unsafe())
+            self._held = True
+        return False
+
+    def _wait_for_a_safe_rig(self) -> None:
+        """Before the first trial: eyes neutral (kept alive), then wait until the rig is safe."""
+        with self.node.lock:
+            self.gaze_msg = {"yaw": 0.0, "pitch": 0.0, "level": "neutral", "trial": 0}
+            self.pub_gaze.put(**self.gaze_msg)
+        while True:
+            with self.node.lock:
+                if self._rig_ready():
+                    return
+            self._wait(math.inf)
 
     def _wait(self, due_s: float) -> None:
         """Sleep until the protocol's next deadline, or at most 5 ms of rig time (presses)."""
@@ -206,8 +273,13 @@ class OptionsConductor:
                                      "trial": trial.index}
                     self.pub_gaze.put(**self.gaze_msg)
             elif cue.kind == "setup":
+                started = self.node.clock.now_ns()
+                self.store.store.begin_attempt(self.session, trial.index, protocol.attempt,
+                                               started)
                 with self.node.lock:
                     self.trial, self.judge, self.robot, self.t_go_ns = trial.index, None, None, None
+                    self.rig.begin(trial.index, protocol.attempt)
+                    self._trial_start_ns = started
                 self.pub_trial.put(phase="setup", text=cue.text, **ev)
                 log.info("trial %d: %s, O = %s", trial.index, trial.mode,
                          self.schedule.name(trial.option))
@@ -221,6 +293,9 @@ class OptionsConductor:
             elif cue.kind == "end":
                 self._end_trial(protocol, cue.trial.yaw or 0.0, cue.trial.pitch or 0.0, ev)
                 cues.extend(protocol.judged(self._now_s()))
+            elif cue.kind == "interrupted":
+                self._interrupted(protocol, cue.trial.yaw or 0.0, cue.trial.pitch or 0.0, ev,
+                                  cue.text)
 
     def _end_trial(
         self, protocol: SessionProtocol, yaw: float, pitch: float, ev: TrialFields
@@ -238,9 +313,11 @@ class OptionsConductor:
         rec = OptionsTrialRecord(
             trial.index, trial.mode, trial.option, trial.gaze_level, yaw, pitch, t_go,
             self.node.clock.now_ns(), j.human, j.robot, j.outcome, j.switches, j.violations,
-            clicks, j.score, end.reason,
+            clicks, j.score, end.reason, attempts=protocol.attempt,
         )
-        self.store.write_trial(self.session, rec)
+        with self.node.lock:
+            events = self.rig.take_events()
+        self.store.write_trial(self.session, rec, events)
         self.results.append(rec)
         self.pub_result.put(
             n_options=self.n, trial=trial.index, mode=trial.mode, option=trial.option,
@@ -250,3 +327,25 @@ class OptionsConductor:
         name = self.schedule.name
         log.info("trial %d: human %s, robot %s -> %s (%+d)", trial.index, name(j.human),
                  name(j.robot), j.outcome, j.score)
+
+    def _interrupted(
+        self, protocol: SessionProtocol, yaw: float, pitch: float, ev: TrialFields, why: str
+    ) -> None:
+        """Store the broken start of a trial; the session pauses until the rig is safe."""
+        with self.node.lock:
+            self.judge = None
+            events, now = self.rig.take_events(), self.node.clock.now_ns()
+        trial = self.schedule.trial(self.trial)
+        log.warning("trial %d (attempt %d) INTERRUPTED: %s", trial.index, protocol.attempt, why)
+        self.pub_trial.put(phase="interrupted", text=why[:400], **ev)
+        record = Interruption(trial.index, protocol.attempt, self._trial_start_ns, now, why)
+        self.store.store.write_interruption(self.session, record, events)
+        proto = self.params
+        if not proto.repeat_interrupted or protocol.attempt >= proto.max_attempts:
+            rec = OptionsTrialRecord(
+                trial.index, trial.mode, trial.option, trial.gaze_level, yaw, pitch, None, now,
+                None, None, None, 0, 0, None, 0, f"interrupted: {why}"[:400], interrupted=1,
+                attempts=protocol.attempt,
+            )
+            self.store.write_trial(self.session, rec)
+            self.results.append(rec)

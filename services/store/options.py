@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import json
 import sqlite3
+from collections.abc import Iterable
 from dataclasses import astuple, dataclass
 from typing import Any
 
+from services.store.records import RigEventRecord, SafetyEvent
 from services.store.store import Store
 
 OPTIONS_SCHEMA = """
@@ -42,6 +44,8 @@ CREATE TABLE IF NOT EXISTS option_trials (
     clicks      INTEGER,
     score       INTEGER NOT NULL,
     end_reason  TEXT NOT NULL,
+    interrupted INTEGER NOT NULL DEFAULT 0,
+    attempts    INTEGER NOT NULL DEFAULT 1,
     PRIMARY KEY (session, trial)
 );
 """
@@ -67,6 +71,8 @@ class OptionsTrialRecord:
     clicks: int | None
     score: int
     end_reason: str
+    interrupted: int = 0  # broken by a safe stop or an e-stop and not repeated: never scored
+    attempts: int = 1  # starts of this trial, the interrupted ones included
 
 
 class OptionsStore:
@@ -96,8 +102,11 @@ class OptionsStore:
         ).fetchone()
         return None if row is None else tuple(json.loads(row[0]))
 
-    def write_trial(self, session: str, rec: OptionsTrialRecord) -> None:
-        """Store one trial (its options checked against the session's set)."""
+    def write_trial(
+        self, session: str, rec: OptionsTrialRecord,
+        events: Iterable[SafetyEvent | RigEventRecord] = (),
+    ) -> None:
+        """Store one trial and the safety events since the last write (options checked)."""
         names = self.names(session)
         if names is None:
             raise ValueError(f"session {session!r} has no option set: begin it with begin_session")
@@ -109,9 +118,12 @@ class OptionsStore:
             self.db.execute("BEGIN")
             self.db.execute(
                 "INSERT OR REPLACE INTO option_trials VALUES "
-                "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (session, *astuple(rec)),
             )
+            # the paper's store's own writers, in this transaction: one trial, its events, at once
+            self.store._events(session, events)
+            self.store._close_attempt(session, rec.trial)
 
     def trials(self, session: str) -> list[OptionsTrialRecord]:
         """A session's stored trials, in order."""

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import csv
+import sqlite3
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -11,7 +14,7 @@ from services.store import Store
 from services.store.options import OptionsStore, export_rows
 from tests.processes import run_nod
 
-from .conftest import free_port
+from .conftest import ROOT, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -87,3 +90,65 @@ def test_flags_not_yet_there_for_options_are_refused_before_anything_starts(
     assert run.returncode != 0
     assert "--order: not yet with 3 options" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1
+
+
+def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path: Path) -> None:
+    """The N-option conductor's safety: an e-stop breaks trial 2, which is repeated."""
+    db, logs = tmp_path / "s.sqlite", tmp_path / "logs"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    run = subprocess.Popen(
+        # 2x: trial 2 lasts ~3 s of wall time, enough for `nod estop` to start on a busy host
+        [sys.executable, "-m", "services.cli", "run", "--sim", "--options", "3", "--speed", "2",
+         "--seed", "2", "--db", str(db), "--listen", endpoint, "--stale-ms", "1000",
+         "--logs", str(logs)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+
+    def rows(sql: str) -> int:
+        if not db.exists():
+            return 0
+        with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as ro:
+            try:
+                return int(ro.execute(sql).fetchone()[0])
+            except sqlite3.OperationalError:  # the tables are not there yet
+                return 0
+
+    out = ""
+    try:
+        wait_for(lambda: rows("SELECT COUNT(*) FROM option_trials") >= 1, 120, "trial 1 stored")
+        wait_for(lambda: rows("SELECT COUNT(*) FROM open_attempts WHERE trial = 2"), 60,
+                 "trial 2 begun")
+        engaged = run_nod("estop", "--connect", endpoint, "--reason", "bump", timeout=60)
+        assert engaged.returncode == 0, engaged.stdout + engaged.stderr
+        wait_for(lambda: rows("SELECT COUNT(*) FROM interruptions WHERE trial = 2"), 60,
+                 "trial 2 interrupted by the e-stop")
+        released = run_nod("estop", "--connect", endpoint, "--release", timeout=60)
+        out, _ = run.communicate(timeout=300)
+        assert released.returncode == 0, released.stdout + released.stderr + out
+    finally:
+        if run.poll() is None:
+            run.kill()
+    logs_text = "".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(logs.glob("*")))
+    assert run.returncode == 0, out + logs_text
+    store = Store(db)
+    try:
+        session = store.sessions()[-1]["session"]
+        trials = OptionsStore(store).trials(session)
+        broken = store.interruptions(session)
+        events = store.safety_events(session)
+    finally:
+        store.close()
+    context = f"{trials}\n{broken}\n{events}\n{out}"
+    assert [t.trial for t in trials] == list(range(1, 9)), context  # every trial stored once
+    by_estop = [b for b in broken if "bump" in b.reason]
+    assert [(b.trial, b.attempt) for b in by_estop] == [(2, 1)], context
+    assert "e-stop" in by_estop[0].reason, context
+    # Every broken start is repeated (a loaded host's stale inputs break some too, by the same
+    # rule); a trial is stored interrupted only after its last attempt broke as well.
+    for t in trials:
+        starts = [b for b in broken if b.trial == t.trial]
+        assert t.attempts == len(starts) + (0 if t.interrupted else 1), context
+        assert not t.interrupted or t.attempts == 3, context
+    assert trials[1].attempts >= 2, context
+    kinds = [(e.device, e.event) for e in events if e.trial == 2]
+    assert ("estop", "estop") in kinds and ("estop", "release") in kinds, context
