@@ -42,8 +42,13 @@ def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> Non
     finally:
         store.close()
     assert [t.trial for t in trials] == list(range(1, 9))
-    for t in trials:
-        assert t.human in (0, 1, 2) and t.robot in (0, 1, 2), t
+    # A loaded host's stale inputs may break a trial (repeated, by the paper's rule) and, three
+    # times over, leave it interrupted: every choice stored is still one of the three.
+    scored = [t for t in trials if not t.interrupted]
+    assert len(scored) >= 7, trials
+    for t in scored:
+        assert t.human in (None, 0, 1, 2) and t.robot in (0, 1, 2), t
+    assert sum(t.human is not None for t in scored) >= 7, trials
     control, consensus = trials[:3], trials[3:]
     assert {t.option for t in consensus} == {0, 1, 2}
     assert sum(t.outcome in ("D", "DH") for t in control) >= 2, control
