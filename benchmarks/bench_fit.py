@@ -91,6 +91,20 @@ def main() -> int:
         est, lo, hi = (np.array([v[k] for v in rows]) for k in ("estimate", "low", "high"))
         r = recovery(name, true[:, j], est, lo, hi)
         print(f"  {name:<20} r = {r.correlation:.2f}, coverage {r.coverage:.2f}")
+    # What the machine was doing: the CPU seconds of one session here, in this process, and
+    # the load — so a fit slowed by other work on a shared machine is told from a slow fit.
+    from services.fit.simulate import TABLE_SEED, simulate
+
+    t_cpu = time.process_time()
+    for i in range(10):
+        simulate((cfg, TABLE_SEED + i))
+    per_session = (time.process_time() - t_cpu) / 10
+    import os
+
+    sessions = args.table + args.participants * 10
+    print(f"\none session: {per_session:.2f} CPU s; nod fit simulates {sessions} (table + "
+          f"predictive): ≈ {sessions * per_session / 2:.0f} s of it on 2 free cores; "
+          f"load average now {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     return 0 if fit_s <= args.max_fit_s else 1
 
 

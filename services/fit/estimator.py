@@ -24,7 +24,7 @@ import numpy as np
 
 from services.model.recovery import Recovery, recovery
 
-ESTIMATOR_VERSION = 3  # bump when training changes: a cached estimator of another is retrained
+ESTIMATOR_VERSION = 4  # bump when training changes: a cached estimator of another is retrained
 LEVEL = 0.90  # the intervals' nominal coverage
 ALPHA_SET = 1 - LEVEL  # a 0/1 parameter's 90 % set: the values at least this likely
 SPLITS = (0.70, 0.15)  # train, calibrate; the rest checks
@@ -98,6 +98,7 @@ class QuantileEstimator:
         self._kinds: list[str] = []
         self._margin = np.zeros(len(self.names))
         self._columns = np.zeros(0, dtype=int)
+        self.held_out = np.zeros(0, dtype=int)
         self.check: list[Recovery] = []
 
     def train(self, theta: np.ndarray, summaries: np.ndarray) -> QuantileEstimator:
@@ -109,6 +110,7 @@ class QuantileEstimator:
         from sklearn.ensemble import HistGradientBoostingClassifier, HistGradientBoostingRegressor
 
         train, calib, check = _split(len(theta), self.seed)
+        self.held_out = np.sort(np.concatenate([calib, check]))  # rows it never learnt from
         # A summary the table never shows (a turn no one made) carries nothing, and
         # scikit-learn's binning fails on an all-missing column.
         self._columns = np.flatnonzero(np.isfinite(summaries[train]).any(axis=0))

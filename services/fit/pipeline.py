@@ -2,9 +2,9 @@
 
 `prepare`: the reference table (cached) and the estimator trained on it. `posterior_draws`: a
 person's posterior sample, by semi-automatic ABC (Fearnhead & Prangle 2012): the table people
-whose estimated parameters lie nearest to the person's (the regression's estimates are the
-summary statistics) — their true parameters, jointly, so the dependence between parameters
-(gaze_gain × trust0) is kept. `predictive`: new sessions of those draws, for the
+(of those the estimator did not learn from) whose estimated parameters lie nearest to the
+person's (the regression's estimates are the summary statistics) — their true parameters,
+jointly, so the dependence between parameters (gaze_gain × trust0) is kept. `predictive`: new sessions of those draws, for the
 posterior-predictive check.
 """
 
@@ -43,7 +43,7 @@ class Prepared:
     estimator: QuantileEstimator
     cached: bool  # the table came from the cache
     trained: bool  # the estimator was trained now (False: read from the cache)
-    table_estimates: Estimates  # the estimator on every table person (for posterior draws)
+    table_estimates: Estimates  # the estimator on the table people it never learnt from
 
     @property
     def identifiable(self) -> dict[str, bool]:
@@ -64,7 +64,8 @@ def prepare(cfg: NodConfig, k: int, run: Mapper, cache: Path | None, seed: int =
             tmp = path.with_suffix(".tmp")
             tmp.write_bytes(pickle.dumps(estimator))
             tmp.replace(path)
-    return Prepared(table, estimator, cached, trained, estimator.predict(table.summaries))
+    held = estimator.held_out
+    return Prepared(table, estimator, cached, trained, estimator.predict(table.summaries[held]))
 
 
 def _load(path: Path) -> QuantileEstimator | None:
@@ -78,11 +79,12 @@ def _load(path: Path) -> QuantileEstimator | None:
 
 def posterior_draws(prep: Prepared, estimate: np.ndarray, n: int) -> np.ndarray:
     """The parameters of the n table people nearest to a person's estimates (n × P)."""
+    theta = prep.table.theta[prep.estimator.held_out]  # estimates out of sample, as a person's
     est = prep.table_estimates.estimate
-    scale = np.std(prep.table.theta, axis=0)
+    scale = np.std(theta, axis=0)
     scale[scale == 0] = 1.0
     d = np.sum(((est - estimate) / scale) ** 2, axis=1)
-    return prep.table.theta[np.argsort(d)[:n]]
+    return theta[np.argsort(d)[:n]]
 
 
 def person_config(cfg: NodConfig, names: Sequence[str], theta: np.ndarray) -> NodConfig:
@@ -99,7 +101,7 @@ def person_config(cfg: NodConfig, names: Sequence[str], theta: np.ndarray) -> No
 def predictive(cfg: NodConfig, prep: Prepared, estimates: Estimates, draws: int,
                run: Mapper) -> list[list[Simulated]]:
     """Per person, `draws` new sessions of their posterior draws (empty lists for 0 draws)."""
-    draws = min(draws, len(prep.table.theta))
+    draws = min(draws, len(prep.estimator.held_out))
     if draws <= 0:
         return [[] for _ in range(len(estimates.estimate))]
     jobs: list[tuple[NodConfig, int]] = []
