@@ -4,8 +4,8 @@
 person's posterior sample, by semi-automatic ABC (Fearnhead & Prangle 2012): the table people
 (of those the estimator did not learn from) whose estimated parameters lie nearest to the
 person's (the regression's estimates are the summary statistics) — their true parameters,
-jointly, so the dependence between parameters (gaze_gain × trust0) is kept. `predictive`: new sessions of those draws, for the
-posterior-predictive check.
+jointly, so the dependence between parameters (gaze_gain × trust0) is kept. `predictive`: new
+sessions of those draws, for the posterior-predictive check.
 """
 
 from __future__ import annotations
