@@ -26,6 +26,7 @@ from services.core.node import Node
 from services.experiment.console import SessionConsole
 from services.experiment.cues import CueLog
 from services.experiment.fields import GazeFields, TrialFields
+from services.experiment.hold import SessionHold
 from services.experiment.operator import OperatorGate
 from services.experiment.presses import RobotPresses
 from services.experiment.rig_watch import RigWatch
@@ -86,12 +87,12 @@ class Conductor:
         self.rig = RigWatch()
         if resume_at is not None:
             self.rig.begin(*resume_at)
+        self.hold = SessionHold(self.rig, self.console.note)
         self.protocol: SessionProtocol | None = None
         self._trial_start_ns = 0
         self._hands: OrderedDict[int, m.HandPose] = OrderedDict()
         self._last_hand_seq: int | None = None
         self._seq_regressions = 0  # in the current trial
-        self._held = False  # the session waits for the rig
         self.recording: tuple[Path, int] | None = None  # (file, started_ns) of `--record`
         self.pub_trial = node.publisher("experiment/trial")
         self.pub_result = node.publisher("experiment/result")
@@ -186,23 +187,6 @@ class Conductor:
 
     def _now_s(self) -> float:
         return self.node.clock.now_ns() * NS
-
-    def hear_the_devices(self, timeout_s: float) -> bool:
-        """Block until a state of each device has arrived, or `timeout_s` (wall) has passed.
-
-        Call it before `node.ready()`. A device in a safe stop because no conductor was alive
-        clears it as soon as it sees this conductor's liveliness token; a state carrying that
-        reason must reach this conductor first, or the stop during the gap is never stored
-        (seen under load: the token and the subscription reached the arm in one batch).
-        Devices not up yet are waited for later, by `wait_for_services`.
-        """
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline and not self.node.stop.is_set():
-            with self.node.lock:
-                if self.rig.heard_every_device():
-                    return True
-            time.sleep(0.01)
-        return False
 
     def wait_for_services(self, timeout_s: float) -> None:
         """Block until every required service's liveliness token is seen (wall clock)."""
@@ -305,8 +289,12 @@ class Conductor:
         open attempt as "conductor lost". Returns whether an attempt was open.
         """
         lost = self.store.open_attempt(self.session) if self.session else None
-        if lost is None:
-            return False
+        if lost is not None:
+            self._file_open_attempt(lost, why)
+        return lost is not None
+
+    def _file_open_attempt(self, lost: tuple[int, int, int], why: str) -> None:
+        """Store an attempt left open, (trial, attempt, t_start_ns), as an interruption."""
         trial, attempt, t_start_ns = lost
         with self.node.lock:
             self.trial_samples = None
@@ -316,7 +304,6 @@ class Conductor:
             self.session, Interruption(trial, attempt, t_start_ns, self._now_ns(), why),
             events, cues,
         )
-        return True
 
     def _attempts_so_far(
         self, first_trial: int, lost: tuple[int, int, int] | None
@@ -332,16 +319,10 @@ class Conductor:
         while first_trial <= n:
             made = self.store.attempts_made(self.session, first_trial)
             if lost is not None and lost[0] == first_trial:
-                trial, attempt, t_start_ns = lost
-                why = "conductor lost (it died mid-trial; the session was resumed)"
-                with self.node.lock:
-                    events = self.rig.take_events()
-                log.warning("trial %d (attempt %d) INTERRUPTED: %s", trial, attempt, why)
-                self.store.write_interruption(
-                    self.session, Interruption(trial, attempt, t_start_ns, self._now_ns(), why),
-                    events,
+                self._file_open_attempt(
+                    lost, "conductor lost (it died mid-trial; the session was resumed)"
                 )
-                made = max(made, attempt)
+                made = max(made, lost[1])
             if made == 0 or (self.proto.repeat_interrupted and made < self.proto.max_attempts):
                 return first_trial, made
             spec = self.proto.trials[first_trial - 1]  # out of attempts: never scored
@@ -365,20 +346,7 @@ class Conductor:
             self._wait(math.inf)
 
     def _rig_ready(self, quiet: bool = False) -> bool:
-        """Is the rig safe (and settled)? Says once when it is not, and when it is again.
-
-        `quiet`: a hold is expected now (the session's start); only an e-stop is said at once.
-        """
-        if self.rig.safe(self._now_ns()):
-            if self._held:
-                log.info("rig safe again: the session goes on")
-                self.console.note("rig safe again: the session goes on")
-                self._held = False
-            return True
-        if not self._held and not (quiet and not self.rig.estop_engaged):
-            log.warning("session held: %s", self.rig.why_unsafe())
-            self._held = True
-        return False
+        return self.hold.ready(self._now_ns(), quiet)
 
     def _keep_gaze_alive(self) -> None:
         """Repeat the current gaze command every GAZE_KEEPALIVE_NS (rig clock) until closed."""

@@ -33,6 +33,7 @@ from services.core import options_messages as om
 from services.core.node import Node
 from services.core.options_messages import check_count, same_count, values_for
 from services.experiment.fields import GazeFields
+from services.experiment.hold import SessionHold
 from services.experiment.rig_watch import RigWatch
 from services.experiment.waiting import wait_for_services
 from services.model.geometry import Point
@@ -90,8 +91,8 @@ class OptionsConductor:
         self.results: list[OptionsTrialRecord] = []
         self._centers: OrderedDict[int, Point] = OrderedDict()  # recent poses' hand centres
         self.rig = RigWatch()
+        self.hold = SessionHold(self.rig)
         self._trial_start_ns = 0
-        self._held = False
         self.pub_trial = node.publisher("options/trial")
         self.pub_result = node.publisher("options/result")
         self.pub_gaze = node.publisher("eyes/cmd")
@@ -227,15 +228,7 @@ class OptionsConductor:
 
     def _rig_ready(self) -> bool:
         """Is the rig safe (and settled)? Says once when it is not, and when it is again."""
-        if self.rig.safe(self.node.clock.now_ns()):
-            if self._held:
-                log.info("rig safe again: the session goes on")
-                self._held = False
-            return True
-        if not self._held:
-            log.warning("session held: %s", self.rig.why_unsafe())
-            self._held = True
-        return False
+        return self.hold.ready(self.node.clock.now_ns())
 
     def _wait_for_a_safe_rig(self) -> None:
         """Before the first trial: eyes neutral (kept alive), then wait until the rig is safe."""

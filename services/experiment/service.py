@@ -30,6 +30,7 @@ from services.experiment.order import participant_problem, session_config
 from services.experiment.params_check import ParamsCheck
 from services.experiment.recording import RecorderProcess, recorder_command, recording_path
 from services.experiment.resume import say_how_to_resume
+from services.experiment.waiting import hear_the_devices
 from services.model.protocol import order_of
 from services.store import Store
 from services.store.participants import next_free_ids, record_order
@@ -237,7 +238,8 @@ def main(argv: list[str] | None = None) -> int:
     conductor = Conductor(node, cfg, store, clicks, console, resume_at=resume_at)
     # The devices' states first, then this conductor's liveliness: a safe stop they hold
     # because no conductor ran is stored before they clear it (see `hear_the_devices`).
-    conductor.hear_the_devices(min(args.wait_services, HEAR_DEVICES_S))
+    hear_the_devices(node, conductor.rig.heard_every_device, min(args.wait_services,
+                                                                 HEAR_DEVICES_S))
     node.ready()
     session = args.resume or args.session or uuid.uuid4().hex[:12]
     recorder = None

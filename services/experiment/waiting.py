@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 from services.core.node import Node
 
@@ -36,3 +36,21 @@ def wait_for_services(
             seen = f"; on this router: {others} (--rig?)" if others else ""
             raise TimeoutError(f"services not alive after {timeout_s:.0f} s: {missing}{seen}")
         time.sleep(0.02)
+
+
+def hear_the_devices(node: Node, heard: Callable[[], bool], timeout_s: float) -> bool:
+    """Block until `heard()` (locked: a state of each device arrived) or `timeout_s` (wall).
+
+    Call it before `node.ready()`. A device in a safe stop because no conductor was alive
+    clears it as soon as it sees this conductor's liveliness token; a state carrying that
+    reason must reach the conductor first, or the stop during the gap is never stored (seen
+    under load: the token and the subscription reached the arm in one batch). Devices not up
+    yet are waited for later, by `wait_for_services`.
+    """
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not node.stop.is_set():
+        with node.lock:
+            if heard():
+                return True
+        time.sleep(0.01)
+    return False

@@ -1,0 +1,132 @@
+"""The session store's tables: one SQLite schema, created (IF NOT EXISTS) by every `Store`.
+
+Tables added later are migrated by `Store._migrate`; the N-option and the fit tables have
+modules of their own (`options.py`, `fits.py`).
+"""
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS sessions (
+    session     TEXT PRIMARY KEY,
+    participant TEXT NOT NULL,
+    rig         TEXT NOT NULL,
+    seed        INTEGER,
+    started_ns  INTEGER NOT NULL,
+    finished_ns INTEGER,
+    status      TEXT NOT NULL CHECK (status IN ('running', 'complete', 'aborted')),
+    config      TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS trials (
+    session     TEXT NOT NULL REFERENCES sessions(session),
+    trial       INTEGER NOT NULL,
+    mode        TEXT NOT NULL CHECK (mode IN ('dissensus', 'consensus')),
+    option      TEXT CHECK (option IN ('red', 'blue')),
+    gaze_level  TEXT NOT NULL,
+    yaw         REAL NOT NULL,
+    pitch       REAL NOT NULL,
+    t_go_ns     INTEGER,
+    t_end_ns    INTEGER,
+    human       TEXT CHECK (human IN ('red', 'blue')),
+    robot       TEXT CHECK (robot IN ('red', 'blue')),
+    outcome     TEXT CHECK (outcome IN ('C', 'CH', 'D', 'DH')),
+    switches    INTEGER NOT NULL,
+    violations  INTEGER NOT NULL,
+    clicks      INTEGER,
+    score       INTEGER NOT NULL,
+    end_reason  TEXT NOT NULL,
+    interrupted INTEGER NOT NULL DEFAULT 0,
+    attempts    INTEGER NOT NULL DEFAULT 1,
+    PRIMARY KEY (session, trial)
+);
+CREATE TABLE IF NOT EXISTS safety_events (
+    session TEXT NOT NULL,
+    trial   INTEGER NOT NULL,
+    attempt INTEGER NOT NULL,
+    t_ns    INTEGER NOT NULL,
+    device  TEXT NOT NULL,
+    event   TEXT NOT NULL CHECK (event IN ('safe_stop', 'clear', 'estop', 'release')),
+    reason  TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS safety_events_by_trial ON safety_events (session, trial, t_ns);
+CREATE TABLE IF NOT EXISTS rig_events (
+    session TEXT NOT NULL,
+    trial   INTEGER NOT NULL,
+    attempt INTEGER NOT NULL,
+    t_ns    INTEGER NOT NULL,
+    host    TEXT NOT NULL,
+    service TEXT NOT NULL,
+    kind    TEXT NOT NULL,
+    code    INTEGER,
+    text    TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS rig_events_by_trial ON rig_events (session, trial, t_ns);
+CREATE TABLE IF NOT EXISTS interruptions (
+    session    TEXT NOT NULL,
+    trial      INTEGER NOT NULL,
+    attempt    INTEGER NOT NULL,
+    t_start_ns INTEGER NOT NULL,
+    t_ns       INTEGER NOT NULL,
+    reason     TEXT NOT NULL,
+    PRIMARY KEY (session, trial, attempt)
+);
+CREATE TABLE IF NOT EXISTS cues (
+    session    TEXT NOT NULL,
+    trial      INTEGER NOT NULL,
+    attempt    INTEGER NOT NULL,
+    cue        TEXT NOT NULL,
+    planned_ns INTEGER NOT NULL,
+    played_ns  INTEGER NOT NULL
+);
+CREATE INDEX IF NOT EXISTS cues_by_trial ON cues (session, trial, planned_ns);
+CREATE TABLE IF NOT EXISTS open_attempts (
+    session    TEXT PRIMARY KEY REFERENCES sessions(session),
+    trial      INTEGER NOT NULL,
+    attempt    INTEGER NOT NULL,
+    t_start_ns INTEGER NOT NULL
+);
+CREATE TABLE IF NOT EXISTS samples (
+    session  TEXT NOT NULL,
+    trial    INTEGER NOT NULL,
+    t_ns     INTEGER NOT NULL,
+    detected INTEGER NOT NULL,
+    hand_x   REAL,
+    hand_y   REAL,
+    z_h      REAL,
+    z_r      REAL,
+    b_r      REAL,
+    ee_x     REAL,
+    ee_y     REAL,
+    theta    REAL,
+    distance REAL,
+    landmarks BLOB
+);
+CREATE INDEX IF NOT EXISTS samples_by_trial ON samples (session, trial, t_ns);
+CREATE TABLE IF NOT EXISTS questionnaires (
+    participant TEXT PRIMARY KEY,
+    q1          INTEGER NOT NULL CHECK (q1 BETWEEN 1 AND 10),
+    q2          INTEGER NOT NULL CHECK (q2 BETWEEN 1 AND 10),
+    q3          TEXT NOT NULL CHECK (q3 IN ('Yes', 'No', 'Maybe')),
+    q4          INTEGER NOT NULL CHECK (q4 BETWEEN 1 AND 10),
+    q5          INTEGER NOT NULL CHECK (q5 BETWEEN 1 AND 10),
+    entered_ns  INTEGER NOT NULL,
+    source      TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS recordings (
+    session    TEXT NOT NULL REFERENCES sessions(session),
+    path       TEXT NOT NULL,
+    started_ns INTEGER NOT NULL,
+    PRIMARY KEY (session, path)
+);
+CREATE TABLE IF NOT EXISTS participants (
+    participant  TEXT PRIMARY KEY,
+    consent      INTEGER NOT NULL CHECK (consent IN (0, 1)),
+    consented_ns INTEGER NOT NULL,
+    demographics TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS session_orders (
+    session     TEXT PRIMARY KEY,
+    participant TEXT NOT NULL,
+    options     TEXT NOT NULL,
+    again       TEXT,
+    recorded_ns INTEGER NOT NULL
+);
+"""
