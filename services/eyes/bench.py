@@ -152,13 +152,18 @@ def settle(
 
 @contextmanager
 def sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt too, so `kill` and Ctrl-C both end in neutral."""
+    """SIGTERM raises KeyboardInterrupt too, so `kill` and Ctrl-C both end in neutral.
+
+    SIGINT is set explicitly as well: a process started with SIGINT ignored (a job started
+    with `&` by a script, a test runner's worker) would otherwise ignore Ctrl-C and `kill -INT`.
+    """
 
     def handler(signum: int, frame: FrameType | None) -> None:
         raise KeyboardInterrupt
 
     try:
         old = signal.signal(signal.SIGTERM, handler)
+        old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     except ValueError:  # not the main thread (a test calling main): leave signals alone
         yield
         return
@@ -166,6 +171,7 @@ def sigterm_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, old)
+        signal.signal(signal.SIGINT, old_int)
 
 
 def targets_table(targets: ServoTargets) -> str:
