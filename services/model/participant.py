@@ -47,7 +47,11 @@ class ParticipantParams:
 
     agent: AgentParams = field(default_factory=lambda: AgentParams(gamma=3.0))  # γ_h > 0: follow
     preference_mean: float = 2.6  # |b_h| of the private preference, drawn per trial
-    preference_sd: float = 0.6
+    preference_sd: float = 0.6  # its trial-to-trial sd around the person's own mean
+    # Person-to-person sd of preference_mean: how much of the preference's variance lies between
+    # people rather than between one person's trials (a strong-willed person stays D, a pliant
+    # one CH, trial after trial: the consistency the paper's Fig 8b flows show).
+    preference_spread: float = 0.4
     gaze_gain: float = 7.0  # b_h pull per radian of gaze yaw, times trust (the cohort's median)
     # Person-to-person spread of gaze_gain (sd of its log): people differ a lot in how much they
     # use the eyes (the paper's Q2, "did you use the hints", has sd 3.8 on a 1-10 scale).
@@ -108,7 +112,8 @@ class ParticipantParams:
         for name in ("speed", "accel", "full_conviction", "hand_radius"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ParticipantParams.{name} must be > 0")
-        for name in ("gaze_gain_spread", "gaze_over_robot"):
+        for name in ("gaze_gain_spread", "gaze_over_robot", "preference_sd",
+                     "preference_spread"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"ParticipantParams.{name} must be >= 0")
         for name in ("rule_breaking", "control_switch_prob", "min_conviction",
@@ -355,7 +360,7 @@ def jittered(base: ParticipantParams, rng: np.random.Generator) -> ParticipantPa
 
     return replace(
         base,
-        preference_mean=max(0.5, rng.normal(base.preference_mean, 0.4)),
+        preference_mean=max(0.5, rng.normal(base.preference_mean, base.preference_spread)),
         trust0=max(0.1, rng.normal(base.trust0, 0.25)),
         gaze_gain=base.gaze_gain * math.exp(rng.normal(0.0, base.gaze_gain_spread)),
         reaction_s=max(0.1, rng.normal(base.reaction_s, 0.06)),

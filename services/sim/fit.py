@@ -61,14 +61,20 @@ class Trait:
 TRAITS: tuple[Trait, ...] = (
     Trait("control_switch_prob", 0.0, 1.0),
     Trait("preference_mean", 0.5, 5.0),
+    # How the preference's variance splits: trial to trial (sd) and person to person (spread).
+    Trait("preference_sd", 0.05, 1.0),
+    Trait("preference_spread", 0.0, 1.2),
     Trait("gaze_gain", 1.0, 15.0),
     Trait("gaze_gain_spread", 0.0, 1.5),
     Trait("trust0", 0.0, 2.0),
     Trait("trust_step", 0.0, 0.6),
     Trait("gaze_over_robot", 0.0, 5.0),
     Trait("speed", 0.2, 0.6),
-    Trait("full_conviction", 0.1, 1.0),
-    Trait("min_conviction", 0.0, 1.0),
+    # Bounded so that the hand's speed keeps carrying conviction: |z_h| is ≈ 0.1-0.5 in a trial,
+    # and with min_conviction > 0.35 or full_conviction > 0.8 every hand moved at one speed (a
+    # person's strength of preference then left no trace in their movement: docs/fit.md).
+    Trait("full_conviction", 0.2, 0.8),
+    Trait("min_conviction", 0.0, 0.35),
     # The strategic late switch of control trials (participant.py; its lead stays fixed at 0.1:
     # turns started closer to the commit line are read past it, as rule violations).
     Trait("late_switch_share", 0.0, 0.8),
