@@ -104,11 +104,25 @@ def from_mapping(cls: type[T], data: dict[str, Any], where: str = "") -> T:
         raise ConfigError(f"{where or cls.__name__}: {exc}") from None
 
 
+def without_option_set(data: dict[str, Any]) -> dict[str, Any]:
+    """A params mapping without its option set (`[protocol] options` and the trials naming them).
+
+    A file listing three or more options is the paper's `NodConfig` plus a schedule that only
+    the N-option runners read (`services.core.options_config`); every other reader of the file
+    (the eyes, the recorder, the launchers) takes the rest, so one file serves the whole rig.
+    """
+    protocol = data.get("protocol")
+    if not isinstance(protocol, dict) or "options" not in protocol:
+        return data
+    rest = {k: v for k, v in protocol.items() if k not in ("options", "trials")}
+    return {**data, "protocol": rest}
+
+
 def load_params(path: str | Path | None) -> NodConfig:
     """A rig's parameters: SPEC defaults, overridden by a TOML file when given."""
     if path is None:
         return NodConfig()
-    return from_mapping(NodConfig, load_toml(path))
+    return from_mapping(NodConfig, without_option_set(load_toml(path)))
 
 
 def as_dict(obj: Any) -> dict[str, Any]:

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from services.core.cli import int_in
-from services.core.config import ConfigError, from_mapping, load_toml
+from services.core.config import ConfigError, from_mapping, load_toml, without_option_set
 from services.model.options_schedule import MAX_OPTIONS, OptionsSchedule, schedule_from_table
 from services.model.params import NodConfig
 
@@ -28,8 +28,7 @@ def split_options(data: dict[str, Any]) -> tuple[dict[str, Any], OptionsSchedule
         schedule = schedule_from_table(protocol)
     except ValueError as exc:
         raise ConfigError(f"protocol: {exc}") from None
-    rest = {k: v for k, v in protocol.items() if k not in ("options", "trials")}
-    return {**data, "protocol": rest}, schedule
+    return without_option_set(data), schedule
 
 
 def load_with_options(

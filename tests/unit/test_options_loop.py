@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from services.core.config import ConfigError
+from services.core.config import ConfigError, load_params, params_hash
 from services.core.options_config import load_with_options
 from services.model.options_loop import OptionsOfflineTrial, run_options_session
 from services.model.options_schedule import OptionsSchedule
@@ -63,3 +63,17 @@ def test_a_params_file_selects_the_options(tmp_path: Path) -> None:
     f.write_text('[protocol]\noptions = ["red", "blue"]\n')
     with pytest.raises(ConfigError, match="paper's study"):
         load_with_options(f)
+
+
+def test_every_service_reads_a_file_listing_options_as_the_rigs_params(tmp_path: Path) -> None:
+    """The eyes, the recorder and the launchers read the file with `load_params`: the option set
+    and its trials are the N-option runners' own, the rest is the paper's (same hash as theirs)."""
+    f = tmp_path / "p.toml"
+    f.write_text('[protocol]\noptions = ["a", "b", "c"]\ntrial_timeout_s = 8.0\n'
+                 'trials = [{ index = 1, mode = "dissensus" }]\n')
+    cfg = load_params(f)
+    assert cfg.protocol.trial_timeout_s == 8.0
+    assert cfg.protocol.trials == NodConfig().protocol.trials  # not the options' trials
+    assert params_hash(cfg) == params_hash(load_with_options(f)[0])
+    f.write_text('[protocol]\ntrials = [{ index = 1, mode = "dissensus" }]\n')
+    assert len(load_params(f).protocol.trials) == 1  # the paper's own file keeps its trials
