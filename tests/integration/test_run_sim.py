@@ -13,7 +13,7 @@ from services.core.session import make_config, open_session
 from services.model.protocol import default_schedule
 from tests.processes import run_nod
 
-from .conftest import ROOT, free_port, wait_for
+from .conftest import ROOT, SHORT, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -188,7 +188,9 @@ def test_full_session_through_the_rendered_camera_path(tmp_path):
     from services.monitor.bridge import rrd_rows
 
     db, rrd = tmp_path / "render.sqlite", tmp_path / "render.rrd"
-    run = _run_sim(db, "--render", f"--monitor=--save {rrd}", speed="3")
+    params = tmp_path / "short.toml"  # three trials: one control, two consensus
+    params.write_text(SHORT)
+    run = _run_sim(db, "--render", f"--monitor=--save {rrd}", "--params", str(params), speed="3")
     assert run.returncode == 0, run.stdout + run.stderr
     rows, _ = rrd_rows(rrd)
     # vision publishes 2 frames/s, the sim's camera 30 (and the hand is drawn at 30 Hz): had the
@@ -207,11 +209,11 @@ def test_full_session_through_the_rendered_camera_path(tmp_path):
     assert "hand poses published" in vision_log
     con = sqlite3.connect(db)
     trials = con.execute("SELECT trial, option, human, robot FROM trials ORDER BY trial").fetchall()
-    assert len(trials) == 8
-    assert sum(h is not None for _, _, h, _ in trials) >= 6  # presses seen through the camera
-    assert sum(r == o for _, o, _, r in trials[3:]) >= 4
+    assert len(trials) == 3
+    assert sum(h is not None for _, _, h, _ in trials) >= 2  # presses seen through the camera
+    assert sum(r == o for _, o, _, r in trials[1:]) >= 1
     sources = con.execute("SELECT COUNT(*) FROM samples WHERE hand_x IS NOT NULL").fetchone()[0]
-    assert sources > 100
+    assert sources > 50
 
 
 def test_a_sim_session_recorded_by_the_monitor_reads_back(tmp_path):
