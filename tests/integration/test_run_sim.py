@@ -155,14 +155,16 @@ def test_a_small_study_stores_one_session_per_participant(tmp_path):
     import sqlite3
 
     db = tmp_path / "study.sqlite"
-    run = _run_sim(db, "--participants", "2")
+    params = tmp_path / "short.toml"
+    params.write_text(SHORT)
+    run = _run_sim(db, "--participants", "2", "--params", str(params))
     assert run.returncode == 0, run.stdout + run.stderr
     assert "P01:" in run.stdout and "P02:" in run.stdout
     con = sqlite3.connect(db)
     sessions = con.execute("SELECT participant, seed, status FROM sessions ORDER BY participant")
     assert sessions.fetchall() == [("P01", 1, "complete"), ("P02", 2, "complete")]
     per_session = con.execute("SELECT session, COUNT(*) FROM trials GROUP BY session").fetchall()
-    assert [n for _, n in per_session] == [8, 8]
+    assert [n for _, n in per_session] == [3, 3]
 
 
 def test_bad_run_arguments_are_one_line_errors():
