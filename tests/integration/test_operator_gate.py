@@ -26,7 +26,9 @@ def _rig(spawn, params: str, epoch: str) -> None:
 
 
 def _setups(events: Collector) -> list[int]:
-    return [e.trial for e in events.messages if e.phase == "setup"]
+    """The trials set up so far, in order; a repeated attempt (a loaded host's stale input can
+    break one, and the paper's rule repeats it) is the same trial, not a new one."""
+    return list(dict.fromkeys(e.trial for e in events.messages if e.phase == "setup"))
 
 
 def _operator(endpoint: str, action: str) -> None:
