@@ -58,7 +58,12 @@ def test_every_countdown_word_and_go_is_played_reported_stored_and_exported(
     assert conductor.wait(180) == 0, conductor.log_path.read_text()[-2000:]
 
     cues = [(e.trial, e.text, e.t_ns) for e in events.messages if e.phase in ("countdown", "go")]
-    assert [c[1] for c in cues] == ["1", "2", "3", "go"] * 3
+    # Each attempt counts 1, 2, 3 and says go. A loaded host may break an attempt (a stale
+    # input) and the paper's rule repeats it, so a trial's countdown may start again.
+    for trial in (1, 2, 3):
+        words = [w for t, w, _ in cues if t == trial]
+        assert words[-4:] == ["1", "2", "3", "go"], (trial, words)
+    assert {t for t, _, _ in cues} == {1, 2, 3}, cues
     wait_for(lambda: len(played.messages) >= len(cues), 10, "every cue reported")
     got = [(p.trial, p.cue, p.planned_ns) for p in played.messages]
     assert got == cues, got
@@ -85,7 +90,7 @@ def test_every_countdown_word_and_go_is_played_reported_stored_and_exported(
         "SELECT trial, attempt, cue, planned_ns, played_ns FROM cues ORDER BY planned_ns"
     ).fetchall()
     assert [(t, c, p) for t, _, c, p, _ in db_rows] == cues
-    assert all(a == 1 for _, a, _, _, _ in db_rows)
+    assert all(a >= 1 for _, a, _, _, _ in db_rows)
     assert all(0 <= (played - planned) / 1e6 / SPEED <= LATE_MS
                for *_, planned, played in db_rows)
     out = tmp_path / "csv"
