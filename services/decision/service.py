@@ -58,19 +58,23 @@ class DecisionService:
             if self.out_of_order <= 10 or self.out_of_order % 100 == 0:
                 log.warning("hand pose seq %d is not newer than the last one; ignored", pose.seq)
             return
-        if self._last_seq is not None and pose.seq > self._last_seq + 1:
-            log.debug("hand poses %d..%d missing", self._last_seq + 1, pose.seq - 1)
-        self._last_seq = pose.seq
-        out = self.model.on_hand(pose.t_ns, pose.landmarks if pose.detected else None)
-        # Publish with the pose's timestamp: the values describe the state at that instant.
-        # z_r first: it is what the arm waits for.
-        self.pub_zr.put(t_ns=pose.t_ns, value=out.z_r, src_seq=pose.seq)
+        # z_r first, before the pose is even read: it is what the arm waits for, and at the
+        # pose's time it depends only on the interval before (ẑ_h held), whose full RK4 steps
+        # `look_ahead` took after the previous pose. Published with the pose's timestamp: the
+        # values describe the state at that instant.
+        self.model.advance(pose.t_ns)
+        self.pub_zr.put(t_ns=pose.t_ns, value=self.model.z_r, src_seq=pose.seq)
+        out = self.model.read(pose.landmarks if pose.detected else None)
         obs = out.observation
         self.pub_zh.put(
             t_ns=pose.t_ns, value=out.z_hat, src_seq=pose.seq, theta=obs.theta,
             distance=obs.distance,
         )
         self.pub_br.put(t_ns=pose.t_ns, value=out.b_r, src_seq=pose.seq)
+        if self._last_seq is not None and pose.seq > self._last_seq + 1:
+            log.debug("hand poses %d..%d missing", self._last_seq + 1, pose.seq - 1)
+        self._last_seq = pose.seq
+        self.model.look_ahead()  # the next interval's steps, while no pose waits
 
     def on_layout(self, msg: m.Layout) -> None:
         """Use the geometry vision (or the sim) published."""

@@ -137,6 +137,8 @@ class DecisionModel:
         self._z_r = 0.0
         self._b_r = 0.0
         self._t_ns: int | None = None
+        self._ahead: list[tuple[float, float]] | None = None  # `look_ahead`'s states
+        self._last_gap_ns = 0
         self._observer.reset()
         self._observation = Observation(0.0, None, None, None, None, None, False, False)
         if mode == "consensus" and option is not None:
@@ -173,14 +175,47 @@ class DecisionModel:
         A timestamp that does not advance (repeated or out of order) is not integrated and the
         pose is not read; the current state is returned with the previous t_ns.
         """
+        if not self.advance(t_ns):
+            return self._output()
+        return self.read(landmarks)
+
+    def advance(self, t_ns: int) -> bool:
+        """Integrate (z_r, b_r) to t_ns with the held ẑ_h; False if t_ns does not advance.
+
+        The first half of `on_hand`: z_r at the pose's time does not depend on the pose itself
+        (ẑ_h is held over the interval), so a caller can publish it before `read` the pose.
+        """
         if self._t_ns is not None:
             gap_ns = t_ns - self._t_ns
             if gap_ns <= 0:
-                return self._output()
+                return False
             self._integrate(min(gap_ns, self._max_gap_ns), self._observer.z_hat)
+            self._last_gap_ns = gap_ns
         self._t_ns = t_ns
-        self._observation = self._observer.update(landmarks, t_ns * 1e-9)
+        return True
+
+    def read(self, landmarks: Sequence[Point] | None) -> DecisionOutput:
+        """The second half of `on_hand`: update ẑ_h from the pose at the time `advance` set."""
+        if self._t_ns is None:
+            raise RuntimeError("DecisionModel.read before advance: call advance(t_ns) first")
+        self._observation = self._observer.update(landmarks, self._t_ns * 1e-9)
         return self._output()
+
+    def look_ahead(self) -> None:
+        """Integrate the next interval's full steps now, before its pose arrives.
+
+        Between two poses ẑ_h is held, so the states after each full RK4 step from the last pose
+        on are known before the next pose: computed here (e.g. once the outputs are out), the
+        next `advance` only looks up its state and takes the last, shorter step. The steps are
+        those `advance` would take, in the same order, so every value is bit for bit the same;
+        as many as the last gap had plus two (a late pose integrates the rest itself).
+        """
+        if self._t_ns is None or self._ahead is not None:
+            return
+        n = min(self._last_gap_ns, self._max_gap_ns) // self._dt_ns + 2
+        path: list[tuple[float, float]] = []
+        self._run(self._z_r, self._b_r, self._observer.z_hat, n, self._dt_ns * 1e-9, path)
+        self._ahead = path
 
     def _output(self) -> DecisionOutput:
         z_hat = self._observer.z_hat
@@ -196,6 +231,28 @@ class DecisionModel:
     def _integrate(self, span_ns: int, z_hat: float) -> None:
         """RK4 over span_ns in steps of dt (the last one shorter), ẑ_h held (eq 1 and eq 6).
 
+        Full steps already taken by `look_ahead` are looked up, not recomputed.
+        """
+        n_full, rest_ns = divmod(span_ns, self._dt_ns)
+        z_r, b_r = self._z_r, self._b_r
+        ahead, self._ahead = self._ahead, None
+        if ahead:
+            known = min(n_full, len(ahead))
+            if known:
+                z_r, b_r = ahead[known - 1]
+            n_full -= known
+        if n_full:
+            z_r, b_r = self._run(z_r, b_r, z_hat, n_full, self._dt_ns * 1e-9)
+        if rest_ns:
+            z_r, b_r = self._run(z_r, b_r, z_hat, 1, rest_ns * 1e-9)
+        self._z_r, self._b_r = z_r, b_r
+
+    def _run(
+        self, z_r: float, b_r: float, z_hat: float, n: int, h: float,
+        path: list[tuple[float, float]] | None = None,
+    ) -> tuple[float, float]:
+        """Take n RK4 steps of h from (z_r, b_r), ẑ_h held; each step's state appended to `path`.
+
         The equations are `opinion_rate` (eq 1) and `bias_rate` (eq 6), the same functions the
         analysis and the tests use; the RK4 stages are written out for the pair (z_r, b_r) on
         plain floats because this runs ~8 steps per pose at 120 Hz (~33 at 30 Hz), where a
@@ -208,13 +265,8 @@ class DecisionModel:
         consensus = self._mode == "consensus"
         sigma, beta, b_star = self._sigma, self._beta, self._b_star
         b_max = self._params.bias.b_max
-        z_r, b_r = self._z_r, self._b_r
-        n_full, rest_ns = divmod(span_ns, self._dt_ns)
-        steps = [self._dt_ns * 1e-9] * n_full
-        if rest_ns:
-            steps.append(rest_ns * 1e-9)
-        for h in steps:
-            hh = 0.5 * h
+        hh = 0.5 * h
+        for _ in range(n):
             k1z = rate(z_r, z_hat, b_r, d, u, alpha, gamma_a, tanh)
             # The freeze (eq 6 runs only while z_r · ẑ_h < 0) is decided once per step from the
             # state at its start: switching it inside the RK4 stages would make the right-hand
@@ -243,4 +295,6 @@ class DecisionModel:
                 k3z = rate(z_r + hh * k2z, z_hat, b_r, d, u, alpha, gamma_a, tanh)
                 k4z = rate(z_r + h * k3z, z_hat, b_r, d, u, alpha, gamma_a, tanh)
             z_r += (h / 6.0) * (k1z + 2.0 * k2z + 2.0 * k3z + k4z)
-        self._z_r, self._b_r = z_r, b_r
+            if path is not None:
+                path.append((z_r, b_r))
+        return z_r, b_r

@@ -210,3 +210,66 @@ def test_state_stays_finite_and_bounded(seq, mode):
         assert math.isfinite(out.z_r) and abs(out.z_r) <= bound + 1e-9
         assert abs(out.b_r) <= model.params.bias.b_max
         assert out.dissensus == (out.z_r * out.z_hat < 0)
+
+
+def look_ahead_matches(events, trial) -> None:
+    """Drive one model by `on_hand`, another as the service does; every output must agree.
+
+    `events`: (gap ns, event) with event "pose", "no hand", "setup" or "go"; the hand reaches
+    up-right from (0.5, 0.85) pose by pose.
+    """
+    plain, ahead = DecisionModel(), DecisionModel()
+    for model in (plain, ahead):
+        model.reset(*trial)
+    t, k = 0, 0
+    for gap, what in events:
+        t += gap
+        if what in ("setup", "go"):
+            assert plain.on_trial(what, *trial) == ahead.on_trial(what, *trial)
+            continue
+        k += 1
+        pts = [(0.5 + 0.01 * k, 0.85 - 0.012 * k)] * 21 if what == "pose" else None
+        expected = plain.on_hand(t, pts)
+        if ahead.advance(t):
+            z_r_first = ahead.z_r
+            got = ahead.read(pts)
+            assert z_r_first == got.z_r
+        else:
+            got = ahead.on_hand(t, pts)
+        ahead.look_ahead()
+        assert got == expected
+
+
+@pytest.mark.parametrize("trial", [("dissensus", None), ("consensus", "red")])
+def test_look_ahead_changes_no_value_when_poses_come_late_early_or_stale(trial):
+    # The decision service publishes z_r after `advance`, reads the pose, then `look_ahead`s
+    # the next interval: every output must be bit for bit what `on_hand` alone gives.
+    camera = [(33_333_333, "pose")] * 12
+    irregular = [(50_000_000, "pose"), (20_000_000, "pose"), (33_333_333, "pose"),
+                 (0, "pose"), (-5, "pose"), (700_000_000, "pose"), (33_000_000, "no hand"),
+                 (34_000_001, "pose"), (1, "pose"), (10_000_000, "go"), (33_333_333, "pose")]
+    look_ahead_matches(camera + irregular + camera, trial)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.one_of(  # the gap to the last pose (ns): camera periods, late, early, stale
+                st.sampled_from([33_333_333, 8_333_333, 41_000_000, 0, -1, 700_000_000]),
+                st.integers(-2_000_000, 80_000_000),
+            ),
+            st.sampled_from(["pose", "pose", "pose", "no hand", "setup", "go"]),
+        ),
+        min_size=1,
+        max_size=60,
+    ),
+    st.sampled_from([("dissensus", None), ("consensus", "red"), ("consensus", "blue")]),
+)
+def test_look_ahead_changes_no_value(events, trial):
+    look_ahead_matches(events, trial)
+
+
+def test_read_before_advance_says_what_to_do():
+    with pytest.raises(RuntimeError, match="advance"):
+        DecisionModel().read([(0.5, 0.8)])
