@@ -9,8 +9,8 @@ process under the run is read from /proc. Afterwards:
   peak (one value per participant after warm-up), must stay within 10 % of their lowest
   (`rig_probe.rss_verdict`). Warm-up: until participant `--warmup` (default max(2, N/10)) has
   begun: imports, zenoh's buffers and the allocator's arenas settle over the first people;
-- trials: every participant has one session, complete, with its 8 trials stored and none
-  interrupted (0 lost);
+- trials: every participant has one session, complete, with its 8 trials stored (0 lost) and
+  none stored interrupted (a trial the safety broke on every attempt: its reasons are printed);
 - store: `PRAGMA integrity_check` is "ok" and `PRAGMA foreign_key_check` finds nothing.
 
 Prints a table per service and exits 1 on any miss.
@@ -54,10 +54,17 @@ def store_check(db: str, participants: int) -> list[str]:
             problems.append(f"{len(sessions)} sessions of {len(people)} participants stored, "
                             f"{participants} expected")
         for session, person, status in sessions:
-            done = con.execute("SELECT COUNT(DISTINCT trial) FROM trials WHERE session = ? AND "
-                               "interrupted = 0", (session,)).fetchone()[0]
-            if status != "complete" or done != TRIALS:
-                problems.append(f"{person}: session {status}, {done}/{TRIALS} trials stored")
+            stored, whole = con.execute(
+                "SELECT COUNT(DISTINCT trial), COUNT(DISTINCT CASE WHEN interrupted = 0 THEN trial "
+                "END) FROM trials WHERE session = ?", (session,)).fetchone()
+            if status != "complete" or stored != TRIALS:
+                problems.append(f"{person}: session {status}, {stored}/{TRIALS} trials stored")
+            elif whole != TRIALS:
+                why = [r[0] for r in con.execute(
+                    "SELECT reason FROM interruptions WHERE session = ? ORDER BY t_ns",
+                    (session,))]
+                problems.append(f"{person}: {TRIALS - whole} of {TRIALS} trials stored "
+                                f"interrupted ({len(why)} breaks: {'; '.join(why[:3])})")
         return problems
     finally:
         con.close()
@@ -71,17 +78,21 @@ def main() -> int:
     ap.add_argument("--every", type=float, default=2.0, help="seconds between memory samples")
     ap.add_argument("--warmup", type=int, default=None, help="participants of warm-up")
     ap.add_argument("--tolerance", type=float, default=0.10)
+    ap.add_argument("--keep", default=None, metavar="DIR",
+                    help="write the store and logs to DIR (kept) instead of a temporary folder")
     args = ap.parse_args()
     warmup = args.warmup if args.warmup is not None else max(2, args.participants // 10)
     folder = tempfile.TemporaryDirectory(prefix="nod-soak-")
-    db = os.path.join(folder.name, "soak.sqlite")
+    where = args.keep or folder.name
+    os.makedirs(where, exist_ok=True)
+    db = os.path.join(where, "soak.sqlite")
     cmd = [sys.executable, "-m", "services.cli", "run", "--sim", "--participants",
            str(args.participants), "--speed", repr(args.speed), "--db", db,
            "--listen", f"tcp/127.0.0.1:{free_port()}"]
     long_lived: dict[str, list[float]] = defaultdict(list)  # after warm-up, MB
     peaks: dict[tuple[str, int], tuple[int, float]] = {}  # (service, pid) → (person, MB)
     started = time.monotonic()
-    with open(os.path.join(folder.name, "run.log"), "w") as log:
+    with open(os.path.join(where, "run.log"), "w") as log:
         proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
                                 start_new_session=True)
     person = 0  # the participant running: how many conductors we have seen start
@@ -128,7 +139,7 @@ def main() -> int:
         print("no memory samples after warm-up: run more participants than --warmup")
         ok = False
     if code != 0:
-        with open(os.path.join(folder.name, "run.log")) as f:
+        with open(os.path.join(where, "run.log")) as f:
             print("nod run's last lines:", *f.read().splitlines()[-8:], sep="\n  ")
     problems = store_check(db, args.participants)
     for p in problems[:20]:
