@@ -1,4 +1,4 @@
-"""The scale and soak benchmarks' pure helpers: seq gaps, hand → z_r pairs, the RSS verdict."""
+"""The scale and soak benchmarks' helpers: seq gaps, pose → z_r pairs, RSS verdict, store check."""
 
 from __future__ import annotations
 
@@ -6,6 +6,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from benchmarks.rig_probe import Hot, rss_verdict, seq_gaps, service_name
+from benchmarks.soak import store_check
+from services.store import Interruption, Store, TrialRecord
 
 
 def test_seq_gaps_counts_missing_messages_and_not_restarts():
@@ -49,3 +51,30 @@ def test_service_name_reads_a_command_line():
     assert service_name([*py, "run", "--sim", "--join", "--rig", "rig3"]) == ("rig3", "launcher")
     assert service_name([*py, "run", "--sim", "--rigs", "4"]) == ("lab", "router")
     assert service_name(["/usr/bin/bash", "-c", "true"]) is None
+
+
+def _trial(n: int, interrupted: bool = False) -> TrialRecord:
+    return TrialRecord(n, "dissensus", None, "neutral", 0.0, 0.0, 10**9, 2 * 10**9, "red",
+                       "blue", "D", 0, 0, 10, 0, "human pressed", interrupted=interrupted)
+
+
+def test_soak_store_check_tells_lost_from_interrupted_trials(tmp_path):
+    db = tmp_path / "soak.sqlite"
+    store = Store(db)
+    for k, person in enumerate(("P01", "P02", "P03")):
+        store.begin_session(f"s{k}", person, "rig1", k, 10**9 * k, {})
+        for n in range(1, 9):
+            if person == "P02" and n == 5:
+                continue  # lost: never stored
+            broken = person == "P03" and n == 8
+            if broken:
+                store.write_interruption(f"s{k}", Interruption(8, 3, 10**9, 2 * 10**9,
+                                                               "safe stop: stale vision/hand"))
+            store.write_trial(f"s{k}", _trial(n, interrupted=broken), [])
+        store.finish_session(f"s{k}", 10**10)
+    store.close()
+    problems = store_check(str(db), 3)
+    assert problems[0] == "P02: session complete, 7/8 trials stored"
+    assert problems[1].startswith("P03: 1 of 8 trials stored interrupted (1 breaks: safe stop")
+    assert len(problems) == 2
+    assert store_check(str(db), 4)[0] == "3 sessions of 3 participants stored, 4 expected"
