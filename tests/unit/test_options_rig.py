@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from services.model.arm import SimArm
@@ -17,7 +17,7 @@ from services.model.gaze import GAZE_LEVEL_NAMES
 from services.model.geometry import CommitLine, TableLayout
 from services.model.options import OptionsParams, leading_option, option_vector
 from services.model.options_arm import OptionsSimArm
-from services.model.options_behaviour import OptionsCommand, leader_or_nearest_tie
+from services.model.options_behaviour import TIE_TOLERANCE, OptionsCommand, leader_or_nearest_tie
 from services.model.options_bias import advance_robot
 from services.model.options_floats import advance
 from services.model.options_gaze import cue_strength, gaze_toward, read_gaze
@@ -61,12 +61,15 @@ def test_a_dissensus_tie_goes_to_the_nearest_tied_box() -> None:
     assert leader_or_nearest_tie(np.array([0.1, 0.3, -0.4]), layout, (0.9, 0.2)) == 1
 
 
+@example(x=TIE_TOLERANCE, ex=0.0)  # the two are 2e-9 apart: a leader (hypothesis found it)
+@example(x=TIE_TOLERANCE / 2, ex=0.0)  # exactly the tolerance apart: a tie
 @given(st.floats(-3, 3, allow_nan=False), st.floats(0.0, 1.0))
 def test_two_boxes_tie_rule_is_the_sign_outside_the_tolerance(x: float, ex: float) -> None:
     layout = OptionsLayout.from_table(TableLayout())
     z = np.array([x, -x])
     got = leader_or_nearest_tie(z, layout, (ex, 0.2))
-    if abs(x) > 1e-9:
+    # A tie is two values within the tolerance of each other: here |x - (-x)| = 2|x|.
+    if 2 * abs(x) > TIE_TOLERANCE:
         assert got == leading_option(z)
     else:
         assert got is None
