@@ -134,7 +134,10 @@ def test_a_2s_link_cut_safe_stops_the_arm_and_it_resumes_without_a_restart(tmp_p
         print(f"\nlink cut 2 s: safe stop after {to_stop * 1e3:.0f} ms, "
               f"clear {to_clear * 1e3:.0f} ms after the link returned")
         assert to_stop <= 0.25 + 0.1 + 0.05  # the bound, a tick, the log's ms rounding
-        assert to_clear <= 1.0
+        # Back within 2 s: after a 2 s cut TCP's next retransmission (RTO backoff from 200 ms:
+        # 0.2, 0.6, 1.4, 3.0 s after the first loss) comes about 1 s after the link returns, so
+        # ~1 s is the transport's, not the rig's (1.02 s measured in a clean-clone run).
+        assert to_clear <= 2.0
         assert "stale" in log.split("SAFE STOP", 2)[-1].splitlines()[0]
         assert arm.poll() is None and log.count("up on rig") == 1  # no restart
     finally:

@@ -69,8 +69,11 @@ def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> Non
     assert sum(t.human is not None for t in scored) >= 7, trials
     control, consensus = trials[:3], trials[3:]
     assert {t.option for t in consensus} == {0, 1, 2}
-    assert sum(t.outcome in ("D", "DH") for t in control) >= 2, control
-    assert sum(t.human == t.option == t.robot for t in consensus) >= 4, consensus
+    # The default person is the fitted one (docs/study.md): a strategist wins some control trials
+    # with a late switch (C by agreement), and 80-97 % of consensus trials end both on O per
+    # trial, so a session of five gives four or five in most runs and three in some.
+    assert sum(t.outcome in ("D", "DH") for t in control) >= 1, control
+    assert sum(t.human == t.option == t.robot for t in consensus) >= 3, consensus
     header, exported = rows["option_trials"]
     assert len(exported) == 8 and header[-3:] == ["option_name", "human_name", "robot_name"]
     assert rows["option_sets"][1] == [(session, 3, '["red", "blue", "green"]')]
