@@ -145,3 +145,18 @@ def connect_when_listening(
             if time.monotonic() > deadline or (alive is not None and not alive()):
                 raise
             time.sleep(0.05)
+
+
+def assert_estop_broke_trial_2_and_every_break_was_repeated(trials, broken, context: str) -> None:
+    """A 3-trial session whose trial 2 an e-stop ("bump") broke once: every trial stored once,
+    and every broken start repeated by the paper's rule (a loaded host's stale inputs may break an
+    attempt too); a trial is stored interrupted only after its last attempt broke as well."""
+    assert [t.trial for t in trials] == [1, 2, 3], context
+    by_estop = [b for b in broken if "bump" in b.reason]
+    assert [(b.trial, b.attempt) for b in by_estop] == [(2, 1)], context
+    assert "e-stop" in by_estop[0].reason, context
+    for t in trials:
+        starts = [b for b in broken if b.trial == t.trial]
+        assert t.attempts == len(starts) + (0 if t.interrupted else 1), context
+        assert not t.interrupted or t.attempts == 3, context
+    assert trials[1].attempts >= 2, context
