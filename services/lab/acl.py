@@ -40,8 +40,15 @@ from dataclasses import dataclass
 from services.core.contract import TOPICS
 
 ALL_MESSAGES = (
-    "put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
-    "liveliness_token", "declare_liveliness_subscriber", "liveliness_query",
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "reply",
+    "declare_queryable",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
 )
 LAUNCHER = "launcher"  # the contract's name of a `nod up` process
 MONITOR = "monitor"
@@ -135,7 +142,10 @@ def lab_identities(roles: list[str], rigs: list[str]) -> list[Identity]:
 
 def _rule(rule_id: str, messages: list[str], keys: list[str], flow: str = "ingress") -> dict:
     return {
-        "id": rule_id, "permission": "allow", "flows": [flow], "messages": messages,
+        "id": rule_id,
+        "permission": "allow",
+        "flows": [flow],
+        "messages": messages,
         "key_exprs": keys,
     }
 
@@ -148,8 +158,12 @@ def acl(ids: list[Identity]) -> dict:
     # subscription in the lab (who listens is no secret), or a rig's camera would never send to
     # the lab view's `nod/*/rig/status`. The samples themselves go only where `deliver` allows.
     rules: list[dict] = [
-        _rule("interest", ["declare_subscriber", "declare_liveliness_subscriber"], ["nod/**"],
-              flow="egress"),
+        _rule(
+            "interest",
+            ["declare_subscriber", "declare_liveliness_subscriber"],
+            ["nod/**"],
+            flow="egress",
+        ),
     ]
     for rig in rigs:
         ns = f"nod/{rig}"
@@ -158,8 +172,16 @@ def acl(ids: list[Identity]) -> dict:
             _rule(f"deliver:{rig}", list(ALL_MESSAGES), [f"{ns}/**"], flow="egress"),
             # Every identity may listen to its rig, see who is alive, and query (the layout,
             # the latch).
-            _rule(f"observe:{rig}", ["declare_subscriber", "declare_liveliness_subscriber",
-                                     "liveliness_query", "query"], [f"{ns}/**"]),
+            _rule(
+                f"observe:{rig}",
+                [
+                    "declare_subscriber",
+                    "declare_liveliness_subscriber",
+                    "liveliness_query",
+                    "query",
+                ],
+                [f"{ns}/**"],
+            ),
         ]
     subjects, policies = [], []
     for ident in ids:
@@ -169,13 +191,15 @@ def acl(ids: list[Identity]) -> dict:
             return [f"nod/{rig}/{k}" for rig in ident.rigs for k in names]
 
         rules.append(_rule(f"{n}-publish", ["put"], keys(ident.publishes()) or keys(["-none-"])))
-        rules.append(_rule(f"{n}-alive", ["liveliness_token"],
-                           keys([f"alive/{s}" for s in ident.services])))
+        rules.append(
+            _rule(f"{n}-alive", ["liveliness_token"], keys([f"alive/{s}" for s in ident.services]))
+        )
         names = [f"{n}-publish", f"{n}-alive", "interest"]
         names += [f"{what}:{rig}" for rig in ident.rigs for what in ("deliver", "observe")]
         if ident.answers():
-            rules.append(_rule(f"{n}-answer", ["declare_queryable", "reply"],
-                               keys(ident.answers())))
+            rules.append(
+                _rule(f"{n}-answer", ["declare_queryable", "reply"], keys(ident.answers()))
+            )
             names.append(f"{n}-answer")
         subjects.append({"id": n, "cert_common_names": [n]})
         policies.append({"id": n, "rules": names, "subjects": [n]})

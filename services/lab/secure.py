@@ -63,10 +63,12 @@ def _key() -> ec.EllipticCurvePrivateKey:
 
 
 def _name(common: str) -> x509.Name:
-    return x509.Name([
-        x509.NameAttribute(NameOID.ORGANIZATION_NAME, "nod-hri lab"),
-        x509.NameAttribute(NameOID.COMMON_NAME, common),
-    ])
+    return x509.Name(
+        [
+            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "nod-hri lab"),
+            x509.NameAttribute(NameOID.COMMON_NAME, common),
+        ]
+    )
 
 
 def _alt_names(hosts: list[str]) -> list[x509.GeneralName]:
@@ -94,9 +96,15 @@ def make_ca(days: int) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
         .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
         .add_extension(
             x509.KeyUsage(
-                digital_signature=False, content_commitment=False, key_encipherment=False,
-                data_encipherment=False, key_agreement=False, key_cert_sign=True,
-                crl_sign=True, encipher_only=False, decipher_only=False,
+                digital_signature=False,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                key_cert_sign=True,
+                crl_sign=True,
+                encipher_only=False,
+                decipher_only=False,
             ),
             critical=True,
         )
@@ -106,7 +114,10 @@ def make_ca(days: int) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
 
 
 def make_host(
-    name: str, hosts: list[str], ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate,
+    name: str,
+    hosts: list[str],
+    ca_key: ec.EllipticCurvePrivateKey,
+    ca: x509.Certificate,
     days: int,
 ) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
     """An identity's certificate: common name = its name (what the ACL matches), both TLS sides."""
@@ -176,8 +187,14 @@ def _common(tls: dict) -> dict:
 
 
 def secure(
-    out: Path, roles: list[str], rig: str | list[str], router_host: str, port: int, days: int,
-    install_dir: Path, listen: str | None = None,
+    out: Path,
+    roles: list[str],
+    rig: str | list[str],
+    router_host: str,
+    port: int,
+    days: int,
+    install_dir: Path,
+    listen: str | None = None,
 ) -> list[Path]:
     """Write the CA, every identity with its client config, and the router's; return the files.
 
@@ -214,8 +231,12 @@ def secure(
 
 
 def _write_cert(
-    folder: Path, name: str, router_host: str | None, ca_key: ec.EllipticCurvePrivateKey,
-    ca: x509.Certificate, days: int,
+    folder: Path,
+    name: str,
+    router_host: str | None,
+    ca_key: ec.EllipticCurvePrivateKey,
+    ca: x509.Certificate,
+    days: int,
 ) -> list[Path]:
     """An identity's key, certificate and the CA's certificate, in its folder."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -229,8 +250,14 @@ def _write_cert(
 
 
 def _write_identity(
-    out: Path, install_dir: Path, ident: Identity, router_host: str, port: int,
-    ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate, days: int,
+    out: Path,
+    install_dir: Path,
+    ident: Identity,
+    router_host: str,
+    port: int,
+    ca_key: ec.EllipticCurvePrivateKey,
+    ca: x509.Certificate,
+    days: int,
 ) -> list[Path]:
     folder = out / ident.folder
     # On a single rig the router speaks with the control station's certificate.
@@ -290,8 +317,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="where the router listens, when not at --router-host (e.g. tls/192.168.10.1:7447; "
         "tls/0.0.0.0:PORT, every interface, only when said here)",
     )
-    p.add_argument("--days", type=int_in(1, 3650), default=825,
-                   help="validity of the certificates (825)")
+    p.add_argument(
+        "--days", type=int_in(1, 3650), default=825, help="validity of the certificates (825)"
+    )
     p.add_argument(
         "--install-dir",
         type=Path,
@@ -306,8 +334,10 @@ def where(args: argparse.Namespace) -> tuple[str, str, int, str]:
     rig, host, port = args.rig, args.router_host, args.port
     if args.rig_file is not None:
         if (rig, host, port) != (None, None, None):
-            raise ValueError("--rig-file gives the rig, router host and port: leave out --rig, "
-                             "--router-host and --port")
+            raise ValueError(
+                "--rig-file gives the rig, router host and port: leave out --rig, "
+                "--router-host and --port"
+            )
         try:
             loaded = load_rig(args.rig_file)
             _, host, port = split_endpoint(loaded.router)
@@ -318,8 +348,10 @@ def where(args: argparse.Namespace) -> tuple[str, str, int, str]:
     if not 1 <= port <= 65535:
         raise ValueError(f"--port must be 1-65535, got {port}")
     if host in WILDCARD_HOSTS:
-        raise ValueError(f"the router host {host!r} is every interface, not an address the "
-                         "hosts can reach: give its name or address (--listen for a wildcard)")
+        raise ValueError(
+            f"the router host {host!r} is every interface, not an address the "
+            "hosts can reach: give its name or address (--listen for a wildcard)"
+        )
     if args.listen is None:
         return rig, host, port, f"tls/{host}:{port}"
     try:
@@ -327,11 +359,14 @@ def where(args: argparse.Namespace) -> tuple[str, str, int, str]:
     except ValueError as exc:
         raise ValueError(f"--listen: {exc}") from None
     if scheme != "tls":
-        raise ValueError(f"--listen must be a tls/ endpoint (anything else bypasses the "
-                         f"certificates), got {args.listen!r}")
+        raise ValueError(
+            f"--listen must be a tls/ endpoint (anything else bypasses the "
+            f"certificates), got {args.listen!r}"
+        )
     if listen_port != port:
-        raise ValueError(f"--listen's port {listen_port} is not the port the hosts connect to "
-                         f"({port})")
+        raise ValueError(
+            f"--listen's port {listen_port} is not the port the hosts connect to ({port})"
+        )
     return rig, host, port, args.listen
 
 
@@ -347,8 +382,10 @@ def lab_rigs(text: str | None, rig: str | None) -> list[str] | None:
     if not rigs or len(set(rigs)) != len(rigs):
         raise ValueError(f"--rigs takes distinct rig names, comma separated; got {text!r}")
     if LAB in rigs or ROUTER in rigs:
-        raise ValueError(f"a rig may not be called {LAB!r} or {ROUTER!r} (the lab's own "
-                         "identities and router live in those folders): rename it")
+        raise ValueError(
+            f"a rig may not be called {LAB!r} or {ROUTER!r} (the lab's own "
+            "identities and router live in those folders): rename it"
+        )
     return rigs
 
 
@@ -375,36 +412,47 @@ def main(argv: list[str] | None = None) -> int:
         return fail("nod lab secure", exc)
     install = (args.install_dir or args.out).absolute()
     try:
-        written = secure(args.out, names, rig if rigs is None else rigs, host, port, args.days,
-                         install, listen)
+        written = secure(
+            args.out, names, rig if rigs is None else rigs, host, port, args.days, install, listen
+        )
     except OSError as exc:
         return fail("nod lab secure", f"cannot write to {args.out}: {exc.strerror}")
     scope = f"rig {rig!r}" if rigs is None else f"rigs {', '.join(rigs)}"
-    print(f"wrote {len(written)} files to {args.out}/ ({scope}; hosts connect to "
-          f"tls/{host}:{port}; the router listens on {listen}):")
+    print(
+        f"wrote {len(written)} files to {args.out}/ ({scope}; hosts connect to "
+        f"tls/{host}:{port}; the router listens on {listen}):"
+    )
     if split_endpoint(listen)[1] in WILDCARD_HOSTS:
-        print("  WARNING: the router listens on every interface of the control station "
-              "(--listen): any network it is on can reach it")
+        print(
+            "  WARNING: the router listens on every interface of the control station "
+            "(--listen): any network it is on can reach it"
+        )
     if rigs is None:
         print(f"  control station: nod router --config {install}/control/router.json5")
         _print_rig(install, names)
     else:
-        print(f"  the lab's router: nod router --config {install}/{ROUTER}/router.json5 (the "
-              "rig files' control hosts: router = false)")
+        print(
+            f"  the lab's router: nod router --config {install}/{ROUTER}/router.json5 (the "
+            "rig files' control hosts: router = false)"
+        )
         for r in rigs:
-            print(f"  rig {r}: rig.tls = \"{install}/{r}\"")
+            print(f'  rig {r}: rig.tls = "{install}/{r}"')
             _print_rig(install / r, names)
         print(f"  the lab view, lab screens: --config {install}/{LAB}/monitor/zenoh.json5")
-        print(f"  the lab e-stop (every rig): nod estop --rig RIG --config "
-              f"{install}/{LAB}/estop/zenoh.json5")
+        print(
+            f"  the lab e-stop (every rig): nod estop --rig RIG --config "
+            f"{install}/{LAB}/estop/zenoh.json5"
+        )
     print(f"  keep {args.out}/ca.key offline: whoever holds it can mint identities")
     return 0
 
 
 def _print_rig(folder: Path, roles: list[str]) -> None:
     for n in roles:
-        print(f"  {n:<8} services: --config {folder}/{n}/zenoh.json5; "
-              f"nod up: {folder}/{n}/launcher/zenoh.json5")
+        print(
+            f"  {n:<8} services: --config {folder}/{n}/zenoh.json5; "
+            f"nod up: {folder}/{n}/launcher/zenoh.json5"
+        )
     print(f"  monitors, nod status, rig screens: --config {folder}/monitor/zenoh.json5")
 
 

@@ -139,8 +139,11 @@ def main(argv: list[str] | None = None) -> int:
         return fail("nod up", f"{where}{exc}")
     if args.listen and rig.tls is not None:
         # It would start a plain router while the services speak TLS to the one of rig.tls.
-        return fail("nod up", f"--listen runs a plain router, but {rig.path} has rig.tls: the "
-                    "secured router listens where `nod lab secure --rig-file` put it")
+        return fail(
+            "nod up",
+            f"--listen runs a plain router, but {rig.path} has rig.tls: the "
+            "secured router listens where `nod lab secure --rig-file` put it",
+        )
     endpoint = args.listen or rig.router
     if args.exec_service == "router":
         if not with_router:
@@ -200,8 +203,10 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stopping.set())
     where = f"host {args.host}" if args.host else "every host, on this machine"
     router_note = f"router on {endpoint}" if with_router else f"router at {endpoint}"
-    print(f"rig {rig.name!r} ({where}): {', '.join(services)}; {router_note}; logs in {logs}/",
-          flush=True)
+    print(
+        f"rig {rig.name!r} ({where}): {', '.join(services)}; {router_note}; logs in {logs}/",
+        flush=True,
+    )
     # The operator sees the session's trials here too, whoever runs the conductor.
     view = SessionView(len(load_params(rig.params).protocol.trials))
     subs = view.subscribe(session, keys)
@@ -215,14 +220,21 @@ def main(argv: list[str] | None = None) -> int:
             for name in supervisor.failed():
                 if name not in reported:
                     reported.add(name)
-                    print(f"nod up: {name} is down (given up); see {logs}/{name}.log",
-                          file=sys.stderr, flush=True)
+                    print(
+                        f"nod up: {name} is down (given up); see {logs}/{name}.log",
+                        file=sys.stderr,
+                        flush=True,
+                    )
             needed = sorted(n for n in reported if n in (*REQUIRED, "sim"))
             if needed:
                 # Half a rig runs no trial, and what still runs would only hold and wait: stop it
                 # all safely (the arm holds, the eyes go neutral) and say so.
-                print(f"nod up: {', '.join(needed)} gave up: a rig cannot run without it; "
-                      "stopping every service", file=sys.stderr, flush=True)
+                print(
+                    f"nod up: {', '.join(needed)} gave up: a rig cannot run without it; "
+                    "stopping every service",
+                    file=sys.stderr,
+                    flush=True,
+                )
                 break
             stopping.wait(0.1)
     finally:

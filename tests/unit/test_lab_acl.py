@@ -45,8 +45,12 @@ def test_the_lab_estop_engages_and_releases_every_rig_and_the_lab_monitor_reads_
     doc = acl(lab_identities(list(HOSTS), RIGS))
 
     def puts(name: str) -> set[str]:
-        return {k for r in _rules_of(doc, name) if "put" in r["messages"]
-                and r["flows"] == ["ingress"] for k in r["key_exprs"]}
+        return {
+            k
+            for r in _rules_of(doc, name)
+            if "put" in r["messages"] and r["flows"] == ["ingress"]
+            for k in r["key_exprs"]
+        }
 
     assert puts("lab.estop") == {"nod/*/safety/estop", "nod/*/safety/release"}
     assert puts("lab.monitor") == {"nod/*/rig/status"}  # its heartbeat, nothing else
@@ -69,36 +73,56 @@ def test_secure_rigs_writes_a_folder_per_rig_the_labs_own_and_the_router(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "lab"
-    assert secure_main(["--out", str(out), "--rigs", "rig1,rig2", "--hosts", "control,arm",
-                        "--router-host", "127.0.0.1", "--port", "7600"]) == 0
-    for folder in ("rig1/control", "rig1/arm/launcher", "rig2/monitor", "lab/monitor",
-                   "lab/estop"):
+    assert (
+        secure_main(
+            [
+                "--out",
+                str(out),
+                "--rigs",
+                "rig1,rig2",
+                "--hosts",
+                "control,arm",
+                "--router-host",
+                "127.0.0.1",
+                "--port",
+                "7600",
+            ]
+        )
+        == 0
+    )
+    for folder in ("rig1/control", "rig1/arm/launcher", "rig2/monitor", "lab/monitor", "lab/estop"):
         assert (out / folder / "zenoh.json5").is_file(), folder
         assert (out / folder / "key.pem").stat().st_mode & 0o077 == 0
     assert not (out / "rig1" / "camera").exists()
     router = out / "router" / "router.json5"
     text = router.read_text()
-    doc = json.loads(text[text.index("{"):])
+    doc = json.loads(text[text.index("{") :])
     assert doc["listen"]["endpoints"] == ["tls/127.0.0.1:7600"]
     assert {"rig1.control", "rig2.arm-launcher", "lab.estop"} <= {
-        s["id"] for s in doc["access_control"]["subjects"]}
+        s["id"] for s in doc["access_control"]["subjects"]
+    }
     assert not (out / "rig1" / "control" / "router.json5").exists()
     # A rig file of rig2 with rig.tls = lab/rig2 finds its identities where `nod up` looks.
     rig = tmp_path / "rig2.toml"
-    rig.write_text('[rig]\nname = "rig2"\nrouter = "tls/127.0.0.1:7600"\ntls = "lab/rig2"\n'
-                   '[hosts.control]\nrouter = false\nservices = ["monitor"]\n')
+    rig.write_text(
+        '[rig]\nname = "rig2"\nrouter = "tls/127.0.0.1:7600"\ntls = "lab/rig2"\n'
+        '[hosts.control]\nrouter = false\nservices = ["monitor"]\n'
+    )
     assert identity(load_rig(rig), MONITOR).is_file()
     assert "nod router --config" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize(("args", "says"), [
-    (["--rigs", "rig1,lab"], "may not be called 'lab'"),
-    (["--rigs", "rig1,router"], "may not be called"),
-    (["--rigs", "rig1,rig1"], "distinct"),
-    (["--rigs", ","], "distinct"),
-    (["--rigs", "rig1,bad rig"], "must be 1-64 letters"),
-    (["--rigs", "rig1,rig2", "--rig", "rig1"], "leave out --rig"),
-])
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--rigs", "rig1,lab"], "may not be called 'lab'"),
+        (["--rigs", "rig1,router"], "may not be called"),
+        (["--rigs", "rig1,rig1"], "distinct"),
+        (["--rigs", ","], "distinct"),
+        (["--rigs", "rig1,bad rig"], "must be 1-64 letters"),
+        (["--rigs", "rig1,rig2", "--rig", "rig1"], "leave out --rig"),
+    ],
+)
 def test_bad_rigs_are_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], says: str
 ) -> None:
@@ -112,8 +136,12 @@ def test_the_control_station_runs_the_participants_speaker_and_screen_and_the_ls
     doc = acl(identities(["control", "arm"], "rig1"))
     rules = _rules_of(doc, "control")
     tokens = {k for r in rules if "liveliness_token" in r["messages"] for k in r["key_exprs"]}
-    puts = {k for r in rules if "put" in r["messages"] and r["flows"] == ["ingress"]
-            for k in r["key_exprs"]}
+    puts = {
+        k
+        for r in rules
+        if "put" in r["messages"] and r["flows"] == ["ingress"]
+        for k in r["key_exprs"]
+    }
     assert {f"nod/rig1/alive/{s}" for s in ("speaker", "display", "lsl")} <= tokens
     assert {"nod/rig1/speaker/played", "nod/rig1/rig/status"} <= puts
     arm = _rules_of(doc, "arm")
