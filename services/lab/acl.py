@@ -31,6 +31,24 @@ and `lab.estop`, `nod estop`'s rights on every rig — it engages and, as the co
 
 The router's own session (`nod router`, the control station's `nod up`) is inside the
 boundary: zenoh applies the ACL to its network faces, not to the router process itself.
+
+A lab with a router per rig (`--router-per-rig`) has two kinds of router, each with its own ACL.
+Zenoh applies a router's ACL to every face, a router's link as much as a client's, and matches
+the far router's certificate name on both sides of the TLS link; so each link is an identity:
+
+- a **rig router** (`rig_router_acl`) admits its rig's identities as above, the lab's monitor and
+  e-stop with their rights on this rig only (so a rig can be watched and stopped with the lab's
+  identities when the lab router is down), and the lab router (`lab.router`) with no more than
+  those two have on this rig: the router forwards it nothing of another rig, and takes from it
+  only the lab identities' puts, tokens and answers on this rig.
+- the **lab router** (`lab_router_acl`) admits the lab's monitor and e-stop (every rig) and each
+  rig router (`<rig>.router`) with the union of its rig's identities' rights on its own rig: a
+  compromised or misconfigured rig1 router can put, declare and answer nothing in rig2, and is
+  forwarded nothing of it. A rig's own hosts are not admitted there: they reach their router.
+
+Declarations of interest (subscribers, liveliness subscribers and queries) whose rig chunk is a
+wildcard (`nod/*/…`, the lab view's) are admitted from the lab's side on every router: they carry
+no data, and what is delivered for them stays within the rig (`deliver`).
 """
 
 from __future__ import annotations
@@ -54,6 +72,7 @@ LAUNCHER = "launcher"  # the contract's name of a `nod up` process
 MONITOR = "monitor"
 ESTOP = "estop"  # the contract's name of `nod estop`
 LAB = "lab"  # the lab-wide identities' folder and name prefix: no rig may be called so
+ROUTER = "router"  # a router's folder and name (`<rig>.router`, `lab.router`)
 EVERY_RIG = "*"  # the rig chunk of a lab-wide identity's keys: any rig on the lab's router
 
 
@@ -138,6 +157,55 @@ def lab_identities(roles: list[str], rigs: list[str]) -> list[Identity]:
         Identity(f"{LAB}.{MONITOR}", (MONITOR,), f"{LAB}/{MONITOR}", (EVERY_RIG,)),
         Identity(f"{LAB}.{ESTOP}", (ESTOP,), f"{LAB}/{ESTOP}", (EVERY_RIG,)),
     ]
+
+
+def rig_router_identity(rig: str, ids: list[Identity]) -> Identity:
+    """A rig's router as the lab router sees it: what its rig's identities may do, there only.
+
+    `ids` are the identities the rig router admits (its rig's and the lab's on it).
+    """
+    services = sorted({s for ident in ids for s in ident.services})
+    return Identity(
+        f"{rig}.{ROUTER}", tuple(services), f"{rig}/{ROUTER}", (rig,), engages_estop=True
+    )
+
+
+def rig_router_acl(roles: list[str], rig: str) -> dict:
+    """A rig router's access_control: its rig's identities, the lab's on it, the lab router."""
+    own = [f(r, rig, True) for r in roles for f in (host_identity, launcher_identity)]
+    lab = [
+        Identity(f"{LAB}.{MONITOR}", (MONITOR,), f"{LAB}/{MONITOR}", (rig,)),
+        Identity(f"{LAB}.{ESTOP}", (ESTOP,), f"{LAB}/{ESTOP}", (rig,)),
+    ]
+    # The lab router speaks for the lab's identities: their rights on this rig, no more.
+    upstream = Identity(f"{LAB}.{ROUTER}", (MONITOR, ESTOP), ROUTER, (rig,))
+    doc = acl([*own, monitor_identity(rig, True), *lab, upstream])
+    _observe_every_rig(doc, [i.name for i in (*lab, upstream)])
+    return doc
+
+
+def lab_router_acl(roles: list[str], rigs: list[str]) -> dict:
+    """The lab router's access_control: the lab's identities and one rig router per rig."""
+    lab = lab_identities(roles, rigs)[-2:]  # lab.monitor, lab.estop
+    routers = []
+    for rig in rigs:
+        own = [f(r, rig, True) for r in roles for f in (host_identity, launcher_identity)]
+        routers.append(rig_router_identity(rig, [*own, monitor_identity(rig, True), *lab]))
+    return acl([*lab, *routers])
+
+
+def _observe_every_rig(doc: dict, names: list[str]) -> None:
+    """Let `names` declare interest in every rig at once (`nod/*/…`): delivery stays `deliver`'s."""
+    doc["rules"].append(
+        _rule(
+            "observe:every-rig",
+            ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query"],
+            [f"nod/{EVERY_RIG}/**"],
+        )
+    )
+    for policy in doc["policies"]:
+        if policy["id"] in names:
+            policy["rules"].append("observe:every-rig")
 
 
 def _rule(rule_id: str, messages: list[str], keys: list[str], flow: str = "ingress") -> dict:

@@ -26,6 +26,9 @@ only its own rig's keys, and the lab's:
     out/lab/estop/…                    `nod estop` on every rig: engages and releases any rig
     out/router/router.json5            the lab router's config, with its certificate
 
+With `--router-per-rig` each rig has a router of its own on its host, linked to the lab router
+(`services.lab.routers`: `out/<rig>/router/`, `--rig-router RIG=HOST:PORT` says where).
+
 Where the router listens: `--listen tls/HOST:PORT`, by default the address the hosts reach it
 by (`--router-host`, `--port`, or the rig file's `rig.router` with `--rig-file`), never every
 interface unless `--listen` says so. Copy `out/<role>/` to the same path on each host, and
@@ -53,9 +56,7 @@ from services.core.keys import check_rig
 from services.core.limits import low_pass_filters
 from services.core.rigfile import WILDCARD_HOSTS, RigFileError, load_rig, split_endpoint
 from services.core.session import MAX_MESSAGE_BYTES, SHARED_MEMORY
-from services.lab.acl import HOSTS, LAB, Identity, acl, identities, lab_identities
-
-ROUTER = "router"  # the lab router's folder (`--rigs`)
+from services.lab.acl import HOSTS, LAB, ROUTER, Identity, acl, identities, lab_identities
 
 
 def _key() -> ec.EllipticCurvePrivateKey:
@@ -304,6 +305,20 @@ def build_parser() -> argparse.ArgumentParser:
         "only its own keys, plus the lab's monitor and e-stop (out/lab/) and router (out/router/)",
     )
     p.add_argument(
+        "--router-per-rig",
+        action="store_true",
+        help="with --rigs: a router on each rig's host (out/<rig>/router/, its rig's ACL) linked "
+        "to the lab router (--router-host, --port), which admits each rig router for its own rig",
+    )
+    p.add_argument(
+        "--rig-router",
+        action="append",
+        default=[],
+        metavar="RIG=HOST:PORT",
+        help="with --router-per-rig, once per rig: where its router listens and its hosts connect "
+        "(HOST:PORT, tls/HOST:PORT, or a rig file of that rig whose rig.router says it)",
+    )
+    p.add_argument(
         "--router-host",
         default=None,
         help="name or address the hosts reach the control station by (in its certificate; the "
@@ -408,9 +423,12 @@ def main(argv: list[str] | None = None) -> int:
         rig, host, port, listen = where(args)
         if rigs is not None and args.rig_file is not None and rig not in rigs:
             raise ValueError(f"--rig-file's rig {rig!r} is not among --rigs {args.rigs!r}")
+        per_rig = per_rig_routers(args, rigs)
     except ValueError as exc:
         return fail("nod lab secure", exc)
     install = (args.install_dir or args.out).absolute()
+    if per_rig is not None:
+        return _main_per_rig(args, names, rigs or [], per_rig, host, port, install, listen)
     try:
         written = secure(
             args.out, names, rig if rigs is None else rigs, host, port, args.days, install, listen
@@ -443,6 +461,59 @@ def main(argv: list[str] | None = None) -> int:
             f"  the lab e-stop (every rig): nod estop --rig RIG --config "
             f"{install}/{LAB}/estop/zenoh.json5"
         )
+    print(f"  keep {args.out}/ca.key offline: whoever holds it can mint identities")
+    return 0
+
+
+def per_rig_routers(args: argparse.Namespace, rigs: list[str] | None) -> dict | None:
+    """Each rig router's address with `--router-per-rig` (None without); ValueError in one line."""
+    if not args.router_per_rig:
+        if args.rig_router:
+            raise ValueError("--rig-router places a rig's router: it needs --router-per-rig")
+        return None
+    if rigs is None:
+        raise ValueError("--router-per-rig needs --rigs: the rigs that get a router each")
+    if args.rig_file is not None:
+        raise ValueError(
+            "with --router-per-rig, --rig-file is ambiguous: give each rig's file to "
+            "--rig-router RIG=FILE and the lab router by --router-host and --port"
+        )
+    from services.lab.routers import rig_router_addresses
+
+    return rig_router_addresses(args.rig_router, rigs)
+
+
+def _main_per_rig(
+    args: argparse.Namespace,
+    names: list[str],
+    rigs: list[str],
+    per_rig: dict,
+    host: str,
+    port: int,
+    install: Path,
+    listen: str,
+) -> int:
+    from services.lab.routers import describe, secure_per_rig
+
+    try:
+        written = secure_per_rig(
+            args.out, names, rigs, per_rig, host, port, args.days, install, listen
+        )
+    except OSError as exc:
+        return fail("nod lab secure", f"cannot write to {args.out}: {exc.strerror}")
+    print(
+        f"wrote {len(written)} files to {args.out}/ (rigs {', '.join(rigs)}, a router each, "
+        f"linked to the lab router at tls/{host}:{port}; it listens on {listen}):"
+    )
+    print("\n".join(describe(install, rigs, per_rig)))
+    for r in rigs:
+        _print_rig(install / r, names)
+    print(f"  the lab view, lab screens: --config {install}/{LAB}/monitor/zenoh.json5")
+    print(
+        f"  the lab e-stop (every rig): nod estop --rig RIG --config "
+        f"{install}/{LAB}/estop/zenoh.json5 (with the lab router down: add --connect "
+        "tls/RIG-ROUTER:PORT, that rig only)"
+    )
     print(f"  keep {args.out}/ca.key offline: whoever holds it can mint identities")
     return 0
 

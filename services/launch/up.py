@@ -17,7 +17,8 @@ ROUTER` shows the rig.
 
 In a secured lab (`rig.tls`) this process speaks as its host's launcher identity, the only one
 the router lets publish rig/event (`services.lab.acl`), and each service as its own (the host's
-role, the monitor's); on the router's host it is the router itself.
+role, the monitor's); on the router's host it is the router itself (a rig router of its own
+when `nod lab secure --router-per-rig` wrote one, linked to the lab router).
 """
 
 from __future__ import annotations
@@ -102,10 +103,20 @@ def plan(rig: Rig, host: str | None) -> tuple[list[str], bool]:
     return list(h.services), h.router
 
 
+def router_config(tls: Path) -> Path:
+    """The router's config in a `nod lab secure` folder: a rig router's, else the control's.
+
+    A rig router of its own (`--router-per-rig`: `router/`, linked to the lab router) is the
+    rig's router when the folder has one; otherwise the control station's (`control/`).
+    """
+    rig_router = tls / "router" / "router.json5"
+    return rig_router if rig_router.is_file() else tls / "control" / "router.json5"
+
+
 def router_command(rig: Rig, listen: str | None = None) -> list[str]:
     """`nod router` as the rig file says: mutual TLS with rig.tls, else plain on rig.router."""
     if rig.tls is not None and listen is None:
-        return nod_command("router", "--config", str(rig.tls / "control" / "router.json5"))
+        return nod_command("router", "--config", str(router_config(rig.tls)))
     return nod_command("router", "--listen", listen or rig.router)
 
 
@@ -177,8 +188,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         tls = rig.tls
         if with_router and tls is not None:
-            cfg = make_config(mode="router", config_file=tls / "control" / "router.json5")
-            endpoint = router_listens(tls / "control" / "router.json5")
+            cfg = make_config(mode="router", config_file=router_config(tls))
+            endpoint = router_listens(router_config(tls))
         elif with_router:
             cfg = make_config(mode="router", listen=[endpoint])
         elif tls is not None:  # the launcher's own identity: rig events, nothing else
