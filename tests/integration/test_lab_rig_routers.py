@@ -57,6 +57,15 @@ class Lab:
         config = make_config(mode="client", config_file=self.out / folder / "zenoh.json5")
         return self.open(config, f"the {folder} identity")
 
+    def via(self, folder: str, rig: str) -> zenoh.Session:
+        """A session as a lab identity (`lab/estop`), connected to rig's router instead."""
+        text = (self.out / rig / "router" / "router.json5").read_text()
+        endpoints = json.loads(text[text.index("{") :])["listen"]["endpoints"]
+        config = make_config(
+            mode="client", connect=endpoints, config_file=self.out / folder / "zenoh.json5"
+        )
+        return self.open(config, f"the {folder} identity at {rig}'s router")
+
     def as_router(self, rig: str) -> zenoh.Session:
         """A client session with rig's router certificate, straight to the lab router."""
         text = (self.out / rig / "router" / "router.json5").read_text()
@@ -250,6 +259,27 @@ def test_the_lab_estop_stops_both_rigs_and_a_rigs_estop_stays_in_its_rig(lab: La
             others,
             (lab_view, "nod/rig2/safety/estop"),
             (estop, arm2, "nod/rig2/safety/release"),
+        )
+        == []
+    )
+
+
+def test_the_labs_identities_at_a_rig_router_reach_that_rig_only(lab: Lab) -> None:
+    """With the lab router down, a rig is still stopped with the lab's e-stop at its router."""
+    arm1, arm2 = Seen(lab.session("rig1/arm"), "rig1"), Seen(lab.session("rig2/arm"), "rig2")
+    estop, screen = lab.via("lab/estop", "rig1"), lab.via("lab/monitor", "rig1")
+    watch = Seen(screen)  # it asks for every rig; its rig router delivers rig1's only
+    put_until_seen(estop, arm1, "nod/rig1/safety/estop", b"the lab's, at rig1's router")
+    put_until_seen(lab.session("rig2/camera"), arm2, "nod/rig2/vision/hand", b"rig2's")
+    put_until_seen(lab.session("rig1/camera"), watch, "nod/rig1/vision/hand", b"rig1's")
+    assert not [k for k, _ in watch.puts if not k.startswith("nod/rig1/")], "rig2 leaked"
+    into_rig2 = ["nod/rig2/safety/estop", "nod/rig2/safety/release"]
+    assert (
+        refused(
+            estop,
+            into_rig2,
+            (arm1, "nod/rig1/safety/release"),
+            (lab.session("lab/estop"), arm2, "nod/rig2/safety/release"),
         )
         == []
     )
