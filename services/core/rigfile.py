@@ -329,6 +329,16 @@ def session_flags(
     return ["--connect", connect or rig.router, "--rig", rig.name]
 
 
+def router_config(tls: Path) -> Path:
+    """The router's config in a `nod lab secure` folder: a rig router's, else the control's.
+
+    A rig router of its own (`--router-per-rig`: `router/`, linked to the lab router) is the
+    rig's router when the folder has one; otherwise the control station's (`control/`).
+    """
+    rig_router = tls / "router" / "router.json5"
+    return rig_router if rig_router.is_file() else tls / CONTROL / "router.json5"
+
+
 def identity(rig: Rig, process: str, host: Host | None = None) -> Path:
     """The zenoh config `process` (a service, `launcher`) of `host` speaks with under rig.tls.
 

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from services.core.cli import host_port, one_line
-from services.core.rigfile import CONTROL, LAUNCHER, Rig, identity
+from services.core.rigfile import LAUNCHER, Rig, identity, router_config
 
 # The TLS files a zenoh config may name, and what each must hold.
 _TLS_FILES = {
@@ -191,7 +191,7 @@ def _identities(
     for service in services:
         wanted.setdefault(identity(rig, service, rig.host_of(service)), f"{service}'s identity")
     if with_router:
-        wanted[rig.tls / CONTROL / "router.json5"] = "the router's config"
+        wanted[router_config(rig.tls)] = "the router's config"
     elif host is not None:
         wanted[identity(rig, LAUNCHER, rig.hosts[host])] = "nod up's identity"
     out: list[str] = []

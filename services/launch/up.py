@@ -38,7 +38,15 @@ from services.core.clock import Clock
 from services.core.config import load_params
 from services.core.keys import Keys
 from services.core.lifeline import nod_command
-from services.core.rigfile import LAUNCHER, REQUIRED, Rig, RigFileError, identity, load_rig
+from services.core.rigfile import (
+    LAUNCHER,
+    REQUIRED,
+    Rig,
+    RigFileError,
+    identity,
+    load_rig,
+    router_config,
+)
 from services.core.session import make_config, open_session
 from services.launch.commands import command
 from services.launch.events import RigEvents
@@ -101,16 +109,6 @@ def plan(rig: Rig, host: str | None) -> tuple[list[str], bool]:
         raise RigFileError(f"{rig.path}: no host {host!r}; hosts: {', '.join(rig.hosts)}")
     h = rig.hosts[host]
     return list(h.services), h.router
-
-
-def router_config(tls: Path) -> Path:
-    """The router's config in a `nod lab secure` folder: a rig router's, else the control's.
-
-    A rig router of its own (`--router-per-rig`: `router/`, linked to the lab router) is the
-    rig's router when the folder has one; otherwise the control station's (`control/`).
-    """
-    rig_router = tls / "router" / "router.json5"
-    return rig_router if rig_router.is_file() else tls / "control" / "router.json5"
 
 
 def router_command(rig: Rig, listen: str | None = None) -> list[str]:

@@ -23,6 +23,7 @@ from services.lab.acl import (
     rig_router_acl,
 )
 from services.lab.secure import main as secure_main
+from services.launch.preflight import problems
 from services.launch.up import router_command
 
 RIGS = ["rig1", "rig2", "north-room"]
@@ -297,6 +298,13 @@ def test_secure_router_per_rig_writes_each_rigs_router_linked_to_the_lab_router(
     # `nod up` on a rig router's host starts that router, with its config.
     rig = load_rig(rig2)
     assert router_command(rig)[-1] == str(rig.tls / "router" / "router.json5")
+    # …and its preflight (`nod up --dry-run`) checks that router's files, not control/'s.
+    router_host = next(h for h, host in rig.hosts.items() if host.router)
+    found = problems(rig, [], host=router_host, with_router=True, sim_hardware=True)
+    assert not any("router" in line for line in found), found
+    (rig.tls / "router" / "router.json5").unlink()
+    found = problems(rig, [], host=router_host, with_router=True, sim_hardware=True)
+    assert any("control/router.json5" in line for line in found), found
 
 
 @pytest.mark.parametrize(
