@@ -210,8 +210,17 @@ class PointArm(Generic[Target]):
             return
         n = max(1, math.ceil(span / self.params.step_s))
         dt = span / n
+        t0 = self._t
         for i in range(1, n + 1):
-            self._substep(dt, self._t + span * i / n)
+            if self._vel == (0.0, 0.0) and (self._goal is None or self._pos == self._goal):
+                # At rest where it should be (the arm waits so most of a session): a substep
+                # would leave position and velocity as they are, bit for bit; only a press
+                # being held down goes on, and nothing at all without one.
+                if self._press is None or self._pressed is not None or self._goal is None:
+                    break
+                self._update_press(t0 + span * i / n)
+            else:
+                self._substep(dt, t0 + span * i / n)
         self._t = t
 
     def _substep(self, dt: float, t_end: float) -> None:

@@ -20,7 +20,7 @@ import numpy as np
 
 from services.model.arm import SimArm
 from services.model.decision import DecisionModel
-from services.model.geometry import Colour, colour_sign
+from services.model.geometry import Colour, Point, TableLayout, colour_sign
 from services.model.judge import TrialJudge
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered
@@ -64,6 +64,24 @@ class OfflineTrial:
     attempts: int = 1  # starts of this trial, the interrupted ones included
 
 
+def centre(pts: np.ndarray) -> Point:
+    """The mean (x, y) of landmarks (n × 2): `pts[:, k].mean()` bit for bit, 5× quicker.
+
+    NumPy's mean of a float array is its `add.reduce` (the same pairwise summation) divided by
+    the count; calling both directly skips `mean`'s generic wrapper, ~10 µs a call.
+    """
+    n = len(pts)
+    return float(_SUM(pts[:, 0])) / n, float(_SUM(pts[:, 1])) / n
+
+
+_SUM = np.add.reduce
+
+
+def box_bounds(layout: TableLayout) -> list[tuple[float, float, float, float]]:
+    """(x1, x2, y1, y2) of each buzzer box: a pose whose landmarks all lie outside presses none."""
+    return [(b.x1, b.x2, b.y1, b.y2) for b in (layout.red, layout.blue)]
+
+
 class _Loop:
     """One participant's session: the protocol's cues dispatched to the loop's parts."""
 
@@ -81,7 +99,8 @@ class _Loop:
         self.cfg = cfg
         self.clicks = clicks
         self.person: Participant | ReplayedHand = (
-            hand if hand is not None
+            hand
+            if hand is not None
             else Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
         )
         self.model = DecisionModel(cfg.decision, cfg.layout)
@@ -89,6 +108,7 @@ class _Loop:
             cfg.layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
         )
         self.arm = SimArm(cfg.layout, cfg.sim_arm, t0=0.0)
+        self._boxes = box_bounds(cfg.layout)
         self.arm.connect()
         self.protocol = SessionProtocol(cfg.protocol)
         self.judge: TrialJudge | None = None  # from "go" to the trial's verdict
@@ -136,10 +156,19 @@ class _Loop:
         t_press = self.judge.t_press
         self.results.append(
             OfflineTrial(
-                index, mode, option, j.human, j.robot, j.outcome, j.switches, j.violations,
-                j.score, t - self.t_go,
+                index,
+                mode,
+                option,
+                j.human,
+                j.robot,
+                j.outcome,
+                j.switches,
+                j.violations,
+                j.score,
+                t - self.t_go,
                 None if t_press is None or j.human is None else t_press - self.t_go,
-                tuple(self.samples), attempts=self.protocol.attempt,
+                tuple(self.samples),
+                attempts=self.protocol.attempt,
             )
         )
 
@@ -155,23 +184,48 @@ class _Loop:
         if not proto.repeat_interrupted or self.protocol.attempt >= proto.max_attempts:
             j = TrialJudge.void()
             self.results.append(
-                OfflineTrial(index, mode, option, j.human, j.robot, j.outcome, j.switches,
-                             j.violations, j.score, t - self.t_go, None, (),
-                             interrupted=True, attempts=self.protocol.attempt)
+                OfflineTrial(
+                    index,
+                    mode,
+                    option,
+                    j.human,
+                    j.robot,
+                    j.outcome,
+                    j.switches,
+                    j.violations,
+                    j.score,
+                    t - self.t_go,
+                    None,
+                    (),
+                    interrupted=True,
+                    attempts=self.protocol.attempt,
+                )
             )
 
     def frame(self, t: float) -> None:
         """One camera frame: the person moves, decision reads the pose, actuation steps."""
         self.person.advance(t)
         pts = self.person.landmarks()
-        landmarks = [(float(x), float(y)) for x, y in pts]
+        landmarks: list[Point] = list(map(tuple, pts.tolist()))  # the same floats, 10× quicker
         out = self.model.on_hand(int(round(t * 1e9)), landmarks)
         judge = self.judge
+        center: Point | None = None  # the landmarks' mean, computed once when needed
+        # Whether a landmark can be in a box: judge and robot test every landmark against both
+        # boxes (`TableLayout.pressed`) and change nothing when none is; a hand whose bounding
+        # box meets neither box cannot press, so neither test needs to run.
+        xs, ys = pts.T.tolist()
+        x_lo, x_hi, y_lo, y_hi = min(xs), max(xs), min(ys), max(ys)
+        reach = any(
+            x_lo <= x2 and x1 <= x_hi and y_lo <= y2 and y1 <= y_hi
+            for x1, x2, y1, y2 in self._boxes
+        )
         if judge is not None and judge.human is None:
-            center = (float(pts[:, 0].mean()), float(pts[:, 1].mean()))
+            center = centre(pts)
             judge.observe(out.z_hat, center, t)
-            judge.see_hand(landmarks, t)
-        self.robot.see_hand(landmarks)
+            if reach:
+                judge.see_hand(landmarks, t)
+        if reach:
+            self.robot.see_hand(landmarks)
         state = self.arm.state(t)
         cmd = self.robot.step(t, out.z_r, state.ee)
         if cmd is not None:
@@ -180,11 +234,18 @@ class _Loop:
         heading = colour_sign(state.target) if state.target and state.moving else 0
         self.person.see_robot(t, heading)
         if self.record and judge is not None:
-            cx, cy = float(pts[:, 0].mean()), float(pts[:, 1].mean())
+            cx, cy = center or centre(pts)
             self.samples.append(
                 LoopSample(
-                    round(t * 1e9), cx, cy, out.z_hat, out.z_r, out.b_r, *state.ee,
-                    out.observation.theta, out.observation.distance,
+                    round(t * 1e9),
+                    cx,
+                    cy,
+                    out.z_hat,
+                    out.z_r,
+                    out.b_r,
+                    *state.ee,
+                    out.observation.theta,
+                    out.observation.distance,
                 )
             )
         if state.pressed is not None:
@@ -239,7 +300,8 @@ def run_offline_session(
             cues = proto.interrupt(t, "simulated safe stop")
         else:
             cues = proto.advance(
-                t, human_pressed=loop.human is not None,
+                t,
+                human_pressed=loop.human is not None,
                 robot_pressed=loop.robot.pressed is not None,
             )
         if any(c.kind == "setup" for c in cues):

@@ -13,8 +13,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from services.model.bias import BiasParams, beta_for, bias_active, bias_rate, sigma_for
-from services.model.dynamics import PairParams, opinion_rate
+from services.model.bias import BiasParams, beta_for, sigma_for
+from services.model.dynamics import PairParams
 from services.model.geometry import Colour, Point, TableLayout
 from services.model.observer import Observation, ObserverParams
 from services.model.observer_robust import make_observer
@@ -248,42 +248,54 @@ class DecisionModel:
         self._z_r, self._b_r = z_r, b_r
 
     def _run(
-        self, z_r: float, b_r: float, z_hat: float, n: int, h: float,
+        self,
+        z_r: float,
+        b_r: float,
+        z_hat: float,
+        n: int,
+        h: float,
         path: list[tuple[float, float]] | None = None,
     ) -> tuple[float, float]:
         """Take n RK4 steps of h from (z_r, b_r), ẑ_h held; each step's state appended to `path`.
 
-        The equations are `opinion_rate` (eq 1) and `bias_rate` (eq 6), the same functions the
-        analysis and the tests use; the RK4 stages are written out for the pair (z_r, b_r) on
-        plain floats because this runs ~8 steps per pose at 120 Hz (~33 at 30 Hz), where a
-        generic stepper's tuples or NumPy's per-call overhead would dominate.
+        The equations are `opinion_rate` (eq 1) and `bias_rate` (eq 6), the functions the
+        analysis and the tests use, written out here with the same float operations in the same
+        order (so every value is bit for bit theirs; tests/unit/test_loop_speed.py checks
+        it) and their constant parts hoisted (−d, γ_r a_rh ẑ_h and the sign of ẑ_h: ẑ_h is
+        held). The RK4 stages are written out for the pair (z_r, b_r) on plain floats because
+        this runs ~8 steps per pose at 120 Hz (~33 at 30 Hz, ~1000 steps per simulated second),
+        where a generic stepper's tuples, NumPy's per-call overhead, or even a function call per
+        stage (half the step's cost) would dominate.
         """
         robot = self._params.pair.robot
-        d, u, alpha = robot.d, robot.u, robot.alpha
-        gamma_a = robot.gamma * self._params.pair.a_rh  # γ_r a_rh; ẑ_h is held (ZOH)
-        rate, b_rate, active, tanh = opinion_rate, bias_rate, bias_active, math.tanh
+        nd, u, alpha = -robot.d, robot.u, robot.alpha
+        gz = robot.gamma * self._params.pair.a_rh * z_hat
+        tanh = math.tanh
         consensus = self._mode == "consensus"
         sigma, beta, b_star = self._sigma, self._beta, self._b_star
         b_max = self._params.bias.b_max
-        hh = 0.5 * h
-        for _ in range(n):
-            k1z = rate(z_r, z_hat, b_r, d, u, alpha, gamma_a, tanh)
+        sgn = 1.0 if z_hat > 0 else -1.0  # `bias_rate`'s sign of ẑ_h, held with it
+        hh, h6 = 0.5 * h, h / 6.0
+        copysign = math.copysign
+        for i in range(n):
+            z0, b0 = z_r, b_r
+            k1z = nd * z_r + u * tanh(alpha * z_r + gz) + b_r
             # The freeze (eq 6 runs only while z_r · ẑ_h < 0) is decided once per step from the
             # state at its start: switching it inside the RK4 stages would make the right-hand
             # side discontinuous within a step and spoil the method's accuracy; the step is
             # short (1 ms) against the dynamics' time constants (1/d = 100 ms).
-            if consensus and active(z_r, z_hat):
-                k1b = b_rate(b_r, z_r, z_hat, sigma, beta, b_star)
+            if consensus and z_r * z_hat < 0:  # `bias_active`: the pair is in dissensus
+                k1b = sigma * z_r * sgn + beta * max(0.0, b_star - abs(b_r))
                 z2, b2 = z_r + hh * k1z, b_r + hh * k1b
-                k2z = rate(z2, z_hat, b2, d, u, alpha, gamma_a, tanh)
-                k2b = b_rate(b2, z2, z_hat, sigma, beta, b_star)
+                k2z = nd * z2 + u * tanh(alpha * z2 + gz) + b2
+                k2b = sigma * z2 * sgn + beta * max(0.0, b_star - abs(b2))
                 z3, b3 = z_r + hh * k2z, b_r + hh * k2b
-                k3z = rate(z3, z_hat, b3, d, u, alpha, gamma_a, tanh)
-                k3b = b_rate(b3, z3, z_hat, sigma, beta, b_star)
+                k3z = nd * z3 + u * tanh(alpha * z3 + gz) + b3
+                k3b = sigma * z3 * sgn + beta * max(0.0, b_star - abs(b3))
                 z4, b4 = z_r + h * k3z, b_r + h * k3b
-                k4z = rate(z4, z_hat, b4, d, u, alpha, gamma_a, tanh)
-                k4b = b_rate(b4, z4, z_hat, sigma, beta, b_star)
-                b_r += (h / 6.0) * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)
+                k4z = nd * z4 + u * tanh(alpha * z4 + gz) + b4
+                k4b = sigma * z4 * sgn + beta * max(0.0, b_star - abs(b4))
+                b_r += h6 * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)
                 # Clamp |b_r| ≤ b_max after each step (SPEC §3): in dissensus the σ term never
                 # stops on its own.
                 if b_r > b_max:
@@ -291,10 +303,25 @@ class DecisionModel:
                 elif b_r < -b_max:
                     b_r = -b_max
             else:  # b_r frozen: only z_r moves
-                k2z = rate(z_r + hh * k1z, z_hat, b_r, d, u, alpha, gamma_a, tanh)
-                k3z = rate(z_r + hh * k2z, z_hat, b_r, d, u, alpha, gamma_a, tanh)
-                k4z = rate(z_r + h * k3z, z_hat, b_r, d, u, alpha, gamma_a, tanh)
-            z_r += (h / 6.0) * (k1z + 2.0 * k2z + 2.0 * k3z + k4z)
+                z2 = z_r + hh * k1z
+                k2z = nd * z2 + u * tanh(alpha * z2 + gz) + b_r
+                z3 = z_r + hh * k2z
+                k3z = nd * z3 + u * tanh(alpha * z3 + gz) + b_r
+                z4 = z_r + h * k3z
+                k4z = nd * z4 + u * tanh(alpha * z4 + gz) + b_r
+            z_r += h6 * (k1z + 2.0 * k2z + 2.0 * k3z + k4z)
             if path is not None:
                 path.append((z_r, b_r))
+            if (  # a fixed point of the step, bit for bit (the sign of a zero included)
+                z_r == z0
+                and b_r == b0
+                and copysign(1.0, z_r) == copysign(1.0, z0)
+                and copysign(1.0, b_r) == copysign(1.0, b0)
+            ):
+                # The step is a function of (z_r, b_r) alone (ẑ_h, h and the mode are held), so
+                # every later step returns this state too: the rest is known without computing
+                # it. Held hands (before "go", after a press, a still participant) get here.
+                if path is not None:
+                    path.extend([(z_r, b_r)] * (n - 1 - i))
+                break
         return z_r, b_r

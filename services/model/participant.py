@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.model.dynamics import AgentParams, opinion_rate, rk4_step
+from services.model.dynamics import AgentParams
 from services.model.geometry import (
     HAND_TEMPLATE,
     Colour,
@@ -112,12 +112,17 @@ class ParticipantParams:
         for name in ("speed", "accel", "full_conviction", "hand_radius"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ParticipantParams.{name} must be > 0")
-        for name in ("gaze_gain_spread", "gaze_over_robot", "preference_sd",
-                     "preference_spread"):
+        for name in ("gaze_gain_spread", "gaze_over_robot", "preference_sd", "preference_spread"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"ParticipantParams.{name} must be >= 0")
-        for name in ("rule_breaking", "control_switch_prob", "min_conviction",
-                     "late_switch_share", "late_switch_first", "late_switch_learn"):
+        for name in (
+            "rule_breaking",
+            "control_switch_prob",
+            "min_conviction",
+            "late_switch_share",
+            "late_switch_first",
+            "late_switch_learn",
+        ):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"ParticipantParams.{name} must be in [0, 1]")
         if not 1 <= self.late_switch_speed <= 5:
@@ -138,6 +143,17 @@ class Participant:
         self._vx = self._vy = 0.0
         # How far a landmark sticks out of the hand's centre: nearer a box than this, test it.
         self._reach = float(np.abs(HAND_TEMPLATE).max()) * params.hand_radius
+        # Fixed for the person's life (params and layout are frozen): computed once, not every
+        # 2 ms step. The same floats the layout's properties return, so the same motion.
+        self._hand = HAND_TEMPLATE * params.hand_radius  # the landmarks around a zero centre
+        self._centers = {c: layout.box(c).center for c in ("red", "blue")}
+        reach = self._reach
+        self._near = tuple(  # per box: where the hand's centre may put a landmark inside it
+            (c, b.x1 - reach, b.x2 + reach, b.y1 - reach, b.y2 + reach)
+            for c, b in ((c, layout.box(c)) for c in ("red", "blue"))
+        )
+        self._commit_y = layout.commit.y
+        self._commit_below = layout.commit.start_side == "below"
         self.z_h = 0.0
         self.b_h = 0.0
         self.t_go: float | None = None
@@ -244,61 +260,88 @@ class Participant:
             return
         if self.t < self.t_go:
             self.t = min(t, self.t_go)
+        step = self._step
         while self.t < t - 1e-12:
             h = min(dt, t - self.t)
-            self._step(h)
+            step(h)
             self.t += h
 
     def _step(self, h: float) -> None:
-        a = self.p.agent
+        """One step of h: eq 2 (one RK4 step, r̂ held), then the hand.
+
+        Plain floats and locals throughout: this runs every 2 ms of simulated time, a third of
+        a cohort's work (NumPy's per-call cost dominated, then the calls and attribute reads).
+        """
         if self.pressed is not None:
             return
+        p = self.p
+        a = p.agent
         r_hat = self._robot_perceived()
         if r_hat:
             self._arm_side = 1 if r_hat > 0 else -1
             if self._first is not None and self._arm_side != colour_sign(self._first):
                 self._opposed = True
         if r_hat * self._gaze_sign < 0:  # the arm goes against the eyes: believed less
-            r_hat /= 1.0 + self.p.gaze_over_robot * self.trust
-        committed = self._heading is not None and (
+            r_hat /= 1.0 + p.gaze_over_robot * self.trust
+        x, y = self._x, self._y
+        heading = self._heading
+        committed = heading is not None and (
             self._quick
             or self.switches >= self._max_switches
-            or (self._obeys_commit and self.layout.commit.crossed((self._x, self._y)))
+            or (
+                self._obeys_commit
+                and (y < self._commit_y if self._commit_below else y > self._commit_y)
+            )
         )
 
-        def f(z: float) -> float:  # eq 2 with the robot's perceived heading r̂ as z_r, a_hr = 1
-            return opinion_rate(z, r_hat, self.b_h, a.d, a.u, a.alpha, a.gamma, math.tanh)
+        # One RK4 step (`rk4_step`) of eq 2 with the robot's perceived heading r̂ as z_r,
+        # a_hr = 1: `opinion_rate` written out, the same float operations in the same order (so
+        # the same values, tests/unit/test_loop_speed.py checks it), γ_h r̂ hoisted (r̂ is held).
+        nd, u, alpha, b, tanh = -a.d, a.u, a.alpha, self.b_h, math.tanh
+        gr = a.gamma * r_hat
+        z = self.z_h
+        hh = 0.5 * h
+        k1 = nd * z + u * tanh(alpha * z + gr) + b
+        z2 = z + hh * k1
+        k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
+        z3 = z + hh * k2
+        k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
+        z4 = z + h * k3
+        k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
+        z = self.z_h = z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
-        self.z_h = rk4_step(f, self.z_h, h)
-
-        if self.t_go is None or self.t < self.t_go + self.p.reaction_s:  # (set: `advance`)
+        if self.t_go is None or self.t < self.t_go + p.reaction_s:  # (set: `advance`)
             return
-        wanted: Colour = "red" if self.z_h > 0 else "blue"
-        if self._heading is None:
-            self._heading = self._first = wanted
+        wanted: Colour = "red" if z > 0 else "blue"
+        if heading is None:
+            heading = self._heading = self._first = wanted
         elif self._feint:
             self._turn_at_the_line()
-        elif wanted != self._heading and not committed:
-            self._heading = wanted
+            heading = self._heading
+            assert heading is not None  # set above on the first step after the reaction time
+        elif wanted != heading and not committed:
+            heading = self._heading = wanted
             self.switches += 1
-        # Plain floats: this runs every 2 ms of simulated time (NumPy's per-call cost dominated).
-        tx, ty = self.layout.box(self._heading).center
-        px, py = self._x, self._y
-        dx, dy = tx - px, ty - py
+        tx, ty = self._centers[heading]
+        dx, dy = tx - x, ty - y
         dist = math.hypot(dx, dy)
-        conviction = min(1.0, max(self.p.min_conviction, abs(self.z_h) / self.p.full_conviction))
+        conviction = min(1.0, max(p.min_conviction, abs(z) / p.full_conviction))
         if committed or self._feint:
             conviction = 1.0  # a committed hand (or a feint) goes straight on
-        speed = self.p.speed * (self.p.late_switch_speed if self._quick else 1.0)
+        speed = p.speed * (p.late_switch_speed if self._quick else 1.0)
         gain = speed * conviction / max(dist, 1e-9)
-        ax, ay = dx * gain - self._vx, dy * gain - self._vy
+        vx, vy = self._vx, self._vy
+        ax, ay = dx * gain - vx, dy * gain - vy
         dv = math.hypot(ax, ay)
-        max_dv = self.p.accel * h
+        max_dv = p.accel * h
         if dv > max_dv:
             ax, ay = ax * max_dv / dv, ay * max_dv / dv
-        self._vx, self._vy = self._vx + ax, self._vy + ay
-        self._x, self._y = px + self._vx * h, py + self._vy * h
-        self.pressed = self._press_test()
+        vx, vy = self._vx, self._vy = vx + ax, vy + ay
+        x, y = self._x, self._y = x + vx * h, y + vy * h
+        for _c, x1, x2, y1, y2 in self._near:  # `_press_test`, its cheap part inline
+            if x1 <= x <= x2 and y1 <= y <= y2:
+                self.pressed = self._press_test()
+                return
 
     def _turn_at_the_line(self) -> None:
         """The feint's end: within `late_switch_lead` of the commit line, turn toward the arm.
@@ -318,13 +361,9 @@ class Participant:
 
     def _press_test(self) -> Colour | None:
         """A landmark of the (noise-free) hand inside a buzzer box; cheap when far from both."""
-        reach = self._reach
-        for colour in ("red", "blue"):
-            box = self.layout.box(colour)
-            if (
-                box.x1 - reach <= self._x <= box.x2 + reach
-                and box.y1 - reach <= self._y <= box.y2 + reach
-            ):
+        x, y = self._x, self._y
+        for _colour, x1, x2, y1, y2 in self._near:
+            if x1 <= x <= x2 and y1 <= y <= y2:
                 pts = [(float(x), float(y)) for x, y in self.landmarks(noise=False)]
                 return self.layout.pressed(pts)
         return None
@@ -338,11 +377,12 @@ class Participant:
 
     def landmarks(self, noise: bool = True) -> np.ndarray:
         """21 landmarks (x, y) around the hand centre, with camera noise when asked."""
-        pts = np.array((self._x, self._y)) + HAND_TEMPLATE * self.p.hand_radius
+        pts = self._hand + (self._x, self._y)  # a new array: updated in place below
         if noise:
-            common = self.rng.normal(0.0, self.p.common_noise, 2)
-            pts = pts + common + self.rng.normal(0.0, self.p.landmark_noise, pts.shape)
-        return np.clip(pts, 0.0, 1.0)
+            rng = self.rng
+            pts += rng.normal(0.0, self.p.common_noise, 2)
+            pts += rng.normal(0.0, self.p.landmark_noise, pts.shape)
+        return pts.clip(0.0, 1.0, out=pts)
 
 
 def late_switch_chance(first: float, learn: float, opposed_trials: int) -> float:
