@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from services.compute.engine import (
+    LOCAL_CONFIG,
     Engine,
     EngineError,
     _check_code,
@@ -100,3 +101,17 @@ def test_a_worker_with_other_code_is_refused_in_one_line() -> None:
         _check_code(FakeClient({"tcp://a:1": mine, "tcp://b:2": "0123456789ab"}), "tcp://s:8786")
     with pytest.raises(EngineError, match="cannot import services"):
         _check_code(FakeClient({"tcp://a:1": ModuleNotFoundError("services")}), "tcp://s:8786")
+
+
+def worker_settings() -> dict[str, object]:
+    import dask
+
+    return {key: dask.config.get(key) for key in LOCAL_CONFIG}
+
+
+def test_local_workers_run_without_the_profiler_and_frequent_chores(engine: Engine) -> None:
+    """The embedded cluster's workers got its settings (they cost a 2-core cohort CPU time)."""
+    seen = engine.client.run(worker_settings)
+    assert len(seen) == 2
+    assert all(s == LOCAL_CONFIG for s in seen.values())
+    assert LOCAL_CONFIG["distributed.worker.profile.enabled"] is False
