@@ -43,3 +43,30 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+MARK_ENV = "NOD_TEST_MARK"
+
+
+def processes_marked(mark: str) -> dict[int, str]:
+    """pid → command line of every live process whose environment carries `NOD_TEST_MARK=mark`.
+
+    A test's children inherit the mark however deep they are spawned (a launcher's services,
+    their helpers), so this finds what a test left behind even when it was re-parented to init
+    after its launcher was SIGKILLed. Zombies are skipped: they hold nothing.
+    """
+    needle = f"{MARK_ENV}={mark}".encode()
+    found: dict[int, str] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            if needle not in (entry / "environ").read_bytes().split(b"\0"):
+                continue
+            if (entry / "stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
+                continue
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except (OSError, IndexError):
+            continue  # gone while we looked, or not ours to read
+        found[int(entry.name)] = cmdline.strip()
+    return found

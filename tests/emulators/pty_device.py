@@ -126,6 +126,13 @@ class PtyDevice:
     def _serve(self) -> None:
         master = self._master
         assert master is not None
+        # A real device answers in its own silicon, never starved by the host's load; the
+        # emulator's thread shares a loaded test machine with everything else, and the drivers
+        # (at nice -10 themselves, docs/safety.md) give up on a reply after 100 ms. So this
+        # thread alone asks to be scheduled first, as far as the user may (Linux: a thread's
+        # own nice value); without the right it serves at the normal priority.
+        with contextlib.suppress(OSError, AttributeError):
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), -10)
         while not self._stop.is_set():
             try:
                 ready, _, _ = select.select([master], [], [], 0.02)

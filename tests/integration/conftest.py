@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -14,8 +16,9 @@ import pytest
 from services.core import messages as m
 from services.core.keys import Keys
 from services.core.session import make_config, open_session
+from services.store import Store
 from tests.polling import wait_for as wait_for  # the integration tests import it from here
-from tests.processes import free_port, stop_all
+from tests.processes import MARK_ENV, free_port, processes_marked, stop_all
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 # A three-trial protocol (one control trial, two consensus ones): whole sessions in seconds.
@@ -43,6 +46,37 @@ RELAXED = SHORT + """
 stale_ms = 1000.0
 skew_ms = 500.0
 """
+
+
+@pytest.fixture(autouse=True)
+def _no_process_outlives_its_test(request, monkeypatch):
+    """Fail a test that leaves a process running after its teardown, and end that process.
+
+    Every process a test starts, and everything those start, inherits a mark of that test. A
+    service that outlives its launcher (an orphan under init after a kill -9, a child whose
+    SIGTERM path hangs) would otherwise run on into the next tests, holding a port, a serial
+    device or a rig's keys. The grace covers a loaded machine's slow but clean shutdowns.
+    """
+    mark = f"{os.getpid()}-{time.monotonic_ns()}"
+    monkeypatch.setenv(MARK_ENV, mark)
+    yield
+    left: dict[int, str] = {}
+
+    def all_gone() -> bool:
+        left.clear()
+        left.update({pid: cmd for pid, cmd in processes_marked(mark).items() if pid != os.getpid()})
+        return not left
+
+    deadline = time.monotonic() + 20.0
+    while not all_gone() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    if left:
+        for pid in left:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        pytest.fail(f"{request.node.name} left {len(left)} process(es) running 20 s after its "
+                    f"teardown (killed now): " + "; ".join(f"{p}: {c}" for p, c in left.items()),
+                    pytrace=False)
 
 
 @pytest.fixture
@@ -145,6 +179,17 @@ def connect_when_listening(
             if time.monotonic() > deadline or (alive is not None and not alive()):
                 raise
             time.sleep(0.05)
+
+
+def last_session_record(db, trials_of: Callable[[Store, str], list]) -> tuple[list, list, list]:
+    """The trials (`trials_of(store, session)`), interruptions and safety events of the store's
+    last session, read and the store closed again."""
+    store = Store(db)
+    try:
+        session = store.sessions()[-1]["session"]
+        return trials_of(store, session), store.interruptions(session), store.safety_events(session)
+    finally:
+        store.close()
 
 
 def assert_estop_broke_trial_2_and_every_break_was_repeated(trials, broken, context: str) -> None:

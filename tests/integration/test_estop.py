@@ -13,7 +13,6 @@ import pytest
 
 from services.core import messages as m
 from services.core.keys import Keys
-from services.store import Store
 from tests.processes import run_nod
 
 from .conftest import (
@@ -22,10 +21,15 @@ from .conftest import (
     Collector,
     assert_estop_broke_trial_2_and_every_break_was_repeated,
     free_port,
+    last_session_record,
     wait_for,
 )
 
 pytestmark = pytest.mark.integration
+# `nod estop` waits 1 s for every device's acknowledgement by default, an operator's bound; on a
+# loaded test machine a new client's routes alone can take that long. These tests are about who
+# acknowledges, so they give it 5 s (the devices' own reaction is bounded in test_safety.py).
+ACK_WAIT = ("--timeout", "5")
 
 
 _nod = partial(run_nod, timeout=60)
@@ -48,13 +52,13 @@ def test_estop_is_acknowledged_by_actuation_and_eyes(router, endpoint, client, s
     spawn("eyes")
     # Both up, whatever their state (the e-stop must reach devices in any state, safe or not).
     wait_for(lambda: arm.items and eyes.items, 30, "actuation and eyes publishing their state")
-    run = _nod("estop", "--connect", endpoint, "--reason", "test")
+    run = _nod("estop", "--connect", endpoint, "--reason", "test", *ACK_WAIT)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "actuation: obeyed in" in run.stdout and "eyes: obeyed in" in run.stdout
     assert "e-stop: test" in run.stdout  # the reason each device now shows
-    release = _nod("estop", "--connect", endpoint, "--release")
+    release = _nod("estop", "--connect", endpoint, "--release", *ACK_WAIT)
     assert release.returncode == 0, release.stdout + release.stderr
-    only_arm = _nod("estop", "--connect", endpoint, "--devices", "actuation", "--timeout", "2")
+    only_arm = _nod("estop", "--connect", endpoint, "--devices", "actuation", *ACK_WAIT)
     assert only_arm.returncode == 0 and "eyes" not in only_arm.stdout
 
 
@@ -89,7 +93,7 @@ def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path):
         wait_for(
             lambda: rows("SELECT COUNT(*) FROM open_attempts WHERE trial = 2"), 60, "trial 2 begun"
         )
-        engaged = _nod("estop", "--connect", endpoint, "--reason", "bump")
+        engaged = _nod("estop", "--connect", endpoint, "--reason", "bump", *ACK_WAIT)
         assert engaged.returncode == 0, engaged.stdout + engaged.stderr
         # Released only once the conductor has broken the trial and stored it so.
         wait_for(
@@ -97,7 +101,7 @@ def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path):
             60,
             "trial 2 interrupted by the e-stop",
         )
-        released = _nod("estop", "--connect", endpoint, "--release")
+        released = _nod("estop", "--connect", endpoint, "--release", *ACK_WAIT)
         out, _ = run.communicate(timeout=300)
         assert released.returncode == 0, released.stdout + released.stderr + out + "".join(
             f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(logs.glob("*.log"))
@@ -108,14 +112,8 @@ def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path):
     assert run.returncode == 0, out + "".join(
         f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(logs.glob("*.log"))
     )
-    store = Store(db)
-    try:
-        trials = [t for _, t in store.trials()]
-        session = store.sessions()[-1]["session"]
-        broken = store.interruptions(session)
-        events = store.safety_events(session)
-    finally:
-        store.close()
+    trials, broken, events = last_session_record(
+        db, lambda store, session: [t for _, t in store.trials(session)])
     context = f"{trials}\n{broken}\n{events}\n{out}"
     assert_estop_broke_trial_2_and_every_break_was_repeated(trials, broken, context)
     assert trials[1].robot is not None, context

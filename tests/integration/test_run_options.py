@@ -18,6 +18,7 @@ from .conftest import (
     ROOT,
     assert_estop_broke_trial_2_and_every_break_was_repeated,
     free_port,
+    last_session_record,
     wait_for,
 )
 
@@ -149,11 +150,13 @@ def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path: Pa
         wait_for(lambda: rows("SELECT COUNT(*) FROM option_trials") >= 1, 120, "trial 1 stored")
         wait_for(lambda: rows("SELECT COUNT(*) FROM open_attempts WHERE trial = 2"), 60,
                  "trial 2 begun")
-        engaged = run_nod("estop", "--connect", endpoint, "--reason", "bump", timeout=60)
+        engaged = run_nod("estop", "--connect", endpoint, "--reason", "bump", "--timeout", "5",
+                          timeout=60)
         assert engaged.returncode == 0, engaged.stdout + engaged.stderr
         wait_for(lambda: rows("SELECT COUNT(*) FROM interruptions WHERE trial = 2"), 60,
                  "trial 2 interrupted by the e-stop")
-        released = run_nod("estop", "--connect", endpoint, "--release", timeout=60)
+        released = run_nod("estop", "--connect", endpoint, "--release", "--timeout", "5",
+                           timeout=60)
         out, _ = run.communicate(timeout=300)
         assert released.returncode == 0, released.stdout + released.stderr + out
     finally:
@@ -161,14 +164,8 @@ def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path: Pa
             run.kill()
     logs_text = "".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(logs.glob("*")))
     assert run.returncode == 0, out + logs_text
-    store = Store(db)
-    try:
-        session = store.sessions()[-1]["session"]
-        trials = OptionsStore(store).trials(session)
-        broken = store.interruptions(session)
-        events = store.safety_events(session)
-    finally:
-        store.close()
+    trials, broken, events = last_session_record(
+        db, lambda store, session: OptionsStore(store).trials(session))
     context = f"{trials}\n{broken}\n{events}\n{out}"
     assert_estop_broke_trial_2_and_every_break_was_repeated(trials, broken, context)
     kinds = [(e.device, e.event) for e in events if e.trial == 2]
