@@ -262,7 +262,8 @@ class Participant:
             self.t = min(t, self.t_go)
         step = self._step
         while self.t < t - 1e-12:
-            h = min(dt, t - self.t)
+            left = t - self.t
+            h = left if left < dt else dt  # min(dt, left)
             step(h)
             self.t += h
 
@@ -325,11 +326,16 @@ class Participant:
         tx, ty = self._centers[heading]
         dx, dy = tx - x, ty - y
         dist = math.hypot(dx, dy)
-        conviction = min(1.0, max(p.min_conviction, abs(z) / p.full_conviction))
         if committed or self._feint:
             conviction = 1.0  # a committed hand (or a feint) goes straight on
+        else:  # min(1, max(min_conviction, |z_h| / full_conviction)), without the calls
+            conviction = abs(z) / p.full_conviction
+            if not conviction > p.min_conviction:
+                conviction = p.min_conviction
+            if not conviction < 1.0:
+                conviction = 1.0
         speed = p.speed * (p.late_switch_speed if self._quick else 1.0)
-        gain = speed * conviction / max(dist, 1e-9)
+        gain = speed * conviction / (1e-9 if dist < 1e-9 else dist)  # / max(dist, 1e-9)
         vx, vy = self._vx, self._vy
         ax, ay = dx * gain - vx, dy * gain - vy
         dv = math.hypot(ax, ay)
