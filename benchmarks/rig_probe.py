@@ -8,7 +8,7 @@ command line), `cpu_seconds(pid)` and `rss_kb(pid)` read /proc; `seq_gaps`, `Hot
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 TICK = os.sysconf("SC_CLK_TCK")
@@ -44,7 +44,7 @@ def service_name(argv: Sequence[str]) -> tuple[str, str] | None:
         at = list(argv).index("services.cli")
     except ValueError:
         return None
-    rest = list(argv[at + 1:])
+    rest = list(argv[at + 1 :])
     if not rest:
         return None
     rig = rest[rest.index("--rig") + 1] if "--rig" in rest[:-1] else "rig1"
@@ -186,3 +186,124 @@ def rss_verdict(samples: Sequence[float], tolerance: float = 0.10) -> tuple[bool
     low = min(samples)
     growth = (max(samples) - low) / low if low > 0 else 0.0
     return growth <= tolerance, growth
+
+
+# The hot path's tail (benchmarks/latency.py): priorities, the GC's pauses, run-queue waits.
+
+NICE = -10  # as the devices run (services/core/priority.py)
+FIFO = 10  # SCHED_FIFO priority: above every normal task, far below the kernel's own threads
+PRIORITIES = ("none", "nice", "fifo")
+
+
+def threads(pid: int) -> list[int]:
+    """The thread ids of a process ([] once it is gone)."""
+    try:
+        return [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+    except OSError:
+        return []
+
+
+def set_priority(kind: str, tid: int = 0) -> None:
+    """Run thread `tid` (0: the caller) at `kind`: "nice" (nice −10), "fifo" (SCHED_FIFO 10) or
+    "none" (left as is). Threads it starts afterwards inherit it; needs CAP_SYS_NICE."""
+    if kind == "nice":
+        os.setpriority(os.PRIO_PROCESS, tid, NICE)
+    elif kind == "fifo":
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(FIFO))
+    elif kind != "none":
+        raise ValueError(f"priority {kind!r}: one of {', '.join(PRIORITIES)}")
+
+
+def prioritize(pid: int, kind: str) -> int:
+    """Every thread of a running process at `kind` (its children are left alone); how many."""
+    done = 0
+    for tid in threads(pid):
+        try:
+            set_priority(kind, tid)
+            done += 1
+        except ProcessLookupError:  # a thread that just ended
+            continue
+    return done
+
+
+def run_queue(pid: int) -> tuple[int, int]:
+    """(ns waited on a run queue, timeslices run) summed over a process's threads so far
+    (/proc/<pid>/task/<tid>/schedstat): how long its wake-ups waited for a CPU."""
+    wait = slices = 0
+    for tid in threads(pid):
+        try:
+            with open(f"/proc/{pid}/task/{tid}/schedstat") as f:
+                _, w, n = (int(x) for x in f.read().split())
+        except (OSError, ValueError):
+            continue
+        wait += w
+        slices += n
+    return wait, slices
+
+
+def steal_ticks() -> int:
+    """The host's steal time so far, in clock ticks (/proc/stat): CPU the hypervisor gave to
+    others while this VM had work."""
+    with open("/proc/stat") as f:
+        fields = f.readline().split()
+    return int(fields[8]) if len(fields) > 8 else 0
+
+
+def overlapping(spans: Sequence[tuple[int, int]], pauses: Sequence[tuple[int, int]]) -> int:
+    """How many of the (start, end) `spans` overlap at least one (start, duration) pause."""
+    ends = sorted((start, start + dur) for start, dur in pauses)
+    count = 0
+    for a, b in spans:
+        if any(s < b and e > a for s, e in ends):
+            count += 1
+    return count
+
+
+def gc_probe(
+    mode: str, path: str | None = None
+) -> tuple[list[tuple[int, int, int]], Callable[..., None]]:
+    """Record this process's garbage collections; `mode` takes effect on SIGUSR1.
+
+    Every collection is kept as (start perf_counter_ns, duration ns, generation) — the clock is
+    CLOCK_MONOTONIC, one for every process of the host — and written to `path` (JSON) at exit
+    if given.
+    On SIGUSR1 (the benchmark sends it once the service is up): "freeze" collects and moves
+    every object to the permanent generation (`gc.freeze()`), "off" also disables the
+    collector, "default" changes nothing; then `path`.settled is created. Returns the pauses and
+    the function SIGUSR1 runs.
+    """
+    import atexit
+    import gc
+    import json
+    import signal
+    import time
+
+    pauses: list[tuple[int, int, int]] = []
+    began = [0]
+
+    def on_gc(phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            began[0] = time.perf_counter_ns()
+        else:
+            pauses.append((began[0], time.perf_counter_ns() - began[0], info["generation"]))
+
+    def settle(*_: object) -> None:
+        if mode in ("freeze", "off"):
+            gc.collect()
+            gc.freeze()
+        if mode == "off":
+            gc.disable()
+        if path is not None:  # done: the benchmark waits for this before it measures
+            with open(path + ".settled", "w"):
+                pass
+
+    def write() -> None:
+        if path is not None:
+            with open(path, "w") as f:
+                json.dump(pauses, f)
+
+    gc.callbacks.append(on_gc)
+    signal.signal(signal.SIGUSR1, settle)
+    if path is not None:
+        atexit.register(write)
+    return pauses, settle
