@@ -1,0 +1,133 @@
+"""`nod cohort --participants 300` end to end, against the pure cost of its sessions (same run).
+
+- **Baseline**: `--baseline` sessions (seeds 1, 2, …) of the default simulated person run one
+  after the other in this process — `run_offline_session(cfg, seed, cohort=True, record=True)`,
+  exactly what each cohort task computes — as CPU seconds per session: the model's own cost,
+  with no engine, no store, no interpreter start.
+- **Candidate**: `nod cohort --participants N --seed 1 --db TMP --quiet` as its own process:
+  wall time (the embedded Dask cluster's start and stop included), and the CPU seconds of that
+  process and its workers together (RUSAGE_CHILDREN) per session.
+
+Also printed: the ideal wall time (N × baseline ÷ cores), the overhead above it, the load
+average before and after (a timing is valid only on a quiet machine: below ~1.5, and no
+/tmp/nod-quiet, the lead's load-test flag), and the SHA-256 of every stored row (sessions,
+trials, samples): a speed-up must not change it for the same seeds, so compare it between
+commits. CPU seconds stay meaningful under load; wall time does not.
+
+Exit status 1 if the cohort takes more than `--max-s` (default 60, issue 21's goal).
+
+    .venv/bin/python benchmarks/cohort_speed.py [--participants 300] [--baseline 12]
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import resource
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from services.cohort.person import load_cohort_params  # noqa: E402
+from services.model.closed_loop import run_offline_session  # noqa: E402
+
+QUIET_FLAG = Path("/tmp/nod-quiet")
+
+
+def load() -> str:
+    """The 1-minute load average, and a note when the machine is not quiet."""
+    one = os.getloadavg()[0]
+    notes = [
+        n for n, bad in (("load test running", QUIET_FLAG.exists()), ("loaded", one >= 1.5)) if bad
+    ]
+    return f"{one:.2f}" + (f" ({', '.join(notes)}: wall times not valid)" if notes else "")
+
+
+def baseline_cpu(sessions: int) -> float:
+    """CPU seconds per session of the cohort's task, in this process."""
+    cfg = load_cohort_params(None)
+    t0 = time.process_time()
+    for seed in range(1, sessions + 1):
+        run_offline_session(cfg, seed, cohort=True, record=True)
+    return (time.process_time() - t0) / sessions
+
+
+def children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def stored_digest(db: Path) -> str:
+    """SHA-256 of every row of the store's sessions, trials and samples, in insertion order."""
+    digest = hashlib.sha256()
+    with sqlite3.connect(db) as con:
+        for table in ("sessions", "trials", "samples"):
+            for row in con.execute(f"SELECT * FROM {table} ORDER BY rowid"):  # noqa: S608
+                digest.update(repr(row).encode())
+    return digest.hexdigest()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--participants", type=int, default=300)
+    parser.add_argument("--baseline", type=int, default=12, help="in-process sessions")
+    parser.add_argument("--workers", type=int, default=None, help="default: one per core")
+    parser.add_argument("--max-s", type=float, default=60.0, help="goal for the cohort's wall")
+    args = parser.parse_args()
+    cores = args.workers or os.cpu_count() or 1
+
+    print(f"load before: {load()}")
+    base = baseline_cpu(args.baseline)
+    print(f"baseline: {base:.3f} CPU s per session in process ({args.baseline} sessions)")
+
+    with tempfile.TemporaryDirectory() as tmp:
+        db = Path(tmp) / "cohort.db"
+        cmd = [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "cohort",
+            "--participants",
+            str(args.participants),
+            "--seed",
+            "1",
+            "--db",
+            str(db),
+            "--quiet",
+        ]
+        if args.workers:
+            cmd += ["--workers", str(args.workers)]
+        print(f"load at start: {load()}")
+        cpu0, t0 = children_cpu(), time.perf_counter()
+        done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+        wall, cpu = time.perf_counter() - t0, children_cpu() - cpu0
+        print(f"load after: {load()}")
+        if done.returncode != 0:
+            print(done.stdout + done.stderr, file=sys.stderr)
+            return 2
+        print(done.stdout.strip())
+        digest = stored_digest(db)
+
+    n = args.participants
+    ideal = n * base / cores
+    print(
+        f"cohort: {wall:.1f} s wall for {n} participants on {cores} cores; "
+        f"{cpu / n:.3f} CPU s per session with engine and store "
+        f"({cpu / n / base:.2f}× the baseline's {base:.3f})"
+    )
+    print(f"ideal (N × baseline / cores): {ideal:.1f} s; overhead {wall - ideal:.1f} s")
+    print(f"stored rows sha256: {digest}")
+    ok = wall <= args.max_s
+    print(f"goal ≤ {args.max_s:.0f} s: {'met' if ok else 'MISSED'}")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
