@@ -35,16 +35,8 @@ from services.lab.acl import (
     monitor_identity,
     rig_router_acl,
 )
-from services.lab.secure import (
-    _cert_pem,
-    _common,
-    _json5,
-    _key_pem,
-    _write_cert,
-    _write_identity,
-    _write_pem,
-    make_ca,
-)
+from services.lab.certs import write_ca, write_cert
+from services.lab.secure import _common, _json5, _write_identity
 
 Address = tuple[str, int]  # a router's host and TLS port
 
@@ -141,10 +133,7 @@ def secure_per_rig(
     its router.
     """
     out.mkdir(parents=True, exist_ok=True)
-    ca_key, ca = make_ca(days)
-    _write_pem(out / "ca.pem", _cert_pem(ca))
-    _write_pem(out / "ca.key", _key_pem(ca_key), private=True)
-    written = [out / "ca.pem", out / "ca.key"]
+    ca_key, ca, written = write_ca(out, days)
     for ident in lab_identities(roles, rigs)[-2:]:
         written += _write_identity(out, install_dir, ident, lab_host, lab_port, ca_key, ca, days)
     lab = f"tls/{lab_host}:{lab_port}"
@@ -194,7 +183,7 @@ def _write_router(
     what: str,
 ) -> list[Path]:
     """A router's certificate (naming its address) and config, in its folder."""
-    written = _write_cert(folder, name, host, ca_key, ca, days)
+    written = write_cert(folder, name, host, ca_key, ca, days)
     (folder / "router.json5").write_text(_json5(doc, what))
     return [*written, folder / "router.json5"]
 

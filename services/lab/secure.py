@@ -39,17 +39,12 @@ absolute path under `--install-dir`, default the absolute `--out`).
 from __future__ import annotations
 
 import argparse
-import datetime
-import ipaddress
 import json
-import os
 import sys
 from pathlib import Path
 
 from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from services.core.cli import PORT, Parser, fail, int_in
 from services.core.keys import check_rig
@@ -57,109 +52,7 @@ from services.core.limits import low_pass_filters
 from services.core.rigfile import WILDCARD_HOSTS, RigFileError, load_rig, split_endpoint
 from services.core.session import MAX_MESSAGE_BYTES, SHARED_MEMORY
 from services.lab.acl import HOSTS, LAB, ROUTER, Identity, acl, identities, lab_identities
-
-
-def _key() -> ec.EllipticCurvePrivateKey:
-    return ec.generate_private_key(ec.SECP256R1())
-
-
-def _name(common: str) -> x509.Name:
-    return x509.Name(
-        [
-            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "nod-hri lab"),
-            x509.NameAttribute(NameOID.COMMON_NAME, common),
-        ]
-    )
-
-
-def _alt_names(hosts: list[str]) -> list[x509.GeneralName]:
-    out: list[x509.GeneralName] = []
-    for host in hosts:
-        try:
-            out.append(x509.IPAddress(ipaddress.ip_address(host)))
-        except ValueError:
-            out.append(x509.DNSName(host))
-    return out
-
-
-def make_ca(days: int) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
-    """A self-signed CA that may sign host certificates only."""
-    key = _key()
-    now = datetime.datetime.now(datetime.UTC)
-    cert = (
-        x509.CertificateBuilder()
-        .subject_name(_name("nod-hri lab CA"))
-        .issuer_name(_name("nod-hri lab CA"))
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(minutes=5))
-        .not_valid_after(now + datetime.timedelta(days=days))
-        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=False,
-                content_commitment=False,
-                key_encipherment=False,
-                data_encipherment=False,
-                key_agreement=False,
-                key_cert_sign=True,
-                crl_sign=True,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
-        .sign(key, hashes.SHA256())
-    )
-    return key, cert
-
-
-def make_host(
-    name: str,
-    hosts: list[str],
-    ca_key: ec.EllipticCurvePrivateKey,
-    ca: x509.Certificate,
-    days: int,
-) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
-    """An identity's certificate: common name = its name (what the ACL matches), both TLS sides."""
-    key = _key()
-    now = datetime.datetime.now(datetime.UTC)
-    builder = (
-        x509.CertificateBuilder()
-        .subject_name(_name(name))
-        .issuer_name(ca.subject)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(minutes=5))
-        .not_valid_after(now + datetime.timedelta(days=days))
-        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(
-            x509.ExtendedKeyUsage(
-                [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
-            ),
-            critical=False,
-        )
-        .add_extension(x509.SubjectAlternativeName(_alt_names([name, *hosts])), critical=False)
-    )
-    return key, builder.sign(ca_key, hashes.SHA256())
-
-
-def _write_pem(path: Path, data: bytes, private: bool = False) -> None:
-    path.write_bytes(data)
-    if private:
-        os.chmod(path, 0o600)
-
-
-def _key_pem(key: ec.EllipticCurvePrivateKey) -> bytes:
-    return key.private_bytes(
-        serialization.Encoding.PEM,
-        serialization.PrivateFormat.PKCS8,
-        serialization.NoEncryption(),
-    )
-
-
-def _cert_pem(cert: x509.Certificate) -> bytes:
-    return cert.public_bytes(serialization.Encoding.PEM)
+from services.lab.certs import write_ca, write_cert
 
 
 def _tls(folder: Path, listen: bool) -> dict:
@@ -204,10 +97,7 @@ def secure(
     `listen` (default `tls/<router_host>:<port>`); clients connect to `tls/<router_host>:<port>`.
     """
     out.mkdir(parents=True, exist_ok=True)
-    ca_key, ca = make_ca(days)
-    _write_pem(out / "ca.pem", _cert_pem(ca))
-    _write_pem(out / "ca.key", _key_pem(ca_key), private=True)
-    written = [out / "ca.pem", out / "ca.key"]
+    ca_key, ca, written = write_ca(out, days)
     lab = not isinstance(rig, str)
     ids = lab_identities(roles, list(rig)) if lab else identities(roles, str(rig))
     for ident in ids:
@@ -216,7 +106,7 @@ def secure(
     # rig's control station is the lab's), on a single rig the control station's.
     where = ROUTER if lab else "control"
     if lab:
-        written += _write_cert(out / ROUTER, f"{LAB}.{ROUTER}", router_host, ca_key, ca, days)
+        written += write_cert(out / ROUTER, f"{LAB}.{ROUTER}", router_host, ca_key, ca, days)
     router = {
         "mode": "router",
         "listen": {"endpoints": [listen or f"tls/{router_host}:{port}"]},
@@ -229,25 +119,6 @@ def secure(
     )
     written.append(out / where / "router.json5")
     return written
-
-
-def _write_cert(
-    folder: Path,
-    name: str,
-    router_host: str | None,
-    ca_key: ec.EllipticCurvePrivateKey,
-    ca: x509.Certificate,
-    days: int,
-) -> list[Path]:
-    """An identity's key, certificate and the CA's certificate, in its folder."""
-    folder.mkdir(parents=True, exist_ok=True)
-    # The router's certificate names the router's address (the clients verify it).
-    hosts = [] if router_host is None else [router_host, "localhost", "127.0.0.1"]
-    key, cert = make_host(name, hosts, ca_key, ca, days)
-    _write_pem(folder / "key.pem", _key_pem(key), private=True)
-    _write_pem(folder / "cert.pem", _cert_pem(cert))
-    _write_pem(folder / "ca.pem", _cert_pem(ca))
-    return [folder / n for n in ("cert.pem", "key.pem", "ca.pem")]
 
 
 def _write_identity(
@@ -263,7 +134,7 @@ def _write_identity(
     folder = out / ident.folder
     # On a single rig the router speaks with the control station's certificate.
     serves = router_host if ident.name == "control" else None
-    written = _write_cert(folder, ident.name, serves, ca_key, ca, days)
+    written = write_cert(folder, ident.name, serves, ca_key, ca, days)
     client = {
         "mode": "client",
         "connect": {"endpoints": [f"tls/{router_host}:{port}"]},
