@@ -20,9 +20,9 @@ from services.actuation.feetech_arm import FeetechArmConfig
 from services.core import messages as m
 from services.core.keys import Keys
 from services.store import Store
-from tests.emulators.feetech_emulator import IDS, POSES, FeetechBusEmulator
+from tests.emulators.feetech_emulator import IDS, POSES
 from tests.emulators.links import FAST
-from tests.emulators.maestro_emulator import MaestroEmulator
+from tests.emulators.own_process import DeviceProcess
 from tests.processes import stop_all
 
 from .conftest import RELAXED, ROOT, Collector, connect_when_listening, free_port, wait_for
@@ -53,15 +53,16 @@ def test_a_silent_and_an_unplugged_bus_interrupt_their_trials(tmp_path, device):
     if device == "actuation":
         arm_file = tmp_path / "arm.toml"
         arm_file.write_text(config_toml(FeetechArmConfig(ids=IDS, poses=POSES, link=FAST)))
-        emulator = FeetechBusEmulator({i: 2048 for i in IDS}, link_dir=tmp_path)
+        emulator = DeviceProcess("feetech", tmp_path)
         state_cls = m.ArmStateMsg
-        hardware = ["--arm-driver", "feetech", "--arm-port", emulator.port,
-                    "--arm-config", str(arm_file)]
+        flags = ["--arm-driver", "feetech", "--arm-port", "{port}", "--arm-config", str(arm_file)]
     else:
-        emulator = MaestroEmulator(link_dir=tmp_path)
+        emulator = DeviceProcess("maestro", tmp_path)
         state_cls = m.EyesStateMsg
-        hardware = ["--eyes-driver", "maestro", "--eyes-port", emulator.port]
+        flags = ["--eyes-driver", "maestro", "--eyes-port", "{port}"]
+    # The device in a process of its own: its replies are timed against the driver's 50 ms.
     with emulator as bus:
+        hardware = [f.format(port=bus.port) for f in flags]
         run = subprocess.Popen(
             [sys.executable, "-m", "services.cli", "run", "--sim", "--speed", "2",
              "--params", str(params), "--db", str(db), "--listen", endpoint,
