@@ -28,6 +28,7 @@ from services.lab.secure import main as secure_main
 from tests.processes import stop_all
 
 from .conftest import ROOT, free_port, wait_for
+from .lab_seen import Seen, put_until_seen
 
 pytestmark = pytest.mark.integration
 Opener = Callable[[str], zenoh.Session]
@@ -140,35 +141,6 @@ def routers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
 def lab(routers: Lab) -> Iterator[Lab]:
     yield routers
     routers.close_sessions()
-
-
-class Seen:
-    """Every sample and liveliness token a session receives from a rig (`*`: every rig)."""
-
-    def __init__(self, session: zenoh.Session, rig: str = "*") -> None:
-        self.puts: list[tuple[str, bytes]] = []
-        self.alive: set[str] = set()
-        session.declare_subscriber(f"nod/{rig}/**", self._on)
-        session.liveliness().declare_subscriber(f"nod/{rig}/alive/*", self._on_alive, history=True)
-
-    def _on(self, sample: zenoh.Sample) -> None:
-        self.puts.append((str(sample.key_expr), sample.payload.to_bytes()))
-
-    def _on_alive(self, sample: zenoh.Sample) -> None:
-        if sample.kind == zenoh.SampleKind.PUT:
-            self.alive.add(str(sample.key_expr))
-
-    def has(self, key: str, payload: bytes | None = None) -> bool:
-        return any(k == key and payload in (None, p) for k, p in self.puts)
-
-
-def put_until_seen(sender: zenoh.Session, seen: Seen, key: str, payload: bytes) -> None:
-    """Put an allowed key until the observer has it (every route to it is up)."""
-    deadline = time.monotonic() + 15
-    while not seen.has(key, payload):
-        assert time.monotonic() < deadline, f"timed out waiting for {key}"
-        sender.put(key, payload)
-        time.sleep(0.02)
 
 
 def refused(
