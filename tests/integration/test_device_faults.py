@@ -21,7 +21,7 @@ from services.core import messages as m
 from services.core.keys import Keys
 from services.store import Store
 from tests.emulators.feetech_emulator import IDS, POSES
-from tests.emulators.links import FAST
+from tests.emulators.links import RIG
 from tests.emulators.own_process import DeviceProcess
 from tests.processes import stop_all
 
@@ -52,7 +52,7 @@ def test_a_silent_and_an_unplugged_bus_interrupt_their_trials(tmp_path, device):
     db = tmp_path / "s.sqlite"
     if device == "actuation":
         arm_file = tmp_path / "arm.toml"
-        arm_file.write_text(config_toml(FeetechArmConfig(ids=IDS, poses=POSES, link=FAST)))
+        arm_file.write_text(config_toml(FeetechArmConfig(ids=IDS, poses=POSES, link=RIG)))
         emulator = DeviceProcess("feetech", tmp_path)
         state_cls = m.ArmStateMsg
         flags = ["--arm-driver", "feetech", "--arm-port", "{port}", "--arm-config", str(arm_file)]
