@@ -11,7 +11,8 @@ machine gets.
         ... bus.port ...; bus.silent = True; bus.unplug(); bus.replug()
 
 The child reads one command a line on stdin and answers "ok" once it is done, so a fault is in
-place when the call returns: `silent 1|0`, `unplug`, `replug`, `quit`.
+place when the call returns: `silent 1|0`, `unplug`, `replug`, `silent S` and `unplugged S`
+(the fault for S seconds, then healthy again), `quit`.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import contextlib
 import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 from types import TracebackType
 
@@ -82,6 +84,15 @@ class DeviceProcess:
         """Pull the cable (the port path disappears)."""
         self._say("unplug")
 
+    def fault_for(self, fault: str, seconds: float) -> None:
+        """`silent` or `unplugged` for `seconds`, then healthy again, timed by the device itself.
+
+        A test that restores the device only once it has seen the trial interrupted races the
+        conductor's repeat of it on a loaded machine: the repeat can start, and break again on
+        the still-faulty device, before the test's own process gets to run.
+        """
+        self._say(f"{fault} {seconds}")
+
     def replug(self) -> None:
         """Plug it back in: a new pty behind the same path."""
         self._say("replug")
@@ -108,6 +119,18 @@ def _device(kind: str, link_dir: Path) -> PtyDevice:
     return MaestroEmulator(link_dir=link_dir)
 
 
+def _fault_for(device: PtyDevice, fault: str, seconds: float) -> None:
+    """Begin the fault now and end it after `seconds` on a timer of this process."""
+    if fault == "silent":
+        device.silent = True
+        end = threading.Timer(seconds, lambda: setattr(device, "silent", False))
+    else:
+        device.unplug()
+        end = threading.Timer(seconds, device.replug)
+    end.daemon = True
+    end.start()
+
+
 def main(argv: list[str]) -> int:
     """Serve one device until `quit` or the end of stdin (the parent gone)."""
     kind, link_dir = argv
@@ -119,10 +142,12 @@ def main(argv: list[str]) -> int:
             command = line.split()
             if command == ["quit"]:
                 break
-            if command[:1] == ["silent"] and len(command) == 2:
+            if command[:1] == ["silent"] and command[1:] in (["1"], ["0"]):
                 device.silent = command[1] == "1"
             elif command == ["unplug"]:
                 device.unplug()
+            elif command[:1] in (["silent"], ["unplugged"]) and len(command) == 2:
+                _fault_for(device, command[0], float(command[1]))
             elif command == ["replug"]:
                 device.replug()
             else:
