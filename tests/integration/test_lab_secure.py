@@ -195,8 +195,12 @@ def test_the_monitor_identity_reads_everything_and_drives_nothing(lab):
     monitor.put(KEYS.topic("rig/status"), b"allowed")  # its heartbeat, and nothing else
     wait_for(lambda: seen.has("rig/status"), 5, "the monitor's heartbeat")
     wait_for(lambda: KEYS.alive("monitor") in seen.alive, 5, "the monitor's token")
-    alive = list(control.liveliness().get(f"nod/{KEYS.rig}/alive/**", timeout=1))
-    assert KEYS.alive("monitor") in [str(r.ok.key_expr) for r in alive if r.ok]
+
+    def answered_alive() -> bool:  # one query's answers can miss the window on a loaded host
+        alive = control.liveliness().get(f"nod/{KEYS.rig}/alive/**", timeout=1)
+        return KEYS.alive("monitor") in [str(r.ok.key_expr) for r in alive if r.ok]
+
+    wait_for(answered_alive, 15, "the monitor's token in a liveliness query")
     denied = [t for t in forged if seen.has(t)]
     print(f"\nmonitor identity: {len(forged) - len(denied)} of {len(forged)} keys denied "
           "(release, engage, trial, result, rig event, arm, gaze, hand), actuation/state and "
