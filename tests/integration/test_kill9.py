@@ -167,7 +167,8 @@ def test_kill9_of_the_conductor_loses_nothing_and_the_session_resumes(
             try:
                 final = {t.trial: t for _, t in store.trials(session)}
                 status = {s["session"]: s["status"] for s in store.sessions()}[session]
-                lost = [i for i in store.interruptions(session) if "conductor lost" in i.reason]
+                breaks = store.interruptions(session)
+                lost = [i for i in breaks if "conductor lost" in i.reason]
                 gap = [e for e in store.safety_events(session)
                        if e.device == "actuation" and "experiment not alive" in e.reason]
             finally:
@@ -175,11 +176,14 @@ def test_kill9_of_the_conductor_loses_nothing_and_the_session_resumes(
             assert sorted(final) == [1, 2, 3] and status == "complete", (final, status)
             if in_trial:  # the lost attempt is on record, and the trial was repeated
                 broken = before[-1].trial
-                assert [(i.trial, i.attempt) for i in lost] == [(broken, 1)], lost
-                assert final[broken].attempts == 2 and not final[broken].interrupted
+                # (the attempt the kill hit: a loaded host's late input may have broken an
+                # earlier one of that trial, repeated like any)
+                assert [i.trial for i in lost] == [broken], lost
+                assert final[broken].attempts == 1 + sum(i.trial == broken for i in breaks), breaks
+                assert not final[broken].interrupted
                 # The arm's safe stop while no conductor ran is filed under that trial, and none
                 # under trial 0 (an earlier one of this session may be another trial's).
-                assert any(e.trial == broken and e.attempt == 1 for e in gap), gap
+                assert any(e.trial == broken and e.attempt == lost[0].attempt for e in gap), gap
                 assert all(e.trial != 0 for e in gap), gap
             else:
                 assert not lost, lost
