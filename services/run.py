@@ -37,6 +37,7 @@ from services.core.lifeline import nod_command
 from services.core.options_config import add_options_arg, load_with_options
 from services.core.rigfile import Host, Rig
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
+from services.core.signals import on_stop_signal
 from services.experiment.resume import flag_argv, resume_argv, resume_line, stored_unfinished
 from services.launch.commands import command
 from services.launch.events import RigEvents
@@ -248,8 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     events = RigEvents(router, keys, Clock(args.speed, epoch_ns))
     supervisor = Supervisor(RestartPolicy(), on_event=events)
     stopping = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stopping.set())
-    signal.signal(signal.SIGTERM, lambda *_: stopping.set())
+    on_stop_signal(lambda _signum: stopping.set())  # never set() inside a handler
     code = 1
     session = args.resume
     try:

@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import logging
 import os
-import signal
 import socket
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 import zenoh
@@ -26,6 +25,7 @@ from services.core.contract import EVERY_SERVICE, QoS, check_publisher, check_su
 from services.core.keys import Keys
 from services.core.limits import max_payload_bytes
 from services.core.session import Fabric, open_session_retrying
+from services.core.signals import on_stop_signal
 from services.model.safety import Watchdog
 
 M = TypeVar("M", bound=m.Message)
@@ -388,51 +388,39 @@ def install_signal_handlers(
 
     A clean stop undeclares, closes and lets the device reach its safe state. If the process is
     still alive `grace_s` later (a put blocked on a vanished router, a hung driver), the exit
-    hooks run (the device's safe state, best effort) and the process exits with 128 + signal.
+    hooks run (the device's safe state, best effort, for at most a second) and the process exits
+    with 128 + signal. The signal is handled on a helper thread (`services.core.signals`), and the
+    forced exit is armed before anything else: neither can wait on a lock the main thread holds.
     Only possible from the main thread.
     """
-    if threading.current_thread() is not threading.main_thread():
-        return
 
     def force_exit(signum: int) -> None:
-        for hook in exit_hooks or ():
-            try:
-                hook()
-            except Exception:  # best effort: nothing may prevent the exit itself
-                log.exception("exit hook failed")
-        log.warning("did not stop within %.0f s of signal %d: exiting now", grace_s, signum)
+        hooks = threading.Thread(target=_run_exit_hooks, args=(exit_hooks or (),), daemon=True)
+        hooks.start()
+        hooks.join(1.0)  # a hook stuck on a dead device must not keep the process alive
+        # os.write, not logging: a thread stuck while holding the logging lock must not stop us.
+        os.write(2, f"did not stop within {grace_s:.0f} s of signal {signum}: exiting now\n"
+                 .encode())
         os._exit(128 + signum)
 
     armed = threading.Lock()
 
     def arm(signum: int) -> None:
-        stop.set()
-        if armed.acquire(blocking=False):  # one timer, from whichever path sees the signal first
+        if armed.acquire(blocking=False):  # one timer, however many signals arrive
             timer = threading.Timer(grace_s, force_exit, (signum,))
             timer.daemon = True
             timer.start()
+        stop.set()
 
-    def on_signal(signum: int, _frame: Any) -> None:
-        arm(signum)
+    on_stop_signal(arm)
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
-    # Python runs `on_signal` on the main thread between bytecodes: a main thread stuck in a
-    # native call (a blocking put to a router that vanished) would never run it, and the
-    # process would ignore SIGTERM. The C-level handler also writes the signal number to a
-    # wake-up pipe; a thread of ours reads it and arms the forced exit regardless.
-    r, w = os.pipe()
-    os.set_blocking(w, False)
-    signal.set_wakeup_fd(w, warn_on_full_buffer=False)
 
-    def watch_wakeups() -> None:
-        while True:
-            data = os.read(r, 64)
-            for signum in data:
-                if signum in (signal.SIGINT, signal.SIGTERM):
-                    arm(signum)
-
-    threading.Thread(target=watch_wakeups, name="signal-wakeup", daemon=True).start()
+def _run_exit_hooks(hooks: Sequence[Callable[[], object]]) -> None:
+    for hook in hooks:
+        try:
+            hook()
+        except Exception:  # best effort: nothing may prevent the exit itself
+            log.exception("exit hook failed")
 
 
 def clip(text: str, limit: int = 200) -> str:

@@ -22,6 +22,7 @@ from pathlib import Path
 from services.core.config import load_params
 from services.core.lifeline import nod_command
 from services.core.session import make_config, open_session
+from services.core.signals import on_stop_signal
 from services.store import Store, StoreError
 from services.store.participants import first_free_ids, sessions_by_participant
 
@@ -109,8 +110,7 @@ def run_rigs(args: argparse.Namespace, passthrough: list[str]) -> int:
                       for r, b in zip(rigs, people, strict=True))
           + f"; logs in {logs}/", flush=True)
     stopping = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stopping.set())
-    signal.signal(signal.SIGTERM, lambda *_: stopping.set())
+    on_stop_signal(lambda _signum: stopping.set())  # never set() inside a handler
     children: dict[str, subprocess.Popen] = {}
     seed = args.seed
     try:

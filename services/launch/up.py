@@ -27,7 +27,6 @@ import argparse
 import json
 import logging
 import os
-import signal
 import sys
 import threading
 import time
@@ -48,6 +47,7 @@ from services.core.rigfile import (
     router_config,
 )
 from services.core.session import make_config, open_session
+from services.core.signals import on_stop_signal
 from services.launch.commands import command
 from services.launch.events import RigEvents
 from services.launch.init_rig import init_rig
@@ -208,8 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     policy = RestartPolicy(max_restarts=max(0, args.max_restarts))
     supervisor = Supervisor(policy, on_event=events)
     stopping = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stopping.set())
-    signal.signal(signal.SIGTERM, lambda *_: stopping.set())
+    on_stop_signal(lambda _signum: stopping.set())  # never set() inside a handler
     where = f"host {args.host}" if args.host else "every host, on this machine"
     router_note = f"router on {endpoint}" if with_router else f"router at {endpoint}"
     print(

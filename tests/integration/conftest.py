@@ -9,7 +9,6 @@ import subprocess
 import sys
 import threading
 import time
-import warnings
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -51,7 +50,7 @@ skew_ms = 500.0
 
 @pytest.fixture(autouse=True)
 def _no_process_outlives_its_test(request, monkeypatch):
-    """Report (a warning) a test that leaves a process running after its teardown; end it.
+    """Fail a test that leaves a process running after its teardown; end the process.
 
     Every process a test starts, and everything those start, inherits a mark of that test. A
     service that outlives its launcher (an orphan under init after a kill -9, a child whose
@@ -75,11 +74,8 @@ def _no_process_outlives_its_test(request, monkeypatch):
         for pid in left:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
-        # Reported, not failed, for now: one test (see the warning) still leaves a child now and
-        # then; a lab's CI must not turn red on it before it is fixed at its cause.
-        warnings.warn(f"{request.node.name} left {len(left)} process(es) running 20 s after its "
-                      f"teardown (killed now): " + "; ".join(f"{p}: {c}" for p, c in left.items()),
-                      stacklevel=1)
+        pytest.fail(f"{request.node.name} left {len(left)} process(es) running 20 s after its "
+                    "teardown (killed now): " + "; ".join(f"{p}: {c}" for p, c in left.items()))
 
 
 @pytest.fixture
