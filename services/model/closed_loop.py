@@ -22,6 +22,7 @@ from services.model.arm import SimArm
 from services.model.decision import DecisionModel
 from services.model.geometry import Colour, Point, TableLayout, colour_sign
 from services.model.judge import TrialJudge
+from services.model.outcome import TrialJudgement
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered
 from services.model.protocol import Cue, SessionProtocol
@@ -154,23 +155,8 @@ class _Loop:
         assert self.judge is not None  # set at "go", which precedes every "end"
         j = self.judge.verdict(self.protocol.end, robot, self.clicks)
         t_press = self.judge.t_press
-        self.results.append(
-            OfflineTrial(
-                index,
-                mode,
-                option,
-                j.human,
-                j.robot,
-                j.outcome,
-                j.switches,
-                j.violations,
-                j.score,
-                t - self.t_go,
-                None if t_press is None or j.human is None else t_press - self.t_go,
-                tuple(self.samples),
-                attempts=self.protocol.attempt,
-            )
-        )
+        press_s = None if t_press is None or j.human is None else t_press - self.t_go
+        self._keep(t, index, mode, option, j, press_s, tuple(self.samples))
 
     def _interrupted(self, t: float, index: int, mode: str, option: Colour | None) -> None:
         """A safe stop broke the trial: void it, and keep it if it is not repeated.
@@ -182,25 +168,27 @@ class _Loop:
         self.judge = None
         proto = self.cfg.protocol
         if not proto.repeat_interrupted or self.protocol.attempt >= proto.max_attempts:
-            j = TrialJudge.void()
-            self.results.append(
-                OfflineTrial(
-                    index,
-                    mode,
-                    option,
-                    j.human,
-                    j.robot,
-                    j.outcome,
-                    j.switches,
-                    j.violations,
-                    j.score,
-                    t - self.t_go,
-                    None,
-                    (),
-                    interrupted=True,
-                    attempts=self.protocol.attempt,
-                )
+            self._keep(t, index, mode, option, TrialJudge.void(), None, (), interrupted=True)
+
+    def _keep(
+        self,
+        t: float,
+        index: int,
+        mode: str,
+        option: Colour | None,
+        j: TrialJudgement,
+        press_s: float | None,
+        samples: tuple[LoopSample, ...],
+        interrupted: bool = False,
+    ) -> None:
+        """Store the trial ending at t with judgement j, as the conductor stores it."""
+        self.results.append(
+            OfflineTrial(
+                index, mode, option, j.human, j.robot, j.outcome, j.switches, j.violations,
+                j.score, t - self.t_go, press_s, samples, interrupted=interrupted,
+                attempts=self.protocol.attempt,
             )
+        )
 
     def frame(self, t: float) -> None:
         """One camera frame: the person moves, decision reads the pose, actuation steps."""
