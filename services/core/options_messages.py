@@ -200,6 +200,7 @@ class OptionsResult(_WithOptionCount, frozen=True, kw_only=True):
     violations: Trial = 0
     score: Score = 0
     session: Text = ""
+    interrupted: bool = False  # broken by safe stops and not repeated: stored, never scored
 
     def __post_init__(self) -> None:
         self._check(option=self.option, robot=self.robot, human=self.human)

@@ -342,3 +342,9 @@ class OptionsConductor:
             )
             self.store.write_trial(self.session, rec)
             self.results.append(rec)
+            # published as the paper's conductor does: the launcher's table and the monitor
+            # show every trial stored, the one given up on as well
+            self.pub_result.put(
+                n_options=self.n, trial=trial.index, mode=trial.mode, option=trial.option,
+                session=self.session, interrupted=True,
+            )

@@ -65,7 +65,7 @@ class OptionsSessionView(SessionView):
             self.out.write(
                 f"{r.trial:>5} {r.mode:<10} {self.name(r.option):<7} {self.name(r.robot):<7} "
                 f"{self.name(r.human):<7} {r.outcome or '-':<8} {r.switches:>6} "
-                f"{r.violations:>4} {r.score:>5}\n"
+                f"{r.violations:>4} {r.score:>5}{'  interrupted' if r.interrupted else ''}\n"
             )
             self.out.flush()
 

@@ -81,7 +81,7 @@ class SessionView:
             self.out.write(
                 f"{r.trial:>5} {r.mode:<10} {r.option or '-':<5} {r.robot or '-':<6} "
                 f"{r.human or '-':<6} {r.outcome or '-':<8} {r.switches:>6} {r.violations:>4} "
-                f"{r.score:>5}\n"
+                f"{r.score:>5}{'  interrupted' if r.interrupted else ''}\n"
             )
             self.out.flush()
 

@@ -394,7 +394,10 @@ class RerunBridge:
             f"{_opt(msg.human)} → {_opt(msg.outcome)} (switches {msg.switches}, violations "
             f"{msg.violations}, score {msg.score})"
         )
-        self.rec.log(ENTITIES["log_result"], rr.TextLog(text, level="INFO"))
+        if msg.interrupted:
+            text += ": interrupted, not scored"
+        level = "WARN" if msg.interrupted else "INFO"
+        self.rec.log(ENTITIES["log_result"], rr.TextLog(text, level=level))
 
     # a table of N boxes: `services.monitor.options_bridge`
     _on_option_vector = ob.on_option_vector

@@ -100,4 +100,6 @@ def on_options_result(bridge: Any, topic: str, msg: om.OptionsResult) -> None:
     text = (f"trial {msg.trial} [{msg.mode}{o}]: robot {_name(bridge, msg.robot)}, human "
             f"{_name(bridge, msg.human)} → {msg.outcome or '-'} (switches {msg.switches}, "
             f"violations {msg.violations}, score {msg.score})")
-    bridge.rec.log("log/result", rr.TextLog(text, level="INFO"))
+    if msg.interrupted:
+        text += ": interrupted, not scored"
+    bridge.rec.log("log/result", rr.TextLog(text, level="WARN" if msg.interrupted else "INFO"))

@@ -94,26 +94,9 @@ def routers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
         f'[rig]\nname = "rig2"\nrouter = "tls/127.0.0.1:{port2}"\ntls = "tls/rig2"\n'
         '[hosts.control]\nrouter = true\nservices = ["monitor"]\n'
     )
-    assert (
-        secure_main(
-            [
-                "--out",
-                str(out),
-                "--rigs",
-                "rig1,rig2",
-                "--router-per-rig",
-                "--router-host",
-                "127.0.0.1",
-                "--port",
-                str(lab_port),
-                "--rig-router",
-                f"rig1=127.0.0.1:{port1}",
-                "--rig-router",
-                f"rig2={rig2}",
-            ]
-        )
-        == 0
-    )
+    flags = f"--rigs rig1,rig2 --router-per-rig --router-host 127.0.0.1 --port {lab_port}"
+    rig_routers = ["--rig-router", f"rig1=127.0.0.1:{port1}", "--rig-router", f"rig2={rig2}"]
+    assert secure_main(["--out", str(out), *flags.split(), *rig_routers]) == 0
 
     def start(*args: str) -> subprocess.Popen:
         return subprocess.Popen(

@@ -124,14 +124,14 @@ def test_flags_not_yet_there_for_options_are_refused_before_anything_starts(
     assert len(run.stderr.strip().splitlines()) == 1
 
 
-def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path: Path) -> None:
-    """The N-option conductor's safety: an e-stop breaks trial 2, which is repeated."""
+def _estop_trial_2(tmp_path: Path, params: str) -> tuple[str, Path]:
+    """`nod run --sim` of `params`, e-stopped in trial 2 and released: its output and store."""
     db, logs = tmp_path / "s.sqlite", tmp_path / "logs"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     run = subprocess.Popen(
         # 2x: trial 2 lasts ~3 s of wall time, enough for `nod estop` to start on a busy host
         [sys.executable, "-m", "services.cli", "run", "--sim", "--speed", "2", "--params",
-         _short(tmp_path), "--seed", "2", "--db", str(db), "--listen", endpoint,
+         params, "--seed", "2", "--db", str(db), "--listen", endpoint,
          "--stale-ms", "1000", "--logs", str(logs)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )
@@ -164,9 +164,32 @@ def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path: Pa
             run.kill()
     logs_text = "".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(logs.glob("*")))
     assert run.returncode == 0, out + logs_text
+    return out, db
+
+
+def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path: Path) -> None:
+    """The N-option conductor's safety: an e-stop breaks trial 2, which is repeated."""
+    out, db = _estop_trial_2(tmp_path, _short(tmp_path))
     trials, broken, events = last_session_record(
         db, lambda store, session: OptionsStore(store).trials(session))
     context = f"{trials}\n{broken}\n{events}\n{out}"
     assert_estop_broke_trial_2_and_every_break_was_repeated(trials, broken, context)
     kinds = [(e.device, e.event) for e in events if e.trial == 2]
     assert ("estop", "estop") in kinds and ("estop", "release") in kinds, context
+
+
+def test_a_trial_given_up_on_is_stored_interrupted_and_shown_in_the_table(tmp_path: Path) -> None:
+    """Not repeated: the e-stopped trial 2 is stored interrupted, published and shown as such."""
+    params = tmp_path / "once.toml"
+    once = SHORT_OPTIONS.replace("[protocol]\n", "[protocol]\nrepeat_interrupted = false\n")
+    params.write_text(once)
+    out, db = _estop_trial_2(tmp_path, str(params))
+    trials, broken, _ = last_session_record(
+        db, lambda store, session: OptionsStore(store).trials(session))
+    context = f"{trials}\n{broken}\n{out}"
+    assert [t.trial for t in trials] == [1, 2, 3] and trials[1].interrupted, context
+    assert "3 trials of 1 participant(s) stored" in out, context
+    table = {int(line.split()[0]): line for line in out.splitlines() if line[:5].strip().isdigit()}
+    assert sorted(table) == [1, 2, 3], context  # one row per trial stored, the broken one too
+    for t in trials:
+        assert table[t.trial].endswith("interrupted") == t.interrupted, context

@@ -85,23 +85,8 @@ def test_secure_rigs_writes_a_folder_per_rig_the_labs_own_and_the_router(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "lab"
-    assert (
-        secure_main(
-            [
-                "--out",
-                str(out),
-                "--rigs",
-                "rig1,rig2",
-                "--hosts",
-                "control,arm",
-                "--router-host",
-                "127.0.0.1",
-                "--port",
-                "7600",
-            ]
-        )
-        == 0
-    )
+    flags = "--rigs rig1,rig2 --hosts control,arm --router-host 127.0.0.1 --port 7600"
+    assert secure_main(["--out", str(out), *flags.split()]) == 0
     for folder in ("rig1/control", "rig1/arm/launcher", "rig2/monitor", "lab/monitor", "lab/estop"):
         assert (out / folder / "zenoh.json5").is_file(), folder
         assert (out / folder / "key.pem").stat().st_mode & 0o077 == 0
@@ -238,28 +223,9 @@ def test_secure_router_per_rig_writes_each_rigs_router_linked_to_the_lab_router(
         '[rig]\nname = "rig2"\nrouter = "tls/rig2.lab:7448"\ntls = "lab/rig2"\n'
         '[hosts.control]\nrouter = true\nservices = ["monitor"]\n'
     )
-    assert (
-        secure_main(
-            [
-                "--out",
-                str(out),
-                "--rigs",
-                "rig1,rig2",
-                "--hosts",
-                "control,arm",
-                "--router-per-rig",
-                "--router-host",
-                "router.lab",
-                "--port",
-                "7600",
-                "--rig-router",
-                "rig1=10.0.1.1:7447",
-                "--rig-router",
-                f"rig2={rig2}",
-            ]
-        )
-        == 0
-    )
+    flags = "--rigs rig1,rig2 --hosts control,arm --router-per-rig --router-host router.lab"
+    rig_routers = ["--rig-router", "rig1=10.0.1.1:7447", "--rig-router", f"rig2={rig2}"]
+    assert secure_main(["--out", str(out), *flags.split(), "--port", "7600", *rig_routers]) == 0
     lab = _doc(out / "router" / "router.json5")
     assert lab["listen"]["endpoints"] == ["tls/router.lab:7600"] and "connect" not in lab
     assert lab["scouting"]["gossip"] == {"enabled": False}
