@@ -232,7 +232,7 @@ OPTIONS_TRIAL = Topic(
 OPTIONS_RESULT = Topic(
     "options/result", om.OptionsResult, ("experiment",), ("run",), "per trial", RELIABLE,
     "`n_options`, `trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, "
-    "`violations`, `score`, `session`",
+    "`violations`, `score`, `session`, `interrupted`",
 )
 _TOPICS: tuple[Topic[m.Message], ...] = (
     VISION_HAND, VISION_LAYOUT, VISION_FRAME, SIM_CAMERA, DECISION_Z_H, DECISION_Z_R, DECISION_B_R,
