@@ -97,6 +97,24 @@ class ParticipantParams:
     # on, so most turns begun 0.03 before the line were read past it (a violation), none of 180
     # begun 0.1 before it (at 1.5× speed; a quicker turn needs more).
     late_switch_lead: float = 0.1
+    # The person who distrusts the eyes (the paper's Fig 8b: 12 of its 51 people are mostly CH
+    # and 7 mostly D in trials 4-8, and at least 3 are D in trial 4, O blue, and trial 5, O red,
+    # which a fair coin per trial or a favourite colour cannot give): in a consensus trial a
+    # contrarian ignores the gaze and heads for the other box; the arm, going for O, then brings
+    # them over (CH) or not (D, a strong-willed one), trial after trial. Share of such people,
+    # drawn once per person; 0 = nobody (the SPEC person, its random stream unchanged).
+    contrarian_share: float = 0.0
+    # Share of a contrarian's distrust gone after each consensus trial played against the eyes:
+    # they come round as the eyes and the robot keep agreeing (the paper's D falls 14 -> 2 %
+    # from trial 5 to 7, its CH 24 -> 14 %).
+    contrarian_learn: float = 0.3
+    # How firmly a pliant contrarian holds the other box: their preference's size, times this, in
+    # a trial played against the eyes. Below 1 the arm brings most of them over (CH: the paper's
+    # trial 4 has 43 % CH and 12 % D, so most of those who first went the other way came over).
+    contrarian_resolve: float = 1.0
+    # Share of contrarians who are firm instead: they hold the other box with their whole
+    # preference and mostly stay there (D), the paper's 7 of 51 mostly-D people; drawn once.
+    contrarian_firm: float = 0.0
     rule_breaking: float = 0.05  # probability per trial of ignoring the commit-line rule
     hand_radius: float = 0.03  # landmark spread around the centre
     # Tracker jitter (sd, normalised units; 1 px = 1/640 in x, 1/480 in y). A tracker's error is
@@ -122,9 +140,14 @@ class ParticipantParams:
             "late_switch_share",
             "late_switch_first",
             "late_switch_learn",
+            "contrarian_share",
+            "contrarian_learn",
+            "contrarian_firm",
         ):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"ParticipantParams.{name} must be in [0, 1]")
+        if not 0 <= self.contrarian_resolve <= 2:
+            raise ValueError("ParticipantParams.contrarian_resolve must be in [0, 2]")
         if not 1 <= self.late_switch_speed <= 5:
             raise ValueError("ParticipantParams.late_switch_speed must be in [1, 5] (× speed)")
         if not 0 <= self.late_switch_lead <= 0.3:
@@ -180,6 +203,17 @@ class Participant:
         self._first: Colour | None = None  # the side the hand first headed for this trial
         self._arm_side = 0  # the side the arm was last seen heading for (it stays there parked)
         self._opposed = False  # the arm was seen heading against the first side this trial
+        # The contrarian (ParticipantParams.contrarian_*), drawn like the strategist: only when
+        # anyone can be one, so a person without them keeps the random stream it had.
+        c_share = params.contrarian_share
+        # Drawn apart from the strategist: the paper's lasting CH and D come from both control
+        # rows of Fig 8b (C → CH 4, C → D 2 of 16; D → CH 8, D → D 5 of 35). Contrarians only
+        # among non-strategists fitted the D row better and the C row worse (docs/study.md).
+        self.contrarian = c_share > 0 and bool(self.rng.random() < c_share)
+        firm = self.contrarian and bool(self.rng.random() < params.contrarian_firm)
+        self._resolve = 1.0 if firm else params.contrarian_resolve
+        self.contrary_trials = 0  # consensus trials played against the eyes so far
+        self._contrary = False  # against the eyes this trial
 
     # -- protocol events -------------------------------------------------------------------
 
@@ -209,6 +243,11 @@ class Participant:
             self.p.late_switch_first, self.p.late_switch_learn, self.opposed_trials
         )
         self._feint = self._control and self.strategist and bool(self.rng.random() < chance)
+        self._contrary = (
+            not self._control
+            and self.contrarian
+            and bool(self.rng.random() < (1.0 - self.p.contrarian_learn) ** self.contrary_trials)
+        )
         self._quick = False
         self._first = None
         self._arm_side = 0
@@ -223,6 +262,10 @@ class Participant:
         yaw = self._gaze_yaw
         self._gaze_sign = int(math.copysign(1, yaw)) if abs(yaw) > 1e-9 else 0
         self._gaze_pull = self.p.gaze_gain * abs(yaw) * self.trust
+        if self._contrary and self._gaze_sign:  # today's preference is the box not looked at
+            self._preference = -self._gaze_sign * abs(self._preference) * self._resolve
+            self.contrary_trials += 1
+            self._gaze_sign, self._gaze_pull = 0, 0.0  # the eyes: neither pull nor lesson
         self.b_h = self._preference + self._gaze_sign * self._gaze_pull
         self.t_go = t
 

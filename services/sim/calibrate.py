@@ -53,6 +53,7 @@ from services.sim.fit import (
     TRAITS,
     CohortObjective,
     Generation,
+    Trait,
     default_popsize,
     from_unit,
     minimise,
@@ -123,7 +124,7 @@ def write_params(path: Path, cfg: NodConfig, how: list[str]) -> None:
 
 def provenance(args: argparse.Namespace, where: str, best: float, c: Check) -> list[str]:
     """How a fit was made, for the head of its file."""
-    popsize = args.popsize or default_popsize(len(TRAITS))
+    popsize = args.popsize or default_popsize(len(args.traits))
     held = " ".join(f"{c.trial_tvd[k]:.3f}" for k in sorted(c.trial_tvd))
     return [
         "A MODEL OF THE PAPER'S FIG 8a/8b, NOT A REPLICATION: participant traits that make the",
@@ -132,12 +133,24 @@ def provenance(args: argparse.Namespace, where: str, best: float, c: Check) -> l
         f"fitted {datetime.now(UTC):%Y-%m-%d %H:%M} UTC on {where}, nod-hri code "
         f"{code_fingerprint()}",
         f"CMA-ES (pycma): {args.generations} generations of {popsize} candidates, sigma0 "
-        f"{args.sigma0} of each trait's range; {args.participants} participants per candidate, "
+        f"{args.sigma0} of each trait's range over {len(args.traits)} traits; "
+        f"{args.participants} participants per candidate, "
         f"seeds {args.seed}..{args.seed + args.participants - 1} (common random numbers); "
         f"best score on them {best:.3f} (Σ trial TVD + flow TVD)",
         f"held out: {c.n} participants, seeds {c.seed}..{c.seed + c.n - 1}: TVD per trial "
         f"1-{len(c.trial_tvd)} = {held}; flows (Fig 8b) {c.flow_tvd:.3f}",
     ]
+
+
+def trait_list(text: str) -> tuple[Trait, ...]:
+    """`--traits a,b`: the named traits of TRAITS, in the order given."""
+    by_name = {t.name: t for t in TRAITS}
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in by_name]
+    if unknown or not names or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: name fitted traits once each, of: {', '.join(by_name)}")
+    return tuple(by_name[n] for n in names)
 
 
 def _read(source: Path | Traversable) -> str:
@@ -169,6 +182,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="participants of the check (400)")
     p.add_argument("--holdout-seed", type=SEED, default=None,
                    help=f"their first seed (default: --seed + {HOLDOUT_OFFSET})")
+    p.add_argument("--traits", type=trait_list, default=TRAITS, metavar="NAME,NAME",
+                   help="fit only these traits, the others held at the --params person's "
+                   "(default: all of " + ", ".join(t.name for t in TRAITS) + ")")
     p.add_argument("--evaluate", action="store_true",
                    help="fit nothing: check the --params (or shipped) person on the held-out "
                    "people")
@@ -179,17 +195,19 @@ def build_parser() -> argparse.ArgumentParser:
 def fit(engine: Engine, cfg: NodConfig, target: Shares, target_flows: Flows,
         args: argparse.Namespace) -> tuple[NodConfig, float]:
     """Run the search; the fitted config and its score on the fit's seeds."""
-    objective = CohortObjective(engine, cfg, target, target_flows, args.participants, args.seed)
+    traits = args.traits
+    objective = CohortObjective(engine, cfg, target, target_flows, args.participants, args.seed,
+                                traits)
     t0 = time.monotonic()
 
     def progress(g: Generation) -> None:
         print(f"  generation {g.index}/{args.generations}: best {g.best:.3f}, so far "
               f"{g.best_so_far:.3f} ({time.monotonic() - t0:.0f} s)", flush=True)
 
-    x, best = minimise(objective, to_unit(cfg), args.generations,
-                       args.popsize or default_popsize(len(TRAITS)), args.sigma0, args.seed,
+    x, best = minimise(objective, to_unit(cfg, traits), args.generations,
+                       args.popsize or default_popsize(len(traits)), args.sigma0, args.seed,
                        progress)
-    return with_traits(cfg, from_unit(x)), best
+    return with_traits(cfg, from_unit(x, traits)), best
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -214,10 +232,10 @@ def main(argv: list[str] | None = None) -> int:
         with engine_from_args(args) as engine:
             best = math.nan
             if not args.evaluate:
-                print(f"fitting {len(TRAITS)} traits on {engine.where}:", flush=True)
+                print(f"fitting {len(args.traits)} traits on {engine.where}:", flush=True)
                 cfg, best = fit(engine, cfg, target, target_flows, args)
                 print("traits: " + ", ".join(
-                    f"{t.name} = {getattr(cfg.participant, t.name):.4f}" for t in TRAITS))
+                    f"{t.name} = {getattr(cfg.participant, t.name):.4f}" for t in args.traits))
             held = cohort_outcomes(engine, cfg, holdout_seed, args.holdout)
             where = engine.where
     except EngineError as exc:

@@ -80,6 +80,11 @@ TRAITS: tuple[Trait, ...] = (
     Trait("late_switch_first", 0.0, 1.0),
     Trait("late_switch_learn", 0.0, 1.0),
     Trait("late_switch_speed", 1.0, 2.5),
+    # The person who distrusts the eyes in consensus trials (participant.py).
+    Trait("contrarian_share", 0.0, 0.6),
+    Trait("contrarian_learn", 0.0, 1.0),
+    Trait("contrarian_resolve", 0.0, 1.5),
+    Trait("contrarian_firm", 0.0, 1.0),
 )
 
 

@@ -140,3 +140,29 @@ def test_calibrate_cohort_fits_checks_on_other_people_and_says_how(tmp_path: Pat
 def test_held_out_people_must_not_be_the_fits(capsys) -> None:
     assert calibrate_main(["--participants", "10", "--seed", "1", "--holdout-seed", "5"]) == 2
     assert "must not be the fit's" in capsys.readouterr().err
+
+
+def test_traits_fits_only_the_named_ones_and_holds_the_rest(tmp_path: Path, capsys) -> None:
+    start = load_cohort_params(None).participant
+    out = tmp_path / "fit.toml"
+    code = calibrate_main(["--participants", "2", "--generations", "1", "--popsize", "3",
+                           "--sigma0", "0.5", "--holdout", "2", "--holdout-seed", "500",
+                           "--workers", "1", "--traits", "contrarian_share,trust0",
+                           "--out", str(out)])
+    text = capsys.readouterr().out
+    assert code == 0 and "fitting 2 traits" in text
+    assert "traits: contrarian_share = " in text and ", trust0 = " in text
+    fitted = load_cohort_params(out).participant
+    named = {"contrarian_share", "trust0"}
+    for t in TRAITS:  # every other trait is the start's, written as it was
+        if t.name not in named:
+            assert getattr(fitted, t.name) == pytest.approx(getattr(start, t.name), abs=1e-4)
+    assert "over 2 traits" in out.read_text()
+
+
+@pytest.mark.parametrize("traits", ["speeed", "trust0,trust0", ","])
+def test_bad_traits_are_one_line(traits: str, capsys) -> None:
+    with pytest.raises(SystemExit):
+        calibrate_main(["--traits", traits, "--evaluate"])
+    err = capsys.readouterr().err
+    assert "--traits" in err and "name fitted traits once each" in err
