@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from services.cohort.person import fitted_traits
 from services.core.config import ConfigError, load_params, params_hash
 from services.core.options_config import load_with_options
 from services.model.options_loop import OptionsOfflineTrial, run_options_session
@@ -77,3 +78,16 @@ def test_every_service_reads_a_file_listing_options_as_the_rigs_params(tmp_path:
     assert params_hash(cfg) == params_hash(load_with_options(f)[0])
     f.write_text('[protocol]\ntrials = [{ index = 1, mode = "dissensus" }]\n')
     assert len(load_params(f).protocol.trials) == 1  # the paper's own file keeps its trials
+
+
+def test_the_default_person_mostly_ends_consensus_trials_on_o() -> None:
+    """What `nod run --sim --options 3` leans on (tests/integration/test_run_options.py): the
+    shipped person over three options ends most consensus trials with human, robot and O one."""
+    cfg, schedule = load_with_options(None, 3, fitted_traits())
+    assert schedule is not None
+    on_o = []
+    for seed in range(1, 13):
+        consensus = [r for r in run_options_session(cfg, schedule, seed) if r.mode == "consensus"]
+        on_o.append(sum(r.human == r.option == r.robot for r in consensus))
+    assert min(on_o) >= 2 and sum(on_o) / (5 * len(on_o)) >= 0.75, on_o
+    assert sum(n >= 3 for n in on_o) >= 11, on_o  # the integration test's bar (its seed is 2)
