@@ -22,7 +22,7 @@ import numpy as np
 from services.fit.estimator import ESTIMATOR_VERSION, Estimates, QuantileEstimator
 from services.fit.simulate import (
     DERIVED,
-    STRATEGIST,
+    KINDS,
     Mapper,
     Simulated,
     Table,
@@ -87,12 +87,15 @@ def posterior_draws(prep: Prepared, estimate: np.ndarray, n: int) -> np.ndarray:
     return theta[np.argsort(d)[:n]]
 
 
+SHARE_OF = dict(KINDS)  # a kind → the cohort trait whose share makes it
+
+
 def person_config(cfg: NodConfig, names: Sequence[str], theta: np.ndarray) -> NodConfig:
     """The cohort's configuration with one person's traits (derived parameters ignored)."""
     traits: dict[str, Any] = {}
     for name, value in zip(names, theta, strict=True):
-        if name == STRATEGIST:
-            traits["late_switch_share"] = float(value >= 0.5)
+        if name in SHARE_OF:  # someone of that kind for sure, or not at all
+            traits[SHARE_OF[name]] = float(value >= 0.5)
         elif name not in DERIVED:
             traits[name] = float(value)
     return dataclasses.replace(cfg, participant=dataclasses.replace(cfg.participant, **traits))

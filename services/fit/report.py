@@ -33,6 +33,9 @@ MEANING = {
     "reaction_s": "reaction time from go to the first movement (s)",
     "perception_delay_s": "how late the person sees the arm's heading (s)",
     "late_switcher": "probability that the person plays the strategic late switch (control)",
+    "contrarian": "probability that the person distrusts the eyes (consensus trials)",
+    "firm_contrarian": "probability that the person holds the box the eyes do not look at "
+    "against the robot (a firm contrarian: their own preference's strength)",
 }
 
 

@@ -7,7 +7,10 @@ itself (empirical Bayes: the population was fitted to the paper, each person is 
 it). The parameters fitted are whichever traits `jittered` draws per person — found by drawing,
 not listed here, so a trait added to the model is fitted without a change here — plus the
 derived `gaze_use` (gaze_gain × trust0: the eyes' pull on the person at the first gaze trial)
-and, when the cohort has strategists (`late_switch_share` > 0), `late_switcher` (0/1).
+and the person's kind, 0/1, wherever the cohort has such people: `late_switcher` (a strategist,
+`late_switch_share` > 0), `contrarian` (`contrarian_share` > 0) and `firm_contrarian` (one
+who holds the other box, `contrarian_firm` > 0). With the shipped cohort the strength of the
+own preference is carried by these kinds: its people hardly differ in `preference_mean`.
 
 A session is one task on the engine (`services.compute.engine`); its result is small (traits,
 summaries, outcomes, press times), so thousands travel back cheaply. The reference table (K
@@ -36,6 +39,13 @@ from services.model.summaries import from_offline, summarise, summary_names
 TABLE_SEED = 10**9  # reference-table person i has seed TABLE_SEED + i: never a study's seed
 DERIVED = ("gaze_use",)
 STRATEGIST = "late_switcher"
+CONTRARIAN = "contrarian"
+FIRM = "firm_contrarian"
+# Each kind of person, the share of the cohort's traits that makes it, and how a person config
+# makes someone of that kind for sure (posterior-predictive sessions).
+KINDS: tuple[tuple[str, str], ...] = (
+    (STRATEGIST, "late_switch_share"), (CONTRARIAN, "contrarian_share"), (FIRM, "contrarian_firm"),
+)
 
 
 def drawn_traits(base: ParticipantParams) -> tuple[str, ...]:
@@ -54,13 +64,14 @@ def parameter_names(base: ParticipantParams) -> tuple[str, ...]:
     """Every parameter the fit estimates for this cohort, in output order."""
     names = drawn_traits(base)
     extra = [d for d in DERIVED if {"gaze_gain", "trust0"} <= set(names)]
-    if base.late_switch_share > 0:
-        extra.append(STRATEGIST)
+    for kind, share in KINDS:
+        if getattr(base, share) > 0 and (kind != FIRM or base.contrarian_share > 0):
+            extra.append(kind)
     return (*names, *extra)
 
 
-def true_person(cfg: NodConfig, seed: int) -> tuple[ParticipantParams, bool]:
-    """Person `seed` of the cohort: its traits and whether it is a strategist.
+def true_person(cfg: NodConfig, seed: int) -> tuple[ParticipantParams, dict[str, bool]]:
+    """Person `seed` of the cohort: its traits and its kinds (strategist, contrarian, firm).
 
     The same draws, in the same order, as `run_offline_session(cfg, seed, cohort=True)` makes
     (a test holds the two together).
@@ -68,17 +79,18 @@ def true_person(cfg: NodConfig, seed: int) -> tuple[ParticipantParams, bool]:
     rng = np.random.default_rng(seed)
     params = jittered(cfg.participant, rng)
     person = Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
-    return params, person.strategist
+    kinds = {STRATEGIST: person.strategist, CONTRARIAN: person.contrarian, FIRM: person.firm}
+    return params, kinds
 
 
-def truth(params: ParticipantParams, strategist: bool, names: Sequence[str]) -> np.ndarray:
+def truth(params: ParticipantParams, kinds: dict[str, bool], names: Sequence[str]) -> np.ndarray:
     """A person's parameter vector in `names` order."""
     values = []
     for n in names:
         if n == "gaze_use":
             values.append(params.gaze_gain * params.trust0)
-        elif n == STRATEGIST:
-            values.append(float(strategist))
+        elif n in kinds:
+            values.append(float(kinds[n]))
         else:
             values.append(float(getattr(params, n)))
     return np.asarray(values, dtype=float)
@@ -99,10 +111,10 @@ def simulate(job: tuple[NodConfig, int]) -> Simulated:
     """Person `seed` of the cohort `cfg`, simulated as `nod cohort` does (an engine task)."""
     cfg, seed = job
     names = parameter_names(cfg.participant)
-    params, strategist = true_person(cfg, seed)
+    params, kinds = true_person(cfg, seed)
     trials = run_offline_session(cfg, seed, cohort=True, record=True)
     return Simulated(
-        seed, truth(params, strategist, names), summarise(from_offline(trials), cfg.layout),
+        seed, truth(params, kinds, names), summarise(from_offline(trials), cfg.layout),
         tuple(t.outcome for t in trials), tuple(t.press_s for t in trials),
     )
 

@@ -210,8 +210,8 @@ class Participant:
         # rows of Fig 8b (C → CH 4, C → D 2 of 16; D → CH 8, D → D 5 of 35). Contrarians only
         # among non-strategists fitted the D row better and the C row worse (docs/study.md).
         self.contrarian = c_share > 0 and bool(self.rng.random() < c_share)
-        firm = self.contrarian and bool(self.rng.random() < params.contrarian_firm)
-        self._resolve = 1.0 if firm else params.contrarian_resolve
+        self.firm = self.contrarian and bool(self.rng.random() < params.contrarian_firm)
+        self._resolve = 1.0 if self.firm else params.contrarian_resolve
         self.contrary_trials = 0  # consensus trials played against the eyes so far
         self._contrary = False  # against the eyes this trial
 

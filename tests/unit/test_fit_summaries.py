@@ -46,9 +46,11 @@ def test_true_person_is_the_person_the_cohort_simulates():
     cfg = load_cohort_params(None)
     for seed in (3, 77):
         loop = closed_loop._Loop(cfg, seed, cohort=True, clicks=10)
-        params, strategist = true_person(cfg, seed)
+        params, kinds = true_person(cfg, seed)
         assert loop.person.p == params
-        assert getattr(loop.person, "strategist", False) == strategist
+        for kind, flag in (("late_switcher", "strategist"), ("contrarian", "contrarian"),
+                           ("firm_contrarian", "firm")):
+            assert getattr(loop.person, flag) == kinds[kind]
 
 
 def test_the_fitted_parameters_are_the_traits_drawn_per_person():
@@ -56,8 +58,10 @@ def test_the_fitted_parameters_are_the_traits_drawn_per_person():
     names = parameter_names(cfg.participant)
     assert {"preference_mean", "gaze_gain", "speed", "reaction_s"} <= set(names)
     assert "accel" not in names  # the same for everyone: nothing to fit
-    params, strategist = true_person(cfg, 5)
-    theta = truth(params, strategist, names)
+    params, kinds = true_person(cfg, 5)
+    theta = truth(params, kinds, names)
+    assert {"late_switcher", "contrarian", "firm_contrarian"} <= set(names)  # the shipped kinds
+    assert theta[names.index("contrarian")] == float(kinds["contrarian"])
     assert theta[names.index("speed")] == params.speed
     assert theta[names.index("gaze_use")] == pytest.approx(params.gaze_gain * params.trust0)
 
