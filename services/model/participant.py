@@ -19,6 +19,10 @@ In a control trial a strategist (`late_switch_*`, off by default) may instead pl
 before the commit line, turn quickly for the side the arm is on, too late for it to follow. The
 more control trials have shown the arm opposing them, the likelier they play it.
 
+In a consensus trial a contrarian (`contrarian_*`, off by default) distrusts the eyes: they head
+for the box the eyes do not look at, and then follow the arm to O (a pliant one, CH) or mostly
+hold their box (a firm one, D). Each consensus trial so played makes the next less likely.
+
 Pure: time is an argument, randomness comes from a seeded numpy Generator.
 """
 
