@@ -7,6 +7,7 @@ subcommand's heavy imports happen only when it runs).
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
 import sys
@@ -95,5 +96,31 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
+# The long-running services of a rig: each holds a Zenoh session whose native threads deliver
+# callbacks. Ending such a process through the interpreter's finalisation races them: a callback
+# thread that asks for the GIL while Python finalises is ended by pthread_exit inside Rust code,
+# which aborts the process ("FATAL: exception not rethrown", SIGABRT) after a clean run — a
+# conductor that had stored its whole session was seen "crashing" so, and restarted by its
+# supervisor. Every service has closed its session, store and devices in its own `finally` by the
+# time its `main` returns, and none registers atexit work, so they end there, at once.
+ENDS_AT_ONCE = frozenset({"decision", "actuation", "eyes", "sim", "speaker", "display", "lsl",
+                          "vision", "experiment", "router"})
+
+
+def entry() -> int:
+    """The `nod` executable: `main`, then a service's process ends without finalisation."""
+    argv = sys.argv[1:]
+    code = main(argv)
+    if argv and argv[0] in ENDS_AT_ONCE and (argv[0], *argv[1:2]) not in VERBS:
+        import logging
+
+        logging.shutdown()
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(OSError, ValueError):  # a gone reader: nothing left to say
+                stream.flush()
+        os._exit(code)
+    return code
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(entry())

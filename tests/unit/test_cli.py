@@ -51,3 +51,24 @@ def test_every_integer_flag_is_checked_in_one_line():
             assert why in str(exc), exc
         else:
             raise AssertionError(f"{text!r} accepted")
+
+
+@pytest.mark.parametrize(("command", "finalised"), [("decision", False), ("experiment", False),
+                                                    ("report", True), ("experiment next", True)])
+def test_a_service_process_ends_without_finalisation_a_tool_with_it(command, finalised):
+    """`entry`: a service's code stands, its process skips the interpreter's finalisation (where
+    a Zenoh callback thread could abort it); a tool, or a service's verb, ends as usual."""
+    import subprocess
+    import sys
+
+    script = (
+        "import atexit, sys, services.cli as cli\n"
+        "atexit.register(lambda: print('finalised', flush=True))\n"
+        "cli.main = lambda argv: print('ran', argv, flush=True) or 3\n"
+        f"sys.argv = ['nod', *{command.split()!r}]\n"
+        "raise SystemExit(cli.entry())\n"
+    )
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode == 3, run.stderr
+    assert "ran" in run.stdout and ("finalised" in run.stdout) == finalised, run.stdout
