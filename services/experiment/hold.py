@@ -23,6 +23,7 @@ class SessionHold:
     rig: RigWatch
     note: Callable[[str], None] = lambda _text: None  # the console's line, if any
     held: bool = False
+    said_estop: bool = False  # the hold's line named an engaged e-stop
 
     def ready(self, now_ns: int, quiet: bool = False) -> bool:
         """Whether the rig is safe (and settled): said once when it holds, once when it goes on.
@@ -33,9 +34,14 @@ class SessionHold:
             if self.held:
                 log.info("rig safe again: the session goes on")
                 self.note("rig safe again: the session goes on")
-                self.held = False
+                self.held = self.said_estop = False
             return True
-        if not self.held and not (quiet and not self.rig.estop_engaged):
+        estop = self.rig.estop_engaged
+        self.said_estop = self.said_estop and estop  # a released e-stop is said again if re-engaged
+        # Said again when an e-stop is found engaged during a hold begun for another reason (a
+        # restarted conductor may hear of the latched e-stop after a device's silence): the
+        # operator must read what holds the session. Other changes of reason are not repeated.
+        if (not self.held and not (quiet and not estop)) or (estop and not self.said_estop):
             log.warning("session held: %s", self.rig.why_unsafe())
-            self.held = True
+            self.held, self.said_estop = True, estop
         return False
