@@ -49,6 +49,7 @@ from services.core.cli import SEED, Parser, fail, int_in, positive_float
 from services.model.outcome import OUTCOMES
 from services.model.params import NodConfig, ParticipantParams
 from services.sim.fit import (
+    FLOW_WEIGHT,
     SIGMA0,
     TRAITS,
     CohortObjective,
@@ -136,7 +137,7 @@ def provenance(args: argparse.Namespace, where: str, best: float, c: Check) -> l
         f"{args.sigma0} of each trait's range over {len(args.traits)} traits; "
         f"{args.participants} participants per candidate, "
         f"seeds {args.seed}..{args.seed + args.participants - 1} (common random numbers); "
-        f"best score on them {best:.3f} (Σ trial TVD + flow TVD)",
+        f"best score on them {best:.3f} (Σ trial TVD + {args.flow_weight:g} × flow TVD)",
         f"held out: {c.n} participants, seeds {c.seed}..{c.seed + c.n - 1}: TVD per trial "
         f"1-{len(c.trial_tvd)} = {held}; flows (Fig 8b) {c.flow_tvd:.3f}",
     ]
@@ -178,6 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
                    f"{default_popsize(len(TRAITS))})")
     p.add_argument("--sigma0", type=positive_float, default=SIGMA0,
                    help=f"first step, share of each trait's range ({SIGMA0})")
+    p.add_argument("--flow-weight", type=positive_float, default=FLOW_WEIGHT,
+                   help=f"weight of the Fig 8b flows' TVD in the score, against the sum of the "
+                   f"trials' ({FLOW_WEIGHT:g})")
     p.add_argument("--holdout", type=int_in(1, 10**6), default=400,
                    help="participants of the check (400)")
     p.add_argument("--holdout-seed", type=SEED, default=None,
@@ -197,7 +201,7 @@ def fit(engine: Engine, cfg: NodConfig, target: Shares, target_flows: Flows,
     """Run the search; the fitted config and its score on the fit's seeds."""
     traits = args.traits
     objective = CohortObjective(engine, cfg, target, target_flows, args.participants, args.seed,
-                                traits)
+                                traits, args.flow_weight)
     t0 = time.monotonic()
 
     def progress(g: Generation) -> None:

@@ -18,9 +18,11 @@ it tolerates the noise of a cohort of finite size better than a simplex does.
 
 Common random numbers: every candidate of every generation is scored on the same participants
 (seeds seed..seed+n−1), so two candidates differ by their traits, not by who was drawn.
-The score is Σ over trials of the TVD of the per-trial shares, plus FLOW_WEIGHT × the TVD of
-the Fig 8b flows (who is C in control tends to stay C: a person-level property the marginals
-cannot see).
+The score is Σ over trials of the TVD of the per-trial shares, plus a weight (FLOW_WEIGHT,
+`--flow-weight`) × the TVD of the Fig 8b flows (who is C in control tends to stay C: a
+person-level property the marginals cannot see). At weight 1 the flows are one term against
+eight trials, so a search trades a lot of flow distance for a little trial distance; a larger
+weight asks for the person-level consistency more.
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ from services.compute.engine import Engine
 from services.model.params import NodConfig
 
 SIGMA0 = 0.2  # the first generation's step, as a share of each trait's range
-FLOW_WEIGHT = 1.0  # the Fig 8b flows count as much as one trial
+FLOW_WEIGHT = 1.0  # by default the Fig 8b flows count as much as one trial
 
 
 @dataclass(frozen=True)
@@ -114,11 +116,16 @@ def with_traits(cfg: NodConfig, values: dict[str, float]) -> NodConfig:
     return replace(cfg, participant=person)
 
 
-def score(cohort: Sequence[Outcomes], target: Shares, target_flows: Flows) -> float:
-    """Σ_trials TVD(shares, target) + FLOW_WEIGHT · TVD(flows, target flows)."""
+def score(
+    cohort: Sequence[Outcomes],
+    target: Shares,
+    target_flows: Flows,
+    flow_weight: float = FLOW_WEIGHT,
+) -> float:
+    """Σ_trials TVD(shares, target) + flow_weight · TVD(flows, target flows)."""
     got = shares(cohort)
     return (sum(tvd(got[k], want) for k, want in target.items())
-            + FLOW_WEIGHT * tvd(flows(cohort), target_flows))
+            + flow_weight * tvd(flows(cohort), target_flows))
 
 
 @dataclass(frozen=True)
@@ -176,6 +183,7 @@ class CohortObjective:
     n: int  # participants per candidate
     seed: int  # the first participant's seed
     traits: tuple[Trait, ...] = TRAITS
+    flow_weight: float = FLOW_WEIGHT
 
     def cohorts(self, candidates: Sequence[np.ndarray]) -> list[list[Outcomes]]:
         """Each candidate's cohort (the same seeds for all), computed in one batch."""
@@ -186,4 +194,7 @@ class CohortObjective:
 
     def __call__(self, candidates: list[np.ndarray]) -> list[float]:
         """Each candidate's score."""
-        return [score(c, self.target, self.target_flows) for c in self.cohorts(candidates)]
+        return [
+            score(c, self.target, self.target_flows, self.flow_weight)
+            for c in self.cohorts(candidates)
+        ]

@@ -92,6 +92,21 @@ def test_flows_and_their_distance() -> None:
         load_flows('{"flows": {"C": {"X": 3}}}', "bad")
 
 
+def test_the_flow_weight_scales_only_the_flows_term() -> None:
+    control_c = ["C", "C", "C", "C", "C", "C", "C", "C"]
+    control_d = ["D", "D", "D", "C", "C", "C", "C", "C"]
+    target_cohort = [control_c, control_d]
+    target, target_flows = shares(target_cohort), flows(target_cohort)
+    # The second person ends the experiment phase CH, not C: trials 4-6 and a flow differ.
+    swapped = [control_c, ["D", "D", "D", "CH", "CH", "CH", "C", "C"]]
+    trials = sum(tvd(shares(swapped)[k], w) for k, w in target.items())
+    moved = tvd(flows(swapped), target_flows)
+    assert moved > 0
+    assert score(swapped, target, target_flows) == pytest.approx(trials + moved)
+    assert score(swapped, target, target_flows, 3.0) == pytest.approx(trials + 3.0 * moved)
+    assert score(target_cohort, target, target_flows, 3.0) == 0.0
+
+
 def test_common_random_numbers_and_a_perfect_score_for_the_start(engine: Engine) -> None:
     cfg = NodConfig()
     own = cohort_outcomes(engine, cfg, 11, 3)
@@ -124,7 +139,7 @@ def test_calibrate_cohort_fits_checks_on_other_people_and_says_how(tmp_path: Pat
     out = tmp_path / "fit.toml"
     code = calibrate_main(["--participants", "2", "--generations", "1", "--popsize", "2",
                            "--holdout", "3", "--holdout-seed", "500", "--workers", "2",
-                           "--out", str(out)])
+                           "--flow-weight", "2.5", "--out", str(out)])
     text = capsys.readouterr().out
     assert code == 0
     assert "generation 1/1" in text and "3 participants (seeds 500..502)" in text
@@ -132,6 +147,7 @@ def test_calibrate_cohort_fits_checks_on_other_people_and_says_how(tmp_path: Pat
     assert len([line for line in text.splitlines() if line[:5].strip().isdigit()]) == 8
     written = out.read_text()
     assert "--participants 2 --generations 1" in written and "seeds 1..2" in written
+    assert "(Σ trial TVD + 2.5 × flow TVD)" in written
     assert "held out: 3 participants, seeds 500..502: TVD per trial 1-8 =" in written
     fitted = load_cohort_params(out).participant  # the file is a --params file
     assert all(t.low <= getattr(fitted, t.name) <= t.high for t in TRAITS)
