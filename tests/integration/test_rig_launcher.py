@@ -90,12 +90,21 @@ def test_nod_up_supervises_the_rig_and_status_and_topic_see_it(rig_file, tmp_pat
         # kill -9 a service: its launcher restarts it within 2 s and says so on rig/event.
         client = open_session(make_config(mode="client", connect=[endpoint]))
         started: list[tuple[float, m.RigEvent]] = []
+        beats: list[str] = []
 
-        def on_event(sample) -> None:
-            event = m.decode(m.RigEvent, sample.payload.to_bytes())
-            started.append((time.monotonic(), event))
+        def on_rig(sample) -> None:
+            if str(sample.key_expr) == "nod/rigx/rig/event":
+                event = m.decode(m.RigEvent, sample.payload.to_bytes())
+                started.append((time.monotonic(), event))
+            else:
+                beats.append(str(sample.key_expr))
 
-        sub = client.declare_subscriber("nod/rigx/rig/event", on_event)
+        # One subscriber for events and heartbeats: a heartbeat through it shows the router
+        # routes the rig's keys to it. A declaration reaches the router a little later than
+        # `declare_subscriber` returns; under load a kill right after it lost the "restarting"
+        # event sent at once.
+        sub = client.declare_subscriber("nod/rigx/rig/*", on_rig)
+        wait_for(lambda: "nod/rigx/rig/status" in beats, 10, "a heartbeat through the subscriber")
         victim = by_name["decision"]["pid"]
         os.kill(victim, signal.SIGKILL)
         t_kill = time.monotonic()
