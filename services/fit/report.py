@@ -36,6 +36,8 @@ MEANING = {
     "contrarian": "probability that the person distrusts the eyes (consensus trials)",
     "firm_contrarian": "probability that the person holds the box the eyes do not look at "
     "against the robot (a firm contrarian: their own preference's strength)",
+    "persistent_contrarian": "probability that the person distrusts the eyes in every consensus "
+    "trial (a persistent contrarian: never comes round)",
 }
 
 

@@ -8,8 +8,9 @@ it). The parameters fitted are whichever traits `jittered` draws per person — 
 not listed here, so a trait added to the model is fitted without a change here — plus the
 derived `gaze_use` (gaze_gain × trust0: the eyes' pull on the person at the first gaze trial)
 and the person's kind, 0/1, wherever the cohort has such people: `late_switcher` (a strategist,
-`late_switch_share` > 0), `contrarian` (`contrarian_share` > 0) and `firm_contrarian` (one
-who holds the other box, `contrarian_firm` > 0). With the shipped cohort the strength of the
+`late_switch_share` > 0), `contrarian` (`contrarian_share` > 0), `firm_contrarian` (one
+who holds the other box, `contrarian_firm` > 0) and `persistent_contrarian` (one who never comes
+round, `contrarian_persist` > 0). With the shipped cohort the strength of the
 own preference is carried by these kinds: its people hardly differ in `preference_mean`.
 
 A session is one task on the engine (`services.compute.engine`); its result is small (traits,
@@ -41,11 +42,14 @@ DERIVED = ("gaze_use",)
 STRATEGIST = "late_switcher"
 CONTRARIAN = "contrarian"
 FIRM = "firm_contrarian"
+PERSISTENT = "persistent_contrarian"
 # Each kind of person, the share of the cohort's traits that makes it, and how a person config
 # makes someone of that kind for sure (posterior-predictive sessions).
 KINDS: tuple[tuple[str, str], ...] = (
     (STRATEGIST, "late_switch_share"), (CONTRARIAN, "contrarian_share"), (FIRM, "contrarian_firm"),
+    (PERSISTENT, "contrarian_persist"),
 )
+KINDS_OF_CONTRARIAN = (FIRM, PERSISTENT)  # only where the cohort has contrarians at all
 
 
 def drawn_traits(base: ParticipantParams) -> tuple[str, ...]:
@@ -65,13 +69,15 @@ def parameter_names(base: ParticipantParams) -> tuple[str, ...]:
     names = drawn_traits(base)
     extra = [d for d in DERIVED if {"gaze_gain", "trust0"} <= set(names)]
     for kind, share in KINDS:
-        if getattr(base, share) > 0 and (kind != FIRM or base.contrarian_share > 0):
+        if getattr(base, share) > 0 and (
+            kind not in KINDS_OF_CONTRARIAN or base.contrarian_share > 0
+        ):
             extra.append(kind)
     return (*names, *extra)
 
 
 def true_person(cfg: NodConfig, seed: int) -> tuple[ParticipantParams, dict[str, bool]]:
-    """Person `seed` of the cohort: its traits and its kinds (strategist, contrarian, firm).
+    """Person `seed` of the cohort: its traits and its kinds (strategist, contrarian, ...).
 
     The same draws, in the same order, as `run_offline_session(cfg, seed, cohort=True)` makes
     (a test holds the two together).
@@ -79,7 +85,12 @@ def true_person(cfg: NodConfig, seed: int) -> tuple[ParticipantParams, dict[str,
     rng = np.random.default_rng(seed)
     params = jittered(cfg.participant, rng)
     person = Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
-    kinds = {STRATEGIST: person.strategist, CONTRARIAN: person.contrarian, FIRM: person.firm}
+    kinds = {
+        STRATEGIST: person.strategist,
+        CONTRARIAN: person.contrarian,
+        FIRM: person.firm,
+        PERSISTENT: person.persistent,
+    }
     return params, kinds
 
 

@@ -21,7 +21,8 @@ more control trials have shown the arm opposing them, the likelier they play it.
 
 In a consensus trial a contrarian (`contrarian_*`, off by default) distrusts the eyes: they head
 for the box the eyes do not look at, and then follow the arm to O (a pliant one, CH) or mostly
-hold their box (a firm one, D). Each consensus trial so played makes the next less likely.
+hold their box (a firm one, D). Each consensus trial so played makes the next less likely,
+except for a persistent one, who plays them all so.
 
 Pure: time is an argument, randomness comes from a seeded numpy Generator.
 """
@@ -119,6 +120,11 @@ class ParticipantParams:
     # Share of contrarians who are firm instead: they hold the other box with their whole
     # preference and mostly stay there (D), the paper's 7 of 51 mostly-D people; drawn once.
     contrarian_firm: float = 0.0
+    # Share of contrarians who are persistent: they learn nothing from the eyes and the robot
+    # agreeing and play every consensus trial against the eyes (drawn once, apart from firm).
+    # The paper's CH is 12 % still in trial 8 and 12 of its 51 people are CH in most of trials
+    # 4-8, which a contrarian who comes round after a trial or two cannot be (docs/study.md).
+    contrarian_persist: float = 0.0
     rule_breaking: float = 0.05  # probability per trial of ignoring the commit-line rule
     hand_radius: float = 0.03  # landmark spread around the centre
     # Tracker jitter (sd, normalised units; 1 px = 1/640 in x, 1/480 in y). A tracker's error is
@@ -147,6 +153,7 @@ class ParticipantParams:
             "contrarian_share",
             "contrarian_learn",
             "contrarian_firm",
+            "contrarian_persist",
         ):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"ParticipantParams.{name} must be in [0, 1]")
@@ -216,6 +223,10 @@ class Participant:
         self.contrarian = c_share > 0 and bool(self.rng.random() < c_share)
         self.firm = self.contrarian and bool(self.rng.random() < params.contrarian_firm)
         self._resolve = 1.0 if self.firm else params.contrarian_resolve
+        # Drawn only when anyone can be persistent: a cohort without them keeps its stream.
+        p_share = params.contrarian_persist
+        self.persistent = self.contrarian and p_share > 0 and bool(self.rng.random() < p_share)
+        self._learn = 0.0 if self.persistent else params.contrarian_learn
         self.contrary_trials = 0  # consensus trials played against the eyes so far
         self._contrary = False  # against the eyes this trial
 
@@ -250,7 +261,7 @@ class Participant:
         self._contrary = (
             not self._control
             and self.contrarian
-            and bool(self.rng.random() < (1.0 - self.p.contrarian_learn) ** self.contrary_trials)
+            and bool(self.rng.random() < (1.0 - self._learn) ** self.contrary_trials)
         )
         self._quick = False
         self._first = None

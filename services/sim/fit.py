@@ -87,6 +87,7 @@ TRAITS: tuple[Trait, ...] = (
     Trait("contrarian_learn", 0.0, 1.0),
     Trait("contrarian_resolve", 0.0, 1.5),
     Trait("contrarian_firm", 0.0, 1.0),
+    Trait("contrarian_persist", 0.0, 1.0),
 )
 
 

@@ -78,6 +78,31 @@ def test_a_contrarian_comes_round_at_the_rate_it_learns():
     assert all(share[k + 1] < share[k] for k in range(4)), share
 
 
+def test_a_persistent_contrarian_never_comes_round_the_others_do():
+    # Half the contrarians persistent, the others learning everything after one trial: the
+    # persistent play all five consensus trials against the eyes, the others only the first.
+    params = replace(CONTRARIAN, contrarian_learn=1.0, contrarian_persist=0.5)
+    kinds = {True: 0, False: 0}
+    for seed in range(60):
+        person = Participant(params, LAYOUT, seed)
+        for _ in range(5):
+            first_heading(person, "red", 0.4)
+        assert person.contrary_trials == (5 if person.persistent else 1), seed
+        kinds[person.persistent] += 1
+    assert kinds[True] >= 15 and kinds[False] >= 15, kinds  # both kinds drawn, near half
+
+
+@given(seed=st.integers(0, 2**31 - 1))
+def test_without_persistent_contrarians_a_contrarian_draws_nothing_more(seed):
+    # The shipped cohort has none: adding the trait must not move its people's random streams.
+    params = replace(CONTRARIAN, contrarian_firm=0.5)
+    person = Participant(params, LAYOUT, seed)
+    twin = np.random.default_rng(seed)
+    twin.random(), twin.random()  # contrarian? firm? (no strategists here: no draw)
+    assert not person.persistent
+    assert person.rng.random() == twin.random()
+
+
 @given(seed=st.integers(0, 2**31 - 1))
 def test_with_no_contrarians_the_person_draws_nothing_more(seed):
     person = Participant(ParticipantParams(), LAYOUT, seed)
@@ -117,7 +142,8 @@ def test_firm_contrarians_stay_away_pliant_ones_come_over_to_the_robot():
 @pytest.mark.parametrize(
     ("name", "value"),
     [("contrarian_share", -0.1), ("contrarian_share", 1.1), ("contrarian_learn", 2.0),
-     ("contrarian_firm", -0.5), ("contrarian_resolve", -0.1), ("contrarian_resolve", 2.5)],
+     ("contrarian_firm", -0.5), ("contrarian_resolve", -0.1), ("contrarian_resolve", 2.5),
+     ("contrarian_persist", 1.5)],
 )
 def test_out_of_range_values_are_refused_by_name(name, value):
     with pytest.raises(ValueError, match=name):

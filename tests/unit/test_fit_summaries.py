@@ -49,8 +49,20 @@ def test_true_person_is_the_person_the_cohort_simulates():
         params, kinds = true_person(cfg, seed)
         assert loop.person.p == params
         for kind, flag in (("late_switcher", "strategist"), ("contrarian", "contrarian"),
-                           ("firm_contrarian", "firm")):
+                           ("firm_contrarian", "firm"),
+                           ("persistent_contrarian", "persistent")):
             assert getattr(loop.person, flag) == kinds[kind]
+    # With persistent contrarians in the cohort, the fit's draw still replays the cohort's.
+    person = dataclasses.replace(cfg.participant, contrarian_share=1.0, contrarian_persist=0.5)
+    cfg = dataclasses.replace(cfg, participant=person)
+    persistent = []
+    for seed in range(12):
+        loop = closed_loop._Loop(cfg, seed, cohort=True, clicks=10)
+        _, kinds = true_person(cfg, seed)
+        assert loop.person.persistent == kinds["persistent_contrarian"]
+        persistent.append(kinds["persistent_contrarian"])
+    assert 0 < sum(persistent) < 12
+    assert "persistent_contrarian" in parameter_names(person)
 
 
 def test_the_fitted_parameters_are_the_traits_drawn_per_person():
