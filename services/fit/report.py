@@ -128,10 +128,11 @@ def _fmt(x: float | None) -> str:
 
 def recovery_table(checks: Sequence[Recovery], model: dict[str, Any] | None) -> str:
     """The recovery study as text: one line per parameter, then the model-recovery check."""
-    lines = [f"{'parameter':<20} {'r':>6} {'bias':>8} {'coverage':>9}  identifiable"]
+    w = max([len("parameter"), *(len(c.name) for c in checks)])  # a long name keeps the columns
+    lines = [f"{'parameter':<{w}} {'r':>6} {'bias':>8} {'coverage':>9}  identifiable"]
     for c in checks:
         d = c.as_dict()
-        lines.append(f"{c.name:<20} {_fmt(d['correlation']):>6} {_fmt(d['bias']):>8} "  # type: ignore[arg-type]
+        lines.append(f"{c.name:<{w}} {_fmt(d['correlation']):>6} {_fmt(d['bias']):>8} "  # type: ignore[arg-type]
                      f"{_fmt(d['coverage']):>9}  {'yes' if c.identifiable else 'NO'}")  # type: ignore[arg-type]
     lines.append(f"(standard: r ≥ 0.7 and {int(LEVEL * 100)} % coverage within 0.80-0.98; "
                  f"n = {checks[0].n if checks else 0})")

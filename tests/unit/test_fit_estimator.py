@@ -100,3 +100,15 @@ def test_a_0_1_parameter_gets_a_probability_and_a_set():
     fit = est.predict(summaries[:50])
     assert np.all((fit.estimate[:, 0] >= 0) & (fit.estimate[:, 0] <= 1))  # a probability
     assert set(np.unique(fit.low[:, 0])) <= {0.0, 1.0} and np.all(fit.low <= fit.high)
+
+
+def test_the_recovery_table_keeps_its_columns_for_a_long_name():
+    from services.fit.report import recovery_table
+
+    true = np.linspace(0, 1, 20)
+    checks = [recovery(n, true, true, true - 0.1, true + 0.1)
+              for n in ("speed", "persistent_contrarian")]
+    rows = recovery_table(checks, None).splitlines()[:3]
+    ends = {rows[0].index("identifiable")} | {len(r) - len(r.split()[-1]) for r in rows[1:]}
+    assert len(ends) == 1, rows  # "identifiable" and each row's yes/NO start in one column
+    assert rows[2].startswith("persistent_contrarian ")
