@@ -76,6 +76,10 @@ class Check:
     trial_tvd: dict[int, float]
     flow_tvd: float
 
+    def score(self, flow_weight: float) -> float:
+        """The search's score of this cohort: Σ trial TVD + flow_weight × flow TVD."""
+        return sum(self.trial_tvd.values()) + flow_weight * self.flow_tvd
+
 
 def check(cohort: list[Outcomes], seed: int, target: Shares, target_flows: Flows) -> Check:
     """How far a cohort (participants seed..) is from the paper's tables."""
@@ -121,6 +125,23 @@ def write_params(path: Path, cfg: NodConfig, how: list[str]) -> None:
     lines = [f"# {line}" for line in how] + ["[participant]"]
     lines += [f"{k} = {v:.4f}" if isinstance(v, float) else f"{k} = {v}" for k, v in keep.items()]
     path.write_text("\n".join(lines) + "\n")
+
+
+def against_start(fitted: Check, start: Check, flow_weight: float) -> list[str]:
+    """The fitted person next to its start on the same held-out people, and which to keep.
+
+    A fit scored on its own people can beat its start there and lose to it on others (too few
+    people per candidate, too many traits, too large a first step): said, not hidden.
+    """
+    a, b = start.score(flow_weight), fitted.score(flow_weight)
+    lines = [f"its start on the same people: Σ trial TVD {sum(start.trial_tvd.values()):.3f}, "
+             f"flows {start.flow_tvd:.3f}; score {a:.3f} against the fit's {b:.3f} "
+             f"(Σ trial TVD + {flow_weight:g} × flow TVD)"]
+    if b > a:
+        lines.append("the fit is WORSE than its start on people it was not fitted to: keep the "
+                     "start, or refit with more --participants per candidate, fewer --traits or "
+                     "a smaller --sigma0")
+    return lines
 
 
 def provenance(args: argparse.Namespace, where: str, best: float, c: Check) -> list[str]:
@@ -169,8 +190,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", type=Path, default=None,
                    help="base parameters (TOML); its person is the search's start (default: the "
                    "shipped fit)")
-    p.add_argument("--participants", type=int_in(2, 10**5), default=32,
-                   help="cohort size per candidate (32)")
+    p.add_argument("--participants", type=int_in(2, 10**5), default=60,
+                   help="cohort size per candidate (60)")
     p.add_argument("--seed", type=SEED, default=1, help="first seed of the fit's cohort (1)")
     p.add_argument("--generations", type=int_in(1, 10**4), default=14,
                    help="CMA-ES generations (14)")
@@ -235,12 +256,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with engine_from_args(args) as engine:
             best = math.nan
+            start = cfg
             if not args.evaluate:
                 print(f"fitting {len(args.traits)} traits on {engine.where}:", flush=True)
                 cfg, best = fit(engine, cfg, target, target_flows, args)
                 print("traits: " + ", ".join(
                     f"{t.name} = {getattr(cfg.participant, t.name):.4f}" for t in args.traits))
             held = cohort_outcomes(engine, cfg, holdout_seed, args.holdout)
+            held_start = (None if args.evaluate
+                          else cohort_outcomes(engine, start, holdout_seed, args.holdout))
             where = engine.where
     except EngineError as exc:
         return fail("nod calibrate-cohort", exc)
@@ -248,8 +272,13 @@ def main(argv: list[str] | None = None) -> int:
     print(report(target, target_flows, c))
     print(f"held out: Σ trial TVD {sum(c.trial_tvd.values()):.3f}, flows {c.flow_tvd:.3f}"
           + ("" if args.evaluate else f" (on the fit's own seeds: {best:.3f} in all)"))
+    compared: list[str] = []
+    if held_start is not None:
+        compared = against_start(c, check(held_start, holdout_seed, target, target_flows),
+                                 args.flow_weight)
+        print("\n".join(compared))
     if args.out is not None and not args.evaluate:
-        write_params(args.out, cfg, provenance(args, where, best, c))
+        write_params(args.out, cfg, provenance(args, where, best, c) + compared)
         print(f"wrote {args.out}")
     return 0
 

@@ -17,6 +17,7 @@ from services.cohort.person import FIG8B, FITTED_TRAITS, load_cohort_params
 from services.compute.engine import Engine, open_engine
 from services.core.config import ConfigError
 from services.model.params import NodConfig
+from services.sim.calibrate import Check, against_start
 from services.sim.calibrate import main as calibrate_main
 from services.sim.fit import (
     TRAITS,
@@ -107,6 +108,17 @@ def test_the_flow_weight_scales_only_the_flows_term() -> None:
     assert score(target_cohort, target, target_flows, 3.0) == 0.0
 
 
+def test_a_fit_worse_than_its_start_on_held_out_people_is_called_so() -> None:
+    def made(trial: float, flow: float) -> Check:
+        return Check(400, 1, {}, {}, {k: trial for k in range(1, 9)}, flow)
+
+    start, good, bad = made(0.05, 0.10), made(0.04, 0.10), made(0.05, 0.30)
+    assert good.score(2.0) == pytest.approx(8 * 0.04 + 0.2)
+    assert len(against_start(good, start, 2.0)) == 1  # better: nothing to warn of
+    worse = against_start(bad, start, 2.0)
+    assert "WORSE than its start" in worse[-1] and "score 0.600 against the fit's 1.000" in worse[0]
+
+
 def test_common_random_numbers_and_a_perfect_score_for_the_start(engine: Engine) -> None:
     cfg = NodConfig()
     own = cohort_outcomes(engine, cfg, 11, 3)
@@ -148,6 +160,8 @@ def test_calibrate_cohort_fits_checks_on_other_people_and_says_how(tmp_path: Pat
     written = out.read_text()
     assert "--participants 2 --generations 1" in written and "seeds 1..2" in written
     assert "(Σ trial TVD + 2.5 × flow TVD)" in written
+    assert "its start on the same people: Σ trial TVD" in text  # the fit against where it began
+    assert "its start on the same people" in written
     assert "held out: 3 participants, seeds 500..502: TVD per trial 1-8 =" in written
     fitted = load_cohort_params(out).participant  # the file is a --params file
     assert all(t.low <= getattr(fitted, t.name) <= t.high for t in TRAITS)
