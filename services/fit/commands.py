@@ -115,7 +115,9 @@ def recovery(args: argparse.Namespace) -> int:
         people = engine.map(simulate, [(cfg, args.seed + i) for i in range(n)])
         theta = np.stack([p.theta for p in people])
         fit = prep.estimator.predict(np.stack([p.summaries for p in people]))
-        checks = [recover(name, theta[:, j], fit.estimate[:, j], fit.low[:, j], fit.high[:, j])
+        logs = prep.estimator.log_scaled
+        checks = [recover(name, theta[:, j], fit.estimate[:, j], fit.low[:, j], fit.high[:, j],
+                          log=logs[j])
                   for j, name in enumerate(fit.names)]
         model = _model_recovery(args, cfg, prep, people, engine.map)
         _say(f"{n} planted people simulated and fitted, model check done "

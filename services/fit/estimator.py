@@ -24,7 +24,6 @@ import numpy as np
 
 from services.model.recovery import Recovery, recovery
 
-ESTIMATOR_VERSION = 4  # bump when training changes: a cached estimator of another is retrained
 LEVEL = 0.90  # the intervals' nominal coverage
 ALPHA_SET = 1 - LEVEL  # a 0/1 parameter's 90 % set: the values at least this likely
 SPLITS = (0.70, 0.15)  # train, calibrate; the rest checks
@@ -146,10 +145,16 @@ class QuantileEstimator:
             self._margin[p] = float(np.quantile(misses, q, method="higher"))
         fit = self._finish(self._raw(summaries[check]))
         self.check = [
-            recovery(n, theta[check, p], fit.estimate[:, p], fit.low[:, p], fit.high[:, p])
+            recovery(n, theta[check, p], fit.estimate[:, p], fit.low[:, p], fit.high[:, p],
+                     log=self.log_scaled[p])
             for p, n in enumerate(self.names)
         ]
         return self
+
+    @property
+    def log_scaled(self) -> tuple[bool, ...]:
+        """Per parameter: learnt on its log (a log-normal trait), so recovered on its log too."""
+        return tuple(kind == "log" for kind in self._kinds)
 
     def _raw(self, summaries: np.ndarray) -> Estimates:
         """Per parameter (learning scale): the three quantiles, or p and its 90 % set."""

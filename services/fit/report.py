@@ -136,6 +136,10 @@ def recovery_table(checks: Sequence[Recovery], model: dict[str, Any] | None) -> 
                      f"{_fmt(d['coverage']):>9}  {'yes' if c.identifiable else 'NO'}")  # type: ignore[arg-type]
     lines.append(f"(standard: r ≥ 0.7 and {int(LEVEL * 100)} % coverage within 0.80-0.98; "
                  f"n = {checks[0].n if checks else 0})")
+    logged = [c.name for c in checks if c.scale == "log"]
+    if logged:
+        lines.append(f"(r of {', '.join(logged)}: of the logs, a trait spread log-normally "
+                     "across people)")
     if model:
         lines.append(f"model recovery (gaze term or not): accuracy {model['accuracy']:.2f} on "
                      f"{model['sessions']} held-out sessions")

@@ -112,3 +112,18 @@ def test_the_recovery_table_keeps_its_columns_for_a_long_name():
     ends = {rows[0].index("identifiable")} | {len(r) - len(r.split()[-1]) for r in rows[1:]}
     assert len(ends) == 1, rows  # "identifiable" and each row's yes/NO start in one column
     assert rows[2].startswith("persistent_contrarian ")
+
+
+def test_a_log_normal_parameter_is_correlated_on_its_log():
+    rng = np.random.default_rng(7)
+    true = np.exp(rng.normal(2.0, 1.1, 60))  # gaze_gain-like: a decade and more across people
+    estimate = true * np.exp(rng.normal(0.0, 0.6, 60))
+    estimate[np.argmax(true)] = np.median(true)  # the top person read as typical
+    raw = recovery("g", true, estimate, estimate / 3, estimate * 3)
+    logged = recovery("g", true, estimate, estimate / 3, estimate * 3, log=True)
+    assert logged.scale == "log" and raw.scale == "linear"
+    assert logged.correlation == pytest.approx(np.corrcoef(np.log(true), np.log(estimate))[0, 1])
+    assert logged.correlation > 0.7 > raw.correlation  # one person sets the raw r
+    assert (logged.coverage, logged.bias) == (raw.coverage, raw.bias)  # units unchanged
+    zero = recovery("z", true - true.min(), estimate, estimate, estimate, log=True)
+    assert zero.scale == "linear"  # a value of 0 has no log: r of the values as they are
