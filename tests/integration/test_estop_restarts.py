@@ -206,8 +206,13 @@ def test_an_estop_survives_kill9_of_the_conductor_alone_and_with_a_device(tmp_pa
         threading.Thread(target=lambda: lines.extend(iter(proc.stdout.readline, "")),
                          daemon=True).start()
         # The resumed conductor finds the e-stop and holds the session: no trial starts.
-        wait_for(lambda: any("session held" in ln and "e-stop" in ln for ln in lines), 30,
-                 "the resumed session held by the e-stop")
+        # 60 s: under two CPU burners a resumed conductor took over 30 s to start, connect and
+        # hear the latched e-stop; its own lines go into the failure to say where it was.
+        try:
+            wait_for(lambda: any("session held" in ln and "e-stop" in ln for ln in lines), 60,
+                     "the resumed session held by the e-stop")
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}; the conductor said: {lines[-15:]}") from None
         return proc
 
     try:
