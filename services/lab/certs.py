@@ -41,14 +41,16 @@ def _alt_names(hosts: list[str]) -> list[x509.GeneralName]:
     return out
 
 
-def make_ca(days: int) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
+def make_ca(
+    days: int, common: str = "nod-hri lab CA"
+) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
     """A self-signed CA that may sign host certificates only."""
     key = _key()
     now = datetime.datetime.now(datetime.UTC)
     cert = (
         x509.CertificateBuilder()
-        .subject_name(_name("nod-hri lab CA"))
-        .issuer_name(_name("nod-hri lab CA"))
+        .subject_name(_name(common))
+        .issuer_name(_name(common))
         .public_key(key.public_key())
         .serial_number(x509.random_serial_number())
         .not_valid_before(now - datetime.timedelta(minutes=5))
@@ -122,10 +124,10 @@ def _cert_pem(cert: x509.Certificate) -> bytes:
 
 
 def write_ca(
-    out: Path, days: int
+    out: Path, days: int, common: str = "nod-hri lab CA"
 ) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate, list[Path]]:
     """A new CA, written to out/ca.pem and out/ca.key (keep ca.key offline: it mints identities)."""
-    ca_key, ca = make_ca(days)
+    ca_key, ca = make_ca(days, common)
     _write_pem(out / "ca.pem", _cert_pem(ca))
     _write_pem(out / "ca.key", _key_pem(ca_key), private=True)
     return ca_key, ca, [out / "ca.pem", out / "ca.key"]

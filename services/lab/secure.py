@@ -17,6 +17,8 @@ only the launchers publish rig events; the monitor publishes nothing but its hea
     out/<role>/launcher/…              the same four files for the host's `nod up`
     out/monitor/…                      the read-only identity (monitors, `nod status`, screens)
     out/control/router.json5           the router's config (`nod router --config …`)
+    out/dask/…                         the Dask cluster's own CA and its scheduler's, workers'
+                                       and clients' identities (`services.lab.compute`)
 
 A lab of several rigs on one router (`--rigs rig1,rig2`): each rig's identities in a folder of
 its own (`out/<rig>/…`, the layout above: a rig file's `rig.tls = "out/<rig>"`), each touching
@@ -53,6 +55,8 @@ from services.core.rigfile import WILDCARD_HOSTS, RigFileError, load_rig, split_
 from services.core.session import MAX_MESSAGE_BYTES, SHARED_MEMORY
 from services.lab.acl import HOSTS, LAB, ROUTER, Identity, acl, identities, lab_identities
 from services.lab.certs import write_ca, write_cert
+from services.lab.compute import DASK, write_dask
+from services.lab.compute import commands as dask_commands
 
 
 def _tls(folder: Path, listen: bool) -> dict:
@@ -204,6 +208,12 @@ def build_parser() -> argparse.ArgumentParser:
         "tls/0.0.0.0:PORT, every interface, only when said here)",
     )
     p.add_argument(
+        "--dask-host",
+        default=None,
+        help="name or address of the Dask scheduler's machine, for the commands printed (default "
+        "the router host)",
+    )
+    p.add_argument(
         "--days", type=int_in(1, 3650), default=825, help="validity of the certificates (825)"
     )
     p.add_argument(
@@ -267,10 +277,10 @@ def lab_rigs(text: str | None, rig: str | None) -> list[str] | None:
         check_rig(r)
     if not rigs or len(set(rigs)) != len(rigs):
         raise ValueError(f"--rigs takes distinct rig names, comma separated; got {text!r}")
-    if LAB in rigs or ROUTER in rigs:
+    if {LAB, ROUTER, DASK} & set(rigs):
         raise ValueError(
-            f"a rig may not be called {LAB!r} or {ROUTER!r} (the lab's own "
-            "identities and router live in those folders): rename it"
+            f"a rig may not be called {LAB!r}, {ROUTER!r} or {DASK!r} (the lab's own "
+            "identities, router and Dask cluster live in those folders): rename it"
         )
     return rigs
 
@@ -304,6 +314,7 @@ def main(argv: list[str] | None = None) -> int:
         written = secure(
             args.out, names, rig if rigs is None else rigs, host, port, args.days, install, listen
         )
+        written += write_dask(args.out, install, args.days)
     except OSError as exc:
         return fail("nod lab secure", f"cannot write to {args.out}: {exc.strerror}")
     scope = f"rig {rig!r}" if rigs is None else f"rigs {', '.join(rigs)}"
@@ -332,6 +343,7 @@ def main(argv: list[str] | None = None) -> int:
             f"  the lab e-stop (every rig): nod estop --rig RIG --config "
             f"{install}/{LAB}/estop/zenoh.json5"
         )
+    print("\n".join(dask_commands(install, args.dask_host or host)))
     print(f"  keep {args.out}/ca.key offline: whoever holds it can mint identities")
     return 0
 
@@ -370,6 +382,7 @@ def _main_per_rig(
         written = secure_per_rig(
             args.out, names, rigs, per_rig, host, port, args.days, install, listen
         )
+        written += write_dask(args.out, install, args.days)
     except OSError as exc:
         return fail("nod lab secure", f"cannot write to {args.out}: {exc.strerror}")
     print(
@@ -385,6 +398,7 @@ def _main_per_rig(
         f"{install}/{LAB}/estop/zenoh.json5 (with the lab router down: add --connect "
         "tls/RIG-ROUTER:PORT, that rig only)"
     )
+    print("\n".join(dask_commands(install, args.dask_host or host)))
     print(f"  keep {args.out}/ca.key offline: whoever holds it can mint identities")
     return 0
 

@@ -16,6 +16,7 @@ from services.compute.engine import (
     _check_code,
     code_fingerprint,
     open_engine,
+    scheduler_security,
 )
 from tests.processes import free_port
 
@@ -115,3 +116,69 @@ def test_local_workers_run_without_the_profiler_and_frequent_chores(engine: Engi
     assert len(seen) == 2
     assert all(s == LOCAL_CONFIG for s in seen.values())
     assert LOCAL_CONFIG["distributed.worker.profile.enabled"] is False
+
+
+def test_the_local_cluster_listens_on_loopback_only(engine: Engine) -> None:
+    """Nothing on the network reaches the embedded cluster: its scheduler and workers."""
+    info = engine.client.scheduler_info()
+    addresses = [engine.client.scheduler.address, *info["workers"]]
+    assert len(addresses) == 3
+    assert all(a.startswith("tcp://127.0.0.1:") for a in addresses), addresses
+
+
+@pytest.mark.parametrize(
+    ("address", "insecure", "says"),
+    [
+        ("tcp://192.168.10.5:8786", False, "refusing plain tcp to tcp://192.168.10.5:8786"),
+        ("compute.lab:8786", False, "refusing plain tcp"),  # no scheme is tcp
+        ("tls://192.168.10.5:8786", False, "needs this machine's client certificate"),
+        ("ws://192.168.10.5:8786", True, "scheme ws:// is not supported"),
+        ("tcp://compute.lab", True, "not a scheduler address"),
+    ],
+)
+def test_a_scheduler_the_network_could_impersonate_is_refused_in_one_line(
+    address: str, insecure: bool, says: str
+) -> None:
+    t0 = time.monotonic()
+    with pytest.raises(EngineError, match=says) as err, open_engine(address, insecure=insecure):
+        pass
+    assert "\n" not in str(err.value) and time.monotonic() - t0 < 5  # refused before any network
+    if "plain tcp" in says:
+        assert "tls://HOST:PORT --tls-dir" in str(err.value) and "--insecure" in str(err.value)
+
+
+def test_loopback_tcp_and_tls_with_a_client_identity_are_allowed(tmp_path: Path) -> None:
+    from services.lab.compute import write_dask
+
+    assert scheduler_security("tcp://127.0.0.1:8786", None) is None
+    assert scheduler_security("tcp://[::1]:8786", None) is None
+    assert scheduler_security("tcp://localhost:8786", None) is None
+    assert scheduler_security("tcp://192.168.10.5:8786", None, insecure=True) is None
+    write_dask(tmp_path, tmp_path, 30)
+    sec = scheduler_security("tls://192.168.10.5:8786", tmp_path / "dask" / "client")
+    assert sec is not None and sec.require_encryption
+    assert sec.tls_client_cert == str(tmp_path / "dask" / "client" / "cert.pem")
+    with pytest.raises(EngineError, match="lacks key.pem"):
+        (tmp_path / "dask" / "client" / "key.pem").unlink()
+        scheduler_security("tls://h:8786", tmp_path / "dask" / "client")
+    (tmp_path / "dask" / "client" / "key.pem").write_bytes(
+        (tmp_path / "dask" / "worker" / "key.pem").read_bytes()
+    )  # a key that is not the certificate's
+    with pytest.raises(EngineError, match="cannot use the certificates") as err:
+        scheduler_security("tls://h:8786", tmp_path / "dask" / "client")
+    assert "\n" not in str(err.value)
+
+
+def slow_identity(x: int) -> int:
+    time.sleep(0.2)
+    return x
+
+
+def test_a_cluster_that_dies_mid_map_is_one_engine_error() -> None:
+    with open_engine(workers=1) as engine:
+        it = engine.imap(slow_identity, list(range(40)), chunk=1)
+        assert next(it) == 0
+        engine.client.cluster.close()  # the scheduler and its worker go away mid-map
+        with pytest.raises(EngineError, match=r"stopped computing after \d+ of 40 results") as err:
+            list(it)
+        assert "\n" not in str(err.value) and "restart its scheduler" in str(err.value)
