@@ -15,6 +15,7 @@ from services.core.config import from_mapping
 from services.model.geometry import Colour, TableLayout
 from services.model.summaries import TrialPath, complete_trials
 from services.store import Sample, Store, TrialRecord, unpack_landmarks
+from services.store.cohorts import refuse_unfinished
 
 
 class FitInputError(ValueError):
@@ -87,6 +88,10 @@ def read_study(db: Path, participant: str | None = None) -> tuple[list[Person], 
         raise FitInputError(f"no such database: {db}; give the study's --db")
     store = Store(db)
     try:
+        try:
+            refuse_unfinished(store, str(db))
+        except ValueError as exc:
+            raise FitInputError(str(exc)) from None
         sessions = store.sessions()
         if not sessions:
             raise FitInputError(f"{db} holds no sessions: run the study (or `nod cohort`) first")

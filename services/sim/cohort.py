@@ -8,22 +8,49 @@ local Dask cluster (or a lab's, `--scheduler`) and go, in seed order, into the s
 the conductor writes (sessions, trials, samples), so `nod report`, `nod export` and `nod analyze
 study` work on the result. A simulated cohort is a model, not data: its sessions carry rig
 "offline".
+
+The store records each run as a cohort (`services.store.cohorts`): 'running' while it is
+simulated, 'complete' at the end. A run whose cluster dies (or that is interrupted) marks it
+'incomplete' and exits with the one command that finishes it, `nod cohort --db DB --resume`:
+that drops a session left half-stored and simulates the participants not stored, with the
+configuration and seeds the cohort was begun with, so the store ends as an uninterrupted run's
+would. The analysis commands refuse a store holding an incomplete cohort.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
+import shlex
+import sqlite3
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from services.cohort.person import load_cohort_params
-from services.compute.engine import Engine, EngineError, add_engine_args, engine_from_args
+from services.compute.engine import (
+    Engine,
+    EngineError,
+    add_engine_args,
+    engine_argv,
+    engine_from_args,
+)
 from services.core.cli import SEED, Parser, fail, int_in
+from services.core.config import ConfigError, from_mapping
 from services.model.closed_loop import OfflineTrial, run_offline_session
 from services.model.params import NodConfig
 from services.model.protocol import TrialSpec
 from services.store import Sample, Store, StoreError, TrialRecord
+from services.store.cohorts import (
+    CohortRecord,
+    begin_cohort,
+    drop_session,
+    set_status,
+    stored_sessions,
+    unfinished,
+)
 
 SESSION_SPACING_NS = 10**12  # each session's clock starts 1000 s after the previous one
 
@@ -82,6 +109,24 @@ def store_session(store: Store, job: Job, trials: list[OfflineTrial], prefix: st
     store.finish_session(session, base + 59 * 60 * 10**9, "complete")
 
 
+class CohortStoppedError(RuntimeError):
+    """A cohort's run stopped before its end; the store marks it incomplete."""
+
+    def __init__(self, why: str, cohort: CohortRecord, stored: int) -> None:
+        super().__init__(why)
+        self.why = why
+        self.cohort = cohort
+        self.stored = stored  # of its participants, stored in all
+
+
+def config_json(cfg: NodConfig) -> dict:
+    """The configuration as the store keeps it, checked to give `cfg` back exactly."""
+    data = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    if from_mapping(NodConfig, data) != cfg:
+        raise ValueError("this configuration does not survive JSON: a cohort of it cannot resume")
+    return data
+
+
 def run_cohort(
     engine: Engine,
     n: int,
@@ -92,32 +137,95 @@ def run_cohort(
     prefix: str = "cohort",
     show: bool = True,
 ) -> tuple[int, float]:
-    """Simulate and store n participants; return (trials stored, seconds)."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+    """Simulate and store n participants; return (trials stored, seconds).
 
+    CohortStoppedError if the engine fails half-way: the store then marks the cohort incomplete.
+    """
     jobs = [Job(i, seed + i, cfg, record) for i in range(n)]
     store = Store(db)
-    taken = {s["session"] for s in store.sessions()} & {f"{prefix}-{j.seed}" for j in jobs}
-    if taken:  # refused before any simulation, rather than a bare IntegrityError half-way
+    try:
+        taken = {s["session"] for s in store.sessions()} & {f"{prefix}-{j.seed}" for j in jobs}
+        if taken:  # refused before any simulation, rather than a bare IntegrityError half-way
+            first = min(taken, key=lambda s: int(s.rsplit("-", 1)[1]))
+            raise StoreError(
+                f"{db} already holds {len(taken)} of these sessions (e.g. {first}): choose "
+                f"another --seed (seeds {seed}-{seed + n - 1} are taken in part) or another --db"
+            )
+        cohort = begin_cohort(store, prefix, seed, n, record, config_json(cfg))
+        return _simulate(engine, store, cohort, jobs, show)
+    finally:
         store.close()
-        first = min(taken, key=lambda s: int(s.rsplit("-", 1)[1]))
-        raise StoreError(
-            f"{db} already holds {len(taken)} of these sessions (e.g. {first}): choose another "
-            f"--seed (seeds {seed}-{seed + n - 1} are taken in part) or another --db"
-        )
+
+
+def resume_cohorts(
+    engine: Engine, db: Path, show: bool = True
+) -> list[tuple[CohortRecord, int, int, float]]:
+    """Finish every incomplete cohort of the store; (cohort, participants run, trials, seconds).
+
+    Each is simulated with the configuration and seeds it was begun with; a session left
+    half-stored is dropped and run again. StoreError if there is nothing to resume.
+    """
+    store = Store(db)
+    try:
+        left = unfinished(store)
+        if not left:
+            raise StoreError(f"{db} holds no incomplete cohort: there is nothing to resume")
+        done = []
+        for cohort in left:
+            try:
+                cfg = from_mapping(NodConfig, json.loads(cohort.config))
+            except (ValueError, ConfigError) as exc:
+                raise StoreError(
+                    f"the cohort {cohort.describe()} in {db} was begun by another version of "
+                    f"nod-hri ({exc}); resume it with that version"
+                ) from None
+            status = stored_sessions(store, cohort)
+            for name, state in status.items():
+                if state != "complete":
+                    drop_session(store, name)
+            jobs = [
+                Job(i, s, cfg, cohort.samples)
+                for i, s in enumerate(cohort.seeds)
+                if status.get(cohort.session(s)) != "complete"
+            ]
+            stored, seconds = _simulate(engine, store, cohort, jobs, show)
+            done.append((cohort, len(jobs), stored, seconds))
+        return done
+    finally:
+        store.close()
+
+
+def _simulate(
+    engine: Engine, store: Store, cohort: CohortRecord, jobs: Sequence[Job], show: bool
+) -> tuple[int, float]:
+    """Simulate and store jobs of a cohort, then mark it complete; (trials stored, seconds)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+
+    set_status(store, cohort, "running")
     t0 = time.monotonic()
     stored = 0
     columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
                TimeRemainingColumn())
+
+    def stop(why: str) -> CohortStoppedError:
+        set_status(store, cohort, "incomplete", why)
+        have = sum(1 for v in stored_sessions(store, cohort).values() if v == "complete")
+        return CohortStoppedError(why, cohort, have)
+
     try:
         with Progress(*columns, disable=not show, transient=True) as bar:
-            task = bar.add_task("participants", total=n)
+            task = bar.add_task("participants", total=len(jobs))
             for job, trials in zip(jobs, engine.imap(simulate, jobs), strict=True):
-                store_session(store, job, trials, prefix)
+                store_session(store, job, trials, cohort.prefix)
                 stored += len(trials)
                 bar.advance(task)
-    finally:
-        store.close()
+    except EngineError as exc:
+        raise stop(str(exc)) from None
+    except sqlite3.IntegrityError:  # another `nod cohort` writes the same sessions
+        raise stop("a session was stored by another process meanwhile") from None
+    except KeyboardInterrupt:
+        raise stop("interrupted") from None
+    set_status(store, cohort, "complete")
     return stored, time.monotonic() - t0
 
 
@@ -128,21 +236,74 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulate a cohort offline on every core (or a Dask cluster) and store it "
         "like a real study; participants are the fitted person unless --params says otherwise.",
     )
-    p.add_argument("--participants", type=int_in(1, 10**5), required=True,
-                   help="how many (1-100000)")
-    p.add_argument("--seed", type=SEED, default=1, help="first seed (participant i: seed + i)")
+    p.add_argument("--participants", type=int_in(1, 10**5), default=None,
+                   help="how many (1-100000; required unless --resume)")
+    p.add_argument("--seed", type=SEED, default=None,
+                   help="first seed (participant i: seed + i; default 1)")
     p.add_argument("--db", type=Path, required=True, help="session database to write")
     p.add_argument("--params", type=Path, default=None,
                    help="TOML overriding the fitted person and SPEC defaults")
+    p.add_argument("--resume", action="store_true",
+                   help="finish the store's incomplete cohort (its participants, seeds and "
+                   "configuration are in the store)")
     add_engine_args(p)
     p.add_argument("--no-samples", action="store_true", help="store trials only (smaller, faster)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
 
+def resume_command(args: argparse.Namespace) -> str:
+    """The command that finishes the store's incomplete cohort, with the same engine."""
+    argv = ["nod", "cohort", "--db", str(args.db), "--resume", *engine_argv(args)]
+    return shlex.join([*argv, *(["--quiet"] if args.quiet else [])])
+
+
+def stopped(args: argparse.Namespace, exc: CohortStoppedError) -> int:
+    """Say in one line that the cohort stopped, what is stored, and how to finish it."""
+    return fail(
+        "nod cohort",
+        f"{exc.why}; {exc.stored} of its {exc.cohort.participants} participants are stored and "
+        f"{args.db} marks the cohort incomplete (no analysis takes it): once the cluster is back, "
+        f"finish it with: {resume_command(args)}",
+    )
+
+
+def _resume(args: argparse.Namespace) -> int:
+    given = [f for f, v in (("--participants", args.participants), ("--seed", args.seed),
+                            ("--params", args.params), ("--no-samples", args.no_samples or None))
+             if v is not None]
+    if given:
+        return fail("nod cohort", f"--resume takes the cohort from the store: leave out "
+                    f"{', '.join(given)}")
+    if not args.db.is_file():
+        return fail("nod cohort", f"no such database {args.db}: nothing to resume")
+    t0 = time.monotonic()
+    try:
+        with engine_from_args(args) as engine:
+            done = resume_cohorts(engine, args.db, show=not args.quiet)
+            where = engine.where
+    except CohortStoppedError as exc:
+        return stopped(args, exc)
+    except (EngineError, StoreError) as exc:
+        return fail("nod cohort", exc)
+    for cohort, ran, stored, seconds in done:
+        print(
+            f"resumed {cohort.describe()}: {ran} participants simulated ({stored} trials) in "
+            f"{seconds:.1f} s on {where}; the cohort is complete -> {args.db}"
+        )
+    print(f"{time.monotonic() - t0:.1f} s with the engine's start and stop")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run `nod cohort`."""
     args = build_parser().parse_args(argv)
+    if args.resume:
+        return _resume(args)
+    if args.participants is None:
+        return fail("nod cohort", "--participants N is required (or --resume, to finish the "
+                    "store's incomplete cohort)")
+    seed = 1 if args.seed is None else args.seed
     try:
         cfg = load_cohort_params(args.params)
         Store(args.db).close()
@@ -152,11 +313,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with engine_from_args(args) as engine:
             stored, seconds = run_cohort(
-                engine, args.participants, args.seed, args.db, cfg,
+                engine, args.participants, seed, args.db, cfg,
                 record=not args.no_samples, show=not args.quiet,
             )
             where = engine.where
-    except (EngineError, StoreError) as exc:
+    except CohortStoppedError as exc:
+        return stopped(args, exc)
+    except (EngineError, StoreError, ValueError) as exc:
         return fail("nod cohort", exc)
     total = time.monotonic() - t0
     rate = args.participants / seconds * 60

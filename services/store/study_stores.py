@@ -5,7 +5,9 @@ a SQLite file across hosts); `nod analyze study` and `nod export` take every sto
 study. Sessions keep the rig their conductor stored with them. A participant belongs to one
 rig and one store: an id found in two stores, or on two rigs, is refused in one line naming
 both — two people given one id, or one person run twice, is for the experimenter to resolve,
-never a merge that would count someone twice or drop a session silently.
+never a merge that would count someone twice or drop a session silently. A store holding part
+of a simulated cohort (`nod cohort` stopped half-way, `services.store.cohorts`) is refused too:
+its sessions are not the cohort.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import closing, contextmanager
 from pathlib import Path
 
+from services.store.cohorts import refuse_unfinished
 from services.store.store import Store
 
 
@@ -22,7 +25,8 @@ from services.store.store import Store
 def open_stores(paths: Sequence[str | Path]) -> Iterator[list[tuple[str, Store]]]:
     """Every store by its path, checked to hold disjoint participants; closed on exit.
 
-    ValueError (one line) for a missing file, a store given twice, or a participant of two.
+    ValueError (one line) for a missing file, a store given twice, a participant of two, or a
+    store with an incomplete cohort.
     """
     names = [str(p) for p in paths]
     if not names:
@@ -37,6 +41,7 @@ def open_stores(paths: Sequence[str | Path]) -> Iterator[list[tuple[str, Store]]
     try:
         for name in names:
             opened.append((name, Store(name)))
+            refuse_unfinished(opened[-1][1], name)
         check_participants(opened)
         yield opened
     finally:
