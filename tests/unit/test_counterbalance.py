@@ -87,3 +87,24 @@ def test_an_edited_order_is_not_the_latin_square():
 def test_a_bad_base_is_refused(bad):
     with pytest.raises(ValueError, match="red/blue"):
         roster_orders(bad, 4, seed=1)
+
+
+def test_within_each_pair_either_row_comes_first_by_the_seeds_coin():
+    # Each (rotation, reversal) pair's two rows come in a seeded random order: over seeds, the
+    # rotation (3 reds of the paper's base; its reversal has 2) leads its pair about half the
+    # time at every pair position and every block, and each seed's roster is its own.
+    base = ("blue", "red", "red", "blue", "red")
+    n_seeds, pairs = 400, 10  # 2 blocks of 5 pairs
+    rotation_first = Counter()
+    for seed in range(n_seeds):
+        orders = roster_orders(base, 2 * pairs, seed)
+        assert roster_orders(base, 2 * pairs, seed) == orders  # deterministic per seed
+        for k in range(pairs):
+            first, second = orders[2 * k], orders[2 * k + 1]
+            assert second == reversed_colours(first)  # the slots 2k+1, 2k+2 are one pair
+            if Counter(first)["red"] == 3:
+                rotation_first[k] += 1
+    for k in range(pairs):  # binomial(400, 1/2): sd 10, so 160..240 is 4 sd
+        assert 160 <= rotation_first[k] <= 240, (k, rotation_first[k])
+    total = sum(rotation_first.values())
+    assert 0.46 * n_seeds * pairs <= total <= 0.54 * n_seeds * pairs

@@ -10,7 +10,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from services.fit.estimator import GazeClassifier, QuantileEstimator
-from services.model.recovery import recovery
+from services.model.recovery import Recovery, recovery
 
 
 def _synthetic(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -79,6 +79,35 @@ def test_identifiable_needs_both_correlation_and_coverage():
     flat = recovery("x", true, np.full(100, 0.5), true - 0.01, true + 0.01)
     assert math.isnan(flat.correlation) and not flat.identifiable
     assert flat.as_dict()["correlation"] is None  # JSON has no NaN
+
+
+def test_coverage_below_the_standard_fails_however_good_the_correlation():
+    # Intervals that miss the truth too often (overconfident) are not findings: r = 1 and no
+    # bias do not rescue a coverage below 0.80, nor do single-value intervals.
+    true = np.linspace(0, 1, 100)
+    for k, identifiable in ((0, False), (50, False), (79, False), (80, True), (90, True)):
+        hit = np.arange(100) < k  # k of 100 intervals hold the truth
+        centre = np.where(hit, true, true + 0.5)
+        r = recovery("x", true, true, centre - 0.01, centre + 0.01)
+        assert r.correlation == pytest.approx(1.0) and r.bias == 0.0
+        assert r.coverage == pytest.approx(k / 100) and r.identifiable == identifiable, k
+    exact_but_wrong = recovery("flag", true, true, true + 1.0, true + 1.0)
+    assert exact_but_wrong.exact == 1.0 and exact_but_wrong.coverage == 0.0
+    assert not exact_but_wrong.identifiable
+
+
+@given(st.floats(0.0, 1.0), st.floats(0.7, 1.0), st.sampled_from([0.0, 0.49, 0.5, 1.0]))
+@example(0.8, 0.7, 0.0)
+@example(0.7999, 1.0, 1.0)
+@example(0.98, 0.7, 0.0)
+@example(0.9801, 1.0, 0.49)
+def test_identifiable_is_the_standard(coverage, r, exact):
+    # The standard (module docstring, `nod fit` report): r ≥ 0.7 and coverage of the 90 %
+    # intervals within 0.80-0.98; above 0.98 only when most intervals are one value.
+    rec = Recovery("x", r, 0.0, coverage, 100, exact)
+    within = coverage >= 0.80 and (coverage <= 0.98 or exact >= 0.5)
+    assert rec.identifiable == within
+    assert not Recovery("x", 0.69, 0.0, coverage, 100, exact).identifiable
 
 
 def test_a_0_1_parameter_named_exactly_is_identifiable_despite_full_coverage():

@@ -101,3 +101,21 @@ def test_the_figures_are_written_and_mark_the_agreements(tmp_path: Path) -> None
     labels = [t.get_text() for t in fig.axes[0].texts]
     # control: both robots elsewhere in trial 1; consensus: trial 4 one of two on O, trial 6 both
     assert labels[0] == "2/2" and labels[3] == "1/2" and labels[5] == "2/2"
+
+
+def test_a_complete_session_missing_a_scheduled_trial_is_excluded(tmp_path: Path) -> None:
+    # Inclusion as the paper's study: status complete *and* every scheduled trial stored.
+    db = tmp_path / "s.sqlite"
+    store = Store(db)
+    for k, (who, rows) in enumerate(SESSIONS.items()):
+        write(store, f"s{k}", who, rows)
+    options = OptionsStore(store)
+    options.begin_session("s9", "P03", "rig1", 1, 0, {}, NAMES)
+    for trial, (h, r) in enumerate(SESSIONS["P01"], start=1):
+        if trial != 6:  # trial 6 never stored
+            options.write_trial("s9", record(trial, h, r))
+    store.finish_session("s9", 1, "complete")
+    store.close()
+    doc = analyze_options_study(db)
+    assert doc["participants"] == 2 and "P03" not in doc["grid"]
+    assert [(e["participant"], e["trials_stored"]) for e in doc["excluded"]] == [("P03", 7)]

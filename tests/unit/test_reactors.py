@@ -69,6 +69,27 @@ def test_the_judge_counts_z_hat_until_the_press_and_a_late_press_is_not_the_pers
     assert late.human is None and late.outcome is None
 
 
+def test_the_press_poses_own_z_hat_counts_and_nothing_after_it():
+    # ẑ_h counts "between go and the press" (SPEC §6) inclusive: the decision service stamps
+    # ẑ_h with its pose's time, so the press pose's ẑ_h arrives after the press with t == t_press.
+    # Here it is the 4th (c_max) sample of blue: it confirms a switch, so the trial is CH.
+    def judge_with_last(t_last: float) -> TrialJudge:
+        j = TrialJudge(CFG, LAYOUT)
+        for i, z in enumerate((0.9,) * 4 + (-0.9,) * 3):  # beyond the switch dead band
+            j.observe(z, AWAY, t=0.1 * i)
+        assert j.see_hand([BLUE_IN], t=0.7) == "blue" and j.t_press == 0.7
+        j.observe(-0.9, AWAY, t=t_last)
+        return j
+
+    at_press = judge_with_last(0.7)
+    assert at_press.tracker.samples == 8 and at_press.tracker.switches == 1
+    v = at_press.verdict(TrialEnd(True, True, 1.0), "blue", 10)
+    assert (v.human, v.outcome, v.switches) == ("blue", "CH", 1)
+    just_after = judge_with_last(0.7 + 1e-9)  # any later sample is not counted
+    assert just_after.tracker.samples == 7 and just_after.tracker.switches == 0
+    assert just_after.verdict(TrialEnd(True, True, 1.0), "blue", 10).outcome == "C"
+
+
 def test_a_void_trial_has_no_presses_no_class_no_points():
     v = TrialJudge.void()
     assert (v.human, v.robot, v.outcome, v.switches, v.violations, v.score) == (

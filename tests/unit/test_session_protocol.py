@@ -115,6 +115,26 @@ def test_a_press_in_time_counts():
     protocol.advance(go + 3.0, human_pressed=True, robot_pressed=True)
     assert protocol.end is not None and protocol.end.counted_press("blue") == "blue"
 
+def test_a_press_at_the_timeouts_instant_is_the_humans_once_timed_out_none_is():
+    # "A press after the timeout is not the person's": one seen at the timeout's very instant
+    # is in time (the press wins the tie); once a step has reached the timeout without a press,
+    # a press a hair later is not.
+    go = trial_timeline(P.trials[0], 0.0, P).go_t
+    timeout = go + P.trial_timeout_s
+    for pressed_at_timeout, counted in ((True, "blue"), (False, None)):
+        protocol = SessionProtocol(P)
+        protocol.start(0.0)
+        protocol.advance(math.nextafter(timeout, -math.inf))  # the last instant before it
+        assert protocol.phase == "running"
+        protocol.advance(timeout, human_pressed=pressed_at_timeout)
+        assert protocol.phase == "robot"
+        protocol.advance(math.nextafter(timeout, math.inf), human_pressed=True)
+        protocol.advance(timeout + 1.0, human_pressed=True, robot_pressed=True)
+        end = protocol.end
+        assert end is not None and end.human_pressed == (counted is not None)
+        assert end.counted_press("blue") == counted
+
+
 def test_the_next_trial_waits_for_judged_then_rests():
     protocol = SessionProtocol(P)
     protocol.start(0.0)
@@ -185,6 +205,26 @@ def test_a_trial_is_skipped_after_max_attempts_or_when_repeats_are_off():
         assert cues[1].trial.index == 2 and protocol.attempt == 1
     with pytest.raises(RuntimeError):
         SessionProtocol(P).interrupt(0.0, "nothing under way")
+
+
+@pytest.mark.parametrize("max_attempts", [1, 2, 3, 5])
+def test_starts_made_before_a_resume_count_against_max_attempts(max_attempts):
+    # A resumed session's trial had `before` starts already (interrupted, or lost with a dead
+    # conductor): its first start now is attempt before + 1, and it gets only the starts left,
+    # so over the crash the trial is started exactly max_attempts times, never one more.
+    params = ProtocolParams(max_attempts=max_attempts)
+    for before in range(max_attempts):
+        protocol = SessionProtocol(params, first_trial=3, attempts_before=before)
+        protocol.start(0.0)
+        starts = []
+        while protocol.trial is not None and protocol.trial.index == 3:
+            starts.append(protocol.attempt)
+            protocol.interrupt(1.0, "eyes: gaze stale")
+            protocol.resume(2.0)
+        assert starts == list(range(before + 1, max_attempts + 1))
+        assert protocol.trial.index == 4 and protocol.attempt == 1
+    with pytest.raises(ValueError, match="attempts_before"):  # none left: nothing to resume
+        SessionProtocol(params, first_trial=3, attempts_before=max_attempts)
 
 
 def test_a_gated_trial_waits_for_the_operator_and_cues_from_the_start():

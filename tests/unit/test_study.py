@@ -411,3 +411,40 @@ def test_the_schedule_comes_from_the_stored_protocol() -> None:
     assert scheduled_trials(json.dumps(NodConfig().summary(), default=str)) == 8
     assert scheduled_trials(json.dumps({"protocol": {"trials": [{}, {}, {}]}})) == 3
     assert scheduled_trials("{}") == scheduled_trials(None) == scheduled_trials("not json") == 8
+
+
+def _plain(n: int) -> TrialRecord:
+    """A stored trial, both pressed red: C."""
+    return TrialRecord(n, "dissensus" if n <= 3 else "consensus", None if n <= 3 else "red",
+                       "neutral", 0.0, 0.0, 1, 2, "red", "red", "C", 0, 0, 10, 2, "pressed")
+
+
+def test_a_complete_session_missing_a_scheduled_trial_is_excluded(tmp_path: Path) -> None:
+    # The default rule: status complete *and* every scheduled trial stored. A session marked
+    # complete with a scheduled trial missing (from the SPEC's 8, or from its own protocol's
+    # longer schedule) is left out and says why; only the one with every trial counts.
+    cfg = NodConfig().summary()
+    ten = {"protocol": {"trials": [{}] * 10, "control_labels": "agreement"}}
+    store = Store(tmp_path / "s.db")
+    for i, (pid, config, numbers) in enumerate((
+        ("P01", cfg, range(1, 9)),
+        ("P02", cfg, [n for n in range(1, 9) if n != 5]),  # trial 5 never stored
+        ("P03", cfg, range(2, 9)),  # the first one missing
+        ("P04", ten, range(1, 9)),  # 8 stored of its 10
+    )):
+        store.begin_session(f"s-{pid}", pid, "sim", i, i, config)
+        for n in numbers:
+            store.write_trial(f"s-{pid}", _plain(n), [])
+        store.finish_session(f"s-{pid}", 100 + i)  # marked complete
+    try:
+        selection = select_sessions(store)
+    finally:
+        store.close()
+    assert [p.participant for p in selection.participants] == ["P01"]
+    assert {e.session: e.reason for e in selection.excluded} == {
+        "s-P02": "complete but only 7 of 8 trials stored",
+        "s-P03": "complete but only 7 of 8 trials stored",
+        "s-P04": "complete but only 8 of 10 trials stored",
+    }
+    doc = load_study(str(tmp_path / "s.db"))
+    assert doc["participants"] == 1 and sorted(_reasons(doc)) == ["s-P02", "s-P03", "s-P04"]

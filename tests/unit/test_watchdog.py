@@ -165,3 +165,20 @@ def test_the_estop_command_id_is_acknowledged_only_once_its_latch_is_saved():
     assert wd.estop_id == "cmd-1"
     wd.latch_saved()
     assert wd.estopped and wd.estop_id == "cmd-3"
+
+
+@pytest.mark.parametrize("stale_ms", [250.0, 1.0, 10_000.0])
+@pytest.mark.parametrize("late", ["z_r", "hand"])
+def test_an_input_exactly_stale_ms_old_is_fresh_one_ns_more_is_stale(stale_ms, late):
+    # docs/safety.md §1: an input that has not arrived for *more than* stale_ms stops the device.
+    # At exactly the bound it is still fresh; one nanosecond over, that input alone stops it.
+    wd = make(stale_ms)
+    bound_ns = int(stale_ms * MS)
+    now = 50_000 * 1000 * MS
+    other = "hand" if late == "z_r" else "z_r"
+    wd.feed(other, now)
+    wd.feed(late, now - bound_ns)
+    assert not wd.check(now).safe_stop
+    status = wd.check(now + 1)
+    assert status.safe_stop
+    assert status.reasons == (f"{late} stale ({stale_ms:.0f} ms)",)
