@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 import re
+import socket
 import threading
 import urllib.error
 import urllib.request
+from http import HTTPStatus
 from pathlib import Path
 
 import pytest
@@ -14,14 +16,21 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.core import messages as m
+from services.display import web
 from services.display.screen import WAIT, DisplayState, Screen, points
 from services.display.web import (
     MAX_STREAMS,
     SECURITY_HEADERS,
+    Admission,
     DisplayServer,
+    Request,
     ScreenFeed,
     load_static,
+    parse_request,
+    response_head,
+    route,
 )
+from tests.polling import wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
 # Words that would tell a participant the condition or the robot's opinion.
@@ -251,14 +260,158 @@ def test_the_stream_sends_the_screen_at_once_each_change_and_keepalives(server):
         assert _events(r, 1)[0]["kind"] == "go"  # the keep-alive repeats the current screen
 
 
-def test_streams_beyond_the_limit_are_refused_and_the_rest_still_served(server):
+def test_a_new_stream_beyond_the_limit_is_served_and_the_oldest_gives_way(server):
     opened = [_get(server, "/events") for _ in range(MAX_STREAMS)]
     try:
         for r in opened:
             _events(r, 1)
-        with pytest.raises(urllib.error.HTTPError) as err:
-            _get(server, "/events")
-        assert err.value.code == 503
+        with _get(server, "/events") as newest:  # the kiosk, reloaded: never refused
+            assert _events(newest, 1)[0]["kind"] == "wait"
+            assert opened[0].read().strip() == b""  # the oldest stream was ended for it
+            for r in opened[1:]:
+                assert _events(r, 1)[0]["kind"] == "wait"
     finally:
         for r in opened:
             r.close()
+
+
+def _small_server(monkeypatch, max_pending: int, **constants: float):
+    for name, value in constants.items():
+        monkeypatch.setattr(web, name, value)
+    feed = ScreenFeed(WAIT.as_json(0))
+    srv = DisplayServer(("127.0.0.1", 0), feed, load_static(), Admission(max_pending, 2))
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    return srv
+
+
+def _closed_by_server(sock: socket.socket) -> bool:
+    """The server closed `sock` (EOF or reset); False while it is still open (5 s at most)."""
+    sock.settimeout(5.0)
+    try:
+        while sock.recv(4096):
+            pass  # a response (a 400) before the close
+    except (ConnectionResetError, ConnectionAbortedError):
+        return True
+    except TimeoutError:
+        return False
+    return True
+
+
+def test_unfinished_requests_are_closed_oldest_first_and_after_a_timeout(monkeypatch):
+    srv = _small_server(monkeypatch, 4, HEADER_TIMEOUT_S=1.0)
+    try:
+        idle = [socket.create_connection(("127.0.0.1", srv.port)) for _ in range(4)]
+        idle[1].sendall(b"GET /events HTTP/1.1\r\nHost: x\r\n")  # never finished
+        wait_for(lambda: srv.admission.counts[0] == 4, 5, "four unfinished requests held")
+        newer = socket.create_connection(("127.0.0.1", srv.port))
+        assert _closed_by_server(idle[0])  # the oldest gave way to the fifth
+        with _get(srv, "/events") as r:  # a real request is served all the while
+            assert _events(r, 1)[0]["kind"] == "wait"
+        assert all(_closed_by_server(s) for s in (*idle[1:], newer))  # the timeout
+        wait_for(lambda: srv.admission.counts == (0, 0), 5, "no place held")
+        for s in (*idle, newer):
+            s.close()
+    finally:
+        srv.shutdown()
+        srv.server_close()
+
+
+def test_oversized_and_malformed_requests_get_400(server):
+    for head in (b"GET /" + b"a" * web.MAX_HEADER_BYTES + b" HTTP/1.1\r\n\r\n",
+                 b"hello there\r\n\r\n"):
+        with socket.create_connection(("127.0.0.1", server.port), timeout=5) as s:
+            s.sendall(head)
+            assert s.recv(100).startswith(b"HTTP/1.1 400 ")
+
+
+def test_a_stream_whose_client_stops_reading_is_dropped(monkeypatch):
+    srv = _small_server(monkeypatch, 4, STALL_S=0.5)
+    try:
+        s = socket.socket()
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        s.connect(("127.0.0.1", srv.port))
+        s.sendall(b"GET /events HTTP/1.1\r\nHost: x\r\n\r\n")
+        wait_for(lambda: srv.admission.counts[1] == 1, 5, "the stream open")
+
+        def dropped() -> bool:  # big screens fill the socket's buffers at once; it never reads
+            srv.feed.publish({"kind": "wait", "big": "x" * 200_000, "small": "", "version": 1})
+            return srv.admission.counts[1] == 0
+
+        wait_for(dropped, 10, "the stalled stream dropped", every_s=0.2)
+        assert srv.dropped == 0  # it timed out: nobody had to be closed for room
+        s.close()
+    finally:
+        srv.shutdown()
+        srv.server_close()
+
+
+# --- pure parts: the request line, who gives way ------------------------------------------
+
+
+@pytest.mark.parametrize(("line", "method", "path"), [
+    (b"GET / HTTP/1.1\r\nHost: x\r\n\r\n", "GET", "/"),
+    (b"GET /events?x=1 HTTP/1.0\r\n\r\n", "GET", "/events"),
+    (b"head /display.js#a HTTP/1.1\n\n", "HEAD", "/display.js"),
+])
+def test_a_request_line_is_read(line, method, path):
+    assert parse_request(line) == Request(method, path)
+
+
+@pytest.mark.parametrize("line", [
+    b"", b"GET /\r\n\r\n", b"GET / HTTP/2\r\n\r\n", b"GET x HTTP/1.1\r\n\r\n",
+    b"G-T / HTTP/1.1\r\n\r\n", b"GET  / HTTP/1.1\r\n\r\n", "GET /\u00e9 HTTP/1.1".encode(),
+])
+def test_a_malformed_request_line_is_refused(line):
+    with pytest.raises(ValueError):
+        parse_request(line)
+
+
+def test_routes_files_the_stream_and_refusals():
+    files = load_static()
+    assert route(Request("GET", "/events"), files) is None
+    assert route(Request("GET", "/"), files)[:2] == (HTTPStatus.OK, "text/html; charset=utf-8")
+    assert route(Request("GET", "/x"), files)[0] == HTTPStatus.NOT_FOUND
+    assert route(Request("POST", "/"), files)[0] == HTTPStatus.METHOD_NOT_ALLOWED
+    head = response_head(HTTPStatus.OK, "text/event-stream", None).decode()
+    assert head.startswith("HTTP/1.1 200 OK\r\n") and head.endswith("\r\n\r\n")
+    assert "Content-Length" not in head and "Connection: close" in head
+
+
+def test_admission_the_oldest_unfinished_request_gives_way():
+    a = Admission(max_pending=3, max_streams=2)
+    assert [a.pending(c) for c in "abc"] == [[], [], []]
+    assert a.pending("d") == ["a"]
+    a.done("b")
+    assert a.pending("e") == [] and a.counts == (3, 0)
+    assert a.stream("c") == [] and a.counts == (2, 1)  # a stream is no longer pending
+
+
+def test_admission_a_stalled_stream_gives_way_first_else_the_oldest():
+    a = Admission(max_pending=8, max_streams=3)
+    for c in "abc":
+        a.stream(c)
+    a.stalled("b", True)
+    assert a.stream("d") == ["b"]
+    assert a.stream("e") == ["a"]
+    a.stalled("e", True)
+    a.stalled("e", False)  # reads again
+    assert a.stream("f") == ["c"] and a.counts == (0, 3)
+    with pytest.raises(ValueError):
+        Admission(max_pending=0)
+
+
+@given(st.lists(st.tuples(st.sampled_from(["pending", "stream", "stalled", "done"]),
+                          st.integers(0, 9)), max_size=60))
+@settings(max_examples=200, deadline=None)
+def test_admission_never_holds_more_than_its_bounds_and_always_admits(ops):
+    a = Admission(max_pending=3, max_streams=2)
+    for op, conn in ops:
+        if op == "pending":
+            assert conn not in a.pending(conn)
+        elif op == "stream":
+            assert conn not in a.stream(conn)
+        elif op == "stalled":
+            a.stalled(conn, True)
+        else:
+            a.done(conn)
+        assert a.counts[0] <= 3 and a.counts[1] <= 2
