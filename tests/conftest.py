@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+
 import pytest
 
 from services.safety.latch_file import STATE_DIR_ENV
@@ -15,3 +17,41 @@ def _own_state_dir(tmp_path_factory, monkeypatch):
     devices of another (nor a lab's real ~/.local/state/nod).
     """
     monkeypatch.setenv(STATE_DIR_ENV, str(tmp_path_factory.mktemp("nod-state")))
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A folder on a real filesystem of its own, 64 kB, that a test can fill and free.
+
+    `fill()` writes it to its last byte: a new empty file can still be made there (inodes are
+    free), but any byte written fails with ENOSPC, as on a lab controller whose disk filled up.
+    `free()` empties it (the operator cleaned up). Needs root for the tmpfs (CI runs as root),
+    else the test is skipped.
+    """
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount)],
+                          capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
+
+    class Disk:
+        path = mount
+        filler = mount / ".filler"
+
+        def fill(self) -> None:
+            try:
+                with open(self.filler, "ab") as fh:
+                    while True:
+                        fh.write(b"\0" * 4096)
+                        fh.flush()
+            except OSError:
+                pass
+
+        def free(self) -> None:
+            self.filler.unlink(missing_ok=True)
+
+    try:
+        yield Disk()
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)

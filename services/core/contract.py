@@ -187,10 +187,12 @@ SAFETY_RELEASE = Topic(
     "and only the control station release: `engaged`, `reason`, `source`, `id`",
 )
 SAFETY_LATCH = Topic(
-    "safety/latch", m.LatchMsg, ("actuation", "eyes"), ("actuation", "eyes", "experiment"),
-    "queryable (asked at start)", RELIABLE,
+    "safety/latch", m.LatchMsg, ("actuation", "eyes"),
+    ("actuation", "eyes", "experiment", "estop"),
+    "queryable (asked at start; `nod estop --release`)", RELIABLE,
     "each device answers with its e-stop latch: `service`, `engaged`, `reason`, `source`, "
-    "`id`, `seen` (recent command ids, which can never release it again); a device that "
+    "`id`, `seen` (recent command ids), `floor` (the highest issue order it obeyed: a release "
+    "must be above it, so no earlier command can be replayed to lift it); a device that "
     "starts is engaged if any is",
     queried_only=True,
 )

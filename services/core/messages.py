@@ -308,8 +308,8 @@ class OperatorCmd(Message, frozen=True, kw_only=True):
 class LatchMsg(Message, frozen=True, kw_only=True):
     """A device's e-stop latch, in reply to a query on safety/latch (a starting device asks).
 
-    `seen` holds the ids of the recent commands the device obeyed: none of them may release a
-    latch again (`services.model.latch`).
+    `floor` is the highest issue order of any command the device obeyed: no release at or below
+    it lifts a latch again; `seen` holds the ids of its recent commands (`services.model.latch`).
     """
 
     KIND: ClassVar[str] = "latch"
@@ -320,6 +320,7 @@ class LatchMsg(Message, frozen=True, kw_only=True):
     id: Text = ""
     seen: Annotated[tuple[Annotated[str, msgspec.Meta(max_length=64)], ...],
                     msgspec.Meta(max_length=64)] = ()
+    floor: Counter = 0
 
 
 # --- the rig: service status and the launchers' events ------------------------------------------

@@ -8,13 +8,15 @@ and dropped; the service keeps running.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import socket
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 import zenoh
@@ -24,7 +26,7 @@ from services.core.clock import Clock
 from services.core.contract import EVERY_SERVICE, QoS, check_publisher, check_subscriber
 from services.core.keys import Keys
 from services.core.limits import max_payload_bytes
-from services.core.session import Fabric, open_session_retrying
+from services.core.session import Fabric, open_session, open_session_retrying
 from services.core.signals import on_stop_signal
 from services.model.safety import Watchdog
 
@@ -106,6 +108,9 @@ class Node:
         self.bad: Counter[str] = Counter()
         self.received: Counter[str] = Counter()
         self._handles: list[Any] = []
+        self._urgent_session: zenoh.Session | None = None  # the safety path's own link
+        self._urgent_waiting = threading.Condition(threading.Lock())
+        self._urgent_count = 0  # safety handlers waiting for (or holding) the lock
         self._ticks: list[tuple[float, Callable[[int], None], list[float]]] = []
         # Liveliness is declared by `ready()`, after the service has declared its subscriptions:
         # a peer that waits for our token (the conductor does) must not talk to us before we
@@ -128,6 +133,16 @@ class Node:
         """A publisher for one topic of this rig."""
         return TopicPublisher(self, topic)
 
+    def subscribe_urgent(self, topic: str, handler: Callable[[Any], None]) -> None:
+        """`subscribe` for the safety path (the e-stop): on a session of its own, ahead of data.
+
+        A flood on a data key fills the one link a session has to its router: an e-stop sent
+        after it waited behind thousands of queued samples (3.5 s under a z_r flood). Its own
+        session is its own link and its own receiving thread; and while its handler waits for
+        the node's lock, data handlers wait for it (at most the one running finishes first).
+        """
+        self._declare_subscriber(self._urgent_link(), topic, handler, urgent=True)
+
     def subscribe(self, topic: str, handler: Callable[[Any], None]) -> None:
         """Decode every sample of `topic` strictly and pass good ones to `handler` (locked).
 
@@ -138,11 +153,19 @@ class Node:
         The size limit is the topic's (`services.core.limits`), which the session's low-pass
         filter already applies: this check only sees what a peer's or router's config let by.
         """
+        self._declare_subscriber(self.session, topic, handler, urgent=False)
+
+    def _declare_subscriber(
+        self, session: zenoh.Session, topic: str, handler: Callable[[Any], None], *, urgent: bool
+    ) -> None:
         key = self.keys.topic(topic)
         cls: type[m.Message] = check_subscriber(topic, self.service).message
         limit = max_payload_bytes(cls)
+        locked = self._urgent_lock if urgent else self._data_lock
 
         def on_sample(sample: zenoh.Sample) -> None:
+            if not urgent and self._urgent_count:  # the CPU to the e-stop first, not a decode
+                self._stand_aside()
             size = len(sample.payload)
             if size > limit:  # before copying it out of zenoh's buffer
                 self._drop(topic, f"payload of {size} bytes exceeds the limit {limit}")
@@ -152,7 +175,7 @@ class Node:
             except m.MessageError as exc:
                 self._drop(topic, str(exc))
                 return
-            with self.lock:
+            with locked():
                 self.received[topic] += 1
                 try:
                     handler(msg)
@@ -162,7 +185,57 @@ class Node:
                     log.exception("%s: handler for %s failed", self.service, topic)
 
         callback = zenoh.handlers.Callback(on_sample, indirect=False)
-        self._handles.append(self.session.declare_subscriber(key, callback))
+        self._handles.append(session.declare_subscriber(key, callback))
+
+    @contextmanager
+    def _urgent_lock(self) -> Iterator[None]:
+        """The node's lock for a safety handler: data handlers stand aside while it waits."""
+        with self._urgent_waiting:
+            self._urgent_count += 1
+        try:
+            with self.lock:
+                yield
+        finally:
+            with self._urgent_waiting:
+                self._urgent_count -= 1
+                self._urgent_waiting.notify_all()
+
+    @contextmanager
+    def _data_lock(self) -> Iterator[None]:
+        """The node's lock for a data handler, taken only while no safety handler waits for it.
+
+        Python's lock is not fair: a thread that releases it and asks again at once (a flood's
+        handler, sample after sample) mostly wins it back, and the e-stop waited behind.
+        """
+        if self._urgent_count:  # unlocked read: at worst one more data handler goes first
+            self._stand_aside()
+        with self.lock:
+            yield
+
+    def _stand_aside(self) -> None:
+        """Wait (without the interpreter lock) until no safety handler waits or runs."""
+        with self._urgent_waiting:
+            while self._urgent_count:
+                self._urgent_waiting.wait()
+
+    def _urgent_link(self) -> zenoh.Session:
+        """The session of the safety path: a second link to the same router (opened once).
+
+        Without an endpoint to connect it to (a router, or a peer that only listens) it would
+        reach nobody: the safety path then shares the data session, and says so.
+        """
+        if self._urgent_session is None:
+            conf = self.fabric.zenoh_config()
+            connect = json.loads(conf.get_json("connect/endpoints") or "[]")
+            if self.fabric.mode == "router" or not connect:
+                log.info("%s: the e-stop shares the data session (no endpoint for a second "
+                         "link)", self.service)
+                self._urgent_session = self.session
+            else:
+                # Listening is the data session's job (a second bind of its port would fail).
+                conf.insert_json5("listen/endpoints", "[]")
+                self._urgent_session = open_session(conf)
+        return self._urgent_session
 
     def answer(self, topic: str, reply: Callable[[], m.Message]) -> None:
         """Answer every query on `topic` with `reply()`, built under the lock (a publisher's right).
@@ -355,6 +428,9 @@ class Node:
             session, self.session = self.session, None  # type: ignore[assignment]
         for token in self._tokens:
             token.undeclare()
+        if self._urgent_session is not None and self._urgent_session is not session:
+            self._urgent_session.close()
+        self._urgent_session = None
         session.close()
 
 

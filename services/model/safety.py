@@ -91,12 +91,16 @@ class Watchdog:
     # Whether the latch is the rig's (its file read and the peers asked): a device that does
     # not know yet stays stopped, whatever its inputs.
     latch_known: bool = False
-    latch_warning: str = ""  # e.g. the latch could not be saved (its host's disk is full)
+    # Why the latch in memory is not the one on disk (its host's disk is full, the folder gone);
+    # empty once saved. A stop reason, never a warning: a device whose latch is unsaved could
+    # come back from a restart released, so it does not move until a save succeeds.
+    latch_unsaved: str = ""
     # The id acknowledged while the last command obeyed is not yet saved (None: it is saved).
     # An engage stops the device at once, before its latch reaches the disk (a slow fsync must
     # not delay a stop), but is acknowledged only once saved: an acknowledged e-stop survives
-    # a restart.
+    # a restart, and one that cannot be saved is never acknowledged.
     _unsaved_ack: str | None = None
+    _before_command: tuple[Latch, str | None] = (Latch(), None)  # to undo an unsaved release
     fault: str | None = None  # the device driver's fault, while it has one
     clock_faults: int = 0  # messages refused for their timestamp
 
@@ -128,15 +132,30 @@ class Watchdog:
 
     def command(self, engaged: bool, reason: str, source: str, command_id: str) -> Verdict:
         """An e-stop command (engage or release): obeyed, a repeat, or refused (a stale release)."""
-        before = self.latch.id
+        self._before_command = (self.latch, self._unsaved_ack)
         self.latch, verdict = self.latch.command(engaged, reason, source, command_id)
         if verdict == "obeyed" and self._unsaved_ack is None:
-            self._unsaved_ack = before
+            self._unsaved_ack = self._before_command[0].id
         return verdict
 
     def latch_saved(self) -> None:
-        """The latch is on disk (or could not be, and says so): acknowledge its last command."""
+        """The latch is on disk: acknowledge its last command."""
         self._unsaved_ack = None
+        self.latch_unsaved = ""
+
+    def latch_not_saved(self, why: str) -> None:
+        """The latch could not be saved: no acknowledgement, and stopped until a save succeeds."""
+        self.latch_unsaved = why or "not saved"
+
+    def revert_command(self, why: str) -> None:
+        """Undo the last command (a release) whose latch could not be saved: nothing changes.
+
+        A release is obeyed only once it is on disk: otherwise a restart would bring back an
+        e-stop the operator was told was lifted. Its id is not remembered, so `nod estop`
+        repeating it retries the save.
+        """
+        self.latch, self._unsaved_ack = self._before_command
+        self.latch_not_saved(why)
 
     def estop(self, engaged: bool, reason: str = "", command_id: str = "") -> Verdict:
         """Engage or release the e-stop (`command` without a source)."""
@@ -176,8 +195,8 @@ class Watchdog:
             reasons.append("e-stop state not known yet")
         if self.fault is not None:
             reasons.append(f"device fault: {self.fault}")
-        if self.latch_warning:
-            warnings.append(self.latch_warning)
+        if self.latch_unsaved:
+            reasons.append(f"e-stop latch not saved: {self.latch_unsaved}")
         for service in self.required():
             if not self._alive.get(service, False):
                 reasons.append(f"{service} not alive")

@@ -3,7 +3,14 @@
 The command goes out with the contract's safety QoS (reliable, real-time priority) and a fresh
 id; each device acknowledges it on its state key (`estop_id`, `estop`). `nod estop` repeats the
 command until every expected device has acknowledged (or `--timeout` passes), prints who obeyed
-and how fast, and exits 0 only if all did: with nobody listening it says so and fails.
+and how fast, and exits 0 only if all did: with nobody listening it says so and fails, and a
+device that heard it but did not acknowledge (its latch could not be saved) is named with the
+reason its state key shows.
+
+Ids carry their issue order (`services.model.latch`): an engage is ordered by this host's wall
+clock; a release first asks the devices' latches (`safety/latch`) and is ordered above the
+highest command any of them obeyed, so a host whose clock is behind can still release, while a
+release issued earlier (replayed from a recording) never can.
 """
 
 from __future__ import annotations
@@ -14,13 +21,14 @@ import socket
 import sys
 import threading
 import time
-import uuid
 
 from services.core.cli import Parser, fail
 from services.core.node import Node
 from services.core.session import Fabric, add_zenoh_args
+from services.model.latch import new_command_id
 
 DEVICES = ("actuation", "eyes")
+ASK_LATCHES_S = 0.5  # how long a release waits for the devices' latches (it ends when all answer)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,11 +61,14 @@ class Acks:
         self.t0 = t0
         self.lock = threading.Lock()
         self.obeyed: dict[str, tuple[float, str]] = {}  # device → (seconds, reason shown)
+        self.last_reason: dict[str, str] = {}  # device → the reason its last state showed
         self.done = threading.Event()
         self.expected: tuple[str, ...] = ()
 
     def state(self, device: str, estop_id: str, estop: bool, reason: str) -> None:
         """Record a device's state message if it acknowledges our command."""
+        with self.lock:
+            self.last_reason[device] = reason
         if estop_id != self.command_id or estop != self.engaged:
             return
         with self.lock:
@@ -81,9 +92,13 @@ def main(argv: list[str] | None = None) -> int:
         return fail("nod estop", exc)
     engaged = not args.release
     source = f"{getpass.getuser()}@{socket.gethostname()}"
-    acks = Acks(uuid.uuid4().hex[:16], engaged, time.monotonic())
-    acks.expected = expected
     try:
+        order = time.time_ns()
+        if not engaged:  # above every command the devices obeyed (a clock behind theirs)
+            floors = [latch.floor for latch in node.ask("safety/latch", ASK_LATCHES_S)]
+            order = max(order, max(floors, default=0) + 1)
+        acks = Acks(new_command_id(order), engaged, time.monotonic())
+        acks.expected = expected
         node.subscribe(
             "actuation/state",
             lambda s: acks.state("actuation", s.estop_id, s.estop, s.safety_reason),
@@ -117,7 +132,10 @@ def _report(
             shown = f" ({reason})" if reason else ""
             print(f"{device}: obeyed in {seconds * 1e3:.0f} ms{shown}")
         elif device in alive:
-            print(f"{device}: alive but did NOT acknowledge within the timeout", file=sys.stderr)
+            shown = acks.last_reason.get(device, "")
+            why = f": {shown}" if shown else ""
+            print(f"{device}: alive but did NOT acknowledge within the timeout{why}",
+                  file=sys.stderr)
             failed = True
         else:
             print(f"{device}: not running on rig {rig!r} (no liveliness)", file=sys.stderr)

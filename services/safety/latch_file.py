@@ -19,9 +19,10 @@ import os
 import tempfile
 from pathlib import Path
 
-from services.model.latch import MAX_SEEN, Latch
+from services.model.latch import MAX_ORDER, MAX_SEEN, Latch, floor_of
 
 STATE_DIR_ENV = "NOD_STATE_DIR"
+PROBE_BYTES = 8192  # more than any latch file (64 ids of 64 characters and two texts of 200)
 
 
 def default_state_dir() -> Path:
@@ -51,11 +52,18 @@ class LatchFile:
         self.path = Path(state_dir) / f"estop-{rig}-{device}.json"
 
     def check_writable(self) -> None:
-        """Create the folder and prove a latch can be saved there (OSError with the path if not)."""
+        """Create the folder and prove a latch can be saved there (OSError with the path if not).
+
+        The probe writes and syncs as many bytes as the largest latch: on a full disk an empty
+        file can still be created (an inode is free), and an empty probe let a device start
+        whose every e-stop would then fail to save.
+        """
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.NamedTemporaryFile(dir=self.path.parent, prefix=".probe-"):
-                pass
+            with tempfile.NamedTemporaryFile(dir=self.path.parent, prefix=".probe-") as fh:
+                fh.write(b"\0" * PROBE_BYTES)
+                fh.flush()
+                os.fsync(fh.fileno())
         except OSError as exc:
             raise OSError(f"cannot keep the e-stop latch in {self.path.parent}: {exc}") from None
 
@@ -76,15 +84,19 @@ class LatchFile:
                 isinstance(v, str) for v in (reason, source, cid, *seen)
             ):
                 raise TypeError("wrong field types")
+            # A latch saved before floors existed: the highest order among what it remembers.
+            floor = data.get("floor", floor_of((*seen, cid)))
+            if isinstance(floor, bool) or not isinstance(floor, int) or not 0 <= floor <= MAX_ORDER:
+                raise TypeError(f"floor {floor!r} is not an order")
         except (ValueError, KeyError, TypeError) as exc:
             return Latch(True, f"latch file {self.path.name} corrupt ({exc})", "", "")
-        return Latch(engaged, reason, source, cid, seen)
+        return Latch(engaged, reason, source, cid, seen, floor)
 
     def save(self, latch: Latch) -> None:
         """Replace the saved latch atomically and durably (OSError if it cannot)."""
         body = json.dumps({
             "engaged": latch.engaged, "reason": latch.reason, "source": latch.source,
-            "id": latch.id, "seen": list(latch.seen),
+            "id": latch.id, "seen": list(latch.seen), "floor": latch.floor,
         }).encode()
         folder = self.path.parent
         folder.mkdir(parents=True, exist_ok=True)

@@ -30,11 +30,14 @@ def watch_safety_inputs(
 
     The latch comes from `latch_file` (None: kept in memory only, for in-process tests) merged
     with what the rig's other devices answer on `safety/latch`; until both are in, the watchdog
-    keeps the device stopped. An engage is acted on at once, then saved to the file, then
-    acknowledged; a release is saved before the device acts on it (moves again). Liveliness is
-    watched for every service in the watchdog's `require_alive` and in `also_watch` (services it
-    requires only at times, e.g. the conductor during a trial); an e-stop (or its release) is
-    acted on at once rather than at the next periodic tick.
+    keeps the device stopped. The e-stop keys are heard on the node's safety path
+    (`Node.subscribe_urgent`), never behind data. An engage is acted on at once, then saved to
+    the file, and acknowledged only once saved; a release is saved before the device acts on it
+    (moves again), and one that cannot be saved is not obeyed. A latch that cannot be saved
+    keeps the device stopped (the state key says why) and is retried every second until it is.
+    Liveliness is watched for every service in the watchdog's `require_alive` and in
+    `also_watch` (services it requires only at times, e.g. the conductor during a trial); an
+    e-stop (or its release) is acted on at once rather than at the next periodic tick.
     """
     with node.lock:
         if latch_file is not None:
@@ -43,43 +46,67 @@ def watch_safety_inputs(
                 log.warning("%s: e-stop ENGAGED (latched in %s): %s", node.service,
                             latch_file.path, watchdog.latch.reason)
 
-    def save() -> None:
+    def save() -> bool:
+        """Save the latch (under the node's lock); whether it is on disk now."""
         if latch_file is not None:
             try:
                 latch_file.save(watchdog.latch)
-                watchdog.latch_warning = ""
             except OSError as exc:
-                watchdog.latch_warning = f"e-stop latch not saved: {exc}"
-                log.error("%s: %s", node.service, watchdog.latch_warning)
+                why = f"{latch_file.path.parent}: {exc.strerror or exc}"
+                if why != watchdog.latch_unsaved:  # one line per new cause, not per retry
+                    log.error("%s: e-stop latch NOT saved (%s): stays stopped until it is",
+                              node.service, why)
+                watchdog.latch_not_saved(why)
+                return False
+        if watchdog.latch_unsaved:
+            log.warning("%s: e-stop latch saved again", node.service)
         watchdog.latch_saved()
+        return True
 
     def on_command(msg: m.Estop, engage: bool) -> None:
         if msg.engaged != engage:  # each key carries one direction (an ACL may guard release)
             raise ValueError(f"an e-stop {'release' if engage else 'engage'} on the wrong key")
         verdict = watchdog.command(engage, msg.reason or msg.source, msg.source, msg.id)
         if verdict == "repeat":
+            if watchdog.latch_unsaved:
+                save()  # `nod estop` repeats an unacknowledged command: try the disk again
+                act_now(node.clock.now_ns())
             return  # `nod estop` repeats a command until every device has acknowledged it
         if verdict == "refused":
-            raise ValueError(f"a release without a fresh id ({msg.id!r}: replayed?) is refused")
+            raise ValueError(
+                f"a release with a stale id ({msg.id!r}: issued before a command this device "
+                "obeyed, replayed?) is refused"
+            )
         if engage:  # stop at once: two fsyncs on a busy disk took over a second under load
             act_now(node.clock.now_ns())
-        save()  # a release is saved before the device moves again
+        if not save() and not engage:
+            watchdog.revert_command(f"{watchdog.latch_unsaved} (the release was not obeyed)")
+            log.error("%s: e-stop release by %s NOT obeyed: its latch cannot be saved",
+                      node.service, msg.source or "?")
+            act_now(node.clock.now_ns())
+            return
         state = "ENGAGED" if engage else "released"
         log.warning("%s: e-stop %s by %s: %s", node.service, state, msg.source or "?", msg.reason)
         act_now(node.clock.now_ns())  # and acknowledged (estop_id) once saved
+
+    def retry_unsaved(now_ns: int) -> None:
+        if watchdog.latch_unsaved:
+            save()
 
     def latch_msg() -> m.LatchMsg:
         latch = watchdog.latch
         return m.LatchMsg(
             seq=0, t_ns=node.clock.now_ns(), service=node.service, engaged=latch.engaged,
             reason=latch.reason, source=latch.source, id=latch.id, seen=latch.seen,
+            floor=latch.floor,
         )
 
-    node.subscribe("safety/estop", lambda msg: on_command(msg, True))
-    node.subscribe("safety/release", lambda msg: on_command(msg, False))
+    node.subscribe_urgent("safety/estop", lambda msg: on_command(msg, True))
+    node.subscribe_urgent("safety/release", lambda msg: on_command(msg, False))
+    node.every(1.0, retry_unsaved)
     node.answer("safety/latch", latch_msg)
     peers = [
-        Latch(r.engaged, r.reason, r.source, r.id, r.seen)
+        Latch(r.engaged, r.reason, r.source, r.id, r.seen, r.floor)
         for r in node.ask("safety/latch", ASK_PEERS_S)
         if r.service != node.service
     ]

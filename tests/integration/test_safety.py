@@ -81,7 +81,7 @@ def test_estop_stops_the_arm_within_the_bound_and_latches(client, spawn):
         estop = client.declare_publisher(KEYS.topic("safety/estop"))
         release = client.declare_publisher(KEYS.topic("safety/release"))
         t_estop = time.time_ns()
-        estop.put(m.encode(m.Estop(seq=0, t_ns=t_estop, engaged=True, reason="test", id="e1")))
+        estop.put(m.encode(m.Estop(seq=0, t_ns=t_estop, engaged=True, reason="test", id="5-e1")))
         wait_for(
             lambda: _first_after(state, t_estop, lambda s: not s.moving) is not None,
             5,
@@ -95,14 +95,16 @@ def test_estop_stops_the_arm_within_the_bound_and_latches(client, spawn):
         time.sleep(0.3)  # a negative check: inputs stay fresh, yet the e-stop latches
         assert all(s.safe_stop and not s.moving for s in state.messages[-5:])
         t_rel = time.time_ns()
-        estop.put(m.encode(m.Estop(seq=1, t_ns=t_rel, engaged=False, reason="wrong key", id="w1")))
-        # A release without an id (not fresh) on the right key is refused too.
+        estop.put(m.encode(m.Estop(seq=1, t_ns=t_rel, engaged=False, reason="wrong key", id="7-w")))
+        # A release without an id, or issued before the engage (replayed), is refused too.
         release.put(m.encode(m.Estop(seq=2, t_ns=time.time_ns(), engaged=False, reason="no id")))
-        time.sleep(0.3)  # a negative check: both refused, still stopped
-        assert all(s.safe_stop and not s.moving and s.estop_id == "e1"
+        release.put(m.encode(m.Estop(seq=3, t_ns=time.time_ns(), engaged=False, reason="old",
+                                     id="4-r0")))
+        time.sleep(0.3)  # a negative check: all refused, still stopped
+        assert all(s.safe_stop and not s.moving and s.estop_id == "5-e1"
                    for s in state.messages[-5:])
-        release.put(m.encode(m.Estop(seq=3, t_ns=time.time_ns(), engaged=False, reason="test",
-                                     id="r1")))
+        release.put(m.encode(m.Estop(seq=4, t_ns=time.time_ns(), engaged=False, reason="test",
+                                     id="6-r1")))
         wait_for(
             lambda: _first_after(state, t_rel, lambda s: s.moving) is not None,
             5,

@@ -73,7 +73,8 @@ def test_the_code_subscribes_to_what_the_contract_says():
     # vision reads rendered frames through its capture (ZenohCamera), not Node.subscribe;
     # actuation and eyes take the e-stop through the shared safety wiring.
     wiring = (ROOT / "services/safety/wiring.py").read_text()
-    assert 'subscribe("safety/estop"' in wiring and 'subscribe("safety/release"' in wiring
+    assert 'subscribe_urgent("safety/estop"' in wiring
+    assert 'subscribe_urgent("safety/release"' in wiring  # on the safety path
     assert 'ask("safety/latch"' in wiring  # asking is subscribing: a starting device asks
     gated = {
         (service, topic)

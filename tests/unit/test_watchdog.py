@@ -50,12 +50,12 @@ def test_estop_latches_until_released():
     wd = make()
     wd.feed("z_r", 0)
     wd.feed("hand", 0)
-    wd.estop(True, "operator", "e1")
+    wd.estop(True, "operator", "1-e")
     wd.feed("z_r", 1)
     assert wd.check(1).safe_stop and "operator" in wd.check(1).reason
     assert wd.estop(False, "", "") == "refused"  # a release needs a fresh id
     assert wd.check(1).safe_stop
-    assert wd.estop(False, "", "r1") == "obeyed"
+    assert wd.estop(False, "", "2-r") == "obeyed"
     assert not wd.check(1).safe_stop
 
 
@@ -152,19 +152,61 @@ def test_a_trial_can_require_the_conductor_and_release_it():
 
 def test_the_estop_command_id_is_acknowledged_only_once_its_latch_is_saved():
     wd = make()
-    wd.estop(True, "operator", "cmd-1")
+    wd.estop(True, "operator", "1-cmd")
     # Obeyed (the device stops at once) but not acknowledged until the latch is on disk.
     assert wd.estopped and wd.check(0).safe_stop and wd.estop_id == ""
     wd.latch_saved()
-    assert wd.estop_id == "cmd-1"
-    assert wd.estop(True, "operator", "cmd-1") == "repeat" and wd.estop_id == "cmd-1"
-    wd.estop(False, "", "cmd-2")
-    assert not wd.estopped and wd.estop_id == "cmd-1"
+    assert wd.estop_id == "1-cmd"
+    assert wd.estop(True, "operator", "1-cmd") == "repeat" and wd.estop_id == "1-cmd"
+    wd.estop(False, "", "2-cmd")
+    assert not wd.estopped and wd.estop_id == "1-cmd"
     # A second command before the first was saved: the last saved one is still what is shown.
-    wd.estop(True, "again", "cmd-3")
-    assert wd.estop_id == "cmd-1"
+    wd.estop(True, "again", "3-cmd")
+    assert wd.estop_id == "1-cmd"
     wd.latch_saved()
-    assert wd.estopped and wd.estop_id == "cmd-3"
+    assert wd.estopped and wd.estop_id == "3-cmd"
+
+
+def test_an_engage_that_cannot_be_saved_stops_the_device_and_is_never_acknowledged():
+    wd = make()
+    wd.feed("z_r", 0)
+    wd.feed("hand", 0)
+    wd.estop(True, "operator", "5-e")
+    wd.latch_not_saved("/state: No space left on device")
+    status = wd.check(0)
+    assert wd.estop_id == "" and status.safe_stop
+    assert "e-stop latch not saved: /state: No space left on device" in status.reasons
+    # The disk is back: saved, acknowledged; the latch still holds the device.
+    wd.latch_saved()
+    assert wd.estop_id == "5-e" and wd.check(0).safe_stop
+    assert not any("not saved" in r for r in wd.check(0).reasons)
+
+
+def test_a_release_that_cannot_be_saved_is_not_obeyed():
+    wd = make()
+    wd.feed("z_r", 0)
+    wd.feed("hand", 0)
+    wd.estop(True, "operator", "5-e")
+    wd.latch_saved()
+    engaged = wd.latch
+    assert wd.estop(False, "", "6-r") == "obeyed"
+    wd.revert_command("/state: No space left on device (the release was not obeyed)")
+    assert wd.latch == engaged and wd.estopped and wd.estop_id == "5-e"
+    assert wd.check(0).safe_stop
+    # `nod estop` repeats the same release: obeyed this time, once the save succeeds.
+    assert wd.estop(False, "", "6-r") == "obeyed"
+    wd.latch_saved()
+    assert not wd.estopped and wd.estop_id == "6-r" and not wd.check(0).safe_stop
+
+
+def test_a_latch_unsaved_at_start_keeps_a_released_device_stopped():
+    wd = make()
+    wd.feed("z_r", 0)
+    wd.feed("hand", 0)
+    wd.latch_not_saved("/state: Read-only file system")
+    assert not wd.estopped and wd.check(0).safe_stop
+    wd.latch_saved()
+    assert not wd.check(0).safe_stop
 
 
 @pytest.mark.parametrize("stale_ms", [250.0, 1.0, 10_000.0])
