@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "fit": ("services.fit.cli", "each participant's model parameters; a recovery study"),
     "questionnaire": ("services.experiment.questionnaire", "enter or import Q1-Q5 answers"),
     "export": ("services.experiment.export", "write a session database as CSV"),
+    "store": ("services.store.cli", "the session store: `nod store check --db FILE` (integrity)"),
     "study": ("services.study.cli", "a study's roster: orders, consent, who is next, start"),
     "monitor": ("services.monitor.service", "live view of every key in Rerun"),
     "topic": ("services.tools.topic", "list, echo and measure the rig's keys"),

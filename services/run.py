@@ -38,7 +38,13 @@ from services.core.options_config import add_options_arg, load_with_options
 from services.core.rigfile import Host, Rig
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
 from services.core.signals import on_stop_signal
-from services.experiment.resume import flag_argv, resume_argv, resume_line, stored_unfinished
+from services.experiment.resume import (
+    flag_argv,
+    resume_argv,
+    resume_line,
+    resume_problem,
+    stored_unfinished,
+)
 from services.launch.commands import command
 from services.launch.events import RigEvents
 from services.launch.options_run import options_problem, with_options
@@ -384,11 +390,9 @@ def _preflight(args: argparse.Namespace) -> str | None:
         return str(exc)
     try:  # who runs: the ids given, or the first free ones; a done participant needs --again
         if args.resume is not None:  # the stored session's own participant and seed
+            if problem := resume_problem(store, args.resume, args.rig):
+                return problem  # not there, another rig's, or complete: the store unchanged
             known = {s["session"]: s for s in store.sessions()}
-            if args.resume not in known:
-                return f"--resume: no session {args.resume!r} in {args.db}; known: " + (
-                    ", ".join(list(known)[-5:]) or "none"
-                )
             args.ids = [known[args.resume]["participant"]]
             if known[args.resume]["seed"] is not None:
                 args.seed = known[args.resume]["seed"]

@@ -270,10 +270,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.error(f"choose a command: {', '.join(COMMANDS)} (see --help)")
     from services.core.config import ConfigError
+    from services.store.store import StoreError
 
     try:
         return COMMANDS[args.command](args)
-    except (UsageError, ConfigError, ValueError) as exc:
+    except (UsageError, ConfigError, ValueError, StoreError) as exc:  # StoreError: a damaged db
         return fail(f"{PROG} {args.command}", f"error: {exc}")
 
 

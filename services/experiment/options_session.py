@@ -22,7 +22,7 @@ from services.experiment.options_conductor import OptionsConductor
 from services.model.options_loop import table_for
 from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig
-from services.store import Store
+from services.store import Store, back_up
 from services.store.options import OptionsStore
 from services.store.participants import next_free_ids
 
@@ -66,5 +66,6 @@ def run_options(
         return 130
     finally:
         node.close()
+        back_up(store)  # the session ended (complete, stopped or aborted): a copy of the store
     log.info("session %s complete", session)
     return 0

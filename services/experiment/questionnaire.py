@@ -257,6 +257,11 @@ def main(argv: list[str] | None = None) -> int:
             participant = parse_participant(args.participant)
         except ValueError as exc:
             return fail(PROG, f"error: --participant: {exc}")
+        try:  # a damaged store is refused before the participant answers, not after
+            if args.db.is_file():
+                Store(args.db).close()
+        except (sqlite3.Error, OSError) as exc:
+            return fail(PROG, f"error: cannot open {args.db}: {exc}")
         try:
             record = prompt_answers(participant, sys.stdin.readline, sys.stdout.write)
         except (InputEndedError, KeyboardInterrupt) as exc:

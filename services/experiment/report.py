@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from services.core.cli import Parser, fail
-from services.store import Store
+from services.store import Store, StoreError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,7 +25,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if not args.db.is_file():
         return fail("nod report", f"no such database: {args.db}")
-    store = Store(args.db)
+    try:
+        store = Store(args.db)  # a damaged store is refused here, untouched
+    except StoreError as exc:
+        return fail("nod report", exc)
     try:
         trials = store.trials(args.session)
         session = trials[0][0] if trials else None

@@ -71,6 +71,36 @@ def stored_unfinished(db: Path | Store, session: str) -> bool:
             store.close()
 
 
+def resume_problem(store: Store, session: str, rig: str) -> str | None:
+    """Why `--resume session` may not go on in `store` on `rig` (one line), or None.
+
+    Refused before anything is written: a session that is not there; one of another rig (its
+    trials would be run on this rig's devices and stored under that one's name); a complete one
+    (resuming it would reopen it and rewrite its finish time).
+    """
+    known = {s["session"]: s for s in store.sessions()}
+    stored = known.get(session)
+    if stored is None:
+        return f"--resume: no session {session!r} in {store.path}; known: " + (
+            ", ".join(list(known)[-5:]) or "none"
+        )
+    if stored["rig"] != rig:
+        return (
+            f"--resume: session {session} ran on rig {stored['rig']!r}, this is rig {rig!r}: "
+            f"resume it on its own rig (--rig {stored['rig']}); nothing was changed"
+        )
+    if stored["status"] == "complete":
+        (trials,) = store.db.execute(
+            "SELECT COUNT(*) FROM trials WHERE session = ?", (session,)
+        ).fetchone()
+        return (
+            f"--resume: session {session} of {stored['participant']} is complete ({trials} "
+            "trial(s) stored): nothing to resume, and it is left as it is; another session "
+            "of that participant is started with --again REASON"
+        )
+    return None
+
+
 def say_how_to_resume(store: Store, parser: argparse.ArgumentParser,
                       args: argparse.Namespace, session: str) -> None:
     """Print the resume line on stderr if the session is stored and unfinished."""

@@ -29,10 +29,10 @@ from services.experiment.console import make_console
 from services.experiment.order import participant_problem, session_config
 from services.experiment.params_check import ParamsCheck
 from services.experiment.recording import RecorderProcess, recorder_command, recording_path
-from services.experiment.resume import say_how_to_resume
+from services.experiment.resume import resume_problem, say_how_to_resume
 from services.experiment.waiting import hear_the_devices
 from services.model.protocol import order_of
-from services.store import Store
+from services.store import Store, back_up
 from services.store.participants import next_free_ids, record_order
 
 log = logging.getLogger("nod.experiment")
@@ -175,6 +175,9 @@ def main(argv: list[str] | None = None) -> int:
             return run_options(args, cfg, schedule, clicks, store)
         finally:
             store.close()
+    if args.resume is not None and (problem := resume_problem(store, args.resume, args.rig)):
+        store.close()  # another rig's session, a complete one: refused, the store unchanged
+        return fail("nod experiment", problem)
     try:
         cfg = session_config(cfg, store, args.order, args.resume)
     except ValueError as exc:
@@ -204,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         if done >= len(cfg.protocol.trials) and lost is None:
             store.finish_session(args.resume, time.time_ns(), "complete")
+            back_up(store)
             store.close()
             print(f"nod experiment: session {args.resume} has all {done} trials; nothing to do")
             return 0
@@ -283,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
             code = recorder.stop()
             log.info("recording %s (recorder exit %s)", recorder.path, code)
         node.close()
+        back_up(store)  # the session ended (complete, stopped or aborted): a copy of the store
         if not complete:  # interrupted, aborted, or never started: how to go on with it
             say_how_to_resume(store, build_parser(), args, session)
         store.close()

@@ -11,10 +11,18 @@ from services.store.records import (
     pack_landmarks,
     unpack_landmarks,
 )
-from services.store.store import Store, StoreError
+from services.store.store import (
+    DamagedStoreError,
+    Store,
+    StoreError,
+    back_up,
+    backup_path,
+    check_file,
+)
 
 __all__ = [
     "CueRecord",
+    "DamagedStoreError",
     "Interruption",
     "QuestionnaireRecord",
     "RigEventRecord",
@@ -23,6 +31,9 @@ __all__ = [
     "Store",
     "StoreError",
     "TrialRecord",
+    "back_up",
+    "backup_path",
+    "check_file",
     "pack_landmarks",
     "unpack_landmarks",
 ]

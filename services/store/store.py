@@ -13,12 +13,22 @@ at most that trial's unfinished samples; a session left 'running' is reported wh
 opened again. A trial's start is committed on its own (`open_attempts`) and closed by the
 transaction that stores the trial or its interruption: an attempt still open when a session is
 resumed was lost with its conductor, and `nod experiment --resume` stores it as interrupted.
+
+A store never takes damage quietly: opening an existing file checks it first (its header and size,
+then SQLite's `PRAGMA quick_check`, on a read-only connection) and a damaged one is refused
+(`DamagedStoreError`, one line naming the file, its backup and `nod store check`) before anything is
+written to it — no table created, no migration, no session appended. A conductor backs the store
+up when its session ends (`Store.backup`: SQLite's online backup to `<db>.backup`, checked, then
+renamed into place, so the last good backup is never replaced by a torn or damaged copy).
 """
 
 from __future__ import annotations
 
 import json
+import logging
+import os
 import sqlite3
+import struct
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -36,17 +46,114 @@ from services.store.records import (
 )
 from services.store.schema import SCHEMA
 
+log = logging.getLogger("nod.store")
 
 class StoreError(OSError):
     """The database file cannot be opened or is not a session database."""
+
+
+class DamagedStoreError(StoreError):
+    """The database file fails its integrity check: refused, nothing written to it."""
+
+
+SQLITE_MAGIC = b"SQLite format 3\x00"
+BACKUP_SUFFIX = ".backup"  # `<db>.backup`: the last good copy, written when a session ends
+MAX_PROBLEMS = 10  # lines of SQLite's check kept (a torn file can list thousands)
+
+
+def backup_path(path: str | Path) -> Path:
+    """Where the store at `path` keeps its last backup: `<db>.backup` beside it."""
+    path = Path(path)
+    return path.with_name(path.name + BACKUP_SUFFIX)
+
+
+def check_file(path: str | Path, full: bool = False, limit: int = MAX_PROBLEMS) -> list[str]:
+    """What is wrong with an existing SQLite file, at most `limit` lines; [] when nothing is.
+
+    Its header and size first (a file cut short by less than a page passes SQLite's own checks),
+    then `PRAGMA quick_check` (O(file), no index cross-check) or, `full`, `integrity_check`, on
+    a read-only connection: nothing is written to the file. OSError if it cannot be read.
+    """
+    path = Path(path)
+    problem, readable = _header_problem(path)
+    found = [] if problem is None else [problem]
+    if found and not (full and readable):
+        return found  # the full check goes on to list what SQLite finds in a short file
+    pragma = "integrity_check" if full else "quick_check"
+    uri = path.absolute().as_uri() + "?mode=ro"
+    try:
+        db = sqlite3.connect(uri, uri=True, isolation_level=None, check_same_thread=False)
+    except sqlite3.Error as exc:
+        raise OSError(f"cannot read {path}: {exc}") from None
+    try:
+        rows = [str(r[0]) for r in db.execute(f"PRAGMA {pragma}({limit})")]
+    except sqlite3.OperationalError as exc:  # locked, unreadable: not a verdict on the file
+        raise OSError(f"cannot check {path}: {exc}") from None
+    except sqlite3.DatabaseError as exc:  # malformed, not a database: the check itself broke
+        return [*found, f"SQLite cannot read it: {exc}"]
+    finally:
+        db.close()
+    lines = [ln for r in rows for ln in r.splitlines() if ln and not ln.startswith("*** in ")]
+    return (found + [ln for ln in lines if ln != "ok"])[:limit]
+
+
+def _header_problem(path: Path) -> tuple[str | None, bool]:
+    """A SQLite file's header and size checked against each other.
+
+    (the problem or None, whether SQLite can still read the file: its header is SQLite's).
+    """
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        head = f.read(100)
+    if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
+        return f"not a SQLite database (no SQLite header; {size} bytes)", False
+    (page,) = struct.unpack(">H", head[16:18])
+    page = 65536 if page == 1 else page
+    if page < 512 or page & (page - 1):
+        return f"its header's page size {page} is not a power of two in [512, 65536]", False
+    short = "the file was cut short"
+    if size % page:
+        return f"{size} bytes is not a whole number of {page}-byte pages: {short}", True
+    (counter,), (pages,), (valid_for,) = (
+        struct.unpack(">I", head[at : at + 4]) for at in (24, 28, 92)
+    )
+    wal = path.with_name(path.name + "-wal")
+    settled = not wal.exists() or wal.stat().st_size == 0  # else the WAL holds newer pages
+    if settled and pages and counter == valid_for and size // page < pages:
+        return f"it holds {size // page} pages, its header says {pages}: {short}", True
+    return None, True
+
+
+def refusal(path: Path, problems: Sequence[str]) -> str:
+    """The one line that refuses a damaged store: which file, what is wrong, what to do."""
+    backup = backup_path(path)
+    what = f"{path} is damaged ({problems[0]}); refused, nothing written to it"
+    check = f"`nod store check --db {path}` lists what is wrong"
+    if backup.is_file():
+        return (f"{what}: restore its backup — move it (and any {path.name}-wal, -shm) aside "
+                f"and copy {backup} in its place; {check}")
+    return f"{what}; it has no backup ({backup}): {check}; restore it from a copy of your own"
 
 
 class Store:
     """A session database file."""
 
     def __init__(self, path: str | Path) -> None:
-        """Open (or create) a session database; StoreError says why it cannot be used."""
+        """Open (or create) a session database; StoreError says why it cannot be used.
+
+        An existing file is checked before anything is written to it (`check_file`, quick):
+        a damaged one is refused with DamagedStoreError, the file left as it was.
+        """
         self.path = Path(path)
+        try:
+            if self.path.is_file() and self.path.stat().st_size > 0:
+                problems = check_file(self.path)
+                if problems:
+                    raise DamagedStoreError(refusal(self.path, problems))
+        except DamagedStoreError:
+            raise
+        except OSError as exc:
+            raise StoreError(f"cannot open the session database {self.path}: {exc}") from None
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
@@ -80,6 +187,49 @@ class Store:
     def close(self) -> None:
         """Close the database (checkpointing the WAL)."""
         self.db.close()
+
+    def backup(self) -> Path:
+        """Copy the store as it is now to `<db>.backup` (the last one only); its path.
+
+        SQLite's online backup (a consistent copy while others read or write) into a temp file
+        beside it, made a plain rollback-journal file, checked (`quick_check`), synced, then
+        renamed over the previous backup: a copy that is torn or damaged never replaces the
+        last good one (StoreError, and the temp file removed).
+        """
+        target = backup_path(self.path)
+        tmp = target.with_name(target.name + ".tmp")
+        try:
+            for leftover in (tmp, *(tmp.with_name(tmp.name + s) for s in ("-journal", "-wal"))):
+                leftover.unlink(missing_ok=True)
+            copy = sqlite3.connect(tmp, isolation_level=None)
+            try:
+                self.db.backup(copy)
+                copy.execute("PRAGMA journal_mode=DELETE")  # one self-contained file
+            finally:
+                copy.close()
+            problems = check_file(tmp)
+            if problems:
+                raise StoreError(
+                    f"the backup of {self.path} fails its check ({problems[0]}): not kept; "
+                    f"{target} is left as it was — run `nod store check --db {self.path}`"
+                )
+            fd = os.open(tmp, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.replace(tmp, target)
+            fd = os.open(target.parent, os.O_RDONLY)  # the rename itself, on disk
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except (OSError, sqlite3.Error) as exc:
+            tmp.unlink(missing_ok=True)
+            if isinstance(exc, StoreError):
+                raise
+            raise StoreError(f"cannot back {self.path} up to {target}: {exc}") from None
+        return target
 
     def interrupted_sessions(self) -> list[tuple[str, int]]:
         """Sessions left 'running' by a crash, with how many trials they completed."""
@@ -383,6 +533,17 @@ class Store:
             (session, trial),
         )
         return [Sample(r[0], bool(r[1]), *r[2:]) for r in cur]
+
+
+def back_up(store: Store) -> Path | None:
+    """Back the store up as a session ends (`Store.backup`); a failure is logged, not raised."""
+    try:
+        path = store.backup()
+    except StoreError as exc:
+        log.error("no backup of the store: %s", exc)
+        return None
+    log.info("store backed up to %s", path)
+    return path
 
 
 def astuple_record(rec: Any) -> tuple[Any, ...]:

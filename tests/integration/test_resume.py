@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+from contextlib import closing
 
 import pytest
 
@@ -148,6 +149,8 @@ def test_nod_run_interrupted_prints_its_resume_line_and_resumes(tmp_path):
     session = argv[4]
     assert argv[argv.index("--db") + 1] == str(db) and "--params" in argv
     assert len(_trials(db, session)) < 3
+    backup = db.with_name(db.name + ".backup")  # the stopped session's end backed the store up
+    assert _trials(backup, session) == _trials(db, session)
 
     resumed = run_nod(*argv[1:], timeout=300)
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
@@ -158,6 +161,19 @@ def test_nod_run_interrupted_prints_its_resume_line_and_resumes(tmp_path):
     con = sqlite3.connect(db)
     assert con.execute("SELECT COUNT(*) FROM sessions").fetchone()[0] == 1
     con.close()
+    assert _status(backup, session) == "complete" and _trials(backup, session) == _trials(
+        db, session)
+    # A complete session is not resumed again: refused in one line, its finish time kept.
+    finished = _finished(db)
+    again = run_nod(*argv[1:], timeout=60)
+    assert again.returncode == 2 and "is complete" in again.stderr, again.stdout + again.stderr
+    assert len(again.stderr.strip().splitlines()) == 1, again.stderr
+    assert _finished(db) == finished
+
+
+def _finished(db) -> list[tuple[str, int | None]]:
+    with closing(sqlite3.connect(db)) as con:
+        return con.execute("SELECT status, finished_ns FROM sessions").fetchall()
 
 
 def test_a_bad_nod_run_resume_is_a_one_line_error(tmp_path):
