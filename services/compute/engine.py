@@ -315,6 +315,8 @@ def open_engine(
     scheduler, whose workers are whoever joined it. `tls_dir` and `insecure`: see
     `scheduler_security`.
     """
+    import distributed  # noqa: F401  # sets its loggers' levels when first imported: before ours
+
     logging.getLogger("distributed").setLevel(QUIET)
     logging.getLogger("distributed.client").setLevel(CLIENT_QUIET)
     if scheduler is not None:
