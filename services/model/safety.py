@@ -5,11 +5,17 @@ Pure and clock-free: the shell feeds it each input's *arrival* time on its own m
 and e-stop messages, and asks `check(now_ns)` on the same monotonic clock.
 
 - Freshness is judged by arrival, never by the source timestamp: a peer's clock cannot make an
-  input look fresh. A source timestamp further than `skew_ms` from the rig clock (ahead: a
-  clock that runs fast or a forged stamp; behind: a delayed or replayed message) is a clock
-  fault: counted, reported as a warning while recent, and the message does not refresh its
-  input — so an input whose every message is skewed goes stale and stops the device, while one
-  stray message among good ones does not.
+  input look fresh. A message's offset (its stamp minus the rig clock at arrival) is the
+  sender's clock error minus the message's delay, and a busy 2-core host delays messages by
+  100-180 ms now and then: one late message is a delay, not a clock fault. So the sender's
+  clock is judged from the least-delayed message of the last `CLOCK_WINDOW_NS` (the largest
+  offset, as `nod status` judges hosts): a clock behind by more than `skew_ms` is a clock fault
+  within that window. A message stamped ahead of the rig clock by more than `skew_ms` (a fast
+  clock, a forged stamp: no delay explains it) and one older than `skew_ms + stale_ms` (a
+  replay: stale by definition) are clock faults on their own. A clock fault is counted,
+  reported as a warning while recent, and the message does not refresh its input — so an
+  input whose every message is skewed goes stale and stops the device, while one stray message
+  among good ones does not.
 - A required service counts as alive only once its liveliness token has been seen, and stops
   counting the moment it goes.
 - An e-stop latches until an explicit release with a fresh id (`services.model.latch`); the
@@ -26,12 +32,18 @@ and e-stop messages, and asks `check(now_ns)` on the same monotonic clock.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 from services.model.latch import Latch, Verdict, merge
 
 MAX_STALE_MS = 10_000.0  # a bound longer than this is no safety bound
 MAX_SKEW_MS = 60_000.0
+# The sender's clock is judged from its least-delayed message over this window (arrival clock):
+# every input the gate watches sends many messages a second, so some arrive undelayed, and a
+# clock that is really off is refused within it.
+CLOCK_WINDOW_NS = 1_000_000_000
+CLOCK_WINDOW_MESSAGES = 512  # a bound on what one input's window keeps (a flood cannot grow it)
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,8 +53,8 @@ class SafetyParams:
     # An input not received for this long (ms, local monotonic clock) forces a safe stop; in
     # (0, 10000]. Every input the gate watches is published several times faster than this.
     stale_ms: float = 250.0
-    # A source timestamp further than this (ms, in wall time) from the rig clock is a clock
-    # fault, not a fresh input; in (0, 60000]. Hosts are synchronised (NTP/PTP) well within it.
+    # A sender's clock further than this (ms, in wall time) from the rig clock is a clock fault,
+    # not a fresh input; in (0, 60000]. Hosts are synchronised (NTP/PTP) well within it.
     skew_ms: float = 100.0
     # Services whose liveliness the device needs; never empty (it would turn the gate off).
     require_alive: tuple[str, ...] = ("decision", "vision")
@@ -87,6 +99,8 @@ class Watchdog:
     _alive: dict[str, bool] = field(default_factory=dict)
     _required: set[str] = field(default_factory=set)  # required now beyond params.require_alive
     _skew: dict[str, tuple[int, float]] = field(default_factory=dict)  # input → (arrival, ms)
+    # input → recent (arrival, offset) pairs: the sender's clock is judged from the best of them
+    _offsets: dict[str, deque[tuple[int, float]]] = field(default_factory=dict)
     latch: Latch = field(default_factory=Latch)  # the e-stop latch
     # Whether the latch is the rig's (its file read and the peers asked): a device that does
     # not know yet stays stopped, whatever its inputs.
@@ -112,12 +126,26 @@ class Watchdog:
         """
         if name not in self.inputs:
             raise KeyError(f"unknown input {name!r}; watched inputs are {self.inputs}")
-        if offset_ns is not None and not abs(offset_ns) <= self.params.skew_ms * 1e6:
-            self.clock_faults += 1
-            self._skew[name] = (arrival_ns, offset_ns / 1e6)
-            return False
+        if offset_ns is not None:
+            clock = self._clock_offset(name, arrival_ns, offset_ns)
+            if clock is not None:
+                self.clock_faults += 1
+                self._skew[name] = (arrival_ns, clock / 1e6)
+                return False
         self._arrived[name] = max(arrival_ns, self._arrived.get(name, arrival_ns))
         return True
+
+    def _clock_offset(self, name: str, arrival_ns: int, offset_ns: float) -> float | None:
+        """The clock fault this message shows (its offset, or its sender's), or None if none."""
+        skew = self.params.skew_ms * 1e6
+        if not (-(skew + self.params.stale_ms * 1e6) <= offset_ns <= skew):
+            return offset_ns  # ahead beyond the bound (NaN too), or older than any fresh input
+        window = self._offsets.setdefault(name, deque(maxlen=CLOCK_WINDOW_MESSAGES))
+        window.append((arrival_ns, offset_ns))
+        while window and window[0][0] < arrival_ns - CLOCK_WINDOW_NS:
+            window.popleft()
+        sender = max(o for _, o in window)  # the least-delayed message of the window
+        return sender if sender < -skew else None
 
     def set_alive(self, service: str, alive: bool) -> None:
         """Record a liveliness change of a service."""

@@ -118,6 +118,54 @@ def test_late_messages_are_clock_faults_too():
     assert "behind ours" in wd.check(0).reason and "no z_r yet" in wd.check(0).reason
 
 
+def test_a_delayed_message_among_prompt_ones_is_no_clock_fault():
+    # The audit: on a busy 2-core host messages came 100-177 ms late, read as clock faults, and
+    # trials were lost. A delay is judged against the least-delayed message of the window.
+    wd = make()
+    t = 0
+    for i in range(300):  # 10 s of z_r at 30 Hz; every 7th message delayed 100-180 ms
+        t += 33 * MS
+        delay = (100 + (i * 37) % 81) * MS if i % 7 == 3 else (i % 5) * MS
+        assert wd.feed("z_r", t, offset_ns=-delay), f"message {i} delayed {delay / MS} ms"
+    assert wd.clock_faults == 0
+
+
+@given(st.integers(101, 250), st.integers(0, 60))
+def test_a_clock_behind_beyond_the_bound_is_refused_within_the_window(behind_ms, good_s):
+    wd = make()
+    t = 0
+    for _ in range(good_s * 30):  # a good clock first, for any while
+        t += 33 * MS
+        assert wd.feed("z_r", t, offset_ns=-(t % 3) * MS)
+    switched = t
+    refused_at = None
+    for _ in range(90):  # then 3 s of a clock `behind_ms` behind (plus a few ms of delay)
+        t += 33 * MS
+        fresh = wd.feed("z_r", t, offset_ns=-(behind_ms + t % 3) * MS)
+        assert not (fresh and refused_at is not None), "fresh again after it was refused"
+        if not fresh and refused_at is None:
+            refused_at = t
+    assert refused_at is not None and refused_at - switched <= 1_000 * MS + 33 * MS
+    assert "behind ours" in wd.check(t).reason
+
+
+def test_a_clock_300_ms_behind_is_refused_at_once_and_goes_stale():
+    wd = make()
+    assert not wd.feed("z_r", 0, offset_ns=-300 * MS)
+    assert not wd.feed("z_r", 33 * MS, offset_ns=-301 * MS)
+    assert "z_r clock fault" in wd.check(40 * MS).reason
+
+
+@given(st.floats(100.0001, 1e9), st.integers(0, 100))
+def test_a_stamp_ahead_beyond_the_bound_never_counts_as_fresh(ahead_ms, good):
+    wd = make()
+    t = 0
+    for _ in range(good):
+        t += 33 * MS
+        wd.feed("z_r", t, offset_ns=0.0)
+    assert not wd.feed("z_r", t + MS, offset_ns=ahead_ms * MS)
+
+
 @pytest.mark.parametrize(
     "kwargs",
     [
