@@ -69,6 +69,12 @@ def test_the_dask_identities_come_with_every_layout_and_no_rig_may_take_their_fo
                         "--days", "30"]) == 0
     assert (out / "dask" / "client" / "cert.pem").is_file()
     assert "dask scheduler --host tls://router.lab" in capsys.readouterr().out  # the default
+    per_rig = tmp_path / "per-rig"
+    assert secure_main(["--out", str(per_rig), "--rigs", "rig1,rig2", "--router-per-rig",
+                        "--router-host", "router.lab", "--rig-router", "rig1=r1.lab:7447",
+                        "--rig-router", "rig2=r2.lab:7447", "--days", "30"]) == 0
+    assert (per_rig / "dask" / "worker" / "dask.yaml").is_file()
+    assert f"--tls-dir {per_rig.absolute()}/dask/client" in capsys.readouterr().out
     assert secure_main(["--out", str(tmp_path / "x"), "--rigs", "rig1,dask"]) == 2
     err = capsys.readouterr().err
     assert "may not be called" in err and "'dask'" in err and len(err.splitlines()) == 1
