@@ -19,6 +19,7 @@ from services.core.config import params_hash
 from services.core.node import Node
 from services.core.session import Fabric
 from services.experiment.options_conductor import OptionsConductor
+from services.experiment.rig_claim import claim_the_rig, watch_rivals
 from services.model.options_loop import table_for
 from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig
@@ -47,10 +48,15 @@ def run_options(
     except (ValueError, OSError, ConnectionError) as exc:
         print(f"nod experiment: {exc}", file=sys.stderr)
         return 2
+    claim = claim_the_rig(node)
+    if claim is None:
+        node.close()
+        return 2
     conductor = OptionsConductor(
         node, cfg, schedule, table_for(cfg, schedule.n_options), OptionsStore(store),
         clicks,
     )
+    watch_rivals(claim, node, conductor.rig, lambda text: log.warning("%s", text))
     node.ready()
     session = args.session or uuid.uuid4().hex[:12]
     try:

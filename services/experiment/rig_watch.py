@@ -36,6 +36,11 @@ class RigWatch:
     _safe_since: int | None = None
     _pending: list[SafetyEvent | RigEventRecord] = field(default_factory=list)
     _break: str | None = None  # the first new stop since the trial began
+    # Other conductors' claims of this rig (services.core.claim) → when they appeared (monotonic).
+    # One that gives way (it started later) is gone within its claim's grace: that holds the
+    # next trial but does not void this one; one still there after `rival_grace_ns` does.
+    _rivals: dict[str, int] = field(default_factory=dict)
+    rival_grace_ns: int = 3_000_000_000
     # Launchers' events are kept, but not a flood of them (150,000 in 1.7 s once grew the
     # conductor by 106 MB and one trial's transaction by 198 MB): a burst of 50, then 2 a
     # second, at most 200 per trial attempt and 1000 per session (wall time, this host's clock).
@@ -89,6 +94,17 @@ class RigWatch:
         self._break = self._break or why
         self._event(now_ns, "rig", "safe_stop", why)
 
+    def rival(self, claim: str, present: bool, now_ns: int) -> None:
+        """Another conductor's claim of this rig appeared (or went)."""
+        if present and claim not in self._rivals:
+            self._rivals[claim] = self.monotonic()
+            self._event(now_ns, "experiment", "safe_stop", f"another conductor claims the rig "
+                        f"(claim {claim})")
+        elif not present and claim in self._rivals:
+            del self._rivals[claim]
+            self._event(now_ns, "experiment", "clear", f"the other conductor is gone ({claim})")
+        self._update(now_ns)
+
     def begin(self, trial: int, attempt: int) -> None:
         """A trial (re)starts: later stops break it."""
         self.trial, self.attempt = trial, attempt
@@ -107,6 +123,10 @@ class RigWatch:
         """
         if self._break is None:
             mono = self.monotonic()
+            for claim, since in self._rivals.items():
+                if mono - since > self.rival_grace_ns:
+                    self._break = f"another conductor on the rig (claim {claim})"
+                    return self._break
             for device in DEVICES:
                 seen = self._seen.get(device)
                 if seen is not None and mono - seen > self.silent_ns:
@@ -135,6 +155,7 @@ class RigWatch:
     def why_unsafe(self) -> str:
         """What holds the rig, in one line."""
         parts = [f"{d}: {r}" for d, r in sorted(self._stopped.items())]
+        parts += [f"another conductor claims this rig (claim {c})" for c in sorted(self._rivals)]
         if self._estop is not None:
             parts.insert(0, f"e-stop engaged ({self._estop})")
         missing = [d for d in DEVICES if d not in self._seen]
@@ -185,7 +206,7 @@ class RigWatch:
         return out
 
     def _update(self, now_ns: int) -> None:
-        unsafe = bool(self._stopped) or self._estop is not None
+        unsafe = bool(self._stopped) or self._estop is not None or bool(self._rivals)
         if unsafe:
             self._safe_since = None
         elif self._safe_since is None:

@@ -30,6 +30,7 @@ from services.experiment.order import participant_problem, session_config
 from services.experiment.params_check import ParamsCheck
 from services.experiment.recording import RecorderProcess, recorder_command, recording_path
 from services.experiment.resume import resume_problem, say_how_to_resume
+from services.experiment.rig_claim import claim_the_rig, watch_rivals
 from services.experiment.waiting import hear_the_devices
 from services.model.protocol import order_of
 from services.store import Store, back_up
@@ -228,18 +229,14 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError, ConnectionError) as exc:
         store.close()
         return fail("nod experiment", exc)
-    if _another_conductor(node):
+    claim = claim_the_rig(node)
+    if claim is None:
         node.close()
         store.close()
-        print(
-            f"nod experiment: another conductor is running on rig {node.keys.rig!r} (its "
-            f"liveliness {node.keys.alive('experiment')} is held): one rig, one conductor — stop "
-            "it first, or use another --rig",
-            file=sys.stderr,
-        )
         return 2
     params_check = ParamsCheck(node)
     conductor = Conductor(node, cfg, store, clicks, console, resume_at=resume_at)
+    watch_rivals(claim, node, conductor.rig, console.note)
     # The devices' states first, then this conductor's liveliness: a safe stop they hold
     # because no conductor ran is stored before they clear it (see `hear_the_devices`).
     hear_the_devices(node, conductor.rig.heard_every_device, min(args.wait_services,
@@ -308,23 +305,6 @@ def rig_file_flags(path: Path, explicit_connect: bool = False) -> list[str]:
         at = flags.index("--connect")
         del flags[at : at + 2]
     return flags + (["--params", str(rig.params)] if rig.params is not None else [])
-
-
-CONDUCTOR_GONE_S = 2.0  # how long a conductor that just died may still look alive (wall)
-
-
-def _another_conductor(node: Node) -> bool:
-    """Whether another conductor holds this rig's `experiment` liveliness.
-
-    Two would both run the protocol and store the same trials under different participants. A
-    conductor killed a moment ago may still hold it while the router notices; one that is
-    still there after CONDUCTOR_GONE_S is running.
-    """
-    deadline = time.monotonic() + CONDUCTOR_GONE_S
-    while node.peer_alive("experiment"):
-        if time.monotonic() > deadline or node.stop.wait(0.1):
-            return True
-    return False
 
 
 def _start_recorder(args: argparse.Namespace, session: str) -> RecorderProcess | None:

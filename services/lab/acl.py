@@ -260,7 +260,9 @@ def acl(ids: list[Identity]) -> dict:
 
         rules.append(_rule(f"{n}-publish", ["put"], keys(ident.publishes()) or keys(["-none-"])))
         rules.append(
-            _rule(f"{n}-alive", ["liveliness_token"], keys([f"alive/{s}" for s in ident.services]))
+            # Its services' tokens, and their claims (`services.core.claim`: one conductor).
+            _rule(f"{n}-alive", ["liveliness_token"], keys(
+                [k for s in ident.services for k in (f"alive/{s}", f"alive/{s}/claim/*")]))
         )
         names = [f"{n}-publish", f"{n}-alive", "interest"]
         names += [f"{what}:{rig}" for rig in ident.rigs for what in ("deliver", "observe")]

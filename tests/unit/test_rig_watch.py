@@ -144,3 +144,38 @@ def test_every_device_is_heard_only_once_each_has_sent_a_state():
     assert [(e.device, e.event, e.reason) for e in rig.take_events()] == [
         ("actuation", "safe_stop", "experiment not alive")
     ]
+
+
+def test_another_conductor_holds_the_session_and_voids_a_trial_only_if_it_stays():
+    rig, clock = watch()
+    report(rig, clock, 0)
+    report(rig, clock, 600)
+    assert rig.safe(600 * MS)
+    rig.rival("1800000000000000000-42-abc", True, 600 * MS)
+    assert not rig.safe(600 * MS)
+    assert "another conductor claims this rig" in rig.why_unsafe()
+    report(rig, clock, 2_000)  # a newcomer gives way within its grace: the trial stands
+    assert rig.interruption(2_000 * MS) is None
+    rig.rival("1800000000000000000-42-abc", False, 2_000 * MS)
+    report(rig, clock, 2_600)
+    assert rig.safe(2_600 * MS)  # safe again once settled
+    rig.rival("1800000000000000001-43-def", True, 2_600 * MS)
+    report(rig, clock, 5_700)  # one that stays past the grace voids the running trial
+    assert "another conductor on the rig" in (rig.interruption(5_700 * MS) or "")
+    kinds = [(e.device, e.event) for e in rig.take_events() if e.device == "experiment"]
+    assert kinds == [("experiment", "safe_stop"), ("experiment", "clear"),
+                     ("experiment", "safe_stop")]
+
+
+def test_the_earliest_claim_holds_the_rig():
+    from hypothesis import given
+    from hypothesis import strategies as st
+
+    from services.core.claim import earliest, new_claim_id
+
+    @given(st.lists(st.integers(1, 2**62), min_size=1, max_size=20, unique=True))
+    def check(times):
+        ids = [new_claim_id(t) for t in times]
+        assert earliest(ids) == ids[times.index(min(times))]
+
+    check()
