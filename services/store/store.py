@@ -67,40 +67,84 @@ def backup_path(path: str | Path) -> Path:
     return path.with_name(path.name + BACKUP_SUFFIX)
 
 
-def check_file(path: str | Path, full: bool = False, limit: int = MAX_PROBLEMS) -> list[str]:
+def check_file(
+    path: str | Path, full: bool = False, limit: int = MAX_PROBLEMS,
+    db: sqlite3.Connection | None = None,
+) -> list[str]:
     """What is wrong with an existing SQLite file, at most `limit` lines; [] when nothing is.
 
     Its header and size first (a file cut short by less than a page passes SQLite's own checks),
     then `PRAGMA quick_check` (O(file), no index cross-check) or, `full`, `integrity_check`, on
-    a read-only connection: nothing is written to the file. OSError if it cannot be read.
+    `db` (the store's own connection, before it writes anything) or a read-only connection:
+    nothing is written to the file. OSError if it cannot be read.
     """
     path = Path(path)
     problem, readable = _header_problem(path)
     found = [] if problem is None else [problem]
     if found and not (full and readable):
         return found  # the full check goes on to list what SQLite finds in a short file
+    return (found + _pragma_check(path, full, limit, db))[:limit]
+
+
+def _pragma_check(
+    path: Path, full: bool, limit: int, db: sqlite3.Connection | None
+) -> list[str]:
+    """SQLite's own check of the file's pages: the lines of what is wrong ([] if nothing)."""
     pragma = "integrity_check" if full else "quick_check"
-    uri = path.absolute().as_uri() + "?mode=ro"
-    try:
-        db = sqlite3.connect(uri, uri=True, isolation_level=None, check_same_thread=False)
-    except sqlite3.Error as exc:
-        raise OSError(f"cannot read {path}: {exc}") from None
+    own = db is None
+    if db is None:
+        uri = path.absolute().as_uri() + "?mode=ro"
+        try:
+            db = sqlite3.connect(uri, uri=True, isolation_level=None, check_same_thread=False)
+        except sqlite3.Error as exc:
+            raise OSError(f"cannot read {path}: {exc}") from None
     try:
         rows = [str(r[0]) for r in db.execute(f"PRAGMA {pragma}({limit})")]
     except sqlite3.OperationalError as exc:  # locked, unreadable: not a verdict on the file
         raise OSError(f"cannot check {path}: {exc}") from None
     except sqlite3.DatabaseError as exc:  # malformed, not a database: the check itself broke
-        return [*found, f"SQLite cannot read it: {exc}"]
+        return [f"SQLite cannot read it: {exc}"]
     finally:
-        db.close()
+        if own:
+            db.close()
     lines = [ln for r in rows for ln in r.splitlines() if ln and not ln.startswith("*** in ")]
-    return (found + [ln for ln in lines if ln != "ok"])[:limit]
+    return [ln for ln in lines if ln != "ok"]
+
+
+def _open_store_problems(path: Path, db: sqlite3.Connection) -> list[str]:
+    """What is wrong with a store this process has open on `db` (`check_file`'s quick check).
+
+    Its size is compared with the page count SQLite reads from its header (`os.stat`, no second
+    descriptor), then `quick_check` runs on `db` itself.
+    """
+    size = path.stat().st_size
+    short = "the file was cut short"
+    try:
+        db.execute("PRAGMA schema_version").fetchone()  # reads the header: a database at all?
+        (page,) = db.execute("PRAGMA page_size").fetchone()
+    except sqlite3.DatabaseError as exc:
+        if "not a database" in str(exc):
+            return [f"not a SQLite database ({exc}; {size} bytes)"]
+        return [f"SQLite cannot read it ({exc}): {short}, or its pages overwritten"]
+    if size % page:
+        return [f"{size} bytes is not a whole number of {page}-byte pages: {short}"]
+    try:
+        (pages,) = db.execute("PRAGMA page_count").fetchone()
+    except sqlite3.DatabaseError as exc:  # fewer pages than its header says, or pages damaged
+        return [f"SQLite cannot read it ({exc}): {short}, or its pages overwritten"]
+    wal = path.with_name(path.name + "-wal")
+    settled = not wal.exists() or wal.stat().st_size == 0  # else the WAL holds newer pages
+    if settled and size // page < pages:
+        return [f"it holds {size // page} pages, its header says {pages}: {short}"]
+    return _pragma_check(path, False, MAX_PROBLEMS, db)
 
 
 def _header_problem(path: Path) -> tuple[str | None, bool]:
     """A SQLite file's header and size checked against each other.
 
     (the problem or None, whether SQLite can still read the file: its header is SQLite's).
+    It opens the file: never for a file a SQLite connection of this process has open (the
+    close would drop that connection's locks; `_open_store_problems` is for those).
     """
     size = path.stat().st_size
     with path.open("rb") as f:
@@ -146,19 +190,25 @@ class Store:
         """
         self.path = Path(path)
         try:
-            if self.path.is_file() and self.path.stat().st_size > 0:
-                problems = check_file(self.path)
-                if problems:
-                    raise DamagedStoreError(refusal(self.path, problems))
-        except DamagedStoreError:
-            raise
-        except OSError as exc:
-            raise StoreError(f"cannot open the session database {self.path}: {exc}") from None
-        try:
+            existing = self.path.is_file() and self.path.stat().st_size > 0
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
         except (OSError, sqlite3.Error) as exc:
             raise StoreError(f"cannot open the session database {self.path}: {exc}") from None
+        if existing:
+            # Checked through this connection, before it writes anything, and never by opening
+            # the file a second time: closing any other descriptor of it drops every POSIX lock
+            # this process holds on it (SQLite's among them), and a writer elsewhere then took
+            # itself for the last one, deleted its WAL, and another connection of this process
+            # went on reading a stale WAL index (a crashed conductor's session vanished).
+            try:
+                problems = _open_store_problems(self.path, self.db)
+            except OSError as exc:
+                self.db.close()
+                raise StoreError(f"cannot open the session database {self.path}: {exc}") from None
+            if problems:
+                self.db.close()
+                raise DamagedStoreError(refusal(self.path, problems))
         try:
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute("PRAGMA synchronous=NORMAL")
