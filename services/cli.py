@@ -36,6 +36,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "analyze": ("services.analysis.cli", "numerical analysis and statistics"),
     "fit": ("services.fit.cli", "each participant's model parameters; a recovery study"),
     "questionnaire": ("services.experiment.questionnaire", "enter or import Q1-Q5 answers"),
+    "clicks": ("services.experiment.clicks", "enter or correct a stored trial's counter clicks"),
     "export": ("services.experiment.export", "write a session database as CSV"),
     "store": ("services.store.cli", "the session store: `nod store check --db FILE` (integrity)"),
     "study": ("services.study.cli", "a study's roster: orders, consent, who is next, start"),

@@ -27,7 +27,7 @@ from services.experiment.console import SessionConsole
 from services.experiment.cues import CueLog
 from services.experiment.fields import GazeFields, TrialFields
 from services.experiment.hold import SessionHold
-from services.experiment.operator import OperatorGate
+from services.experiment.operator import EnterStarts, OperatorGate
 from services.experiment.presses import RobotPresses
 from services.experiment.rig_watch import RigWatch
 from services.experiment.trial_samples import TrialSamples
@@ -36,6 +36,7 @@ from services.model.geometry import Colour
 from services.model.judge import TrialJudge
 from services.model.params import NodConfig
 from services.model.protocol import Cue, SessionProtocol, TrialEnd, TrialSpec
+from services.model.scoring import points_said
 from services.store import Interruption, Store, TrialRecord
 
 log = logging.getLogger("nod.experiment")
@@ -110,6 +111,7 @@ class Conductor:
         node.subscribe("rig/event", lambda msg: self.rig.rig_event(self._now_ns(), msg))
         self.gate = OperatorGate()
         node.subscribe("experiment/operator", self.gate.command)
+        self.enter_starts = EnterStarts(self.console, self.gate, node.lock)
         self.cues = CueLog()  # the countdown as played, stored with its trial
         node.subscribe("speaker/played", self.cues.on_played)
         for service in REQUIRED:
@@ -256,6 +258,10 @@ class Conductor:
                     if note:
                         log.info("%s", note)
                         self.console.note(note)
+                    if protocol.waiting_for_operator and not cues and protocol.trial:
+                        self.enter_starts.offer(protocol.trial.index)
+                    elif cues:
+                        self.enter_starts.withdraw()
                     if cues or protocol.waiting_for_operator:
                         continue
                     rec = self.trial_samples
@@ -266,6 +272,7 @@ class Conductor:
                     )
             status = "complete"
         finally:
+            self.enter_starts.withdraw()
             with self.node.lock:
                 events = self.rig.take_events()
             self.store.write_events(session, events)
@@ -458,10 +465,27 @@ class Conductor:
         self.pub_trial.put(
             phase="end", trial=spec.index, mode=spec.mode, option=spec.option, session=self.session
         )
-        clicks = self.clicks(spec.index)  # the console's prompt (`nod experiment --clicks`)
-        self._store_trial(
-            spec, protocol.attempt, protocol.end, rec, robot, clicks, protocol.end.reason
+        # Stored the moment it ends, its clicks "not entered": the operator's prompt comes after
+        # and its answer updates the stored trial. A Ctrl-C, a crash or a lost terminal at the
+        # prompt leaves the trial stored once (clicks not entered, `nod clicks` enters them
+        # later), never interrupted nor repeated.
+        record = self._store_trial(
+            spec, protocol.attempt, protocol.end, rec, robot, None, protocol.end.reason,
+            announce=False,
         )
+        try:
+            clicks = self.clicks(spec.index)  # the console's prompt (`nod experiment --clicks`)
+        except (KeyboardInterrupt, EOFError):
+            self._announce(record)
+            raise
+        if clicks is not None:
+            record = self.store.set_clicks(self.session, spec.index, clicks)
+            self.records[-1] = record
+        said = points_said(record.human, record.robot, record.violations, record.clicks,
+                           self.cfg.protocol.target_clicks)
+        self.console.note(f"trial {spec.index}: the participant sees {said}")
+        log.info("trial %d: %s", spec.index, said)
+        self._announce(record)
 
     def _store_trial(
         self,
@@ -473,7 +497,9 @@ class Conductor:
         clicks: int | None,
         reason: str,
         interrupted: bool = False,
-    ) -> None:
+        announce: bool = True,
+    ) -> TrialRecord:
+        """Judge and store a trial (`announce`: then show and publish its result)."""
         if interrupted or rec is None:  # never scored: no outcome, no points
             j = TrialJudge.void()
         else:
@@ -495,6 +521,17 @@ class Conductor:
             events += rec.drop_records(spec.index, attempt, self._now_ns())
         self.store.write_trial(self.session, record, samples, events, cues)
         self.records.append(record)
-        self.console.result(spec.index, spec.mode, spec.option, j.robot, j.human, j.outcome,
-                            j.score, interrupted)
-        self.pub_result.put(**trial, **verdict, session=self.session, interrupted=interrupted)
+        if announce:
+            self._announce(record)
+        return record
+
+    def _announce(self, record: TrialRecord) -> None:
+        """Show a stored trial on the console and publish its result (display, LSL, `nod run`)."""
+        self.console.result(record.trial, record.mode, record.option, record.robot, record.human,
+                            record.outcome, record.score, record.interrupted)
+        self.pub_result.put(
+            trial=record.trial, mode=record.mode, option=record.option, human=record.human,
+            robot=record.robot, outcome=record.outcome, switches=record.switches,
+            violations=record.violations, score=record.score, session=self.session,
+            interrupted=record.interrupted,
+        )

@@ -19,6 +19,7 @@ on rich's refresh thread (or inline for lines).
 from __future__ import annotations
 
 import codecs
+import contextlib
 import logging
 import os
 import select
@@ -58,14 +59,27 @@ class SessionConsole:
     def note(self, text: str, level: str = "info") -> None:
         """A safety event or a warning."""
 
-    def read_line(self, question: str) -> str:
-        """Ask the operator for one line on the terminal (EOFError: input has ended)."""
+    @property
+    def interactive(self) -> bool:
+        """Whether an operator types at this console (a terminal on standard input)."""
+        fd = _stdin_fd()
+        return type(self) is not SessionConsole and fd is not None and os.isatty(fd)
+
+    def read_line(self, question: str, cancel: threading.Event | None = None) -> str:
+        """Ask the operator for one line on the terminal (EOFError: input has ended).
+
+        KeyboardInterrupt once the process must stop or `cancel` is set (the question is moot:
+        a trial the operator was asked to start was started with `nod experiment next`). Keys
+        typed on a terminal before the question are dropped: an Enter typed ahead must not
+        answer a question not yet asked.
+        """
         fd = _stdin_fd()
         if fd is None:
             return input(question)
+        _drop_typed_ahead(fd)
         sys.stdout.write(question)
         sys.stdout.flush()
-        return _read_line(fd, self.interrupt)
+        return _read_line(fd, _AnyOf(self.interrupt, cancel))
 
     def stop(self) -> None:
         """The session is over."""
@@ -176,7 +190,7 @@ class LiveConsole(SessionConsole):
         with self.lock:
             self.events.append((level, text))
 
-    def read_line(self, question: str) -> str:
+    def read_line(self, question: str, cancel: threading.Event | None = None) -> str:
         """The operator's answer, typed into the panel's prompt line.
 
         On a terminal the keys are read one by one (no echo; Backspace and Ctrl-U edit, Enter
@@ -186,18 +200,20 @@ class LiveConsole(SessionConsole):
         fd = _stdin_fd()
         live = self._live
         if live is None or fd is None:  # no panel, or no input of ours to read keys from
-            return super().read_line(question)
+            return super().read_line(question, cancel)
+        _drop_typed_ahead(fd)
         with self.lock:
             self.question, self.typed = question, ""
         live.refresh()
+        stop = _AnyOf(self.interrupt, cancel)
         try:
-            return self._type(fd) if os.isatty(fd) else _read_line(fd, self.interrupt)
+            return self._type(fd, stop) if os.isatty(fd) else _read_line(fd, stop)
         finally:
             with self.lock:
                 self.question = None
             live.refresh()
 
-    def _type(self, fd: int) -> str:
+    def _type(self, fd: int, stop: _AnyOf) -> str:
         """Keys from the terminal `fd` into `typed` (redrawn at each key) until Enter."""
         import termios
         import tty
@@ -207,7 +223,7 @@ class LiveConsole(SessionConsole):
         utf8 = codecs.getincrementaldecoder("utf-8")(errors="ignore")
         try:
             while True:
-                key = _next_byte(fd, self.interrupt)
+                key = _next_byte(fd, stop)
                 if key == b"\x1b":  # an arrow or function key: not part of an answer
                     _skip_escape(fd)
                     continue
@@ -324,7 +340,26 @@ def _stdin_fd() -> int | None:
         return None
 
 
-def _next_byte(fd: int, interrupt: threading.Event | None) -> bytes:
+class _AnyOf:
+    """Set when any of some events is (None: never)."""
+
+    def __init__(self, *events: threading.Event | None) -> None:
+        self.events = [e for e in events if e is not None]
+
+    def is_set(self) -> bool:
+        return any(e.is_set() for e in self.events)
+
+
+def _drop_typed_ahead(fd: int) -> None:
+    """Drop the keys typed on a terminal before a question (a pipe's answers are kept)."""
+    if os.isatty(fd):
+        import termios
+
+        with contextlib.suppress(termios.error):  # not ours to flush: keep them
+            termios.tcflush(fd, termios.TCIFLUSH)
+
+
+def _next_byte(fd: int, interrupt: _AnyOf | threading.Event | None) -> bytes:
     """The next byte from `fd` (b"" at its end); KeyboardInterrupt once `interrupt` is set."""
     while True:
         if interrupt is not None and interrupt.is_set():
@@ -333,7 +368,7 @@ def _next_byte(fd: int, interrupt: threading.Event | None) -> bytes:
             return os.read(fd, 1)
 
 
-def _read_line(fd: int, interrupt: threading.Event | None) -> str:
+def _read_line(fd: int, interrupt: _AnyOf | threading.Event | None) -> str:
     """One line from `fd`, a byte at a time (nothing beyond it is taken from the stream)."""
     data = bytearray()
     while (byte := _next_byte(fd, interrupt)) != b"\n":

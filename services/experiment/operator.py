@@ -10,6 +10,9 @@ starts the trial after, and a start while no trial waits is dropped.
 
 from __future__ import annotations
 
+import threading
+from typing import Protocol
+
 from services.core import messages as m
 from services.model.protocol import Cue, SessionProtocol
 
@@ -23,6 +26,7 @@ class OperatorGate:
         self._start: int | None = None  # the trial a pending start names (0: the one waiting)
         self._pause = False
         self._announced: tuple[int, int] | None = None  # (trial, attempt) announced as waiting
+        self.starts_it = f"`{NEXT_HINT}`"  # what starts a waiting trial, as the operator reads it
 
     def command(self, msg: m.OperatorCmd) -> None:
         """A command from `nod experiment next|pause`."""
@@ -30,6 +34,10 @@ class OperatorGate:
             self._start = msg.trial
         else:
             self._pause = True
+
+    def start(self, trial: int) -> None:
+        """A start for `trial` from the operator's own console (Enter)."""
+        self._start = trial
 
     def step(self, protocol: SessionProtocol, ready: bool, t: float) -> tuple[list[Cue], str]:
         """Apply what is pending: (the cues of a trial it started, a line for the operator)."""
@@ -55,5 +63,68 @@ class OperatorGate:
             self._announced = waiting
             attempt = f" (attempt {protocol.attempt})" if protocol.attempt > 1 else ""
             note = (f"trial {spec.index}{attempt} ready: waiting for the operator — "
-                    f"`{NEXT_HINT}` starts it")
+                    f"{self.starts_it} starts it")
         return [], note
+
+
+class Asks(Protocol):
+    """What `EnterStarts` needs of the console."""
+
+    @property
+    def interactive(self) -> bool:
+        """Whether an operator types at it."""
+
+    def read_line(self, question: str, cancel: threading.Event | None = None) -> str:
+        """One line from the operator; KeyboardInterrupt once `cancel` is set."""
+
+
+class EnterStarts:
+    """Enter at the operator's terminal starts the trial waiting at the gate.
+
+    Asked on a thread of its own while a trial waits (the session's loop goes on, and `nod
+    experiment next` may start it first: the question is then withdrawn). Keys typed before the
+    question are dropped by the console, so an Enter typed ahead starts nothing. Only on a
+    terminal: a console fed from a pipe keeps its lines for the clicks prompt.
+    """
+
+    def __init__(self, console: Asks, gate: OperatorGate, lock: threading.RLock) -> None:
+        self.console, self.gate, self.lock = console, gate, lock
+        self._asking: tuple[int, threading.Event, threading.Thread] | None = None
+        if console.interactive:
+            gate.starts_it = f"Enter here or `{NEXT_HINT}`"
+
+    def offer(self, trial: int) -> None:
+        """A trial waits for the operator: ask (once) whether to start it."""
+        if not self.console.interactive:
+            return
+        if self._asking is not None:
+            if self._asking[0] == trial and self._asking[2].is_alive():
+                return
+            self.withdraw()
+        cancel = threading.Event()
+        thread = threading.Thread(target=self._ask, args=(trial, cancel), daemon=True,
+                                  name="enter-starts")
+        self._asking = (trial, cancel, thread)
+        thread.start()
+
+    def _ask(self, trial: int, cancel: threading.Event) -> None:
+        try:
+            self.console.read_line(
+                f"trial {trial} ready — press Enter to start it (or `{NEXT_HINT}`) ", cancel
+            )
+        except (KeyboardInterrupt, EOFError):
+            return  # started elsewhere, the session stopping, or no more input
+        if not cancel.is_set():
+            with self.lock:
+                self.gate.start(trial)
+
+    def withdraw(self) -> None:
+        """The trial started (or the session ends): withdraw the question.
+
+        It goes within the console's poll, before anything else reads the terminal.
+        """
+        if self._asking is not None:
+            _, cancel, thread = self._asking
+            cancel.set()
+            thread.join(1.0)
+            self._asking = None

@@ -41,12 +41,18 @@ RECORDER_READY_S = 30.0  # wall seconds for `nod record` to start and subscribe
 HEAR_DEVICES_S = 5.0  # wall seconds to hear the devices before declaring this conductor alive
 
 
-def ask_clicks(trial: int, read_line: Callable[[str], str] = input) -> int | None:
+def ask_clicks(
+    trial: int, read_line: Callable[[str], str] = input, target: int = 10
+) -> int | None:
     """Prompt the operator for the counter value of a trial (empty → not entered).
 
     `read_line` asks (the console's own prompt: a line of its live panel, or the terminal's).
+    The question says what is counted and the target: an operator who typed 0 for every trial
+    showed the participant "0 points" seven times. The trial is already stored; the answer
+    updates it (`Store.set_clicks`), and `nod clicks` enters or corrects it later.
     """
-    question = f"trial {trial}: counter clicks (empty = not entered)? "
+    question = (f"trial {trial}: counter clicks — the number the participant counted "
+                f"(target {target}; Enter alone = not entered)? ")
     while True:
         try:
             raw = read_line(question).strip()
@@ -115,8 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--clicks",
         default="prompt",
-        help="counter clicks the operator counted: a number for every trial, or 'prompt' (ask "
-        "after each trial), or 'none' (not entered)",
+        help="the counter clicks the participant counted: 'prompt' (default: asked after each "
+        "trial is stored), a number for every trial, or 'none' (not entered; `nod clicks` enters "
+        "them later)",
     )
     p.add_argument("--wait-services", type=float, default=30.0, help="seconds to wait for peers")
     p.add_argument(
@@ -139,11 +146,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def clicks_source(
-    spec: str, read_line: Callable[[str], str] = input
+    spec: str, read_line: Callable[[str], str] = input, target: int = 10
 ) -> Callable[[int], int | None]:
     """The operator's counter values, from the --clicks flag (`read_line` asks for 'prompt')."""
     if spec == "prompt":
-        return functools.partial(ask_clicks, read_line=read_line)
+        return functools.partial(ask_clicks, read_line=read_line, target=target)
     if spec == "none":
         return lambda _trial: None
     if spec.isdigit():
@@ -165,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg, schedule = load_with_options(args.params, args.options)
         own_hash = params_hash(cfg)  # the rig's parameters, before this session's --order
         console = make_console(args.console)
-        clicks = clicks_source(args.clicks, console.read_line)
+        clicks = clicks_source(args.clicks, console.read_line, cfg.protocol.target_clicks)
         store = Store(args.db)
     except (ValueError, OSError) as exc:
         return fail("nod experiment", exc)

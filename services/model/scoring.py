@@ -60,6 +60,39 @@ def score_trial(
     )
 
 
+def trial_points(
+    human: str | None, robot: str | None, violations: int, clicks: int | None,
+    target_clicks: int = 10,
+) -> int:
+    """A stored trial's points from its buzzers, violations and clicks (as the judge scores it).
+
+    For clicks entered after the trial was stored: the same buzzer only when both pressed it.
+    """
+    same = human is not None and robot is not None and human == robot
+    return score_trial(same, clicks, violations, target_clicks).total
+
+
+def points_said(
+    human: str | None, robot: str | None, violations: int, clicks: int | None,
+    target_clicks: int = 10,
+) -> str:
+    """The points the participant will see, and why, in one line for the operator."""
+    same = human is not None and robot is not None and human == robot
+    s = score_trial(same, clicks, violations, target_clicks)
+    parts = ["same buzzer +1" if same else "not the same buzzer"]
+    if clicks is None:
+        parts.append("counter not entered")
+    elif clicks == target_clicks:
+        parts.append(f"counter {clicks} = {target_clicks} +1")
+    else:
+        parts.append(f"counter {clicks} ≠ {target_clicks}")
+    if s.failure:
+        parts.append("a task failed −1")
+    if violations:
+        parts.append(f"{violations} violation(s) −{violations}")
+    return f"{s.total} point(s) ({', '.join(parts)})"
+
+
 def session_score(scores: Iterable[TrialScore]) -> int:
     """The session total: the sum of the trials' points."""
     return sum(s.total for s in scores)

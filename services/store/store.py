@@ -30,10 +30,11 @@ import os
 import sqlite3
 import struct
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
+from services.model.scoring import trial_points
 from services.store.fits import FITS_SCHEMA
 from services.store.records import (
     CueRecord,
@@ -505,6 +506,41 @@ class Store:
             fields["interrupted"] = bool(fields["interrupted"])
             out.append((fields.pop("session"), TrialRecord(**fields)))
         return out
+
+    def set_clicks(self, session: str, trial: int, clicks: int | None) -> TrialRecord:
+        """Enter (or correct) a stored trial's counter clicks and rescore it; the new record.
+
+        A trial is stored the moment it ends, with its clicks "not entered"; the operator's
+        answer comes after (the prompt, or `nod clicks` later) and changes only the clicks and
+        the points they earn (`services.model.scoring.trial_points`, with the session's own
+        target). StoreError if there is no such trial or it was interrupted (never scored).
+        """
+        stored = {t.trial: t for _, t in self.trials(session)}.get(trial)
+        if stored is None:
+            raise StoreError(f"session {session!r} has no stored trial {trial}")
+        if stored.interrupted:
+            raise StoreError(f"trial {trial} of session {session} was interrupted: never scored")
+        if clicks is not None and clicks < 0:
+            raise StoreError(f"clicks must be a whole number >= 0, got {clicks}")
+        points = trial_points(stored.human, stored.robot, stored.violations, clicks,
+                              self.target_clicks(session))
+        with self.db:
+            self.db.execute("BEGIN")
+            self.db.execute(
+                "UPDATE trials SET clicks = ?, score = ? WHERE session = ? AND trial = ?",
+                (clicks, points, session, trial),
+            )
+        return replace(stored, clicks=clicks, score=points)
+
+    def target_clicks(self, session: str) -> int:
+        """The counter target the session ran with (its stored protocol; 10 if not stored)."""
+        row = self.db.execute("SELECT config FROM sessions WHERE session = ?", (session,))
+        found = row.fetchone()
+        try:
+            target = json.loads(found[0])["protocol"]["target_clicks"] if found else 10
+        except (TypeError, KeyError, ValueError):
+            return 10
+        return target if isinstance(target, int) and target > 0 else 10
 
     def write_questionnaires(
         self,

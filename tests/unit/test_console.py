@@ -112,7 +112,8 @@ def test_a_line_prompt_asks_on_the_terminal_and_reads_one_line(stdin_pipe, capsy
     assert ask_clicks(6, c.read_line) == 3  # the last line, without its newline
     assert ask_clicks(7, c.read_line) is None  # the end of input
     out = capsys.readouterr().out
-    assert "trial 4: counter clicks (empty = not entered)? " in out
+    assert "trial 4: counter clicks — the number the participant counted (target 10; Enter " \
+        "alone = not entered)? " in out
     assert "'x7' is not a whole number ≥ 0 — trial 4: counter clicks? " in out
 
 
