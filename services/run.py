@@ -49,7 +49,8 @@ from services.launch.commands import command
 from services.launch.events import RigEvents
 from services.launch.options_run import options_problem, with_options
 from services.launch.options_view import session_view
-from services.launch.rigs import RIG_FLAGS, check_rigs, run_rigs
+from services.launch.rigs import RIG_FLAGS, check_rigs, next_seed, run_rigs
+from services.launch.run_logs import run_folder
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
 from services.safety.latch_file import STATE_DIR_ENV
 from services.store import Store, StoreError
@@ -82,7 +83,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--sim", action="store_true", help="simulate participant, arm and eyes")
     p.add_argument("--db", type=Path, default=Path("nod-sessions.sqlite"), help="session store")
-    p.add_argument("--seed", type=SEED, default=1, help="seed of the simulated participant")
+    p.add_argument(
+        "--seed",
+        type=SEED,
+        default=None,
+        help="seed of the simulated participant (default: one past the largest seed stored in "
+        "--db, 1 in a new one: a run added to a store is a new simulated person)",
+    )
     p.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second")
     p.add_argument("--listen", default=DEFAULT_ROUTER, help=f"router endpoint ({DEFAULT_ROUTER})")
     p.add_argument("--rig", type=check_rig, default="rig1", help="rig name scoping every key")
@@ -132,7 +139,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clicks", default="10", help="counter clicks per trial: N, 'prompt' or 'none'")
     p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
     p.add_argument("--stale-ms", type=float, default=None, help="safety staleness bound (ms)")
-    p.add_argument("--logs", type=Path, default=None, help="folder for service logs")
+    p.add_argument(
+        "--logs",
+        type=Path,
+        default=None,
+        help="folder for service logs, as given (default: a new folder per run, "
+        "<db>.logs/<YYYYmmdd-HHMMSS>/, never one used before)",
+    )
     p.add_argument(
         "--record",
         type=Path,
@@ -220,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
         return fail("nod run", f"{problem}")
     if args.rigs > 1:  # several rigs, each a `nod run --join` of its own
         return run_rigs(args, flag_argv(build_parser(), args, RIG_FLAGS))
-    logs = args.logs or args.db.with_suffix(".logs")
+    logs: Path = args.log_dir  # made by the preflight: this run's own
     # A simulated device is a new device every run: its e-stop latch lives in a folder of this
     # run (still surviving the restarts of its service within the run). A real arm or real eyes
     # keep theirs where they always do (`--state-dir`'s default), across runs too.
@@ -267,8 +280,9 @@ def main(argv: list[str] | None = None) -> int:
             session = person.session
             if args.resume is None:
                 view.begin(person.participant)
+            suffix = f"-{i + 1}-{person.participant}"  # whose logs they are, in their names
             for service in ("sim", "experiment"):  # a new person: new sim, new conductor
-                supervisor.start(_spec(service, person, epoch_ns, logs, suffix=f"-{i + 1}"))
+                supervisor.start(_spec(service, person, epoch_ns, logs, suffix=suffix))
             code = _supervise(supervisor, stopping)
             supervisor.stop(["sim", "experiment"])
             if code != 0:
@@ -284,7 +298,8 @@ def main(argv: list[str] | None = None) -> int:
             sim_state.cleanup()
     if code == 0:
         print(
-            f"{view.total_trials} trials of {args.participants} participant(s) stored in {args.db}"
+            f"{view.total_trials} trials of {args.participants} participant(s) stored in "
+            f"{args.db}; service logs in {logs}/"
         )
     elif code == 130:
         print("\ninterrupted: every service stopped", file=sys.stderr)
@@ -405,14 +420,32 @@ def _preflight(args: argparse.Namespace) -> str | None:
             if args.again is None and (problem := reuse_problem(store, args.participant, True)):
                 return problem
         args.participant = args.ids[0]
+        if args.seed is None:  # the store's sequence goes on: never a stored person again
+            args.seed = next_seed([store])
     finally:
         store.close()
-    logs = args.logs or args.db.with_suffix(".logs")
     try:
-        logs.mkdir(parents=True, exist_ok=True)
+        args.log_dir = log_dir(args)
     except OSError as exc:
-        return f"cannot write service logs to {logs}: {exc.strerror}"
+        return f"cannot write service logs to {args.logs or _logs_base(args.db)}: {exc.strerror}"
     return None
+
+
+def log_dir(args: argparse.Namespace) -> Path:
+    """The run's log folder: `--logs` as given, else a new one under `<db>.logs/` (OSError).
+
+    A folder is never reused by default: each run (a participant's, a resumed one's, each of a
+    study's `nod study start --sim`) keeps the logs of every run before it.
+    """
+    if args.logs is not None:  # the operator's (or a rig of `--rigs`: its folder of the run)
+        args.logs.mkdir(parents=True, exist_ok=True)
+        return Path(args.logs)
+    return run_folder(_logs_base(args.db))
+
+
+def _logs_base(db: Path) -> Path:
+    """Where the run folders of a store's runs go: `<db>.logs/`."""
+    return db.with_suffix(".logs")
 
 
 def _participant(args: argparse.Namespace, i: int) -> argparse.Namespace:

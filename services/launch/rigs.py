@@ -6,7 +6,8 @@ participants are split across the rigs in contiguous blocks of ids and seeds (so
 those `--rigs 1` would run, each on one rig), and each rig's conductor writes its own store,
 `<db stem>-<rig>.sqlite`, as a lab's control stations would: `nod analyze study` and `nod
 export` read them as one study (`--db` once per rig). Each rig's table goes to
-`<logs>/run-<rig>.log`, its services' logs to `<logs>/<rig>/`; when a rig ends its last line is
+`<logs>/run-<rig>.log`, its services' logs to `<logs>/<rig>/` (`<logs>`: the run's own folder,
+`<db>.logs/<YYYYmmdd-HHMMSS>/`, unless `--logs` names one); when a rig ends its last line is
 printed. Ctrl-C (or SIGTERM) stops every rig; the exit code is the first rig's that failed.
 """
 
@@ -23,6 +24,7 @@ from services.core.config import load_params
 from services.core.lifeline import nod_command
 from services.core.session import make_config, open_session
 from services.core.signals import on_stop_signal
+from services.launch.run_logs import run_folder
 from services.store import Store, StoreError
 from services.store.participants import first_free_ids, sessions_by_participant
 
@@ -88,17 +90,43 @@ def free_ids(stores: list[Path], n: int) -> list[str]:
     return first_free_ids(taken, n)
 
 
+def next_seed(stores: list[Store]) -> int:
+    """The first seed of simulated participants added to these stores (1 if none is stored).
+
+    One past the largest any of their sessions was run with: an added person is never a stored
+    one (a second `nod run --sim` into a store holding P01 runs P02 with seed 2, not 1 again).
+    """
+    seeds = [int(row["seed"]) for st in stores for row in st.sessions() if row["seed"] is not None]
+    return max(seeds, default=0) + 1
+
+
+def _next_seed(paths: list[Path]) -> int:
+    """`next_seed` of the stores at `paths` that exist (StoreError if one is no store)."""
+    stores = [Store(p) for p in paths if p.is_file()]
+    try:
+        return next_seed(stores)
+    finally:
+        for store in stores:
+            store.close()
+
+
 def run_rigs(args: argparse.Namespace, passthrough: list[str]) -> int:
     """Run the rigs of `args.rigs` on one router; `passthrough`: the flags every rig gets."""
     rigs = rig_names(args.rigs)
     stores = [rig_store(args.db, r) for r in rigs]
     try:
         people = blocks(free_ids(stores, args.participants), len(rigs))
+        seed = args.seed if args.seed is not None else _next_seed(stores)
     except StoreError as exc:
         print(f"nod run: {exc}", flush=True)
         return 2
-    logs = args.logs or args.db.with_suffix(".logs")
-    logs.mkdir(parents=True, exist_ok=True)
+    try:  # this run's own folder (`nod run`'s): a later run never overwrites these logs
+        logs = args.logs or run_folder(args.db.with_suffix(".logs"))
+        logs.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"nod run: cannot write logs to {args.logs or args.db.with_suffix('.logs')}: "
+              f"{exc.strerror}", flush=True)
+        return 2
     try:
         router = open_session(make_config(mode="router", listen=[args.listen]))
     except ConnectionError as exc:
@@ -112,7 +140,6 @@ def run_rigs(args: argparse.Namespace, passthrough: list[str]) -> int:
     stopping = threading.Event()
     on_stop_signal(lambda _signum: stopping.set())  # never set() inside a handler
     children: dict[str, subprocess.Popen] = {}
-    seed = args.seed
     try:
         for rig, ids, store in zip(rigs, people, stores, strict=True):
             cmd = nod_command(

@@ -60,7 +60,7 @@ def test_a_session_drives_a_maestro_over_a_serial_port(tmp_path):
         if not distinct or distinct[-1] != p:
             distinct.append(p)
     # neutral, the attention gesture's limit, and five gaze levels toward alternating sides
-    eyes_log = next(iter(sorted(tmp_path.glob("*.logs/eyes.log"))), None)
+    eyes_log = next(iter(sorted(tmp_path.glob("*.logs/*/eyes.log"))), None)
     context = f"{distinct}\n{run.stdout}\n{eyes_log.read_text()[-4000:] if eyes_log else ''}"
     assert len(set(distinct)) >= 7, context
     assert all(500.0 <= p <= 2500.0 for p in pulses)

@@ -52,7 +52,7 @@ def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> Non
     assert run.returncode == 0, run.stdout + run.stderr
     assert "8 trials of 1 participant(s) stored" in run.stdout
     assert "green" in run.stdout  # the table names the options
-    speaker = (tmp_path / "s.logs" / "speaker.log").read_text()
+    speaker = next((tmp_path / "s.logs").glob("*/speaker.log")).read_text()
     assert "trial 8: go played" in speaker  # the countdown is heard on a table of three too
 
     store = Store(db)
@@ -101,7 +101,7 @@ def test_three_rendered_boxes_found_by_vision(tmp_path: Path) -> None:
                   "--stale-ms", "2000", timeout=600)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "3 trials of 1 participant(s) stored" in run.stdout
-    vision_log = (tmp_path / "s.logs" / "vision.log").read_text()
+    vision_log = next((tmp_path / "s.logs").glob("*/vision.log")).read_text()
     assert "found the 3 boxes" in vision_log
     store = Store(db)
     try:

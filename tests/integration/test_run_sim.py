@@ -212,7 +212,7 @@ def test_full_session_through_the_rendered_camera_path(tmp_path):
                 img = cv2.imdecode(np.asarray(blob[0], np.uint8), cv2.IMREAD_COLOR)
                 shapes.add(img.shape)
     assert shapes == {(240, 320, 3)}
-    vision_log = (db.with_suffix(".logs") / "vision.log").read_text()
+    vision_log = next(db.with_suffix(".logs").glob("*/vision.log")).read_text()
     assert "hand poses published" in vision_log
     con = sqlite3.connect(db)
     trials = con.execute("SELECT trial, option, human, robot FROM trials ORDER BY trial").fetchall()
@@ -247,3 +247,23 @@ def test_a_sim_session_recorded_by_the_monitor_reads_back(tmp_path):
     assert abs(z_r - z_h) <= 0.05 * max(z_r, z_h), (z_r, z_h)
     assert rows["/table/hand"] > 500
     assert static["/table/buzzers"] == 1
+
+
+def test_runs_added_to_a_store_are_new_people_with_logs_of_their_own(tmp_path):
+    """Two `nod run --sim` into one store: two simulated people, each run's logs kept."""
+    import sqlite3
+
+    db = tmp_path / "s.sqlite"
+    params = tmp_path / "short.toml"
+    params.write_text(SHORT)
+    for _ in range(2):
+        run = _run_sim(db, "--params", str(params))
+        assert run.returncode == 0, run.stdout + run.stderr
+    con = sqlite3.connect(db)
+    people = con.execute("SELECT participant, seed FROM sessions ORDER BY started_ns").fetchall()
+    assert people == [("P01", 1), ("P02", 2)]
+    runs = sorted(p for p in db.with_suffix(".logs").iterdir())
+    assert len(runs) == 2, runs
+    assert [sorted(p.name for p in r.glob("experiment-*.log")) for r in runs] == [
+        ["experiment-1-P01.log"], ["experiment-1-P02.log"]]
+    assert f"service logs in {runs[-1]}/" in run.stdout
