@@ -13,6 +13,10 @@ change merges only while this is equal. Four parts, each from the code as it run
   per trial the recomputed z_r, ẑ_h and b_r at its last pose, and a SHA-256 of every
   recomputed value in order.
 
+Beside them, `store-2026-12.sqlite`: the store that same recorded session wrote (schema of
+today's code), for the migration a one-pipeline store will need (stores made before it must
+still open); `session.mcap` is its recording (schema 1 messages), which must still replay.
+
 `python -m tests.golden.golden --write` captures them into tests/golden/*.json (only when the
 change of a number is intended, said in the commit); `tests/unit/test_golden.py` compares.
 The analysis JSON may gain keys (a new note, a caveat): what the golden holds must be equal.

@@ -52,3 +52,20 @@ def test_the_golden_cohort_is_the_stored_cohort():
             store.close()
     assert stored == {int(seed): [t["outcome"] for t in trials]
                       for seed, trials in sessions.items()}
+
+
+def test_a_store_written_by_todays_code_opens_and_reads(tmp_path):
+    import shutil
+
+    from services.store import Store
+
+    copy = tmp_path / "old.sqlite"
+    shutil.copy(golden.HERE / "store-2026-12.sqlite", copy)
+    store = Store(copy)
+    try:
+        (session,) = store.sessions()
+        trials = [t for _, t in store.trials(session["session"])]
+    finally:
+        store.close()
+    assert session["status"] == "complete" and [t.trial for t in trials] == [1, 2, 3]
+    assert [t.outcome for t in trials] == ["D", "C", "C"]
