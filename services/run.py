@@ -24,6 +24,7 @@ import tempfile
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -50,8 +51,9 @@ from services.launch.events import RigEvents
 from services.launch.options_run import options_problem, with_options
 from services.launch.options_view import session_view
 from services.launch.rigs import RIG_FLAGS, check_rigs, next_seed, run_rigs
-from services.launch.run_logs import run_folder
+from services.launch.run_logs import LogWatch, run_folder
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
+from services.launch.view import SessionView
 from services.safety.latch_file import STATE_DIR_ENV
 from services.store import Store, StoreError
 from services.store.participants import next_free_ids, reuse_problem
@@ -283,7 +285,7 @@ def main(argv: list[str] | None = None) -> int:
             suffix = f"-{i + 1}-{person.participant}"  # whose logs they are, in their names
             for service in ("sim", "experiment"):  # a new person: new sim, new conductor
                 supervisor.start(_spec(service, person, epoch_ns, logs, suffix=suffix))
-            code = _supervise(supervisor, stopping)
+            code = _supervise(supervisor, stopping, _waiting_lines(args, supervisor, view))
             supervisor.stop(["sim", "experiment"])
             if code != 0:
                 break
@@ -476,10 +478,32 @@ def _spec(
     return ServiceSpec(service, cmd, log=log_path, restart_argv=resume)
 
 
-def _supervise(supervisor: Supervisor, stopping: threading.Event) -> int:
+def _waiting_lines(
+    args: argparse.Namespace, supervisor: Supervisor, view: SessionView
+) -> Callable[[], None]:
+    """Say here each trial the conductor says (in its log) waits for the operator's start."""
+    log_path = supervisor.services["experiment"].spec.log
+    if log_path is None:
+        return lambda: None
+    watch = LogWatch(log_path)
+    flags = "".join(f" --{flag} {value}" for flag, value, default in (
+        ("connect", args.listen, DEFAULT_ROUTER), ("rig", args.rig, "rig1")) if value != default)
+    hint = f" (here: nod experiment next{flags})"
+
+    def say() -> None:
+        for line in watch.new():
+            view.note(line + hint)
+
+    return say
+
+
+def _supervise(
+    supervisor: Supervisor, stopping: threading.Event, each: Callable[[], None] = lambda: None
+) -> int:
     """Supervise until the conductor finishes; a service given up on fails the run."""
     while not stopping.is_set():
         supervisor.poll()
+        each()
         conductor = supervisor.services["experiment"]
         if conductor.state == "done":
             return 0

@@ -8,7 +8,10 @@ those `--rigs 1` would run, each on one rig), and each rig's conductor writes it
 export` read them as one study (`--db` once per rig). Each rig's table goes to
 `<logs>/run-<rig>.log`, its services' logs to `<logs>/<rig>/` (`<logs>`: the run's own folder,
 `<db>.logs/<YYYYmmdd-HHMMSS>/`, unless `--logs` names one); when a rig ends its last line is
-printed. Ctrl-C (or SIGTERM) stops every rig; the exit code is the first rig's that failed.
+printed. On the way, each stored trial of each rig is one line here (`rig2 P21 trial 3/8 …`,
+from the rigs' experiment/result on this router), and so is a trial that waits for the
+operator (from the rig's own output). Ctrl-C (or SIGTERM) stops every rig; the exit code is
+the first rig's that failed.
 """
 
 from __future__ import annotations
@@ -20,11 +23,13 @@ import threading
 import time
 from pathlib import Path
 
+from services.core import messages as m
 from services.core.config import load_params
+from services.core.keys import Keys
 from services.core.lifeline import nod_command
 from services.core.session import make_config, open_session
 from services.core.signals import on_stop_signal
-from services.launch.run_logs import run_folder
+from services.launch.run_logs import LogWatch, run_folder
 from services.store import Store, StoreError
 from services.store.participants import first_free_ids, sessions_by_participant
 
@@ -90,6 +95,33 @@ def free_ids(stores: list[Path], n: int) -> list[str]:
     return first_free_ids(taken, n)
 
 
+class RigProgress:
+    """One line per stored trial of a rig, naming its participant (pure: no I/O).
+
+    A rig runs its block of ids one after another, so the k-th session a rig's results name is
+    its k-th participant's (a restarted conductor resumes the same session: the same person).
+    """
+
+    def __init__(self, people: dict[str, list[str]], n_trials: int) -> None:
+        self.people = people
+        self.n = n_trials
+        self.sessions: dict[str, list[str]] = {rig: [] for rig in people}
+        self.lock = threading.Lock()
+
+    def line(self, rig: str, r: m.TrialResult) -> str:
+        """The line of one stored trial of `rig`."""
+        with self.lock:
+            seen = self.sessions[rig]
+            if r.session not in seen:
+                seen.append(r.session)
+            k = seen.index(r.session)
+        ids = self.people[rig]
+        who = ids[k] if k < len(ids) else r.session
+        option = f" O={r.option}" if r.option else ""
+        what = "interrupted" if r.interrupted else f"{r.outcome or '-'} score {r.score}"
+        return f"{rig} {who} trial {r.trial}/{self.n} [{r.mode}{option}]: {what}"
+
+
 def next_seed(stores: list[Store]) -> int:
     """The first seed of simulated participants added to these stores (1 if none is stored).
 
@@ -140,6 +172,9 @@ def run_rigs(args: argparse.Namespace, passthrough: list[str]) -> int:
     stopping = threading.Event()
     on_stop_signal(lambda _signum: stopping.set())  # never set() inside a handler
     children: dict[str, subprocess.Popen] = {}
+    progress = RigProgress(dict(zip(rigs, people, strict=True)),
+                           len(load_params(args.params).protocol.trials))
+    subs = [_follow(router, rig, progress) for rig in rigs]
     try:
         for rig, ids, store in zip(rigs, people, stores, strict=True):
             cmd = nod_command(
@@ -153,6 +188,8 @@ def run_rigs(args: argparse.Namespace, passthrough: list[str]) -> int:
                                                  stdin=subprocess.DEVNULL)
         codes = _wait(children, stopping, logs)
     finally:
+        for sub in subs:
+            sub.undeclare()
         for proc in children.values():
             if proc.poll() is None:
                 proc.kill()
@@ -165,12 +202,32 @@ def run_rigs(args: argparse.Namespace, passthrough: list[str]) -> int:
     return codes.get(failed[0], 1) or 1
 
 
+def _follow(router, rig: str, progress: RigProgress):
+    """Print a line per trial `rig` stores (a subscriber: undeclare it when done)."""
+
+    def on_result(sample) -> None:
+        try:
+            result = m.decode(m.TrialResult, sample.payload.to_bytes())
+        except m.MessageError:
+            return  # the rig's own table names it; one bad message is no reason to stop
+        print(progress.line(rig, result), flush=True)
+
+    return router.declare_subscriber(Keys(rig).topic("experiment/result"), on_result)
+
+
 def _wait(children: dict[str, subprocess.Popen], stopping: threading.Event,
           logs: Path) -> dict[str, int]:
-    """Every rig's exit code; on Ctrl-C each rig is stopped as `nod run` stops (SIGINT)."""
+    """Every rig's exit code; on Ctrl-C each rig is stopped as `nod run` stops (SIGINT).
+
+    Meanwhile a trial waiting for the operator on a rig (its run's own line) is said here too.
+    """
     codes: dict[str, int] = {}
     asked = False
+    waiting = {rig: LogWatch(logs / f"run-{rig}.log") for rig in children}
     while len(codes) < len(children):
+        for rig, watch in waiting.items():
+            for line in watch.new():
+                print(f"{rig}: {line}", flush=True)
         if stopping.is_set() and not asked:
             for proc in children.values():
                 if proc.poll() is None:

@@ -58,6 +58,14 @@ class SessionView:
             self.participant = participant
             self.results = []
 
+    def note(self, text: str) -> None:
+        """A line for the operator between the rows (e.g. a trial waiting for their start)."""
+        with self.lock:
+            if self.tty:
+                self.out.write("\r\033[K")
+            self.out.write(f"{text}\n")
+            self.out.flush()
+
     def on_result(self, r: m.TrialResult) -> None:
         """A finished trial: a table row (one participant) or a participant's line (a study)."""
         with self.lock:

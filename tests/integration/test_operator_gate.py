@@ -88,3 +88,41 @@ def test_pause_holds_the_next_trial_of_an_ungated_session(
     _operator(endpoint, "next")
     assert conductor.wait(60) == 0, conductor.log_path.read_text()[-2000:]
     assert _setups(events) == [1, 2, 3]  # after the held trial the session went on by itself
+
+
+def test_nod_run_says_when_a_trial_waits_for_the_operator(tmp_path):
+    """`nod run` prints the conductor's "waiting for the operator" with the command to start it."""
+    import subprocess
+    import sys
+    import threading
+
+    from tests.processes import stop_all
+
+    from .conftest import ROOT, free_port
+
+    params = tmp_path / "gated.toml"
+    params.write_text(SHORT.replace("[[protocol.trials]]", "[protocol]\ngate = true\n\n"
+                                    "[[protocol.trials]]", 1))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "run", "--sim", "--speed", "4", "--params",
+         str(params), "--listen", endpoint, "--stale-ms", "2000", "--db",
+         str(tmp_path / "s.sqlite")],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(iter(run.stdout.readline, "")),
+                              daemon=True)
+    reader.start()
+    try:
+        for trial in (1, 2, 3):
+            wait_for(lambda t=trial: any(f"trial {t} ready: waiting for the operator" in ln
+                                         for ln in lines), 90, f"nod run saying trial {trial}")
+            said = next(ln for ln in lines if f"trial {trial} ready" in ln)
+            assert f"(here: nod experiment next --connect {endpoint})" in said, said
+            _operator(endpoint, "next")
+        assert run.wait(120) == 0, "".join(lines)[-3000:]
+    finally:
+        stop_all([run])
+    reader.join(5)
+    assert sum("waiting for the operator" in ln for ln in lines) == 3, "".join(lines)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sqlite3
 import subprocess
 import sys
@@ -57,6 +58,11 @@ def test_two_rigs_run_their_share_of_the_study_at_once_into_their_own_stores(tmp
     assert sorted(rows) == [("P01", "rig1", 5, "complete", 3), ("P02", "rig1", 6, "complete", 3),
                             ("P03", "rig2", 7, "complete", 3)]
     assert f"nod analyze study --db {stores[0]} --db {stores[1]}" in out
+    # Each stored trial of each rig was a line on the way, naming its rig and participant.
+    said = {ln.split(" [")[0] for ln in out.splitlines()  # a broken, repeated trial: twice
+            if re.match(r"rig\d P\d\d trial", ln)}
+    assert sorted(said) == [f"{rig} {who} trial {t}/3" for rig, who in (
+        ("rig1", "P01"), ("rig1", "P02"), ("rig2", "P03")) for t in (1, 2, 3)], out[-3000:]
     study = run_nod("analyze", "study", "--db", str(stores[0]), "--db", str(stores[1]), "--json")
     assert study.returncode == 0, study.stderr
     doc = json.loads(study.stdout)
