@@ -240,6 +240,10 @@ def _build_parser() -> Parser:
         "--correction", choices=CORRECTIONS, default="holm",
         help="multiple-comparison correction of the Stuart-Maxwell tests (default holm)",
     )
+    p.add_argument(
+        "--include-withdrawn", action="store_true",
+        help="analyse participants who withdrew too (default: left out, and named in one line)",
+    )
     p.add_argument("--json", action="store_true", help="print every number as JSON")
     p.add_argument(
         "--out", metavar="DIR", help="write Figs 8a-8d, report.md and study.json here"

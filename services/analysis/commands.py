@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -179,7 +180,9 @@ def study(args: argparse.Namespace) -> int:
     from services.analysis.study_report import finite_json, markdown, summary
 
     rule = InclusionRule(args.min_trials)
-    doc = finite_json(load_study(args.db, rule, args.correction))  # several: one study
+    doc = finite_json(load_study(args.db, rule, args.correction, args.include_withdrawn))
+    if doc["withdrawn"]["note"]:  # one line, on stderr: stdout stays the summary or the JSON
+        print(f"nod analyze study: {doc['withdrawn']['note']}", file=sys.stderr)
     if args.out:
         out = Path(args.out)
         try:

@@ -7,16 +7,21 @@ a session with at least N *scored* trials (stored and not interrupted) counts, w
 status. Of a participant's sessions that pass, the latest is analysed. Every other session is
 an `ExcludedSession` with its reason, in the words the report prints: "aborted after 4 of 8
 trials", "running (crashed?) after 2 of 8 trials", "superseded by the later session …".
+
+A participant who withdrew is no excluded session: their sessions are not read at all
+(`services.store.withdrawals.withdrawn_filter`, the one selection `nod export` and `nod fit`
+apply too), unless the filter includes them (`--include-withdrawn`).
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from services.store import Store
+from services.store.withdrawals import WithdrawnFilter, withdrawn_filter
 
 OUTCOMES: tuple[str, ...] = ("C", "CH", "D", "DH")
 TRIALS: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 7, 8)
@@ -110,6 +115,12 @@ class Selection:
     excluded: list[ExcludedSession]  # in the order the sessions were started
     notes: list[str]
     rule: InclusionRule
+    withdrawn: WithdrawnFilter = field(default_factory=lambda: WithdrawnFilter({}))
+
+    def left_out(self) -> dict[str, str]:
+        """Participants with no session let in, by participant: why their latest was not."""
+        chosen = {p.participant for p in self.participants}
+        return {e.participant: e.reason for e in self.excluded if e.participant not in chosen}
 
 
 def scheduled_trials(config: str | None) -> int:
@@ -162,14 +173,21 @@ def _status_reason(status: str, stored: int, scheduled: int) -> str:
     return f"{status} but only {stored} of {scheduled} trials stored"
 
 
-def select_sessions(store: Store, rule: InclusionRule | None = None) -> Selection:
-    """Apply the inclusion rule to every stored session; the latest included one per participant."""
+def select_sessions(
+    store: Store, rule: InclusionRule | None = None, withdrawn: WithdrawnFilter | None = None
+) -> Selection:
+    """Apply the inclusion rule to every stored session; the latest included one per participant.
+
+    The sessions of withdrawn participants are not read (`withdrawn`: the store's own filter,
+    leaving them out, when not given).
+    """
     rule = rule or InclusionRule()
+    withdrawn = withdrawn if withdrawn is not None else withdrawn_filter(store)
     parts: dict[str, ParticipantOutcomes] = {}
     latest: dict[str, ExcludedSession] = {}  # the facts of each participant's session so far
     excluded: list[ExcludedSession] = []
     notes: list[str] = []
-    for s in store.sessions():  # oldest first, so later sessions supersede earlier ones
+    for s in withdrawn.sessions(store.sessions()):  # oldest first: later ones supersede
         sid, pid, status = str(s["session"]), str(s["participant"]), str(s["status"])
         if is_options_session(s.get("config")):  # 3+ options: `nod analyze options-study`
             continue
@@ -214,7 +232,7 @@ def select_sessions(store: Store, rule: InclusionRule | None = None) -> Selectio
             excluded.append(replace(old, reason=f"superseded by the later session {sid}"))
         latest[pid] = ExcludedSession(sid, pid, status, len(trials), scored, scheduled, "")
         parts[pid] = part
-    return Selection([parts[p] for p in sorted(parts)], excluded, notes, rule)
+    return Selection([parts[p] for p in sorted(parts)], excluded, notes, rule, withdrawn)
 
 
 def resolve_session(

@@ -5,7 +5,9 @@ Units and rules:
 - **Inclusion** (services.analysis.sessions, stated in every report): by default only complete
   sessions (status complete, every scheduled trial stored); `min_trials = N` lets in any
   session with at least N scored trials. Every session left out is listed in `excluded` with
-  its reason ("aborted after 4 of 8 trials").
+  its reason ("aborted after 4 of 8 trials"). A participant who withdrew is not read at all,
+  sessions nor answers (`services.store.withdrawals`), unless `include_withdrawn`; `withdrawn`
+  names them and carries the one line the command prints.
 - A *participant* is the `participant` column of the sessions table. When a participant has
   several sessions that pass the rule, the most recent one is analysed and the others are
   excluded as superseded (e.g. a full re-run).
@@ -53,6 +55,7 @@ from services.analysis.stuart_maxwell import stuart_maxwell
 from services.model.phases import CONTROL_TRIALS, EXPERIMENT_TRIALS, phase_category
 from services.store import QuestionnaireRecord
 from services.store.study_stores import open_stores
+from services.store.withdrawals import withdrawn_filter
 
 ADJACENT_PAIRS: tuple[tuple[int, int], ...] = ((4, 5), (5, 6), (6, 7), (7, 8))
 LIKERT_MIDPOINT = 5.5
@@ -284,20 +287,25 @@ def analyze_study(
 
 def load_study(
     paths: str | Sequence[str], rule: InclusionRule | None = None,
-    correction: Correction = "holm",
+    correction: Correction = "holm", include_withdrawn: bool = False,
 ) -> dict[str, Any]:
     """Open the study's stores (one per rig, or one), select their sessions, analyse them as one.
 
     A participant id in two stores or on two rigs is a ValueError (`open_stores`), not a merge.
+    Withdrawn participants are left out (sessions and answers) unless `include_withdrawn`.
     """
     names = [paths] if isinstance(paths, str) else list(paths)
     with open_stores(names) as stores:
-        chosen = [select_sessions(store, rule) for _, store in stores]
-        answers = [q for _, store in stores for q in store.questionnaires()]
+        keep = withdrawn_filter([store for _, store in stores], include_withdrawn)
+        chosen = [select_sessions(store, rule, keep) for _, store in stores]
+        answers = [q for _, store in stores for q in store.questionnaires()
+                   if keep.keeps(q.participant)]
     parts = sorted((p for c in chosen for p in c.participants), key=lambda p: p.participant)
     doc = analyze_study(
         parts, sorted(answers, key=lambda q: q.participant),
         [n for c in chosen for n in c.notes], [e for c in chosen for e in c.excluded],
         chosen[0].rule, correction,
     )
-    return {**doc, "stores": names}
+    withdrawn = {"left_out": keep.left_out, "included": sorted(keep.withdrawn) if
+                 include_withdrawn else [], "note": keep.note()}
+    return {**doc, "stores": names, "withdrawn": withdrawn}

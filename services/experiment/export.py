@@ -4,11 +4,15 @@ Writes sessions.csv, trials.csv, samples.csv, questionnaires.csv, safety_events.
 rig_events.csv, interruptions.csv, cues.csv (the countdown words and go as `nod speaker`
 played them: planned and played onset, rig-clock ns), fits.csv (`nod fit`'s per-participant
 estimates and 90 % intervals, identifiable parameters only) and, when the store holds sessions
-of three or more options, option_sets.csv and option_trials.csv (`services.store.options`)
-into one directory, each with a header
+of three or more options, option_sets.csv and option_trials.csv (`services.store.options`),
+and participants.csv (each participant's consent record — every column of `participants`,
+demographics as JSON — and their withdrawal, if any: `withdrawn_ns`, `withdrawal_reason`,
+`withdrawal_deleted`, `deleted_ns`) into one directory, each with a header
 row of the database's column names (the per-session tables gain a `participant` column after
 `session` for convenience). A trial with `interrupted` = 1 was broken by a safe stop or an
-e-stop and never scored. Conventions, chosen so that `pandas.read_csv(path)` and R's
+e-stop and never scored. A participant who withdrew (`services.store.withdrawals`) is in
+none of the files, and one printed line names them, unless `--include-withdrawn`.
+Conventions, chosen so that `pandas.read_csv(path)` and R's
 `read.csv(path)` need no options:
 
 - UTF-8, comma separated, LF line ends, fields quoted only when needed (the sessions'
@@ -39,6 +43,7 @@ from services.store import StoreError
 from services.store.options import export_rows
 from services.store.records import unpack_landmarks
 from services.store.study_stores import open_stores, union_of
+from services.store.withdrawals import WithdrawnFilter, withdrawn_filter
 
 PROG = "nod export"
 MISSING = "NA"  # how a SQL NULL is written
@@ -112,17 +117,59 @@ def write_rows(path: Path, header: Sequence[str], rows: Iterable[Sequence[Any]])
     return count
 
 
-def export(db: sqlite3.Connection, out: Path) -> dict[str, int]:
-    """Write every table of an open store as `<table>.csv` in `out`; rows written per table."""
+def participants_query(db: sqlite3.Connection) -> str:
+    """participants.csv: every consent record and every withdrawal, one row per participant.
+
+    Every column of `participants` (one added later, a consent form's version, comes along),
+    then the withdrawal's; a participant with a withdrawal but no consent row (deleted, or
+    never recorded) has NA consent.
+    """
+    cols = [c[0] for c in db.execute("SELECT * FROM participants LIMIT 0").description]
+    own = ", ".join(f'p."{c}"' for c in cols if c != "participant")
+    return (
+        f"SELECT ids.participant, {own}, w.withdrawn_ns, w.reason AS withdrawal_reason, "
+        "w.deleted AS withdrawal_deleted, w.deleted_ns FROM (SELECT participant FROM "
+        "participants UNION SELECT participant FROM withdrawals) ids "
+        "LEFT JOIN participants p ON p.participant = ids.participant "
+        "LEFT JOIN withdrawals w ON w.participant = ids.participant ORDER BY ids.participant"
+    )
+
+
+def export(
+    db: sqlite3.Connection, out: Path, keep: WithdrawnFilter | None = None
+) -> dict[str, int]:
+    """Write every table of an open store as `<table>.csv` in `out`; rows written per table.
+
+    The rows of withdrawn participants are left out (`keep`: the store's own filter when not
+    given), found by the `participant` column or, for the N-option tables, the session's.
+    """
+    keep = keep if keep is not None else withdrawn_filter(db)
     out.mkdir(parents=True, exist_ok=True)
+    owner = {str(s): str(p) for s, p in db.execute("SELECT session, participant FROM sessions")}
     counts: dict[str, int] = {}
-    for name, query in QUERIES.items():
+    queries = {**QUERIES, "participants": participants_query(db)}
+    for name, query in queries.items():
         cur = db.execute(query)
         header = [c[0] for c in cur.description]
-        counts[name] = write_rows(out / f"{name}.csv", header, cur)
+        counts[name] = write_rows(out / f"{name}.csv", header, _kept(header, cur, keep, owner))
     for name, (header, rows) in export_rows(db).items():  # sessions of 3+ options, if any
-        counts[name] = write_rows(out / f"{name}.csv", header, rows)
+        counts[name] = write_rows(out / f"{name}.csv", header,
+                                  _kept(header, rows, keep, owner))
     return counts
+
+
+def _kept(
+    header: Sequence[str], rows: Iterable[Sequence[Any]], keep: WithdrawnFilter,
+    owner: dict[str, str],
+) -> Iterable[Sequence[Any]]:
+    """The rows of the participants `keep` keeps (by `participant`, else by `session`)."""
+    if keep.include or not keep.withdrawn:
+        return rows
+    if "participant" in header:
+        at = header.index("participant")
+        return (r for r in rows if keep.keeps(str(r[at])))
+    at = header.index("session")
+    return (r for r in rows if keep.keeps(owner.get(str(r[at]), "")))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -136,6 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="session database written by nod run; repeat it for one study of several "
                    "rigs' stores (their rows as one; a participant in two is refused)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="directory for CSVs")
+    p.add_argument("--include-withdrawn", action="store_true",
+                   help="export participants who withdrew too (default: left out, and named "
+                   "in one line)")
     return p
 
 
@@ -144,7 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     try:
         with open_stores(args.db) as stores, union_of(stores) as db:
-            counts = export(db, args.out)
+            keep = withdrawn_filter(db, args.include_withdrawn)
+            counts = export(db, args.out, keep)
     except ValueError as exc:
         return fail(PROG, f"error: {exc}")
     except (sqlite3.Error, StoreError) as exc:
@@ -153,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
         return fail(PROG, f"error: cannot write to {args.out}: {exc}")
     for name, n in counts.items():
         print(f"{args.out / (name + '.csv')}: {n} rows")
+    if note := keep.note():
+        print(f"{PROG}: {note}")
     return 0
 
 

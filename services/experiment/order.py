@@ -15,6 +15,7 @@ from services.model.params import NodConfig
 from services.model.protocol import Order, order_of, parse_order, with_order
 from services.store import Store
 from services.store.participants import check_id, order_of_session, reuse_problem
+from services.store.withdrawals import withdrawal_problem
 
 
 def session_config(
@@ -52,9 +53,15 @@ def session_config(
 def participant_problem(
     store: Store, participant: str, again: str | None, resume: str | None
 ) -> str | None:
-    """Why this session may not start (a bad id, a reused one without a reason), or None."""
-    if resume is not None:
-        return None  # the session's own participant, going on
+    """Why this session may not start, or None.
+
+    A bad id, a reused one without a reason, a participant who withdrew (a resumed session too).
+    """
+    if resume is not None:  # the session's own participant, going on, unless they withdrew
+        row = store.db.execute(
+            "SELECT participant FROM sessions WHERE session = ?", (resume,)
+        ).fetchone()
+        return None if row is None else withdrawal_problem(store, str(row[0]))
     if again is not None and not again.strip():
         return "--again needs a reason, e.g. --again 'fire alarm at trial 5'"
     try:
@@ -62,5 +69,5 @@ def participant_problem(
     except ValueError as exc:
         return f"--participant: {exc}"
     if again is not None:
-        return None
+        return withdrawal_problem(store, participant)
     return reuse_problem(store, participant, complete_only=True)

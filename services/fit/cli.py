@@ -1,6 +1,7 @@
 """`nod fit`: each participant's model parameters with 90 % intervals; `nod fit recovery`.
 
-    nod fit --db STUDY.sqlite [--participant P] [--out DIR] [--json]
+    nod fit --db STUDY.sqlite [--participant P] [--min-trials N] [--include-withdrawn]
+            [--out DIR] [--json]
     nod fit recovery --participants N --seed S [--json]
 
 Both train the same estimator on the same reference table (K simulated people of the fitted
@@ -51,6 +52,12 @@ def fit_parser() -> Parser:
                    "none)")
     p.add_argument("--no-store", action="store_true",
                    help="do not write the fit into the database (table fits)")
+    p.add_argument("--min-trials", type=int_in(1, 10_000), default=None, metavar="N",
+                   help="fit any session with at least N scored trials (default: complete "
+                   "sessions only, the inclusion rule of `nod analyze study`)")
+    p.add_argument("--include-withdrawn", action="store_true",
+                   help="fit participants who withdrew too (default: left out, named in one "
+                   "line)")
     _common(p)
     return p
 

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from services.analysis.sessions import InclusionRule
 from services.cohort.person import load_cohort_params
 from services.compute.engine import engine_from_args
 from services.core.config import params_hash
@@ -53,7 +54,11 @@ def method(cfg: NodConfig, k: int) -> str:
 def fit(args: argparse.Namespace) -> int:
     """`nod fit`: every participant (or one), table / JSON, figures, stored in the database."""
     cfg = load_cohort_params(args.params)
-    people, skipped = read_study(args.db, args.participant)
+    study = read_study(args.db, args.participant, InclusionRule(args.min_trials),
+                       args.include_withdrawn)
+    people, skipped = study.people, study.skipped
+    for line in study.notes:
+        _say(f"nod fit: {line}")
     for line in skipped:
         _say(f"nod fit: skipped: {line}")
     if args.out is not None:
@@ -67,7 +72,7 @@ def fit(args: argparse.Namespace) -> int:
     observed = [press_times(s) for s in summaries]
     doc = fit_document(people, estimates, prep.estimator.check, sims, observed, {
         "method": method(cfg, args.table), "seconds": round(time.monotonic() - t0, 1),
-        "skipped": skipped,
+        "skipped": skipped, "left_out": study.notes,
     })
     if not args.no_store:
         _store(args.db, doc)

@@ -1,4 +1,10 @@
-"""A study database read for the fit: each participant's latest session as `TrialPath`s.
+"""A study database read for the fit: each participant's analysed session as `TrialPath`s.
+
+The sessions fitted are the ones `nod analyze study` analyses: its inclusion rule
+(`services.analysis.sessions.select_sessions`: complete sessions only, or with `min_trials`
+those with at least N scored trials; the latest that passes per participant), with withdrawn
+participants left out (`services.store.withdrawals`) unless `include_withdrawn`. Whom each rule
+leaves out is one line (`FitStudy.notes`).
 
 The bad inputs a lab meets end here, each as one `FitInputError` line that says what to do: a
 database with no sessions, a participant with no complete trial, a database whose trials keep
@@ -11,11 +17,13 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from services.analysis.sessions import InclusionRule, select_sessions
 from services.core.config import from_mapping
 from services.model.geometry import Colour, TableLayout
 from services.model.summaries import TrialPath, complete_trials
 from services.store import Sample, Store, TrialRecord, unpack_landmarks
 from services.store.cohorts import refuse_unfinished
+from services.store.withdrawals import INCLUDE_FLAG, withdrawn_filter
 
 
 class FitInputError(ValueError):
@@ -78,12 +86,35 @@ def _layout(config: str) -> TableLayout:
         return TableLayout()
 
 
-def read_study(db: Path, participant: str | None = None) -> tuple[list[Person], list[str]]:
-    """Each participant's latest session with trials; (people, one line per one skipped).
+@dataclass(frozen=True, slots=True)
+class FitStudy:
+    """What `read_study` read: the people to fit, those skipped, and who was left out."""
+
+    people: list[Person]
+    skipped: list[str]  # one line per participant with nothing to fit
+    notes: list[str]  # one line per rule that left participants out (withdrawn, inclusion)
+
+
+def _left_out_line(left: dict[str, str], rule: InclusionRule) -> str | None:
+    """One line naming the participants the inclusion rule left out, and why."""
+    if not left:
+        return None
+    who = ", ".join(f"{p} ({why})" for p, why in sorted(left.items()))
+    more = ("; --min-trials N fits sessions with at least N scored trials"
+            if rule.min_trials is None else "")
+    return f"left out (inclusion rule: {rule.label()}): {who}{more}"
+
+
+def read_study(
+    db: Path, participant: str | None = None, rule: InclusionRule | None = None,
+    include_withdrawn: bool = False,
+) -> FitStudy:
+    """Each participant's session that the inclusion rule lets in (module docstring).
 
     FitInputError for a missing or empty database, a database without hand samples, and a
-    `participant` who is not there or has no complete trial.
+    `participant` who is not there, withdrew, was left out by the rule or has no complete trial.
     """
+    rule = rule or InclusionRule()
     if not db.is_file():
         raise FitInputError(f"no such database: {db}; give the study's --db")
     store = Store(db)
@@ -92,32 +123,47 @@ def read_study(db: Path, participant: str | None = None) -> tuple[list[Person], 
             refuse_unfinished(store, str(db))
         except ValueError as exc:
             raise FitInputError(str(exc)) from None
-        sessions = store.sessions()
+        sessions = {str(s["session"]): s for s in store.sessions()}
         if not sessions:
             raise FitInputError(f"{db} holds no sessions: run the study (or `nod cohort`) first")
-        latest: dict[str, dict[str, object]] = {}
-        for s in sessions:  # oldest first: a later session with trials replaces an earlier one
-            n = store.db.execute("SELECT COUNT(*) FROM trials WHERE session = ?",
-                                 (s["session"],)).fetchone()[0]
-            if n:
-                latest[str(s["participant"])] = s
-        if participant is not None and participant not in latest:
-            known = ", ".join(sorted(latest)[:8]) or "none"
-            raise FitInputError(f"participant {participant!r} has no stored trials in {db} "
-                                f"(participants with trials: {known})")
+        keep = withdrawn_filter(store, include_withdrawn)
+        chosen = select_sessions(store, rule, keep)
+        left = chosen.left_out()
+        if participant is not None:
+            if not keep.keeps(participant):
+                raise FitInputError(f"participant {participant!r} withdrew from the study: not "
+                                    f"fitted ({INCLUDE_FLAG} fits them)")
+            if participant in left:
+                raise FitInputError(
+                    f"participant {participant!r} has no session the inclusion rule "
+                    f"({rule.label()}) lets in: {left[participant]}"
+                    + ("; --min-trials N fits it" if rule.min_trials is None else ""))
+            if participant not in {p.participant for p in chosen.participants}:
+                known = ", ".join(sorted(p.participant for p in chosen.participants)[:8])
+                raise FitInputError(f"participant {participant!r} has no stored trials in {db} "
+                                    f"(participants with trials: {known or 'none'})")
+            left = {}
+        notes = [n for n in (keep.note() if participant is None else None,
+                             _left_out_line(left, rule)) if n]
+        if not chosen.participants:
+            if left:
+                raise FitInputError(f"no session of {db} passes the inclusion rule: "
+                                    f"{_left_out_line(left, rule)}")
+            raise FitInputError(f"{db} holds no sessions with trials to fit"
+                                + (f" ({notes[0]})" if notes else ""))
         (with_hand,) = store.db.execute(
             "SELECT COUNT(*) FROM samples WHERE hand_x IS NOT NULL OR landmarks IS NOT NULL"
         ).fetchone()
-        if latest and not with_hand:
+        if not with_hand:
             raise FitInputError(
                 f"{db} stores no hand samples (landmarks): the fit reads the hand's path; "
                 "record sessions with samples (a cohort: without --no-samples)")
         people: list[Person] = []
         skipped: list[str] = []
-        for who, s in latest.items():
+        for part in chosen.participants:
+            who, session = part.participant, part.session
             if participant is not None and who != participant:
                 continue
-            session = str(s["session"])
             trials = [rec for _, rec in store.trials(session)]
             paths = tuple(trial_path(rec, list(store.samples(session, rec.trial)))
                           for rec in trials)
@@ -129,9 +175,7 @@ def read_study(db: Path, participant: str | None = None) -> tuple[list[Person], 
                 skipped.append(line)
                 continue
             people.append(Person(who, session, paths, tuple(r.outcome for r in trials),
-                                 _layout(str(s["config"]))))
-        if not people and not skipped:
-            raise FitInputError(f"{db} holds sessions but no trials: nothing to fit")
-        return people, skipped
+                                 _layout(str(sessions[session]["config"]))))
+        return FitStudy(people, skipped, notes)
     finally:
         store.close()

@@ -9,6 +9,9 @@ Three things a study needs beyond the trials (tables `participants` and `session
   conductor at the session's start, and why a participant who already had a session got
   another (`--again REASON`);
 - who has sessions already, so a reused participant id is refused.
+
+A participant who withdrew is no refusal of consent but a row of `withdrawals` (the difference,
+and what it does to every reader: `services.store.withdrawals`); their id is never free again.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from services.store.store import Store
+from services.store.withdrawals import withdrawal_problem, withdrawn
 
 ID_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,31}")
 
@@ -139,8 +143,11 @@ def reuse_problem(store: Store, participant: str, complete_only: bool = False) -
 
     A participant with a complete session has done the study; one with a running or aborted
     session is resumed (`nod experiment --resume SESSION`), not started again. `complete_only`:
-    only a complete session counts (what `nod experiment` refuses on its own).
+    only a complete session counts (what `nod experiment` refuses on its own). A participant
+    who withdrew may not run at all (`withdrawal_problem`), `--again` or not.
     """
+    if problem := withdrawal_problem(store, participant):
+        return problem
     sessions = sessions_by_participant(store).get(participant, [])
     if complete_only:
         sessions = [s for s in sessions if s.status == "complete"]
@@ -162,8 +169,12 @@ def reuse_problem(store: Store, participant: str, complete_only: bool = False) -
 
 
 def next_free_ids(store: Store, n: int, prefix: str = "P") -> list[str]:
-    """The first n ids `<prefix>01`, `<prefix>02`, … that have no stored session."""
-    return first_free_ids(set(sessions_by_participant(store)), n, prefix)
+    """The first n ids `<prefix>01`, `<prefix>02`, … with no stored session and no withdrawal.
+
+    A withdrawn participant whose data was deleted has no session left, but their id stays
+    taken: a new person under it would be left out as withdrawn.
+    """
+    return first_free_ids(set(sessions_by_participant(store)) | withdrawn(store), n, prefix)
 
 
 def first_free_ids(taken: set[str], n: int, prefix: str = "P") -> list[str]:

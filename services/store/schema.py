@@ -1,7 +1,8 @@
 """The session store's tables: one SQLite schema, created (IF NOT EXISTS) by every `Store`.
 
 Tables added later are migrated by `Store._migrate`; the N-option and the fit tables have
-modules of their own (`options.py`, `fits.py`).
+modules of their own (`options.py`, `fits.py`); `withdrawals` is read and written by
+`withdrawals.py` (its schema is here, so every store, an older one too, has it once opened).
 """
 
 SCHEMA = """
@@ -128,5 +129,13 @@ CREATE TABLE IF NOT EXISTS session_orders (
     options     TEXT NOT NULL,
     again       TEXT,
     recorded_ns INTEGER NOT NULL
+);
+CREATE TABLE IF NOT EXISTS withdrawals (
+    participant  TEXT PRIMARY KEY,
+    withdrawn_ns INTEGER NOT NULL,
+    reason       TEXT NOT NULL DEFAULT '',
+    deleted      INTEGER NOT NULL DEFAULT 0 CHECK (deleted IN (0, 1)),
+    deleted_ns   INTEGER,
+    counts       TEXT NOT NULL DEFAULT '{}'
 );
 """

@@ -2,6 +2,7 @@
 
     nod study init STUDY.toml --participants 40 [--seed S] [--params FILE]
     nod study consent STUDY.toml --db DB --participant P07 --yes [--age 25-34 --handedness right]
+    nod study withdraw STUDY.toml --db DB --participant P07 [--reason TEXT] [--delete|--keep]
     nod study next STUDY.toml --db DB
     nod study start STUDY.toml --db DB [--participant P07] [--again WHY] [--sim] [-- FLAGS…]
     nod study status STUDY.toml --db DB [--json]
@@ -9,7 +10,10 @@
 `start` runs `nod experiment` (or, with --sim, `nod run --sim`) for the participant with their
 order (`--order`), the study's `--params`, and any FLAGS after `--` (the rig's `--connect`,
 `--rig`, `--clicks` …); it refuses a participant without consent and one who already has a
-session (unless `--again` says why). Every refusal is one line on stderr with exit code 2.
+session (unless `--again` says why). `withdraw` (and `consent --no` for someone who had
+consented or has data) records a withdrawal: they are left out of every export, analysis and fit,
+and with `--delete` (or the study's `on_withdrawal = "delete"`) their data is deleted
+(`services.store.withdrawals`). Every refusal is one line on stderr with exit code 2.
 """
 
 from __future__ import annotations
@@ -31,7 +35,16 @@ from services.core.config import load_params
 from services.core.lifeline import nod_command
 from services.model.protocol import TrialSpec
 from services.store import Store
-from services.store.participants import record_consent, reuse_problem
+from services.store.participants import consent_of, record_consent, reuse_problem
+from services.store.withdrawals import (
+    Deletion,
+    delete_participant,
+    personal_rows,
+    record_withdrawal,
+    recording_files,
+    withdrawal_problem,
+    withdrawals,
+)
 from services.study.roster import Roster, Standing, roster
 from services.study.studyfile import (
     MAX_PARTICIPANTS,
@@ -83,6 +96,16 @@ def build_parser() -> Parser:
     c.add_argument("--age", choices=AGES, default=None, help="age range")
     c.add_argument("--handedness", choices=HANDS, default=None, help="handedness")
     c.add_argument("--notes", default=None, help="free-text notes (keep them non-identifying)")
+    _policy(c, "with --no for someone who had consented or has data: ")
+
+    c = command("withdraw", "a participant withdraws: left out of every export, analysis and "
+                "fit; with --delete their data is deleted")
+    c.add_argument("--participant", required=True, help="the participant's id in the study")
+    c.add_argument("--reason", default="", help="why, optional (keep it non-identifying; not "
+                   "kept if their data is deleted)")
+    _policy(c, "")
+    c.add_argument("--dry-run", action="store_true",
+                   help="print what would be deleted, change nothing")
 
     command("next", "who is next, with their order (exit 1: nobody is left)")
 
@@ -97,6 +120,15 @@ def build_parser() -> Parser:
     c = command("status", "who is done, running, aborted and left")
     c.add_argument("--json", action="store_true", help="print the roster as JSON")
     return p
+
+
+def _policy(c: argparse.ArgumentParser, when: str) -> None:
+    how = c.add_mutually_exclusive_group()
+    how.add_argument("--delete", action="store_true", help=f"{when}delete their sessions, "
+                     "trials, samples, answers, fits, recordings … (default: the study file's "
+                     "on_withdrawal, keep unless it says delete)")
+    how.add_argument("--keep", action="store_true",
+                     help=f"{when}keep their data, left out of exports, analyses and fits")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -121,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "consent":
             return _consent(args, study, store)
+        if args.command == "withdraw":
+            return _withdraw(args, study, store)
         if args.command == "next":
             return _next(args, study, roster(study, store))
         if args.command == "status":
@@ -180,15 +214,86 @@ def _init(args: argparse.Namespace) -> int:
 
 
 def _consent(args: argparse.Namespace, study: Study, store: Store) -> int:
-    if study.entry(args.participant) is None:
-        return fail(f"{PROG} consent", _not_in(study, args.participant))
+    prog, pid = f"{PROG} consent", args.participant
+    if study.entry(pid) is None:
+        return fail(prog, _not_in(study, pid))
+    if args.yes and (args.delete or args.keep):
+        return fail(prog, "--delete and --keep go with --no (a withdrawal)")
+    if args.yes and (problem := withdrawal_problem(store, pid)):
+        return fail(prog, problem)
+    before = consent_of(store, pid)
     demographics = {k: v for k, v in (("age", args.age), ("handedness", args.handedness),
                                       ("notes", args.notes)) if v is not None}
-    record_consent(store, args.participant, bool(args.yes), time.time_ns(), demographics)
-    what = "consent given" if args.yes else "consent refused/withdrawn: no session will start"
+    record_consent(store, pid, bool(args.yes), time.time_ns(), demographics)
     extra = "".join(f"; {k} {v}" for k, v in demographics.items())
-    print(f"{args.participant}: {what} ({_when(time.time_ns())}){extra}")
+    if args.yes:
+        print(f"{pid}: consent given ({_when(time.time_ns())}){extra}")
+        return 0
+    data = set(personal_rows(store, pid)) - {"participants"}  # the row just written aside
+    had = (before is not None and before.consent) or bool(data)
+    if not had:  # nothing given, nothing stored: a refusal, not a withdrawal
+        print(f"{pid}: consent refused: no session will start ({_when(time.time_ns())}){extra}")
+        return 0
+    return _withdraw_now(args, study, store, pid, "consent withdrawn")
+
+
+def _withdraw(args: argparse.Namespace, study: Study, store: Store) -> int:
+    pid = args.participant
+    if study.entry(pid) is None and not personal_rows(store, pid):
+        return fail(f"{PROG} withdraw", _not_in(study, pid))
+    return _withdraw_now(args, study, store, pid, args.reason)
+
+
+def _withdraw_now(
+    args: argparse.Namespace, study: Study, store: Store, pid: str, reason: str
+) -> int:
+    """Record the withdrawal and, by the study's policy or the flags, delete their data."""
+    delete = args.delete or (study.on_withdrawal == "delete" and not args.keep)
+    before = withdrawals(store).get(pid)
+    if getattr(args, "dry_run", False):
+        rows = personal_rows(store, pid)
+        files, shared = recording_files(store, pid)
+        what = ", ".join(f"{n} {t}" for t, n in sorted(rows.items())) or "no rows"
+        act = "would delete" if delete else "would keep (left out of exports, analyses, fits)"
+        print(f"{pid}: {act}: {what}; recording files: "
+              f"{', '.join(map(str, files)) or 'none'}"
+              + (f" (kept, shared: {', '.join(map(str, shared))})" if shared else ""))
+        return 0
+    now = time.time_ns()
+    if before is not None and before.deleted:
+        print(f"{pid}: withdrawn ({_when(before.withdrawn_ns)}), data deleted "
+              f"({_when(before.deleted_ns or before.withdrawn_ns)}): nothing left to do")
+        return 0
+    w = record_withdrawal(store, pid, now, reason)
+    when = f"withdrawn ({_when(w.withdrawn_ns)})" + (f", reason: {w.reason}" if w.reason else "")
+    if not delete:
+        again = " already" if before is not None else ""
+        print(f"{pid}:{again} {when}; data kept, left out of nod export, nod analyze study and "
+              "nod fit (--include-withdrawn keeps them); never started or resumed again")
+        return 0
+    gone = delete_participant(store, pid, now)
+    print(_deleted_line(pid, gone))
+    if gone.failed:
+        print(f"{PROG}: could not delete {len(gone.failed)} recording file(s) of {pid}; "
+              "delete them by hand: " + ", ".join(f"{p} ({why})" for p, why in gone.failed),
+              file=sys.stderr)
+        return 1
     return 0
+
+
+def _deleted_line(pid: str, d: Deletion) -> str:
+    rows = {k: v for k, v in d.withdrawal.counts.items() if k != "recording_files"}
+    what = ", ".join(f"{n} {t}" for t, n in sorted(rows.items())) or "no rows"
+    files = f"{len(d.removed)} recording file(s) deleted"
+    if d.missing:
+        files += f", {len(d.missing)} already gone"
+    if d.kept:
+        files += f", {len(d.kept)} kept (another session's too: {', '.join(map(str, d.kept))})"
+    backup = ("" if d.backup is None else f"; backup {d.backup} rewritten without them"
+              if d.backup_error is None else f"; backup NOT rewritten ({d.backup_error})")
+    return (f"{pid}: withdrawn, data deleted in one transaction: {what}; {files}{backup}; the "
+            "withdrawal stays recorded (id, times, counts); copies made elsewhere are yours to "
+            "delete")
 
 
 def _next(args: argparse.Namespace, study: Study, r: Roster) -> int:
@@ -217,6 +322,8 @@ def _start_command(
         if who is None:
             return f"nobody is left in study {study.name} ({_counts(r)})"
     pid = who.entry.id
+    if problem := withdrawal_problem(store, pid):
+        return problem
     if who.consent is None:
         return (f"{pid} has no consent on record: nod study consent {args.study} --db {args.db} "
                 f"--participant {pid} --yes")
@@ -271,13 +378,13 @@ def _status(args: argparse.Namespace, r: Roster, n_trials: int) -> int:
            if cb.method == "latin-square" else "declared orders")
     print(f"study {study.name}: {len(study.participants)} participants, "
           f"{study.conditions.describe()}, {how}")
-    print(f"{'slot':>4}  {'id':<8} {'consent':<8} {'status':<8} {'trials':>6}  "
+    print(f"{'slot':>4}  {'id':<8} {'consent':<8} {'status':<9} {'trials':>6}  "
           f"{'session':<12}  O")
     for s in r.standings:
         last = s.session
         consent = "—" if s.consent is None else ("yes" if s.consent.consent else "no")
         trials = f"{last.trials}/{n_trials}" if last else ""
-        print(f"{s.entry.slot:>4}  {s.entry.id:<8} {consent:<8} {s.status:<8} {trials:>6}  "
+        print(f"{s.entry.slot:>4}  {s.entry.id:<8} {consent:<8} {s.status:<9} {trials:>6}  "
               f"{last.session if last else '':<12}  {s.entry.letters}{_note(s)}")
     nxt = r.next()
     print(f"{_counts(r)}; next: {nxt.entry.id if nxt else 'nobody'}")
@@ -295,6 +402,9 @@ def _status(args: argparse.Namespace, r: Roster, n_trials: int) -> int:
 def _note(s: Standing) -> str:
     notes = []
     last = s.session
+    if s.withdrawal is not None:
+        data = "data deleted" if s.withdrawal.deleted else "data kept, left out"
+        notes.append(f"withdrew {_when(s.withdrawal.withdrawn_ns)}, {data}")
     if s.status in ("running", "aborted") and last is not None:
         notes.append(f"resume: nod experiment --resume {last.session}, or nod run --sim "
                      f"--resume {last.session} if simulated")
@@ -313,7 +423,7 @@ def _describe(study: Study, s: Standing) -> str:
 
 
 def _counts(r: Roster) -> str:
-    return ", ".join(f"{n} {k}" for k, n in r.counts().items())
+    return ", ".join(f"{n} {k}" for k, n in r.counts().items() if n or k != "withdrawn")
 
 
 def _not_in(study: Study, participant: str) -> str:

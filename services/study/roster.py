@@ -3,7 +3,9 @@
 A participant is *done* with a complete session, *running* with a session that has not ended
 (a conductor at work, or one that crashed: `nod experiment --resume SESSION`), *aborted* when
 their only sessions were stopped before the end, and *left* with none. The next participant is
-the first one left, by slot, who has not refused consent.
+the first one left, by slot, who has not refused consent. A participant who withdrew
+(`services.store.withdrawals`) is *withdrawn*, whatever their sessions: never next, never
+resumed.
 """
 
 from __future__ import annotations
@@ -19,23 +21,27 @@ from services.store.participants import (
     consents,
     sessions_by_participant,
 )
+from services.store.withdrawals import Withdrawal, withdrawals
 from services.study.studyfile import Entry, Study
 
-Status: TypeAlias = Literal["done", "running", "aborted", "left"]
-STATUSES: tuple[Status, ...] = ("done", "running", "aborted", "left")
+Status: TypeAlias = Literal["done", "running", "aborted", "left", "withdrawn"]
+STATUSES: tuple[Status, ...] = ("done", "running", "aborted", "left", "withdrawn")
 
 
 @dataclass(frozen=True, slots=True)
 class Standing:
-    """One participant: their entry, sessions (oldest first) and consent."""
+    """One participant: their entry, sessions (oldest first), consent and withdrawal."""
 
     entry: Entry
     sessions: tuple[SessionSummary, ...]
     consent: Consent | None
+    withdrawal: Withdrawal | None = None
 
     @property
     def status(self) -> Status:
-        """done, running, aborted or left (the module's docstring)."""
+        """done, running, aborted, left or withdrawn (the module's docstring)."""
+        if self.withdrawal is not None:
+            return "withdrawn"
         kinds = {s.status for s in self.sessions}
         if "complete" in kinds:
             return "done"
@@ -101,6 +107,12 @@ class Roster:
                     "status": s.status,
                     "consent": None if s.consent is None else s.consent.consent,
                     "demographics": {} if s.consent is None else s.consent.demographics,
+                    "withdrawn": None if s.withdrawal is None else {
+                        "withdrawn_ns": s.withdrawal.withdrawn_ns,
+                        "reason": s.withdrawal.reason,
+                        "deleted": s.withdrawal.deleted,
+                        "counts": s.withdrawal.counts,
+                    },
                     "sessions": [
                         {
                             "session": x.session,
@@ -122,8 +134,10 @@ def roster(study: Study, store: Store) -> Roster:
     """The study's participants with their sessions and consent from the store."""
     sessions = sessions_by_participant(store)
     consent = consents(store)
+    gone = withdrawals(store)
     standings = tuple(
-        Standing(e, tuple(sessions.get(e.id, [])), consent.get(e.id)) for e in study.participants
+        Standing(e, tuple(sessions.get(e.id, [])), consent.get(e.id), gone.get(e.id))
+        for e in study.participants
     )
     ids = {e.id for e in study.participants}
     strangers = {p: len(v) for p, v in sessions.items() if p not in ids}

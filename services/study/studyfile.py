@@ -3,6 +3,7 @@
     [study]
     name = "gaze-consensus"
     params = "params.toml"        # optional: the protocol every session runs (relative path)
+    on_withdrawal = "keep"        # or "delete": what `nod study withdraw` does with their data
 
     [conditions]                  # the protocol's design, checked against `params` at start
     control = [1, 2, 3]           # dissensus trials: neutral gaze, b_r = 0
@@ -23,6 +24,11 @@
 `nod study init` writes it (`services.model.counterbalance` makes the orders); an operator may
 edit ids, and orders with `method = "declared"`. `load` refuses a file whose orders do not fit
 its conditions or, for a Latin square, are not its blocks, in one line naming the entry.
+
+`on_withdrawal` is what the study's consent form promised a participant who withdraws: "keep"
+(the default) keeps their data, left out of every export, analysis and fit; "delete" deletes
+it (`services.store.withdrawals.delete_participant`). `nod study withdraw --keep/--delete`
+overrides it for one person.
 """
 
 from __future__ import annotations
@@ -42,6 +48,8 @@ from services.store.participants import check_id
 
 Method: TypeAlias = Literal["latin-square", "declared"]
 METHODS: tuple[Method, Method] = ("latin-square", "declared")
+OnWithdrawal: TypeAlias = Literal["keep", "delete"]
+ON_WITHDRAWAL: tuple[OnWithdrawal, OnWithdrawal] = ("keep", "delete")
 MAX_PARTICIPANTS = 10_000
 
 
@@ -111,6 +119,7 @@ class Study:
     conditions: Conditions
     counterbalance: Counterbalance
     participants: tuple[Entry, ...]
+    on_withdrawal: OnWithdrawal = "keep"  # what a withdrawal does with their data
 
     def __post_init__(self) -> None:
         check(self)
@@ -125,6 +134,10 @@ def check(study: Study) -> None:
     c = study.conditions
     if not study.name.strip():
         raise StudyError("[study] name is empty")
+    if study.on_withdrawal not in ON_WITHDRAWAL:
+        raise StudyError(
+            f"[study] on_withdrawal must be one of {ON_WITHDRAWAL}, got {study.on_withdrawal!r}"
+        )
     if sorted(c.control + c.consensus) != list(range(1, len(c.control) + len(c.consensus) + 1)):
         raise StudyError(
             f"[conditions] control {list(c.control)} and consensus {list(c.consensus)} must "
@@ -252,6 +265,7 @@ def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
             seed,
         ),
         participants=tuple(entries),
+        on_withdrawal=cast(OnWithdrawal, study.get("on_withdrawal", "keep")),
     )
     if block is not None and block != out.counterbalance.block:
         raise StudyError(
@@ -274,6 +288,8 @@ def dump(study: Study, path: Path) -> str:
     if study.params is not None:
         rel = os.path.relpath(study.params.resolve(), path.resolve().parent)
         lines.append(f"params = {_q(Path(rel).as_posix())}")
+    lines.append(f"on_withdrawal = {_q(study.on_withdrawal)}  # keep or delete a withdrawn "
+                 "participant's data")
     lines += [
         "",
         "[conditions]",

@@ -44,7 +44,7 @@ def test_a_store_without_landmarks_is_one_line(tmp_path, capsys):
     for k in (1, 2):
         store.write_trial("s1", _record(k), [])  # trials, but no hand sample kept
     store.close()
-    assert main(["--db", str(db)]) == 2
+    assert main(["--db", str(db), "--min-trials", "1"]) == 2  # a running session: let it in
     assert "stores no hand samples (landmarks)" in _one_line(capsys)
 
 
@@ -52,16 +52,21 @@ def test_a_participant_with_no_complete_trial_is_one_line(tmp_path, capsys):
     db = tmp_path / "broken.sqlite"
     store = Store(db)
     store.begin_session("s1", "P01", "rig1", 1, 0, {})
-    store.write_trial("s1", _record(1, interrupted=True), [])
+    store.write_trial("s1", _record(1), [])  # scored, but no hand sample: nothing to read
+    store.write_trial("s1", _record(2, interrupted=True), [])
     store.begin_session("s2", "P02", "rig1", 2, 1, {})
     hand = [Sample(10**9 + i * 33_000_000, True, 0.5, 0.85 - 0.01 * i, None, None, None,
                    None, None) for i in range(30)]
     store.write_trial("s2", _record(1), hand)
     store.close()
-    assert main(["--db", str(db), "--participant", "P01"]) == 2
+    assert main(["--db", str(db), "--participant", "P01"]) == 2  # running: not let in
+    line = _one_line(capsys)
+    assert "'P01' has no session the inclusion rule (complete sessions only) lets in" in line
+    assert "running (crashed?) after 2 of 8 trials; --min-trials N fits it" in line
+    assert main(["--db", str(db), "--participant", "P01", "--min-trials", "1"]) == 2
     line = _one_line(capsys)
     assert "'P01'" in line and "no complete trial" in line
-    assert main(["--db", str(db), "--participant", "P09"]) == 2
+    assert main(["--db", str(db), "--participant", "P09", "--min-trials", "1"]) == 2
     assert "'P09' has no stored trials" in _one_line(capsys)
 
 

@@ -29,8 +29,9 @@ def test_a_stored_cohort_reads_as_its_simulated_sessions(tmp_path):
     assert cohort.main(["--participants", "2", "--seed", str(seed), "--db", str(db),
                         "--quiet", "--workers", "1"]) == 0
     cfg = load_cohort_params(None)
-    people, skipped = read_study(db)
-    assert not skipped and [p.participant for p in people] == ["P001", "P002"]
+    study = read_study(db)
+    people, skipped = study.people, study.skipped
+    assert not skipped and not study.notes and [p.participant for p in people] == ["P001", "P002"]
     for i, person in enumerate(people):
         offline = run_offline_session(cfg, seed + i, cohort=True, record=True)
         stored = summarise(person.paths, person.layout)

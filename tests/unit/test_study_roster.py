@@ -65,7 +65,7 @@ def test_each_participant_is_done_running_aborted_or_left(study_db):
     study, store = load(path), Store(db)
     r = roster(study, store)
     assert [s.status for s in r.standings] == ["done", "aborted", "running", "left", "left", "left"]
-    assert r.counts() == {"done": 1, "running": 1, "aborted": 1, "left": 3}
+    assert r.counts() == {"done": 1, "running": 1, "aborted": 1, "left": 3, "withdrawn": 0}
     assert [s.session.trials for s in r.standings[:3]] == [8, 4, 2]
     assert r.next().entry.id == "P04"
     assert r.strangers == {"PILOT": 1}
@@ -97,7 +97,11 @@ def test_consent_is_stored_with_demographics_and_start_refuses_without_it(study_
     assert cli.main(["consent", str(path), "--db", str(db), "--participant", "P04", "--no"]) == 0
     capsys.readouterr()
     assert cli.main(["start", str(path), "--db", str(db), "--participant", "P04"]) == 2
-    assert "P04 refused or withdrew consent" in _one_line_error(capsys)
+    assert "P04 withdrew from the study" in _one_line_error(capsys)  # had consented: withdrawn
+    assert cli.main(["consent", str(path), "--db", str(db), "--participant", "P05", "--no"]) == 0
+    assert "P05: consent refused" in capsys.readouterr().out  # never consented: a refusal
+    assert cli.main(["start", str(path), "--db", str(db), "--participant", "P05"]) == 2
+    assert "P05 refused or withdrew consent" in _one_line_error(capsys)
     assert cli.main(["consent", str(path), "--db", str(db), "--participant", "P99", "--yes"]) == 2
     assert "'P99' is not in study pilot" in _one_line_error(capsys)
 
