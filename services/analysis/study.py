@@ -30,6 +30,10 @@ Units and rules:
   of fit (scipy.stats.chisquare) of Q3's Yes/No/Maybe counts against uniform, with Cohen's
   w = √(χ²/n) and Cramér's V = √(χ²/(n(k − 1))), k = 3. The answers of a participant whose
   every session is excluded are left out too (listed in `questionnaire_excluded`).
+- Small samples (services.analysis.exact): every test says whether its approximation holds
+  (`approximation_ok`: ≥ 10 discordant pairs per df, expected counts ≥ 5, n ≥ 5) and, where it
+  does not, gives an exact p (`p_exact`: conditional Stuart-Maxwell, multinomial, sign-flip)
+  and a `caveat` the report prints beside the p. The correction still adjusts the χ² p's.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from services.analysis.exact import goodness_of_fit_small, stuart_maxwell_small, t_test_small
 from services.analysis.multiplicity import Correction, adjust
 from services.analysis.sessions import (
     OUTCOMES,
@@ -90,6 +95,7 @@ def stuart_maxwell_doc(table: np.ndarray | Sequence[Sequence[int]]) -> dict[str,
         p=result.p,
         categories_kept=[OUTCOMES[i] for i in result.kept],
     )
+    doc.update(stuart_maxwell_small(table, result.kept, result.df))  # honest about few pairs
     return doc
 
 
@@ -114,6 +120,7 @@ def likert_test(values: Sequence[int], midpoint: float = LIKERT_MIDPOINT) -> dic
         p=float(res.pvalue),
         cohens_d=(mean - midpoint) / sd,
     )
+    doc.update(t_test_small(x.tolist(), midpoint))
     return doc
 
 
@@ -142,6 +149,7 @@ def q3_test(answers: Sequence[str]) -> dict[str, Any]:
         cohens_w=math.sqrt(chi2 / n),
         cramers_v=math.sqrt(chi2 / (n * (k - 1))),
     )
+    doc.update(goodness_of_fit_small(observed))
     return doc
 
 

@@ -33,8 +33,13 @@ def _sm_short(t: Mapping[str, Any], correction: Correction) -> str:
     )
     return (
         f"X² = {t['statistic']:.3f}, df = {t['df']}, p = {_num(t['p'], 3)}{adjusted} "
-        f"(n = {t['n']})"
+        f"(n = {t['n']}){_caveat(t)}"
     )
+
+
+def _caveat(t: Mapping[str, Any]) -> str:
+    """A test's small-sample caveat, as said beside its p ("" when its approximation holds)."""
+    return f" — {t['caveat']}" if t.get("caveat") else ""
 
 
 def _correction_line(doc: Mapping[str, Any]) -> str:
@@ -126,7 +131,7 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
                     _num(t["p"]),
                     _num(t["p_adjusted"]),
                     " ".join(t["categories_kept"]),
-                    "",
+                    t.get("caveat", ""),
                 ]
             )
     adjusted = f"p ({NAMES[doc['correction']]})"
@@ -148,7 +153,7 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
                 str(t.get("df", "–")),
                 _num(t.get("p")),
                 _num(t.get("cohens_d")),
-                t.get("error", ""),
+                t.get("error", t.get("caveat", "")),
             ]
         )
     md += _table(
@@ -163,7 +168,7 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
             q3["error"]
             if "error" in q3
             else f"χ² = {q3['chi2']:.4f}, df = {q3['df']}, p = {_num(q3['p'])}, Cohen's w = "
-            f"{q3['cohens_w']:.4f}, Cramér's V = {q3['cramers_v']:.4f}"
+            f"{q3['cohens_w']:.4f}, Cramér's V = {q3['cramers_v']:.4f}{_caveat(q3)}"
         ),
     ]
     if doc["sessions_without_questionnaire"]:
@@ -236,7 +241,7 @@ def summary(doc: Mapping[str, Any]) -> str:
                 t["error"]
                 if "error" in t
                 else f"mean {t['mean']:.2f}, t = {t['t']:.3f}, p = {_num(t['p'], 3)}, "
-                f"d = {t['cohens_d']:.3f}"
+                f"d = {t['cohens_d']:.3f}{_caveat(t)}"
             )
         )
     q3 = q["q3"]
@@ -246,6 +251,7 @@ def summary(doc: Mapping[str, Any]) -> str:
             q3["error"]
             if "error" in q3
             else f"χ² = {q3['chi2']:.3f}, p = {_num(q3['p'], 3)}, w = {q3['cohens_w']:.3f}"
+            f"{_caveat(q3)}"
         )
     )
     return "\n".join(lines)
