@@ -3,7 +3,8 @@
 `next` starts the trial that waits for the operator (`[protocol] gate = true`, or after a
 pause) and waits until the conductor announces its setup; `pause` holds the next trial until a
 `next`. Each command is sent once, reliably, when the conductor listens: a repeat could start
-the trial after the one meant.
+the trial after the one meant. `--rig-file RIG.toml` takes the rig, its router (or, under
+rig.tls, the control station's identity) from the rig file, as `nod experiment` does.
 """
 
 from __future__ import annotations
@@ -14,10 +15,12 @@ import socket
 import sys
 import threading
 import time
+from pathlib import Path
 
 from services.core import messages as m
 from services.core.cli import Parser, fail, int_in, positive_float
 from services.core.node import Node
+from services.core.rigfile import CONTROL, Host, RigFileError, load_rig, session_flags
 from services.core.session import Fabric, add_zenoh_args
 
 PROG = "nod experiment"
@@ -31,6 +34,8 @@ def build_parser(action: str) -> argparse.ArgumentParser:
     }[action]
     p = Parser(prog=f"{PROG} {action}", description=what)
     add_zenoh_args(p)
+    p.add_argument("--rig-file", type=Path, default=None, metavar="RIG.toml",
+                   help="take the rig name and its router (or identity) from a rig file")
     if action == "next":
         p.add_argument("--trial", type=int_in(0, 10_000), default=0,
                        help="the trial to start (default 0: whichever waits)")
@@ -39,11 +44,28 @@ def build_parser(action: str) -> argparse.ArgumentParser:
     return p
 
 
+def rig_file_flags(path: Path, explicit: bool = False) -> list[str]:
+    """The session flags a rig file gives the operator's command (RigFileError if bad).
+
+    The control station's, as the conductor's (`session_flags`): under rig.tls its identity,
+    which may publish experiment/operator. They go before the command line's own, so a flag
+    given there wins; an explicit `--connect` or `--config` replaces the rig file's way in.
+    """
+    flags = session_flags(load_rig(path), Host(CONTROL, ()), service="operator")
+    return flags[2:] if explicit else flags  # ["--connect" | "--config", X, "--rig", RIG]
+
+
 def main(argv: list[str]) -> int:
     """Send one operator command; 0 when the conductor took it, 1 when it did not in time."""
     action = argv[0]
     args = build_parser(action).parse_args(argv[1:])
     prog = f"{PROG} {action}"
+    if args.rig_file is not None:
+        try:
+            flags = rig_file_flags(args.rig_file, explicit=bool(args.connect or args.config))
+        except RigFileError as exc:
+            return fail(prog, exc)
+        args = build_parser(action).parse_args([*flags, *argv[1:]])
     try:
         node = Node("operator", Fabric.from_args(args))
     except (ConnectionError, OSError, ValueError) as exc:

@@ -104,6 +104,9 @@ def test_nod_run_says_when_a_trial_waits_for_the_operator(tmp_path):
     params.write_text(SHORT.replace("[[protocol.trials]]", "[protocol]\ngate = true\n\n"
                                     "[[protocol.trials]]", 1))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rig = tmp_path / "rig.toml"
+    rig.write_text(f'[rig]\nname = "rig1"\nrouter = "{endpoint}"\n[hosts.here]\nrouter = true\n'
+                   'services = ["decision", "actuation", "eyes", "vision"]\n')
     run = subprocess.Popen(
         [sys.executable, "-m", "services.cli", "run", "--sim", "--speed", "4", "--params",
          str(params), "--listen", endpoint, "--stale-ms", "2000", "--db",
@@ -120,7 +123,12 @@ def test_nod_run_says_when_a_trial_waits_for_the_operator(tmp_path):
                                          for ln in lines), 90, f"nod run saying trial {trial}")
             said = next(ln for ln in lines if f"trial {trial} ready" in ln)
             assert f"(here: nod experiment next --connect {endpoint})" in said, said
-            _operator(endpoint, "next")
+            if trial == 2:  # the rig file's way in: its rig and router
+                res = run_nod("experiment", "next", "--rig-file", str(rig), "--timeout", "30",
+                              timeout=60)
+                assert res.returncode == 0, res.stdout + res.stderr
+            else:
+                _operator(endpoint, "next")
         assert run.wait(120) == 0, "".join(lines)[-3000:]
     finally:
         stop_all([run])

@@ -186,3 +186,15 @@ def test_a_rig_may_place_the_lsl_outlet(tmp_path: Path) -> None:
     assert command(rig, "lsl")[-1] == "-v" and "lsl" not in rig.required
     with pytest.raises(RigFileError, match="lsl.rate"):
         load_rig(write(tmp_path, text + "[lsl]\nrate = 100\n"))
+
+
+def test_nod_experiment_next_takes_the_rig_file(tmp_path: Path) -> None:
+    """`nod experiment next --rig-file`: the rig and its router, or the control's identity."""
+    from services.tools import operator
+
+    path = write(tmp_path, GOOD)
+    assert operator.rig_file_flags(path) == ["--connect", "tcp/10.0.0.1:7447", "--rig", "lab2"]
+    assert operator.rig_file_flags(path, explicit=True) == ["--rig", "lab2"]
+    tls = write(tmp_path, GOOD.replace('params = "p.toml"', 'tls = "/etc/nod/tls"'))
+    assert operator.rig_file_flags(tls)[:2] == ["--config", "/etc/nod/tls/control/zenoh.json5"]
+    assert operator.build_parser("next").parse_args(["--rig-file", str(path)]).rig_file == path
