@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
+
+from services.core.text import one_line
+
+__all__ = ["one_line"]  # re-exported: the commands take it from here with the other helpers
 
 
 class Parser(argparse.ArgumentParser):
@@ -17,15 +20,6 @@ class Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         """Print `prog: error: message` on one line and exit 2."""
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
-
-
-def one_line(text: str, limit: int | None = 300) -> str:
-    """An error for one line of stderr: whitespace folded, zenoh's Rust locations gone, cut short.
-
-    `limit` characters at most (None: the whole text).
-    """
-    text = re.sub(r"\s*\bat \S+\.rs:\d+\.?", "", " ".join(text.split()))
-    return text if limit is None or len(text) <= limit else text[:limit] + "…"
 
 
 def fail(prog: str, message: object) -> int:

@@ -26,10 +26,10 @@ from typing import Any, Literal
 
 import zenoh
 
-from services.core.cli import one_line
 from services.core.clock import Clock
 from services.core.keys import check_rig
 from services.core.limits import low_pass_filters
+from services.core.text import one_line
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 # The transport refuses larger messages (zenoh's default is 1 GiB): no message of the rig comes

@@ -36,7 +36,7 @@ from services.lab.acl import (
     rig_router_acl,
 )
 from services.lab.certs import write_ca, write_cert
-from services.lab.secure import _common, _json5, _write_identity
+from services.lab.configs import common_config, json5_text, write_identity
 
 Address = tuple[str, int]  # a router's host and TLS port
 
@@ -107,7 +107,7 @@ def _router(listen: str, tls: dict, access: dict, connect: str | None = None) ->
         "mode": "router",
         "listen": {"endpoints": [listen]},
         **({"connect": {"endpoints": [connect]}} if connect else {}),
-        **_common(tls),
+        **common_config(tls),
         "access_control": access,
     }
     # The routers are named in each other's configs: nothing to discover, nobody to tell.
@@ -135,13 +135,13 @@ def secure_per_rig(
     out.mkdir(parents=True, exist_ok=True)
     ca_key, ca, written = write_ca(out, days)
     for ident in lab_identities(roles, rigs)[-2:]:
-        written += _write_identity(out, install_dir, ident, lab_host, lab_port, ca_key, ca, days)
+        written += write_identity(out, install_dir, ident, lab_host, lab_port, ca_key, ca, days)
     lab = f"tls/{lab_host}:{lab_port}"
     for rig in rigs:
         host, port = rig_routers[rig]
         own = [f(r, rig, True) for r in roles for f in (host_identity, launcher_identity)]
         for ident in [*own, monitor_identity(rig, True)]:
-            written += _write_identity(out, install_dir, ident, host, port, ca_key, ca, days)
+            written += write_identity(out, install_dir, ident, host, port, ca_key, ca, days)
         doc = _router(
             f"tls/{host}:{port}",
             _router_tls(install_dir / rig / ROUTER),
@@ -184,7 +184,7 @@ def _write_router(
 ) -> list[Path]:
     """A router's certificate (naming its address) and config, in its folder."""
     written = write_cert(folder, name, host, ca_key, ca, days)
-    (folder / "router.json5").write_text(_json5(doc, what))
+    (folder / "router.json5").write_text(json5_text(doc, what))
     return [*written, folder / "router.json5"]
 
 
