@@ -239,6 +239,13 @@ class Store:
         """Close the database (checkpointing the WAL)."""
         self.db.close()
 
+    def __enter__(self) -> Store:
+        """`with Store(path) as store:` closes it however the block ends."""
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def backup(self) -> Path:
         """Copy the store as it is now to `<db>.backup` (the last one only); its path.
 
