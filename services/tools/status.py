@@ -14,6 +14,7 @@ Ctrl-C.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 import threading
@@ -277,13 +278,25 @@ def main(argv: list[str] | None = None) -> int:
         session.close()
 
 
-def _print(doc: dict[str, Any], as_json: bool) -> None:
+def _print(doc: dict[str, Any], as_json: bool, out: Any = None) -> None:
+    out = out if out is not None else sys.stdout
     if as_json:
-        print(json.dumps(doc), flush=True)
+        print(json.dumps(doc), file=out, flush=True)
         return
     from rich.console import Console
+    from rich.measure import Measurement
 
-    Console().print(render(doc))
+    view = render(doc)
+    if out.isatty():  # the terminal's width
+        Console(file=out).print(view)
+        return
+    # Piped (a log, grep, a ticket): no name cut at 80 columns; as wide as the widest row.
+    wide = Console(file=out, width=10_000)
+    width = Measurement.get(wide, wide.options, view).maximum
+    text = io.StringIO()
+    Console(file=text, width=max(40, width), no_color=True).print(view)
+    out.write("".join(line.rstrip() + "\n" for line in text.getvalue().splitlines()))
+    out.flush()
 
 
 if __name__ == "__main__":
