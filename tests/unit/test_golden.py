@@ -70,17 +70,3 @@ def test_a_store_written_by_todays_code_opens_and_reads(tmp_path):
     assert session["status"] == "complete" and [t.trial for t in trials] == [1, 2, 3]
     assert [t.outcome for t in trials] == ["D", "C", "C"]
 
-
-def test_a_store_is_a_context_manager(tmp_path):
-    import sqlite3
-
-    from services.store import Store
-
-    with Store(tmp_path / "s.sqlite") as store:
-        assert store.sessions() == []
-    try:
-        store.sessions()
-    except sqlite3.ProgrammingError:
-        pass  # closed when the block ended
-    else:
-        raise AssertionError("the store stayed open after its with block")

@@ -262,3 +262,18 @@ def test_a_refused_resume_changes_nothing(two_rigs: Path, capsys, command: str, 
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and says in err[0], err
     assert digest(two_rigs) == before  # the sessions' rig, status and finish time as they were
+
+
+def test_a_store_is_a_context_manager(tmp_path):
+    import sqlite3
+
+    from services.store import Store
+
+    with Store(tmp_path / "s.sqlite") as store:
+        assert store.sessions() == []
+    try:
+        store.sessions()
+    except sqlite3.ProgrammingError:
+        pass  # closed when the block ended
+    else:
+        raise AssertionError("the store stayed open after its with block")
