@@ -128,6 +128,34 @@ def router_listens(config: Path) -> str:
         return f"(as {config} says)"
 
 
+def router_line(rig: Rig, with_router: bool, endpoint: str, listen: str | None = None) -> str:
+    """Which router this start runs or reaches, in one line (`--dry-run` prints it first)."""
+    if not with_router:
+        owner = next((h.name for h in rig.hosts.values() if h.router), "the router's host")
+        return f"router: at {endpoint} (run by {owner}, not here)"
+    if rig.tls is not None and listen is None:
+        config = router_config(rig.tls)
+        return f"router: in this process, mutual TLS as {config}, on {router_listens(config)}"
+    return f"router: in this process, listening on {endpoint}"
+
+
+def sim_swaps(rig: Rig, services: list[str]) -> str | None:
+    """What `--sim-hardware` replaces here, in one line (None: nothing the rig file names).
+
+    Every device becomes its simulation, the camera the sim participant — and a speaker that
+    writes WAV files (`driver = "wav"`) goes silent too, which nobody would guess.
+    """
+    swaps = []
+    for service in services:
+        sec = rig.sections.get(service, {})
+        if service in ("actuation", "eyes", "speaker") and sec.get("driver", "sim") != "sim":
+            what = " (no WAV written)" if sec["driver"] == "wav" else ""
+            swaps.append(f"{service} driver {sec['driver']!r} runs as 'sim'{what}")
+        elif service == "vision":
+            swaps.append("vision runs as the sim participant")
+    return "--sim-hardware: " + "; ".join(swaps) if swaps else None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Start, supervise, stop."""
     args = build_parser().parse_args(argv)
@@ -168,7 +196,11 @@ def main(argv: list[str] | None = None) -> int:
     commands = {
         s: command(rig, s, sim_hardware=args.sim_hardware, connect=endpoint) for s in services
     }
+    swapped = sim_swaps(rig, services) if args.sim_hardware else None
+    if swapped:
+        print(swapped, flush=True)
     if args.dry_run:
+        print(router_line(rig, with_router, endpoint, args.listen), flush=True)
         for s, cmd in commands.items():
             print(f"{s}: {' '.join(cmd)}", flush=True)
         found = problems(

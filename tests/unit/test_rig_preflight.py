@@ -255,3 +255,17 @@ def test_the_display_needs_an_address_it_can_serve_on(rig: Path, capsys) -> None
     rig.write_text(text + '[display]\nhttp = "192.0.2.1:8090"\n')  # not an address of this host
     code, lines = dry_run(rig, capsys)
     assert code == 2 and lines[0].startswith("nod up: display.http: cannot serve on 192.0.2.1")
+
+
+def test_the_dry_run_names_the_router_and_what_sim_hardware_replaces(rig: Path, capsys) -> None:
+    assert up.main([str(rig), "--dry-run"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "router: in this process, listening on tcp/127.0.0.1:7447" in out
+    assert up.main([str(rig), "--dry-run", "--host", "arm"]) == 0
+    assert "router: at tcp/127.0.0.1:7447 (run by control, not here)" in capsys.readouterr().out
+    _edit(rig, "[eyes]", '[speaker]\ndriver = "wav"\nout = "cues"\n[eyes]')
+    _edit(rig, 'services = ["monitor"]', 'services = ["monitor", "speaker"]')
+    assert up.main([str(rig), "--dry-run", "--sim-hardware"]) == 0
+    said = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("--sim-hardware")]
+    assert len(said) == 1 and "speaker driver 'wav' runs as 'sim' (no WAV written)" in said[0]
+    assert "actuation driver 'feetech' runs as 'sim'" in said[0]
