@@ -168,3 +168,41 @@ def test_the_page_shows_countdown_go_and_points_and_waits_when_the_conductor_is_
     display.terminate()
     assert display.wait(10) == 0, display.log_path.read_text()[-2000:]
     expect("wait", "Please wait")
+
+
+def test_the_page_says_thank_you_at_the_end_and_keeps_it_when_the_rig_stops(
+    router, client, spawn, browser
+):
+    # The audit: the participant's page ended on "Please wait", not the "Thank you" the docs
+    # promise: `nod run` stops the display with the rest of the rig, and the page took the lost
+    # stream for "not sure what is true". The end of a session stays true.
+    display = spawn("display", "--http", "127.0.0.1:0")
+    url = wait_for(lambda: _served_url(display) or (display.poll() is not None and "exited"),
+                   30, "the display's URL in its log")
+    assert url != "exited", display.log_path.read_text()[-2000:]
+    conductor = Conductor(client)
+    conductor.alive(True)
+    wait_for(lambda: "the conductor is up" in display.log_path.read_text(), 30,
+             "the display seeing the conductor")
+    browser.get(url)
+
+    def screen() -> tuple[str, str, str]:
+        kind, big, small = browser.execute_script(
+            "return [document.body.dataset.screen, document.getElementById('big').innerText,"
+            " document.getElementById('small').innerText];")
+        return kind or "", big, small
+
+    conductor.event("setup", 1)
+    wait_for(lambda: screen()[:2] == ("ready", "Get ready"), 10, f"get ready, not {screen()}")
+    conductor.event("go", 1, text="go")
+    conductor.event("end", 1)
+    conductor.result(1, 2)
+    wait_for(lambda: screen()[0] == "score", 10, f"the points, not {screen()}")
+    conductor.event("session_end", 1, text="complete")
+    wait_for(lambda: screen() == ("done", "Thank you", "Total: +2 points"), 10,
+             f"thank you, not {screen()}")
+    conductor.alive(False)  # the conductor exits
+    display.terminate()  # and the rig stops
+    assert display.wait(10) == 0, display.log_path.read_text()[-2000:]
+    time.sleep(4.0)  # a negative check: past the page's 3 s staleness bound, the stream gone
+    assert screen() == ("done", "Thank you", "Total: +2 points"), screen()

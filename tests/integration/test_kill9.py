@@ -147,7 +147,7 @@ def test_kill9_of_the_conductor_loses_nothing_and_the_session_resumes(
                 done = [t for _, t in store.trials(session)]
                 assert [t.trial for t in done] == list(range(1, len(done) + 1))
                 assert all(t.robot is not None for t in done)  # completed trials are whole
-                assert session in dict(store.interrupted_sessions())
+                assert session in dict(store.interrupted_sessions()), store.sessions()
             finally:
                 store.close()
             # A trial under way: the arm must stop without its conductor, and never press.
