@@ -4,7 +4,7 @@ One row per participant and identifiable parameter: the estimate and its interva
 it was fitted from, the method and when. A parameter that the recovery check did not pass is
 not stored: an estimate that the data cannot pin down is no finding to export. Fitting a
 participant again replaces their rows. The table is created with the others
-(`FITS_SCHEMA`, part of every store's schema: an older file gets it when opened).
+(`services.store.schema.FITS_SCHEMA`: an older file gets it when opened).
 """
 
 from __future__ import annotations
@@ -13,23 +13,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:  # store.py runs FITS_SCHEMA at open, so it imports this module
+if TYPE_CHECKING:
     from services.store.store import Store
 
-FITS_SCHEMA = """
-CREATE TABLE IF NOT EXISTS fits (
-    participant TEXT NOT NULL,
-    session     TEXT NOT NULL,
-    parameter   TEXT NOT NULL,
-    estimate    REAL NOT NULL,
-    low         REAL NOT NULL,
-    high        REAL NOT NULL,
-    level       REAL NOT NULL,
-    method      TEXT NOT NULL,
-    fitted_ns   INTEGER NOT NULL,
-    PRIMARY KEY (participant, parameter)
-);
-"""
 
 
 @dataclass(frozen=True, slots=True)

@@ -139,3 +139,19 @@ CREATE TABLE IF NOT EXISTS withdrawals (
     counts       TEXT NOT NULL DEFAULT '{}'
 );
 """
+
+# Per-participant model fits (`nod fit`, services/store/fits.py).
+FITS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS fits (
+    participant TEXT NOT NULL,
+    session     TEXT NOT NULL,
+    parameter   TEXT NOT NULL,
+    estimate    REAL NOT NULL,
+    low         REAL NOT NULL,
+    high        REAL NOT NULL,
+    level       REAL NOT NULL,
+    method      TEXT NOT NULL,
+    fitted_ns   INTEGER NOT NULL,
+    PRIMARY KEY (participant, parameter)
+);
+"""

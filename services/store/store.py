@@ -35,7 +35,6 @@ from pathlib import Path
 from typing import Any
 
 from services.model.scoring import trial_points
-from services.store.fits import FITS_SCHEMA
 from services.store.records import (
     CueRecord,
     Interruption,
@@ -45,7 +44,7 @@ from services.store.records import (
     Sample,
     TrialRecord,
 )
-from services.store.schema import SCHEMA
+from services.store.schema import FITS_SCHEMA, SCHEMA
 
 log = logging.getLogger("nod.store")
 

@@ -26,8 +26,7 @@ from services.core.cli import Parser, fail
 from services.core.node import install_signal_handlers
 from services.core.session import add_zenoh_args
 from services.core.tap import Tap
-from services.tools.observe import ToolError, connect, decode
-from services.tools.status import CLOCK_WARN_MS
+from services.tools.observe import CLOCK_WARN_MS, ToolError, connect, decode
 
 PROG = "nod lab status"
 CONDUCTOR = "experiment"

@@ -22,6 +22,10 @@ from services.core.keys import check_rig, topic_of
 from services.core.node import clip
 from services.core.session import Fabric, open_session
 
+# A host clock this far (ms) from ours is flagged by `nod status` and `nod lab status`: the
+# safety bounds compare timestamps across hosts (docs/safety.md §1).
+CLOCK_WARN_MS = 20.0
+
 
 class ToolError(Exception):
     """Bad input or an unreachable rig: one line on stderr, exit 2."""

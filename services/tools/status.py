@@ -31,10 +31,9 @@ from services.core.node import install_signal_handlers
 from services.core.rigfile import MONITOR, REQUIRED, RigFileError, identity, load_rig
 from services.core.session import add_zenoh_args
 from services.core.tap import Tap
-from services.tools.observe import Rate, ToolError, connect, decode
+from services.tools.observe import CLOCK_WARN_MS, Rate, ToolError, connect, decode
 
 PROG = "nod status"
-CLOCK_WARN_MS = 20.0
 # The sim participant stands in for the camera: it also holds vision's liveliness token.
 STANDS_IN = {"vision": "sim"}
 
