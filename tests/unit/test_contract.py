@@ -1,4 +1,4 @@
-"""The contract is declared once, and the README and the code follow it."""
+"""The contract is declared once, and the user guide's reference and the code follow it."""
 
 from __future__ import annotations
 
@@ -24,15 +24,26 @@ SERVICES = (
 )
 
 
-def test_readme_table_is_the_generated_one():
-    readme = (ROOT / "README.md").read_text()
-    begin = readme.index("<!-- contract:begin")
-    start = readme.index("\n", begin) + 1
-    end = readme.index("<!-- contract:end -->")
-    assert readme[start:end] == markdown_table(), (
-        "README's contract table is stale: paste `python -m services.core.contract` between the "
-        "contract markers"
+def test_reference_table_is_the_generated_one():
+    """The user guide's contract table (docs/reference.md) is exactly the generated one."""
+    page = (ROOT / "docs" / "reference.md").read_text(encoding="utf-8")
+    assert page.count("<!-- contract:begin") == 1 and page.count("<!-- contract:end -->") == 1, (
+        "docs/reference.md must hold the contract table between exactly one pair of markers"
     )
+    begin = page.index("<!-- contract:begin")
+    start = page.index("\n", begin) + 1
+    end = page.index("<!-- contract:end -->")
+    assert page[start:end] == markdown_table(), (
+        "docs/reference.md's contract table is stale: run "
+        "`python -m services.core.contract --update docs/reference.md`"
+    )
+
+
+def test_the_contract_table_lives_only_in_the_reference():
+    """One table, one place: the README points to docs/reference.md instead of holding a copy."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert "<!-- contract:begin" not in readme
+    assert "docs/reference.md" in readme
 
 
 @pytest.mark.parametrize("name", sorted(TOPICS))

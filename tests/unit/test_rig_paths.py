@@ -1,4 +1,4 @@
-"""A rig file's paths are relative to it, and a copy made as the README says works.
+"""A rig file's paths are relative to it, and a copy made as docs/rig.md says works.
 
 Every path key resolves against the rig file's folder, whatever the working directory; `nod up
 deploy/rig.example.toml --init-rig DIR` copies the example with the files it names, and the copy
