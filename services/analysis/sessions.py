@@ -242,7 +242,7 @@ def resolve_session(
 
     `participant` picks that participant's latest session with stored trials. A `session` that
     is no session id but a participant id is read as the participant (`--session P01`, as the
-    README writes it, works on `nod run` stores, whose session ids are hex). With neither, the
+    docs write it, works on `nod run` stores, whose session ids are hex). With neither, the
     latest session. ValueError, naming what the store has, when nothing matches.
     """
     rows = store.sessions()  # oldest first

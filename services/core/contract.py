@@ -2,9 +2,9 @@
 
 `TOPICS` is what the code runs on: `Node.publisher` takes each topic's QoS from here and refuses
 a service that is not a declared publisher, `Node.subscribe` refuses one that is not a declared
-subscriber, decoders take the message type from here, and the README's contract table is
-`markdown_table()` (a test holds them equal; `python -m services.core.contract` prints it,
-`--update README.md` rewrites it in place).
+subscriber, decoders take the message type from here, and the contract table of
+docs/reference.md is `markdown_table()` (a test holds them equal; `python -m services.core.contract` prints it,
+`--update docs/reference.md` rewrites it in place).
 Services that read every key of a rig (`nod monitor`) subscribe to `nod/<rig>/**` and are not
 listed per topic.
 
@@ -61,7 +61,7 @@ class Topic(Generic[M]):
     subscribers: tuple[str, ...]
     rate: str
     qos: QoS
-    fields: str  # the payload's own fields (besides v, seq, t_ns), for the README
+    fields: str  # the payload's own fields (besides v, seq, t_ns), for the reference table
     # Nothing is published on it: its publishers answer queries (`Node.answer`), so it is never
     # in a recording and never "silent".
     queried_only: bool = False
@@ -294,7 +294,7 @@ def check_subscriber(name: str | Topic[Any], service: str) -> Topic[Any]:
 
 
 def markdown_table() -> str:
-    """The README's contract table, generated from `TOPICS`."""
+    """The contract table (docs/reference.md), generated from `TOPICS`."""
 
     def names(who: tuple[str, ...]) -> str:
         tools = {"estop": "`nod estop`", "run": "`nod run`", "operator": "`nod experiment next`",
@@ -314,7 +314,7 @@ def markdown_table() -> str:
 
 
 def update_readme(path: str) -> None:
-    """Replace the table between the README's contract markers with the generated one."""
+    """Replace the table between the contract markers of a file (docs/reference.md) with the generated one."""
     with open(path, encoding="utf-8") as fh:
         text = fh.read()
     begin = text.index("<!-- contract:begin")
@@ -324,7 +324,7 @@ def update_readme(path: str) -> None:
         fh.write(text[:start] + markdown_table() + text[end:])
 
 
-if __name__ == "__main__":  # python -m services.core.contract [--update README.md]
+if __name__ == "__main__":  # python -m services.core.contract [--update docs/reference.md]
     if sys.argv[1:2] == ["--update"]:
         update_readme(sys.argv[2])
     else:
