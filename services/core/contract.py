@@ -3,8 +3,8 @@
 `TOPICS` is what the code runs on: `Node.publisher` takes each topic's QoS from here and refuses
 a service that is not a declared publisher, `Node.subscribe` refuses one that is not a declared
 subscriber, decoders take the message type from here, and the contract table of
-docs/reference.md is `markdown_table()` (a test holds them equal; `python -m services.core.contract` prints it,
-`--update docs/reference.md` rewrites it in place).
+docs/reference.md is `markdown_table()` (a test holds them equal; `python -m
+services.core.contract` prints it, `--update docs/reference.md` rewrites it in place).
 Services that read every key of a rig (`nod monitor`) subscribe to `nod/<rig>/**` and are not
 listed per topic.
 
@@ -314,7 +314,7 @@ def markdown_table() -> str:
 
 
 def update_readme(path: str) -> None:
-    """Replace the table between the contract markers of a file (docs/reference.md) with the generated one."""
+    """Replace the table between a file's contract markers (docs/reference.md) with today's."""
     with open(path, encoding="utf-8") as fh:
         text = fh.read()
     begin = text.index("<!-- contract:begin")
