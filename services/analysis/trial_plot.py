@@ -1,6 +1,7 @@
 """One trial as the paper's Figs 6–7 show it: the opinions, eq 7's θ and d, and the hand's path.
 
-Panels: (a) ẑ_h, z_r and b_r against time from "go"; (b) θ; (c) d; (d) the hand's path over the
+Panels: (a) ẑ_h, z_r and b_r against time from "go" (z_r on its own axis, on the right: it
+stays within tenths where ẑ_h reaches ±8); (b) θ; (c) d; (d) the hand's path over the
 table — the buzzer boxes, the commit line, where the human pressed — with the arm's end effector.
 Read from the session store (`nod analyze trial --db F --participant P01 --trial K --out DIR`).
 The figure is titled by participant, trial, mode and O (not by the session id); the legends sit
@@ -19,6 +20,20 @@ from services.store import Sample, TrialRecord
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
+
+
+ZR_COLOUR = "tab:blue"
+OPINION_MIN = 1.0  # ẑ_h and b_r: the left axis spans at least ±1
+ZR_MIN = 0.05  # z_r: its axis spans at least ±0.05, so a z_r near 0 is drawn flat, not as noise
+
+
+def symmetric_limits(
+    values: Sequence[float | None], minimum: float, margin: float = 1.1
+) -> tuple[float, float]:
+    """±(the largest |value| times `margin`), never narrower than ±`minimum`; None, NaN skipped."""
+    top = max((abs(v) for v in values if v is not None and v == v), default=0.0)  # v == v: no NaN
+    top = max(top * margin, minimum)
+    return -top, top
 
 
 def trial_title(participant: str, trial: TrialRecord) -> str:
@@ -70,16 +85,28 @@ def draw(
     ax_th = fig.add_subplot(grid[1, 0], sharex=ax_z)
     ax_d = fig.add_subplot(grid[2, 0], sharex=ax_z)
     ax_path = fig.add_subplot(grid[:, 1])
-    for key, label, colour in (
-        ("z_h", "ẑ_h (observed human)", "tab:orange"),
-        ("z_r", "z_r (robot)", "tab:blue"),
-        ("b_r", "b_r (robot bias)", "tab:green"),
-    ):
-        ax_z.plot(t, [getattr(s, key) for s in samples], label=label, color=colour, lw=1.2)
+    # ẑ_h reaches the observer's ±a (8) and b_r a few units, while z_r stays within tenths: on
+    # one axis z_r is a flat line. z_r gets its own axis on the right, scaled to its own range;
+    # both axes are symmetric about 0, so one zero line serves both and the sign (> 0 red) reads
+    # the same on either side.
+    z_h = [s.z_h for s in samples]
+    b_r = [s.b_r for s in samples]
+    z_r = [s.z_r for s in samples]
+    ax_z.plot(t, z_h, label="ẑ_h (observed human)", color="tab:orange", lw=1.2)
+    ax_z.plot(t, b_r, label="b_r (robot bias)", color="tab:green", lw=1.2)
+    ax_zr = ax_z.twinx()
+    ax_zr.plot(t, z_r, label="z_r (robot), right axis", color=ZR_COLOUR, lw=1.4)
+    ax_z.set_ylim(*symmetric_limits(z_h + b_r, OPINION_MIN))
+    # z_r's extreme at 3/4 of its half-height: not on ẑ_h, which saturates at 1/1.1 of its own.
+    ax_zr.set_ylim(*symmetric_limits(z_r, ZR_MIN, margin=4 / 3))
     ax_z.axhline(0, color="grey", lw=0.6)
-    ax_z.set_ylabel("opinion (> 0 red)")
-    ax_z.legend(fontsize=7, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3,
-                frameon=False, borderaxespad=0.2)
+    ax_z.set_ylabel("ẑ_h, b_r (> 0 red)")
+    ax_zr.set_ylabel("z_r (> 0 red)", color=ZR_COLOUR)
+    ax_zr.tick_params(axis="y", colors=ZR_COLOUR)
+    ax_zr.spines["right"].set_color(ZR_COLOUR)
+    handles = [*ax_z.get_lines()[:1], *ax_zr.get_lines(), *ax_z.get_lines()[1:2]]
+    ax_z.legend(handles=handles, fontsize=7, loc="lower right", bbox_to_anchor=(1.0, 1.0),
+                ncol=3, frameon=False, borderaxespad=0.2)
     ax_th.plot(t, [s.theta for s in samples], ".", ms=3, color="tab:purple")
     ax_th.set_ylabel("θ (rad)")
     ax_d.plot(t, [s.distance for s in samples], ".", ms=3, color="tab:brown")

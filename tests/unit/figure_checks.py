@@ -75,3 +75,20 @@ def assert_readable(fig: Figure) -> None:
     assert not clash, f"overlapping text: {clash[:5]}"
     out = cut_off(fig)
     assert not out, f"text outside the figure: {out[:5]}"
+
+
+def titles_overhanging(fig: Figure, slack: float = 0.5) -> list[str]:
+    """Axes titles (centre, left, right) that reach past their own axes' left or right edge: a
+    long title is clipped by the figure, or runs over the panel beside it."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+    found = []
+    for ax in fig.axes:
+        frame = ax.get_window_extent(renderer)
+        for title in (ax.title, ax._left_title, ax._right_title):  # private: no public getter
+            if not (title.get_visible() and title.get_text().strip()):
+                continue
+            box = title.get_window_extent(renderer)
+            if box.x0 < frame.x0 - slack or box.x1 > frame.x1 + slack:
+                found.append(title.get_text())
+    return found

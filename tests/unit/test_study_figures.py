@@ -9,6 +9,7 @@ from __future__ import annotations
 import subprocess
 import sys
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -227,6 +228,49 @@ def test_the_trial_figure_is_titled_by_participant(run_store: Path, close: list[
             renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
             box, frame = legend.get_window_extent(renderer), ax.get_window_extent(renderer)
             assert box.y0 >= frame.y1 - 0.5 or box.y1 <= frame.y0 + 0.5
+
+
+@pytest.mark.parametrize("trial", [1, 4, 7])
+def test_z_r_has_its_own_axis_scaled_to_its_range(
+    run_store: Path, trial: int, close: list[Figure]
+) -> None:
+    """ẑ_h reaches ±8 and z_r tenths: on ẑ_h's axis z_r was a flat line at 0."""
+    store = Store(run_store)
+    rec = next(t for _, t in store.trials("3f9a0c1b2d4e") if t.trial == trial)
+    samples = store.samples("3f9a0c1b2d4e", trial)
+    store.close()
+    fig = draw_trial(samples, rec, NodConfig().layout, trial_title("P01", rec))
+    close.append(fig)
+    assert_readable(fig)
+
+    def axis_of(prefix: str) -> Any:
+        return next(ax for ax in fig.axes for line in ax.get_lines()
+                    if str(line.get_label()).startswith(prefix))
+
+    z_r = max(abs(s.z_r or 0.0) for s in samples)
+    z_h = max(abs(s.z_h or 0.0) for s in samples)
+    assert 0.05 < z_r < 1.0 and z_h > 5.0  # the case: z_r tenths, ẑ_h near the observer's ±8
+    ax_r, ax_h = axis_of("z_r"), axis_of("ẑ_h")
+    assert ax_r is not ax_h and axis_of("b_r") is ax_h
+    lo, hi = ax_r.get_ylim()
+    assert lo <= -z_r and hi >= z_r  # all of z_r in view ...
+    assert hi - lo <= 2 * max(1.5 * z_r, 0.05)  # ... filling its axis, not ±8 of it
+    assert lo == -hi and ax_h.get_ylim()[0] == -ax_h.get_ylim()[1]  # one zero line for both
+    assert ax_h.get_ylim()[1] >= z_h
+    assert "z_r" in ax_r.get_ylabel() and "ẑ_h" in ax_h.get_ylabel()
+
+
+def test_a_z_r_of_zero_is_drawn_flat(run_store: Path, close: list[Figure]) -> None:
+    store = Store(run_store)
+    rec = next(t for _, t in store.trials("3f9a0c1b2d4e") if t.trial == 2)
+    samples = [replace(s, z_r=1e-9 * (k % 2))
+               for k, s in enumerate(store.samples("3f9a0c1b2d4e", 2))]
+    store.close()
+    fig = draw_trial(samples, rec, NodConfig().layout, "t")
+    close.append(fig)
+    ax_r = next(ax for ax in fig.axes for line in ax.get_lines()
+                if str(line.get_label()).startswith("z_r"))
+    assert ax_r.get_ylim() == pytest.approx((-0.05, 0.05))  # noise of 1e-9 is not a signal
 
 
 @pytest.mark.parametrize(
