@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from services.model.decision import DecisionModel  # noqa: E402
-from services.model.options import OptionsParams, option_vector  # noqa: E402
+from services.model.dynamics import OptionsParams, option_vector  # noqa: E402
 from services.model.options_bias import advance_robot  # noqa: E402
 from services.model.options_floats import advance  # noqa: E402
 

@@ -5,8 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Any
 
-from services.model.dynamics import PairParams
-from services.model.options import OptionsParams
+from services.model.dynamics import OptionsParams, PairParams
 from services.model.options_thresholds import option_thresholds
 
 

@@ -23,8 +23,8 @@ import numpy as np
 
 from services.model.behaviour import Action, BehaviourParams, Phase
 from services.model.debounce import DebounceParams
+from services.model.dynamics import leading_option
 from services.model.geometry import TIE, Point
-from services.model.options import leading_option
 from services.model.options_geometry import OptionsLayout
 
 

@@ -22,12 +22,12 @@ from __future__ import annotations
 import numpy as np
 
 from services.model.bias import BiasParams
-from services.model.options import (
+from services.model.dynamics import (
     OptionsParams,
     leading_option,
     on_subspace,
     option_vector,
-    robot_rate,
+    robot_rates,
 )
 
 
@@ -77,24 +77,24 @@ def advance_robot(
     for dt in steps:
         half = 0.5 * dt
         if direction is not None and h is not None and disagrees(z, z_hat):
-            k1z = robot_rate(z, z_hat, s * direction, p)
+            k1z = robot_rates(z, z_hat, s * direction, p)
             k1b = bias_rate(s, z, h, sigma, gain, b_star)
             z2, s2 = z + half * k1z, s + half * k1b
-            k2z = robot_rate(z2, z_hat, s2 * direction, p)
+            k2z = robot_rates(z2, z_hat, s2 * direction, p)
             k2b = bias_rate(s2, z2, h, sigma, gain, b_star)
             z3, s3 = z + half * k2z, s + half * k2b
-            k3z = robot_rate(z3, z_hat, s3 * direction, p)
+            k3z = robot_rates(z3, z_hat, s3 * direction, p)
             k3b = bias_rate(s3, z3, h, sigma, gain, b_star)
             z4, s4 = z + dt * k3z, s + dt * k3b
-            k4z = robot_rate(z4, z_hat, s4 * direction, p)
+            k4z = robot_rates(z4, z_hat, s4 * direction, p)
             k4b = bias_rate(s4, z4, h, sigma, gain, b_star)
             s = min(b_max, max(-b_max, s + (dt / 6.0) * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)))
             # s entered the stages above at its value before the clamp, as b_r does in decision
         else:
             b = s * direction if direction is not None else 0.0 * z
-            k1z = robot_rate(z, z_hat, b, p)
-            k2z = robot_rate(z + half * k1z, z_hat, b, p)
-            k3z = robot_rate(z + half * k2z, z_hat, b, p)
-            k4z = robot_rate(z + dt * k3z, z_hat, b, p)
+            k1z = robot_rates(z, z_hat, b, p)
+            k2z = robot_rates(z + half * k1z, z_hat, b, p)
+            k3z = robot_rates(z + half * k2z, z_hat, b, p)
+            k4z = robot_rates(z + dt * k3z, z_hat, b, p)
         z = on_subspace(z + (dt / 6.0) * (k1z + 2.0 * k2z + 2.0 * k3z + k4z))
     return z, s

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from services.model.decision import DecisionParams
+from services.model.dynamics import OptionsParams, option_vector
 from services.model.geometry import Point
-from services.model.options import OptionsParams, option_vector
 from services.model.options_bias import split_span
 from services.model.options_floats import advance
 from services.model.options_geometry import OptionsLayout

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from services.model.bias import BiasParams
-from services.model.options import OptionsParams, leading_option, option_vector
+from services.model.dynamics import OptionsParams, leading_option, option_vector
 from services.model.options_bias import advance_robot
 
 

@@ -34,10 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from services.model.dynamics import option_vector
 from services.model.geometry import Point
 from services.model.observer import ObserverParams, hand_center
 from services.model.observer_robust import MotionWindow
-from services.model.options import option_vector
 from services.model.options_geometry import OptionsLayout
 
 # The switch margin is capped at this share of the cos gap between two boxes' bearings

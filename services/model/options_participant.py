@@ -25,10 +25,9 @@ from collections import deque
 
 import numpy as np
 
-from services.model.dynamics import PairParams
+from services.model.dynamics import OptionsParams, PairParams, leading_option, option_vector
 from services.model.gaze import GazeCommand
 from services.model.geometry import HAND_TEMPLATE, CommitLine
-from services.model.options import OptionsParams, leading_option, option_vector
 from services.model.options_floats import rate
 from services.model.options_gaze import read_gaze
 from services.model.options_geometry import OptionsLayout

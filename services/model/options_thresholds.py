@@ -1,7 +1,7 @@
 """Agreement and disagreement bifurcation points of the N_o-option pair (docs/multi-option.md).
 
-At the neutral point Z = 0 with no bias, the Jacobian of `services.model.options` restricted to
-the zero-sum subspace is
+At the neutral point Z = 0 with no bias, the Jacobian of the N_o-option dynamics
+(`services.model.dynamics.network_jacobian`) restricted to the zero-sum subspace is
 
     J(u) = −d I + u K,    K = (α − β) I + (γ − δ) A ⊗ I_{N_o−1}
 
@@ -12,9 +12,9 @@ point the same way (agreement: both lean to the same options) or opposite ways (
 With the paper's A (λ = ±1) and β = δ = 0 this is Sec 4.3's u* = d/(α + γλ) for every N_o, each
 mode N_o − 1 times over.
 
-Everything is computed numerically from `jacobian` (not from the formula above, which the tests
-check it against). Like `services.model.dynamics.thresholds`, the analysis is the homogeneous
-pair's: both agents take the robot's (d, u, α, γ).
+Everything is computed numerically from `network_jacobian` (not from the formula above, which
+the tests check it against). Like `services.model.dynamics.thresholds`, the analysis is the
+homogeneous pair's: both agents take the robot's (d, u, α, γ).
 """
 
 from __future__ import annotations
@@ -24,8 +24,7 @@ from typing import Literal
 
 import numpy as np
 
-from services.model.dynamics import PairParams
-from services.model.options import OptionsParams, jacobian, subspace_basis
+from services.model.dynamics import OptionsParams, PairParams, network_jacobian, subspace_basis
 
 Pattern = Literal["agreement", "disagreement", "mixed"]
 _TOL = 1e-9  # eigenvalues closer than this (relative) are one mode counted with multiplicity
@@ -73,7 +72,7 @@ def restricted_jacobian(p: OptionsParams, z: np.ndarray | None = None) -> np.nda
     n_o = p.n_options
     zz = np.zeros((2, n_o)) if z is None else np.asarray(z, dtype=float)
     w = np.kron(np.eye(2), subspace_basis(n_o))  # (2 N_o) × 2 (N_o − 1)
-    return w.T @ jacobian(zz, p) @ w
+    return w.T @ network_jacobian(zz, p) @ w
 
 
 def _pattern(vector: np.ndarray, n_o: int) -> Pattern:

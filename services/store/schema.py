@@ -1,8 +1,9 @@
 """The session store's tables: one SQLite schema, created (IF NOT EXISTS) by every `Store`.
 
-Tables added later are migrated by `Store._migrate`; the N-option and the fit tables have
-modules of their own (`options.py`, `fits.py`); `withdrawals` is read and written by
-`withdrawals.py` (its schema is here, so every store, an older one too, has it once opened).
+Tables added later are migrated by `Store._migrate`; the N-option tables have a module of their
+own (`options.py`); `fits` (`FITS_SCHEMA`) and `withdrawals` are read and written by `fits.py`
+and `withdrawals.py`, their schemas are here, so every store, an older one too, has them once
+opened.
 """
 
 SCHEMA = """

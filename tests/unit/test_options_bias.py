@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from services.model.bias import BiasParams
-from services.model.options import OptionsParams, leading_option, option_vector
+from services.model.dynamics import OptionsParams, leading_option, option_vector
 from services.model.options_bias import advance_robot, bias_rate, disagrees
 
 THREE = OptionsParams(n_options=3)  # the paper's d, u, α, γ, a_rh = a_hr = 1; β = δ = 0

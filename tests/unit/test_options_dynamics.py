@@ -13,15 +13,21 @@ from hypothesis import strategies as st
 from services.analysis.observer_eval import frames, paths
 from services.model.bias import BiasParams
 from services.model.decision import DecisionModel, DecisionParams
-from services.model.dynamics import AgentParams, PairParams, pair_rhs, rk4_pair, thresholds
-from services.model.options import (
+from services.model.dynamics import (
+    AgentParams,
     OptionsParams,
-    jacobian,
+    PairParams,
+    agent_rates,
+    general_rates,
+    network_jacobian,
     network_rate,
     on_subspace,
     option_vector,
+    pair_rhs,
     rk4_network,
+    rk4_pair,
     subspace_basis,
+    thresholds,
 )
 from services.model.options_bias import advance_robot, split_span
 from services.model.options_thresholds import option_thresholds, restricted_jacobian
@@ -138,7 +144,7 @@ def test_relabelling_options_relabels_the_flow(
 def test_jacobian_is_the_derivative(n: int, raw: list[float], beta: float, delta: float) -> None:
     p = OptionsParams(n_options=n, beta=beta, delta=delta)
     z = on_subspace(np.array(raw[: 2 * n]).reshape(2, n)) * 0.3
-    jac = jacobian(z, p)
+    jac = network_jacobian(z, p)
     eps = 1e-6
     for c in range(2 * n):
         dz = np.zeros((2, n))
@@ -223,3 +229,33 @@ def test_bias_params_reach_advance_robot() -> None:
     assert s == 0.0
     _, s = advance_robot(np.zeros(3), 0.0, z_hat, [0.001] * 500, p, 1)
     assert s > 1.0
+
+
+agent_values = st.builds(
+    AgentParams,
+    d=st.floats(0.1, 20.0), u=st.floats(0.0, 5.0), alpha=st.floats(-2.0, 2.0),
+    gamma=st.floats(-10.0, 10.0),
+)
+
+
+@settings(max_examples=300)
+@given(value, value, value, value, agent_values)
+def test_the_two_option_kernel_is_the_general_form_at_two_options(x, social, b0, b1, agent):
+    """At N_o = 2 (β = δ = 0) `agent_rates` computes eq 1 itself; the general form agrees."""
+    z, s, b = np.array([x, -x]), np.array([social, -social]), np.array([b0, b1])
+    kernel = agent_rates(z, s, b, agent)
+    general = general_rates(z, s, b, agent)
+    assert np.allclose(kernel, general, rtol=0.0, atol=1e-12)
+    assert kernel[0] == -kernel[1]
+    # and the kernel is eq 1's arithmetic, bit for bit
+    from services.model.dynamics import opinion_rate
+
+    assert kernel[0] == opinion_rate(x, social, 0.5 * (b0 - b1), agent.d, agent.u, agent.alpha,
+                                     agent.gamma)
+
+
+@given(st.integers(3, 6), st.lists(value, min_size=6, max_size=6), agent_values)
+def test_beyond_two_options_the_rates_are_the_general_form(n, values, agent):
+    z = on_subspace(np.array(values[:n]))
+    s = on_subspace(np.array(values[::-1][:n]))
+    assert np.array_equal(agent_rates(z, s, 0.0, agent), general_rates(z, s, 0.0, agent))

@@ -13,9 +13,9 @@ from services.model.arm import SimArm
 from services.model.behaviour import ArmCommand, BehaviourParams
 from services.model.bias import BiasParams
 from services.model.debounce import DebounceParams
+from services.model.dynamics import OptionsParams, leading_option, option_vector
 from services.model.gaze import GAZE_LEVEL_NAMES
 from services.model.geometry import CommitLine, TableLayout
-from services.model.options import OptionsParams, leading_option, option_vector
 from services.model.options_arm import OptionsSimArm
 from services.model.options_behaviour import TIE_TOLERANCE, OptionsCommand, leader_or_nearest_tie
 from services.model.options_bias import advance_robot
