@@ -16,7 +16,8 @@ from pathlib import Path
 
 from services.core.cli import Parser, fail, int_in
 from services.model.scoring import points_said
-from services.store import Store, StoreError
+from services.store import Store, StoreError, TrialRecord
+from services.store.options import OptionsStore, OptionsTrialRecord
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,10 +43,17 @@ def main(argv: list[str] | None = None) -> int:
         store = Store(args.db)
     except StoreError as exc:
         return fail("nod clicks", exc)
+    count = None if args.not_entered else args.count
     try:
-        before = {t.trial: t for _, t in store.trials(args.session)}.get(args.trial)
-        record = store.set_clicks(args.session, args.trial, None if args.not_entered
-                                  else args.count)
+        options = OptionsStore(store)
+        before: TrialRecord | OptionsTrialRecord | None
+        if options.names(args.session) is not None:  # a session over N options: its own table
+            before = {t.trial: t for t in options.trials(args.session)}.get(args.trial)
+            record: TrialRecord | OptionsTrialRecord = options.set_clicks(
+                args.session, args.trial, count)
+        else:
+            before = {t.trial: t for _, t in store.trials(args.session)}.get(args.trial)
+            record = store.set_clicks(args.session, args.trial, count)
         target = store.target_clicks(args.session)
     except StoreError as exc:
         return fail("nod clicks", exc)

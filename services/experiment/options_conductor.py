@@ -301,25 +301,38 @@ class OptionsConductor:
         end = protocol.end
         assert judge is not None and end is not None  # set at "go", which precedes every "end"
         self.pub_trial.put(phase="end", text=end.reason, **ev)
-        clicks = self.clicks(trial.index)
-        j = judge.verdict(end, robot, clicks)
+        # Stored the moment it ends, clicks not entered; the operator's answer updates it (a
+        # Ctrl-C at the prompt leaves it stored once), as in the paper's conductor.
+        j = judge.verdict(end, robot, None)
         rec = OptionsTrialRecord(
             trial.index, trial.mode, trial.option, trial.gaze_level, yaw, pitch, t_go,
             self.node.clock.now_ns(), j.human, j.robot, j.outcome, j.switches, j.violations,
-            clicks, j.score, end.reason, attempts=protocol.attempt,
+            None, j.score, end.reason, attempts=protocol.attempt,
         )
         with self.node.lock:
             events = self.rig.take_events()
         self.store.write_trial(self.session, rec, events)
         self.results.append(rec)
-        self.pub_result.put(
-            n_options=self.n, trial=trial.index, mode=trial.mode, option=trial.option,
-            robot=j.robot, human=j.human, outcome=j.outcome, switches=j.switches,
-            violations=j.violations, score=j.score, session=self.session,
-        )
+        try:
+            clicks = self.clicks(trial.index)
+        except (KeyboardInterrupt, EOFError):  # stored, clicks not entered: said, then stop
+            self._publish(rec)
+            raise
+        if clicks is not None:
+            rec = self.store.set_clicks(self.session, trial.index, clicks)
+            self.results[-1] = rec
+        self._publish(rec)
         name = self.schedule.name
-        log.info("trial %d: human %s, robot %s -> %s (%+d)", trial.index, name(j.human),
-                 name(j.robot), j.outcome, j.score)
+        log.info("trial %d: human %s, robot %s -> %s (%+d)", trial.index, name(rec.human),
+                 name(rec.robot), rec.outcome, rec.score)
+
+    def _publish(self, rec: OptionsTrialRecord) -> None:
+        """A stored trial's result on `options/result`."""
+        self.pub_result.put(
+            n_options=self.n, trial=rec.trial, mode=rec.mode, option=rec.option,
+            robot=rec.robot, human=rec.human, outcome=rec.outcome, switches=rec.switches,
+            violations=rec.violations, score=rec.score, session=self.session,
+        )
 
     def _interrupted(
         self, protocol: SessionProtocol, yaw: float, pitch: float, ev: TrialFields, why: str

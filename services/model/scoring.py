@@ -61,19 +61,20 @@ def score_trial(
 
 
 def trial_points(
-    human: str | None, robot: str | None, violations: int, clicks: int | None,
+    human: object | None, robot: object | None, violations: int, clicks: int | None,
     target_clicks: int = 10,
 ) -> int:
     """A stored trial's points from its buzzers, violations and clicks (as the judge scores it).
 
     For clicks entered after the trial was stored: the same buzzer only when both pressed it.
+    The buzzers are colours (the paper's two options) or box indices (N options).
     """
     same = human is not None and robot is not None and human == robot
     return score_trial(same, clicks, violations, target_clicks).total
 
 
 def points_said(
-    human: str | None, robot: str | None, violations: int, clicks: int | None,
+    human: object | None, robot: object | None, violations: int, clicks: int | None,
     target_clicks: int = 10,
 ) -> str:
     """The points the participant will see, and why, in one line for the operator."""

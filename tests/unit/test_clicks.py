@@ -136,3 +136,22 @@ def test_keys_typed_ahead_on_a_terminal_are_dropped_before_a_question():
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_clicks_of_an_n_option_session_rescore_its_own_trial(tmp_path, capsys):
+    from services.store.options import OptionsStore, OptionsTrialRecord
+
+    path = tmp_path / "o.sqlite"
+    with Store(path) as store:
+        options = OptionsStore(store)
+        options.begin_session("o1", "P01", "rig1", 1, 10**12, NodConfig().summary(),
+                              ("red", "blue", "green"))
+        options.write_trial("o1", OptionsTrialRecord(
+            2, "consensus", 2, "low", 0.0, 0.0, 10**12, 2 * 10**12, 2, 2, "C", 0, 0, None,
+            trial_points(2, 2, 0, None), "human pressed"))
+    assert clicks.main(["--db", str(path), "--session", "o1", "--trial", "2", "--count",
+                        "10"]) == 0
+    with Store(path) as store:
+        (rec,) = OptionsStore(store).trials("o1")
+    assert (rec.clicks, rec.score) == (10, 2)
+    assert "2 point(s)" in capsys.readouterr().out
