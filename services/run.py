@@ -138,7 +138,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "participants split across them, each rig's sessions in <db>-<rig>.sqlite")
     p.add_argument("--join", action="store_true", help=argparse.SUPPRESS)  # a rig of --rigs
     p.add_argument("--ids", type=lambda s: s.split(","), default=None, help=argparse.SUPPRESS)
-    p.add_argument("--clicks", default="10", help="counter clicks per trial: N, 'prompt' or 'none'")
+    p.add_argument("--clicks", default="10",
+                   help="the counter clicks of every trial: N (default 10: the simulated person "
+                   "counts right), 'prompt' (asked after each trial is stored) or 'none'")
     p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
     p.add_argument("--stale-ms", type=float, default=None, help="safety staleness bound (ms)")
     p.add_argument(
