@@ -6,7 +6,7 @@ from dataclasses import asdict
 from typing import Any
 
 from services.model.dynamics import OptionsParams, PairParams
-from services.model.options_thresholds import option_thresholds
+from services.model.thresholds import option_thresholds
 
 
 def options_thresholds_report(
@@ -17,7 +17,7 @@ def options_thresholds_report(
     Each mode: κ (eigenvalue of K on the zero-sum subspace, J = −d I + u K), the adjacency
     eigenvalue λ it comes from, its multiplicity, u* = d/κ (null when κ ≤ 0) and the Jacobian's
     eigenvalue −d + u κ at the neutral point. Numbers from
-    `services.model.options_thresholds.option_thresholds`.
+    `services.model.thresholds.option_thresholds`.
     """
     p = OptionsParams(pair=pair, n_options=n_options, beta=beta, delta=delta)
     th = option_thresholds(p)

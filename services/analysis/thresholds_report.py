@@ -5,13 +5,14 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Any
 
-from services.model.dynamics import PairParams, thresholds
+from services.model.dynamics import PairParams
+from services.model.thresholds import thresholds
 
 
 def thresholds_report(p: PairParams) -> dict[str, Any]:
     """u, u* = d / (α + γλ) per adjacency eigenvalue λ, u_d* (λ_min), origin eigenvalues.
 
-    All numbers come from `services.model.dynamics.thresholds`; `u_star` is null for an
+    All numbers come from `services.model.thresholds.thresholds`; `u_star` is null for an
     eigenvalue with α + γλ ≤ 0 (no bifurcation along that mode).
     """
     th = thresholds(p)

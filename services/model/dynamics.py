@@ -6,7 +6,8 @@
 Sign convention everywhere: z > 0 ⇔ red, z < 0 ⇔ blue. Everything here is pure and works on
 scalars or NumPy arrays alike (broadcasting). `opinion_rate` is the only place the equations are
 written: the live decision model (`services.model.decision`), the simulated participant, the
-analysis sweeps and the equilibrium finder all call it.
+analysis sweeps and the equilibrium finder all call it. Their bifurcation points (Sec 4.3, and
+over N_o options) are `services.model.thresholds`'.
 
 **Over N_o options** (docs/multi-option.md). For agents i (0 = robot, 1 = human) and options
 j = 1…N_o, opinions z_ij with Σ_j z_ij = 0:
@@ -222,44 +223,6 @@ def jacobian(z_r: float, z_h: float, p: PairParams) -> np.ndarray:
     """The Jacobian (eq 3) at one point, as a 2×2 matrix."""
     j11, j12, j21, j22 = jacobian_entries(z_r, z_h, p)
     return np.array([[j11, j12], [j21, j22]], dtype=float)
-
-
-@dataclass(frozen=True, slots=True)
-class Thresholds:
-    """Bifurcation thresholds of the homogeneous pair at the origin (Sec 4.3)."""
-
-    u: float  # the attention parameter in use
-    adjacency_eigenvalues: tuple[float, ...]
-    u_star: tuple[float | None, ...]  # u* = d / (α + γλ) per eigenvalue; None where ≤ 0 or ∞
-    u_d_star: float  # dissensus threshold, u* at λ_min
-    origin_jacobian_eigenvalues: tuple[float, ...]
-    dissensus_regime: bool  # u > u_d* and γ < 0: unbiased pair settles in dissensus
-
-
-def thresholds(p: PairParams) -> Thresholds:
-    """Compute u* for every adjacency eigenvalue and the dissensus threshold u_d* (Sec 4.3).
-
-    Uses the robot's (d, α, γ, u): the analysis of the paper assumes a homogeneous pair.
-    """
-    a = p.robot
-    lam = sorted(float(v) for v in np.linalg.eigvals(p.adjacency()).real)
-
-    def u_star_of(lmb: float) -> float | None:
-        denom = a.alpha + a.gamma * lmb
-        return a.d / denom if denom > 0 else None
-
-    u_d = u_star_of(lam[0])
-    if u_d is None:
-        raise ValueError("no dissensus threshold: α + γ·λ_min ≤ 0 (choose γ < 0 and a_rh·a_hr > 0)")
-    eig_origin = np.linalg.eigvals(jacobian(0.0, 0.0, p)).real
-    return Thresholds(
-        u=a.u,
-        adjacency_eigenvalues=tuple(lam),
-        u_star=tuple(u_star_of(v) for v in lam),
-        u_d_star=u_d,
-        origin_jacobian_eigenvalues=tuple(sorted(float(v) for v in eig_origin)),
-        dissensus_regime=bool(a.u > u_d and a.gamma < 0),
-    )
 
 
 # -- Over N_o options (the module doc) ----------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Opinion dynamics (eqs 1-3): thresholds, Jacobian, RK4."""
+"""Opinion dynamics (eqs 1-3): Jacobian, RK4 (the thresholds: test_thresholds.py)."""
 
 from __future__ import annotations
 
@@ -17,43 +17,9 @@ from services.model.dynamics import (
     pair_rhs,
     rk4_step,
     robot_rate,
-    thresholds,
 )
 
 finite = st.floats(min_value=-5.0, max_value=5.0, allow_nan=False)
-
-
-def test_dissensus_threshold_is_computed_from_parameters():
-    th = thresholds(PairParams())
-    assert th.adjacency_eigenvalues == pytest.approx((-1.0, 1.0))
-    # u_d* = d / (α + γ λ_min) = 10 / (0.05 + 8) = 10 / 8.05 (SPEC §1).
-    assert th.u_d_star == pytest.approx(10.0 / 8.05)
-    assert th.u_d_star == pytest.approx(1.2422, abs=1e-4)
-    # λ = +1 gives α + γ = −7.95 < 0: no positive u*.
-    assert th.u_star == (pytest.approx(10.0 / 8.05), None)
-    assert th.dissensus_regime is True
-
-
-def test_dissensus_regime_false_below_threshold():
-    agent = AgentParams(u=1.0)
-    assert thresholds(PairParams(robot=agent, human=agent)).dissensus_regime is False
-
-
-def test_no_dissensus_threshold_with_positive_gamma():
-    agent = AgentParams(gamma=8.0)
-    with pytest.raises(ValueError, match="no dissensus threshold"):
-        thresholds(PairParams(robot=agent, human=agent))
-
-
-def test_origin_jacobian_eigenvalues():
-    p = PairParams()
-    a = p.robot
-    # J(0,0) = [[−d + uα, uγ], [uγ, −d + uα]]: eigenvalues −d + uα ± uγ.
-    expected = sorted([-a.d + a.u * a.alpha + a.u * a.gamma, -a.d + a.u * a.alpha - a.u * a.gamma])
-    th = thresholds(p)
-    assert th.origin_jacobian_eigenvalues == pytest.approx(tuple(expected))
-    # u > u_d*: one unstable direction (the dissensus one), the origin is a saddle.
-    assert th.origin_jacobian_eigenvalues[0] < 0 < th.origin_jacobian_eigenvalues[1]
 
 
 def test_rk4_matches_linear_ode_solution():

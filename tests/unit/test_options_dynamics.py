@@ -3,8 +3,6 @@ options' symmetry, the Jacobian and the bifurcation points."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -27,10 +25,8 @@ from services.model.dynamics import (
     rk4_network,
     rk4_pair,
     subspace_basis,
-    thresholds,
 )
 from services.model.options_bias import advance_robot, split_span
-from services.model.options_thresholds import option_thresholds, restricted_jacobian
 
 value = st.floats(min_value=-4.0, max_value=4.0, allow_nan=False)
 weight = st.floats(min_value=-3.0, max_value=3.0, allow_nan=False)
@@ -152,54 +148,6 @@ def test_jacobian_is_the_derivative(n: int, raw: list[float], beta: float, delta
         no_bias = np.zeros((2, n))
         column = (network_rate(z + dz, no_bias, p) - network_rate(z - dz, no_bias, p)) / (2 * eps)
         np.testing.assert_allclose(jac[:, c], column.ravel(), atol=1e-6)
-
-
-def test_two_option_thresholds_are_todays() -> None:
-    today = thresholds(PairParams())
-    th = option_thresholds(OptionsParams(n_options=2))
-    assert th.u_disagreement == pytest.approx(today.u_d_star, abs=1e-12)
-    assert th.u_agreement is None and today.u_star[1] is None
-    assert sorted(m.jacobian_eigenvalue for m in th.modes) == pytest.approx(
-        today.origin_jacobian_eigenvalues, abs=1e-12
-    )
-    assert th.dissensus_regime is today.dissensus_regime is True
-
-
-@pytest.mark.parametrize("n", [3, 4, 5])
-def test_paper_parameters_keep_u_d_star_for_any_number_of_options(n: int) -> None:
-    th = option_thresholds(OptionsParams(n_options=n))
-    assert th.u_disagreement == pytest.approx(thresholds(PairParams()).u_d_star, abs=1e-12)
-    assert [(m.pattern, m.multiplicity) for m in th.modes] == [
-        ("agreement", n - 1),
-        ("disagreement", n - 1),
-    ]
-    # every eigenvalue of the restricted Jacobian is one of the modes'
-    eig = np.sort(np.linalg.eigvals(restricted_jacobian(OptionsParams(n_options=n))).real)
-    want = np.sort(np.repeat([m.jacobian_eigenvalue for m in th.modes], n - 1))
-    np.testing.assert_allclose(eig, want, atol=1e-10)
-
-
-@settings(max_examples=40, deadline=None)
-@given(n_options, weight, weight, st.floats(0.1, 2.0), st.floats(0.1, 2.0),
-       st.floats(-10.0, 10.0), st.floats(-1.0, 1.0))
-def test_modes_match_the_closed_form(
-    n: int, beta: float, delta: float, a_rh: float, a_hr: float, gamma: float, alpha: float
-) -> None:
-    agent = AgentParams(gamma=gamma, alpha=alpha)
-    p = OptionsParams(pair=PairParams(robot=agent, human=agent, a_rh=a_rh, a_hr=a_hr),
-                      n_options=n, beta=beta, delta=delta)
-    th = option_thresholds(p)
-    lam = math.sqrt(a_rh * a_hr)
-    want = sorted(alpha - beta + (gamma - delta) * x for x in (lam, -lam))
-    got = [m.kappa for m in th.modes]
-    if abs(want[1] - want[0]) < 1e-6:
-        return  # the two modes coincide (γ = δ): one eigenvalue, no pattern to tell apart
-    assert got == pytest.approx(want, abs=1e-9)
-    for m in th.modes:
-        agree = m.adjacency_eigenvalue is not None and m.adjacency_eigenvalue > 0
-        assert m.pattern == ("agreement" if agree else "disagreement")
-        assert m.multiplicity == n - 1
-        assert m.u_star == (pytest.approx(agent.d / m.kappa) if m.kappa > 0 else None)
 
 
 def test_subspace_basis_is_orthonormal_and_zero_sum() -> None:
