@@ -1,8 +1,27 @@
-"""Gaze levels and the attention gesture of the robotic eyes (paper Sec 5, SPEC §5).
+"""Gaze levels, the gaze toward an option of N ≥ 2, and the attention gesture (paper Sec 5).
 
-Angles are in radians: yaw ψ positive looks toward red, pitch φ as printed in the paper. Both
-eyes move in unison, so one `GazeCommand` drives all four servos (see `servos.py`). Time is in
-seconds (float) and always passed in.
+Angles are in radians: yaw ψ positive looks toward +x (the paper's red side), pitch φ as printed
+in the paper. Both eyes move in unison, so one `GazeCommand` drives all four servos (see
+`servos.py`). Time is in seconds (float) and always passed in.
+
+The gaze toward option j over a table of N boxes (docs/multi-option.md, decision 12):
+
+- **two boxes, one on each side of the eyes (the paper's table):** the printed row of the
+  paper's gaze table, toward the box's side (`GazeLevel.toward`: red on +x, blue mirrored). This
+  is the module's two-option kernel, chosen inside `gaze_toward` and `read_gaze`;
+- **any N (the general form, `geometric_gaze`):** the eyes sit at `EYES`, midway on the robot's
+  side of the table, `EYES_HEIGHT` above it; neutral looks at the participant's resting hand
+  `PARTICIPANT`; a level looks from there toward the box by the share |yaw_level| / |yaw_extreme|
+  of the way ("extreme" at the box itself). Yaw is the bearing of that point from the eyes;
+  pitch how much lower than the hand the eyes look, negative looking down (the middle box of
+  three is told from the neutral gaze by its pitch alone). A row of three puts a box straight
+  ahead, where a yaw-only cue would be the neutral gaze, so N ≥ 3 needs it.
+
+A person reads a gaze as (option, strength): the box it points toward and the level's |yaw| in
+the paper's table, so a level pulls as hard for any N (`Participant.go`: gaze_gain · |yaw| ·
+trust). The two forms give different angles at N = 2 (the geometric ones are smaller: minimal
+±0.22 rad against the printed 0.47), but the same cue: the same option and strength (1e-12),
+and the same side (tests/unit/test_gaze.py checks it at N = 2 on random tables).
 """
 
 from __future__ import annotations
@@ -11,7 +30,8 @@ import math
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
 
-from services.model.geometry import Colour
+from services.model.geometry import Colour, Point
+from services.model.options_geometry import OptionsLayout
 
 GazeLevelName: TypeAlias = Literal[
     "neutral", "minimal", "low", "moderate", "significant", "extreme"
@@ -81,6 +101,114 @@ def gaze_level(name: str) -> GazeLevel:
         raise ValueError(
             f"unknown gaze level {name!r}; expected one of {GAZE_LEVEL_NAMES}"
         ) from None
+
+
+EYES: Point = (0.5, 0.0)  # above the arm's home (0.5, 0.08), on the table's far edge
+EYES_HEIGHT = 0.25  # normalised table units above the table
+PARTICIPANT: Point = (0.5, 0.85)  # the resting hand (ParticipantParams.start): neutral gaze
+_EXTREME = abs(GAZE_LEVELS["extreme"].yaw)
+_NO_CUE = 1e-9  # |yaw| (rad) at or below which the paper's person reads no cue
+
+
+def cue_strength(level: str) -> float:
+    """A level's strength: its |yaw| in the paper's table (0 for neutral, 1.09 for extreme)."""
+    return abs(gaze_level(level).yaw)
+
+
+def _paper_sides(layout: OptionsLayout) -> tuple[int, int] | None:
+    """(the +x box, the other) on the paper's table: two boxes, one each side of the eyes."""
+    if layout.n_options != 2:
+        return None
+    x0, x1 = (box.center[0] for box in layout.boxes)
+    if x0 > EYES[0] > x1:
+        return 0, 1
+    if x1 > EYES[0] > x0:
+        return 1, 0
+    return None
+
+
+def _depression(p: Point) -> float:
+    """The angle below the horizontal at which the eyes see a point of the table."""
+    return math.atan2(EYES_HEIGHT, math.dist(EYES, p))
+
+
+def look_at(p: Point) -> GazeCommand:
+    """The gaze that looks at table point p."""
+    yaw = math.atan2(p[0] - EYES[0], p[1] - EYES[1])
+    return GazeCommand(yaw, _depression(PARTICIPANT) - _depression(p))
+
+
+def gaze_point(layout: OptionsLayout, option: int | None, level: str) -> Point:
+    """Where a level's geometric gaze toward `option` looks (None or "neutral": the hand)."""
+    share = cue_strength(level) / _EXTREME
+    if option is None or share == 0.0:
+        return PARTICIPANT
+    cx, cy = layout.boxes[option].center
+    px, py = PARTICIPANT
+    return (px + share * (cx - px), py + share * (cy - py))
+
+
+def geometric_gaze(layout: OptionsLayout, option: int | None, level: str) -> GazeCommand:
+    """The general form for any N: the eyes look at `gaze_point` (module doc)."""
+    if option is None or cue_strength(level) == 0.0:
+        return GazeCommand()
+    return look_at(gaze_point(layout, option, level))
+
+
+def gaze_toward(layout: OptionsLayout, option: int | None, level: str) -> GazeCommand:
+    """The eyes' command for a level toward `option` on this table.
+
+    On the paper's table (two boxes, one each side) the paper's printed row toward the box's
+    side (the two-option kernel); otherwise `geometric_gaze`.
+    """
+    sides = _paper_sides(layout)
+    if sides is None:
+        return geometric_gaze(layout, option, level)
+    if option is None:
+        return GazeCommand()
+    if option not in sides:
+        raise IndexError(f"box {option} is not on this table of 2 boxes")
+    return gaze_level(level).toward("red" if option == sides[0] else "blue")
+
+
+def read_geometric_gaze(layout: OptionsLayout, gaze: GazeCommand) -> tuple[int | None, float]:
+    """The general reading for any N: the box the gaze points toward from the hand.
+
+    Strength: the level's |yaw| in the paper's table, from how far toward the box the eyes
+    look. The neutral gaze, or one at or above the horizon, is no cue: (None, 0.0).
+    """
+    depression = _depression(PARTICIPANT) - gaze.pitch
+    if depression <= 0 or (gaze.yaw == 0.0 and gaze.pitch == 0.0):
+        return None, 0.0
+    reach = EYES_HEIGHT / math.tan(depression)
+    g = (EYES[0] + reach * math.sin(gaze.yaw), EYES[1] + reach * math.cos(gaze.yaw))
+    gx, gy = g[0] - PARTICIPANT[0], g[1] - PARTICIPANT[1]
+    seen = math.hypot(gx, gy)
+    if seen < 1e-9:
+        return None, 0.0
+    best, best_cos, best_len = None, -2.0, 1.0
+    for j, box in enumerate(layout.boxes):
+        bx, by = box.center[0] - PARTICIPANT[0], box.center[1] - PARTICIPANT[1]
+        length = math.hypot(bx, by)
+        cos = (gx * bx + gy * by) / (seen * length)
+        if cos > best_cos:
+            best, best_cos, best_len = j, cos, length
+    return best, min(_EXTREME, _EXTREME * seen / best_len)
+
+
+def read_gaze(layout: OptionsLayout, gaze: GazeCommand) -> tuple[int | None, float]:
+    """(option, strength) a person reads from a gaze on this table.
+
+    On the paper's table the paper's person's reading (the two-option kernel): the box on the
+    side of the yaw, strength |yaw|, no cue at |yaw| ≤ 1e-9 (`Participant.go`); otherwise
+    `read_geometric_gaze`.
+    """
+    sides = _paper_sides(layout)
+    if sides is None:
+        return read_geometric_gaze(layout, gaze)
+    if abs(gaze.yaw) <= _NO_CUE:
+        return None, 0.0
+    return sides[0] if gaze.yaw > 0 else sides[1], abs(gaze.yaw)
 
 
 MAX_GESTURE_STEP_S = 10.0  # one pose of the attention gesture (the paper's is under a second)

@@ -7,7 +7,7 @@
   heads for), seen `perception_delay_s` late, and γ_h > 0 (the person wants to match);
 - the bias b_h = preference + gaze, each along an option's `option_vector`: a preference for a
   random box with a magnitude drawn as the two-option person's, and the gaze cue's pull toward
-  the box the eyes look at (`options_gaze.read_gaze`), gaze_gain · strength · trust. With two
+  the box the eyes look at (`gaze.read_gaze`), gaze_gain · strength · trust. With two
   boxes these are the two-option person's b_h = ±preference ± pull;
 - after the reaction time the hand heads for the box of z_h's leading option, its speed scaled
   by conviction (the lead of that option over the runner-up, as |z_h| is with two boxes); a
@@ -26,10 +26,9 @@ from collections import deque
 import numpy as np
 
 from services.model.dynamics import OptionsParams, PairParams, leading_option, option_vector
-from services.model.gaze import GazeCommand
+from services.model.gaze import GazeCommand, read_gaze
 from services.model.geometry import HAND_TEMPLATE, CommitLine
 from services.model.options_floats import rate
-from services.model.options_gaze import read_gaze
 from services.model.options_geometry import OptionsLayout
 from services.model.participant import ParticipantParams
 

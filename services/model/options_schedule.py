@@ -15,7 +15,7 @@ params file selects it with an option list in `[protocol]`:
 
 The session's clock (gaze, countdown, "go", timeout, rest) is the paper's `SessionProtocol`
 unchanged: `timing_specs` gives it one `TrialSpec` per trial carrying only what it times (the
-index, the gaze command from `options_gaze`, the gesture, the level's name); the N_o-option
+index, the gaze command from `gaze.gaze_toward`, the gesture, the level's name); the N_o-option
 runner looks each trial's mode and O up here by index.
 """
 
@@ -25,8 +25,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from services.model.gaze import GAZE_LEVEL_NAMES
-from services.model.options_gaze import gaze_toward
+from services.model.gaze import GAZE_LEVEL_NAMES, gaze_toward
 from services.model.options_geometry import OptionsLayout
 from services.model.schedule import MAX_TRIALS, MODES, Mode, TrialSpec
 

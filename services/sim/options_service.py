@@ -3,7 +3,7 @@
 `services.sim.service` with the N_o-option person (`services.model.options_participant`): at
 camera rate it publishes 21 noisy landmarks on `vision/hand` and the table (option names and
 boxes) on `options/layout`; it follows `options/trial`, reads the gaze on `eyes/cmd` (the
-geometric gaze toward a box, `services.model.options_gaze`), watches the arm on
+geometric gaze toward a box, `services.model.gaze`), watches the arm on
 `options/arm_state` and its press on `options/press`. Seeded as the two-option sim. With
 `--render` it is the camera instead: frames of the table of N boxes (each in its option's
 colour, `services.scene.option_colours`) on `sim/camera`, for `nod vision --options N`, which

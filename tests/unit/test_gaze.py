@@ -10,13 +10,21 @@ from hypothesis import strategies as st
 
 from services.eyes.servos import ServoDriver, ServoNotConnectedError, SimServoDriver
 from services.model.gaze import (
+    EYES,
     GAZE_LEVEL_NAMES,
     GAZE_LEVELS,
     AttentionGestureParams,
     GazeCommand,
     attention_gesture,
+    cue_strength,
     gaze_level,
+    gaze_toward,
+    geometric_gaze,
+    read_gaze,
+    read_geometric_gaze,
 )
+from services.model.geometry import Box, TableLayout
+from services.model.options_geometry import OptionsLayout
 from services.model.servos import (
     SERVO_NAMES,
     EyesCalibration,
@@ -228,3 +236,62 @@ def test_sim_driver_lifecycle() -> None:
     # Leaving the block returned the eyes to neutral.
     assert drv.sent[-1].angles_deg == (90.0,) * 4
     assert len(drv.sent) == 2
+
+
+# -- the gaze toward an option of N: the paper's table is the two-option kernel ---------------
+
+two_box_tables = st.tuples(
+    st.floats(0.05, 0.45), st.floats(0.55, 0.95), st.floats(0.08, 0.3), st.floats(0.08, 0.3),
+    st.booleans(),
+)
+
+
+def _two_boxes(table: tuple[float, float, float, float, bool]) -> OptionsLayout:
+    """Two boxes 0.1 wide, one each side of the eyes; option 0 on +x or on -x."""
+    left, right, y_left, y_right, red_first = table
+    boxes = (Box(left - 0.05, y_left - 0.05, left + 0.05, y_left + 0.05),
+             Box(right - 0.05, y_right - 0.05, right + 0.05, y_right + 0.05))
+    return OptionsLayout(boxes[::-1] if red_first else boxes)
+
+
+@settings(max_examples=200, deadline=None)
+@given(two_box_tables)
+def test_two_boxes_kernel_and_geometric_gaze_give_the_same_cue(
+    table: tuple[float, float, float, float, bool],
+) -> None:
+    """At N = 2 the paper's printed gaze and the general geometric gaze cue the same box, on
+    the same side, with the same strength (1e-12); the kernel is the printed row itself."""
+    layout = _two_boxes(table)
+    plus_x = 0 if layout.boxes[0].center[0] > EYES[0] else 1
+    for level in GAZE_LEVEL_NAMES:
+        for j in (0, 1):
+            kernel, general = gaze_toward(layout, j, level), geometric_gaze(layout, j, level)
+            assert kernel == GAZE_LEVELS[level].toward("red" if j == plus_x else "blue")
+            got, want = read_gaze(layout, kernel), read_geometric_gaze(layout, general)
+            if level == "neutral":
+                assert got == want == (None, 0.0)
+                continue
+            assert got[0] == want[0] == j
+            assert got[1] == cue_strength(level)
+            assert abs(got[1] - want[1]) < 1e-12
+            assert math.copysign(1, kernel.yaw) == math.copysign(1, general.yaw)
+
+
+def test_the_paper_table_reads_as_the_paper_person_reads_the_yaw() -> None:
+    layout = OptionsLayout.from_table(TableLayout())  # option 0 is red, on +x
+    assert read_gaze(layout, GazeCommand(0.53, -0.53)) == (0, 0.53)
+    assert read_gaze(layout, GazeCommand(-0.47, 0.31)) == (1, 0.47)
+    assert read_gaze(layout, GazeCommand(1e-10, 0.4)) == (None, 0.0)
+    assert gaze_toward(layout, None, "extreme") == GazeCommand()
+    with pytest.raises(IndexError, match="not on this table"):
+        gaze_toward(layout, 2, "low")
+
+
+def test_three_boxes_and_boxes_on_one_side_take_the_geometric_gaze() -> None:
+    row = OptionsLayout.row(3)
+    one_side = OptionsLayout((Box(0.6, 0.1, 0.7, 0.2), Box(0.8, 0.1, 0.9, 0.2)))
+    for layout in (row, one_side):
+        for j in range(layout.n_options):
+            assert gaze_toward(layout, j, "moderate") == geometric_gaze(layout, j, "moderate")
+            assert read_gaze(layout, gaze_toward(layout, j, "moderate")) == read_geometric_gaze(
+                layout, geometric_gaze(layout, j, "moderate"))

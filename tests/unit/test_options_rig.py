@@ -14,13 +14,12 @@ from services.model.behaviour import ArmCommand, BehaviourParams
 from services.model.bias import BiasParams
 from services.model.debounce import DebounceParams
 from services.model.dynamics import OptionsParams, leading_option, option_vector
-from services.model.gaze import GAZE_LEVEL_NAMES
+from services.model.gaze import GAZE_LEVEL_NAMES, cue_strength, gaze_toward, read_gaze
 from services.model.geometry import CommitLine, TableLayout
 from services.model.options_arm import OptionsSimArm
 from services.model.options_behaviour import TIE_TOLERANCE, OptionsCommand, leader_or_nearest_tie
 from services.model.options_bias import advance_robot
 from services.model.options_floats import advance
-from services.model.options_gaze import cue_strength, gaze_toward, read_gaze
 from services.model.options_geometry import OptionsLayout
 from services.model.options_judge import OptionsOutcomeTracker
 from services.model.options_robot import OptionsRobotTrial
