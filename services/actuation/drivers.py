@@ -12,7 +12,8 @@ from pathlib import Path
 from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
 from services.actuation.threaded_arm import ThreadedArm
 from services.core.config import from_mapping, load_toml
-from services.model.arm import ArmDriver, SimArm, SimArmParams
+from services.model.arm import ArmDriver, SimArm
+from services.model.arm_kinematics import SimArmParams
 from services.model.geometry import TableLayout
 
 ARM_DRIVERS: tuple[str, ...] = ("sim", "feetech")

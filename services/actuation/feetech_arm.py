@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 from services.actuation.arm_path import POSE_NAMES, ArmPoses, Pose, locate, pose_at
 from services.actuation.feetech import RESOLUTION, FeetechBus, Series
 from services.core.serial_link import LinkConfig, LinkError, SerialLink
-from services.model.arm import ArmDriver, ArmNotConnectedError, ArmState
+from services.model.arm import ArmDriver, ArmState
+from services.model.arm_kinematics import ArmNotConnectedError
 from services.model.behaviour import ArmCommand
 from services.model.geometry import Colour, Point, TableLayout, colour_sign
 

@@ -21,7 +21,7 @@ from services.core import messages as m
 from services.core import options_messages as om
 from services.core.node import Node
 from services.core.options_messages import check_count, same_count, values_for
-from services.model.options_arm import OptionsSimArm
+from services.model.arm import OptionsSimArm
 from services.model.options_behaviour import OptionsCommand
 from services.model.options_geometry import OptionsLayout
 from services.model.options_robot import OptionsRobotTrial

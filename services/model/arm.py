@@ -1,4 +1,4 @@
-"""Arm drivers: one small interface, and a kinematic simulated arm.
+"""Arm drivers: one small interface, and the simulated arm's press poses over N ≥ 2 boxes.
 
 Following LeRobot's `Robot`: hardware sits behind `connect / is_connected / send / disconnect`
 and a context manager; `send` returns the command actually applied (a driver may refuse or
@@ -7,24 +7,28 @@ Leaving the `with` block holds the arm before disconnecting.
 
 Coordinates are the table's normalised image coordinates (x right, y down, in [0, 1]); time is
 in seconds (float) and always passed in — no driver here reads a clock.
+
+Both simulated arms are `PointArm` (`services.model.arm_kinematics`: limits, braking, the press
+hold) with one press pose per box, its centre; they differ only in how a target is named.
+`OptionsSimArm` is the general form: option j of N heads for `layout.boxes[j]`, driven by
+`OptionsCommand`s. `SimArm` is its two-option kernel, kept because the paper's rig speaks in
+colours (`ArmCommand`, `ArmState`, the `ArmDriver` interface the Feetech driver shares): red
+and blue of a `TableLayout`. On the paper's table (`OptionsLayout.from_table`, option 0 red)
+the two apply the same commands and move bit for bit alike
+(tests/unit/test_options_rig.py, hypothesis).
 """
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Generic, TypeVar
 
+from services.model.arm_kinematics import PointArm, SimArmParams
 from services.model.behaviour import ArmCommand
 from services.model.geometry import Colour, Point, TableLayout
-
-Target = TypeVar("Target")  # what a simulated arm's targets are named by: a colour, an option
-
-
-class ArmNotConnectedError(RuntimeError):
-    """A command or query reached an arm driver before `connect()` (or after `disconnect()`)."""
+from services.model.options_behaviour import OptionsCommand
+from services.model.options_geometry import OptionsLayout
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,215 +90,6 @@ class ArmDriver(ABC):
                 self.hold()
         finally:
             self.disconnect()
-
-
-@dataclass(frozen=True, slots=True)
-class SimArmParams:
-    """Kinematic limits of the simulated arm."""
-
-    # Rest pose: the robot sits across the table from the participant, near the top edge
-    # between the two boxes (normalised image coordinates).
-    home: Point = (0.5, 0.08)
-    # Speed limit of the end effector (normalised units/s); > 0. Never exceeded.
-    max_speed: float = 0.35
-    # Acceleration limit (normalised units/s²); > 0. Also bounds braking: a stop is not instant.
-    max_accel: float = 2.0
-    # Time the buzzer is held down once reached (s); ≥ 0.
-    press_duration_s: float = 0.3
-    # Internal integration step (s); > 0. Smaller = more exact arrival, more work per advance.
-    step_s: float = 0.002
-
-    def __post_init__(self) -> None:
-        if len(self.home) != 2 or not all(math.isfinite(v) for v in self.home):
-            raise ValueError(f"SimArmParams.home must be a finite (x, y), got {self.home!r}")
-        for name in ("max_speed", "max_accel", "step_s"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value <= 0:
-                raise ValueError(f"SimArmParams.{name} must be finite and > 0, got {value}")
-        if not math.isfinite(self.press_duration_s) or self.press_duration_s < 0:
-            raise ValueError(
-                f"SimArmParams.press_duration_s must be finite and >= 0, got "
-                f"{self.press_duration_s}"
-            )
-
-
-_ARRIVED = 1e-6  # distance (normalised) under which the arm snaps onto its goal
-
-
-class PointArm(Generic[Target]):
-    """A point end effector with speed and acceleration limits, moving over the table.
-
-    The kinematics and the press hold of every simulated arm, whatever names its targets: a
-    colour (`SimArm`, the paper's two buzzers) or an option index (`OptionsSimArm`, N_o boxes).
-    `_head` drives toward a target's point, and holds it `press_duration_s` when it is a
-    press; `_brake` brakes at `max_accel` (a real arm cannot stop instantly, so neither does
-    this one) and then holds. Motion takes effect at the arm's current time: call `advance(t)`
-    first.
-    """
-
-    def __init__(self, params: SimArmParams | None = None, t0: float = 0.0) -> None:
-        """Place the arm at home, at rest, at time t0 (s); not yet connected."""
-        self.params = params if params is not None else SimArmParams()
-        if not math.isfinite(t0):
-            raise ValueError(f"t0 must be finite, got {t0!r}")
-        self._t = t0
-        self._connected = False
-        self._pos: Point = self.params.home
-        self._vel: Point = (0.0, 0.0)
-        self._goal: Point | None = None  # None: brake to rest and hold
-        self._target: Target | None = None
-        self._press: Target | None = None  # buzzer committed to press
-        self._press_started: float | None = None
-        self._pressed: Target | None = None
-        self._fault: str | None = None
-
-    # -- connection ------------------------------------------------------------------------
-    @property
-    def is_connected(self) -> bool:
-        """Whether commands can be sent."""
-        return self._connected
-
-    def connect(self) -> None:
-        """Mark the simulated arm connected."""
-        self._connected = True
-
-    def disconnect(self) -> None:
-        """Mark the simulated arm disconnected; its motion state is kept."""
-        self._connected = False
-
-    # -- read-only state -------------------------------------------------------------------
-    @property
-    def t(self) -> float:
-        """The arm's current time (s)."""
-        return self._t
-
-    @property
-    def position(self) -> Point:
-        """The end effector's current position."""
-        return self._pos
-
-    @property
-    def velocity(self) -> Point:
-        """The end effector's current velocity (normalised units/s)."""
-        return self._vel
-
-    @property
-    def speed(self) -> float:
-        """|velocity| (normalised units/s)."""
-        return math.hypot(*self._vel)
-
-    @property
-    def moving(self) -> bool:
-        """Whether the end effector has non-zero velocity."""
-        return self._vel != (0.0, 0.0)
-
-    # -- faults ----------------------------------------------------------------------------
-    def inject_fault(self, reason: str) -> None:
-        """Simulate a hardware fault: brake, then refuse motion until `clear_fault`."""
-        self._fault = reason
-        self._brake()
-
-    def clear_fault(self) -> None:
-        """Clear a simulated fault; the arm stays at rest until the next command."""
-        self._fault = None
-
-    # -- kinematics ------------------------------------------------------------------------
-    def advance(self, t: float) -> None:
-        """Integrate the motion up to time t (s), in steps of at most `step_s`."""
-        if not math.isfinite(t):
-            raise ValueError(f"time must be finite, got {t!r}")
-        if t < self._t:
-            raise ValueError(f"time went backwards: {t} < {self._t}; pass monotonic time")
-        span = t - self._t
-        if span == 0:
-            return
-        n = max(1, math.ceil(span / self.params.step_s))
-        dt = span / n
-        t0 = self._t
-        for i in range(1, n + 1):
-            if self._vel == (0.0, 0.0) and (self._goal is None or self._pos == self._goal):
-                # At rest where it should be (the arm waits so most of a session): a substep
-                # would leave position and velocity as they are, bit for bit; only a press
-                # being held down goes on, and nothing at all without one.
-                if self._press is None or self._pressed is not None or self._goal is None:
-                    break
-                self._update_press(t0 + span * i / n)
-            else:
-                self._substep(dt, t0 + span * i / n)
-        self._t = t
-
-    def _substep(self, dt: float, t_end: float) -> None:
-        p = self.params
-        goal = self._goal
-        if goal is None:
-            v_des = (0.0, 0.0)
-        else:
-            dx, dy = goal[0] - self._pos[0], goal[1] - self._pos[1]
-            dist = math.hypot(dx, dy)
-            if dist < _ARRIVED:
-                v_des = (0.0, 0.0)
-            else:
-                # Brake in time to arrive at rest (v² = 2 a d), and never step past the goal.
-                speed = min(p.max_speed, math.sqrt(2.0 * p.max_accel * dist), dist / dt)
-                v_des = (dx / dist * speed, dy / dist * speed)
-        vx, vy = v0 = self._vel
-        ax, ay = v_des[0] - vx, v_des[1] - vy
-        dv = math.hypot(ax, ay)
-        dv_max = p.max_accel * dt
-        if dv > dv_max:
-            ax, ay = ax * dv_max / dv, ay * dv_max / dv
-        vx, vy = vx + ax, vy + ay
-        speed = math.hypot(vx, vy)
-        if speed > p.max_speed:  # guard against rounding: the limit is a safety property
-            vx, vy = vx * p.max_speed / speed, vy * p.max_speed / speed
-        if speed < 1e-12:
-            vx = vy = 0.0
-        self._vel = (vx, vy)
-        self._pos = (self._pos[0] + vx * dt, self._pos[1] + vy * dt)
-        if goal is not None:
-            dist = math.dist(self._pos, goal)
-            # Snap onto the goal only if stopping from the step's *initial* velocity is itself
-            # within this step's acceleration budget: the snap replaces the update, it must not
-            # add a second velocity change on top of it.
-            if dist < _ARRIVED and math.hypot(*v0) <= dv_max:
-                self._pos, self._vel = goal, (0.0, 0.0)
-        self._update_press(t_end)
-
-    def _update_press(self, t: float) -> None:
-        if self._press is None or self._pressed is not None or self._goal is None:
-            return
-        if self._pos != self._goal or self._vel != (0.0, 0.0):
-            return
-        if self._press_started is None:
-            self._press_started = t
-        if t - self._press_started >= self.params.press_duration_s - 1e-12:
-            self._pressed = self._press
-
-    # -- internals -------------------------------------------------------------------------
-    def _head(self, target: Target, goal: Point, press: bool) -> None:
-        """Drive toward `goal`, the point of `target`; commit to pressing it if `press`."""
-        if press and self._press is None:
-            self._press = target
-            self._press_started = None
-        self._goal = goal
-        self._target = target
-
-    def _go_home(self) -> None:
-        """Drive back to the home pose and clear the trial's press."""
-        self._press = self._pressed = self._press_started = None
-        self._goal = self.params.home
-        self._target = None
-
-    def _brake(self) -> None:
-        self._goal = None
-        self._target = None
-        if self._pressed is None:
-            self._press = None  # an unfinished press is cancelled by a stop
-            self._press_started = None
-
-    def _require_connected(self) -> None:
-        if not self._connected:
-            raise ArmNotConnectedError("the arm is not connected; call connect() first")
 
 
 class SimArm(PointArm[Colour], ArmDriver):
@@ -360,3 +155,78 @@ class SimArm(PointArm[Colour], ArmDriver):
     def _apply(self, cmd: ArmCommand) -> ArmCommand:
         self._applied = cmd
         return cmd
+
+
+@dataclass(frozen=True, slots=True)
+class OptionsArmState:
+    """What the arm reports at time t (s); targets are option indices."""
+
+    t: float
+    ee: Point
+    moving: bool
+    target: int | None  # the box it heads for or presses; None when stopping or going home
+    pressed: int | None  # the box it finished pressing this trial
+    fault: str | None
+
+
+class OptionsSimArm(PointArm[int]):
+    """A kinematic arm over the N_o boxes of an `OptionsLayout`."""
+
+    def __init__(
+        self, layout: OptionsLayout, params: SimArmParams | None = None, t0: float = 0.0
+    ) -> None:
+        """Place the arm at home, at rest, at time t0 (s); not yet connected."""
+        super().__init__(params, t0)
+        self.layout = layout
+
+    def pose(self, option: int) -> Point:
+        """Where the end effector goes for option j: the centre of its box."""
+        return self.layout.boxes[option].center
+
+    def send(self, cmd: OptionsCommand) -> OptionsCommand:
+        """Apply a command at the arm's current time; return what was actually applied.
+
+        The refusals of `SimArm.send`: anything but idle/stop while faulted (→ stop); a move,
+        or a press of another box, once a press is committed (→ the committed press).
+        """
+        self._require_connected()
+        if cmd.action == "idle":
+            return cmd
+        if cmd.action == "stop":
+            self._brake()
+            return cmd
+        if self._fault is not None:
+            self._brake()
+            return OptionsCommand("stop", reason=f"refused {cmd.action}: fault {self._fault}")
+        if self._press is not None and cmd.target != self._press:
+            return OptionsCommand(
+                "press", self._press, f"refused {cmd.action}: press already committed"
+            )
+        assert cmd.target is not None  # move and press always carry a target
+        if not 0 <= cmd.target < self.layout.n_options:
+            raise ValueError(
+                f"box {cmd.target} is not on this table of {self.layout.n_options} boxes"
+            )
+        self._head(cmd.target, self.pose(cmd.target), cmd.action == "press")
+        return cmd
+
+    def home(self) -> OptionsCommand:
+        """Drive back to the home pose and clear the trial's press (refused while faulted)."""
+        self._require_connected()
+        if self._fault is not None:
+            self._brake()
+            return OptionsCommand("stop", reason=f"refused home: fault {self._fault}")
+        self._go_home()
+        return OptionsCommand("idle", reason="going home")
+
+    def hold(self) -> OptionsCommand:
+        """Safe stop: come to rest (bounded deceleration) and hold that position."""
+        return self.send(OptionsCommand("stop", reason="hold"))
+
+    def state(self, t: float) -> OptionsArmState:
+        """Advance to time t (s) and report."""
+        self._require_connected()
+        self.advance(t)
+        return OptionsArmState(
+            self._t, self._pos, self.moving, self._target, self._pressed, self._fault
+        )

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from services.model.options_arm import OptionsSimArm
+from services.model.arm import OptionsSimArm
 from services.model.options_decision import OptionsDecision
 from services.model.options_geometry import OptionsLayout
 from services.model.options_judge import OptionsTrialJudge

@@ -12,7 +12,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-from services.model.arm import SimArmParams
+from services.model.arm_kinematics import SimArmParams
 from services.model.behaviour import BehaviourParams
 from services.model.debounce import DebounceParams
 from services.model.decision import DecisionParams

@@ -47,7 +47,7 @@ FRAME_QUALITY = 80  # JPEG quality of a frame the bridge had to resize
 
 # Where the robot is drawn on the table (normalised image coordinates, x right, y down). The
 # robot sits across the table from the participant, at the middle of the image's top edge
-# (services/model/arm.py: the simulated arm's home pose (0.5, 0.08) is just in front of it).
+# (services/model/arm_kinematics.py: the simulated arm's home (0.5, 0.08) is just in front of it).
 ARM_BASE = (0.5, 0.0)  # where the arm is mounted: its segment runs from here to the end effector
 EYES = ((0.45, 0.0), (0.55, 0.0))  # the two eyes, either side of the arm's base
 GAZE_LENGTH = 0.25  # length of a gaze arrow (normalised)

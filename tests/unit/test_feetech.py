@@ -249,7 +249,8 @@ def test_calibrate_abort_writes_nothing(bus, tmp_path):
 def test_factory_builds_each_arm_driver():
     from services.actuation.drivers import make_arm_driver
     from services.actuation.threaded_arm import ThreadedArm
-    from services.model.arm import SimArm, SimArmParams
+    from services.model.arm import SimArm
+    from services.model.arm_kinematics import SimArmParams
 
     example = ROOT / "deploy/hardware/arm.example.toml"
     sim = make_arm_driver("sim", None, None, LAYOUT, SimArmParams(), t0=5.0)

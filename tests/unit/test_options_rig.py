@@ -9,14 +9,13 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from services.model.arm import SimArm
+from services.model.arm import OptionsSimArm, SimArm
 from services.model.behaviour import ArmCommand, BehaviourParams
 from services.model.bias import BiasParams
 from services.model.debounce import DebounceParams
 from services.model.dynamics import OptionsParams, leading_option, option_vector
 from services.model.gaze import GAZE_LEVEL_NAMES, cue_strength, gaze_toward, read_gaze
 from services.model.geometry import CommitLine, TableLayout
-from services.model.options_arm import OptionsSimArm
 from services.model.options_behaviour import TIE_TOLERANCE, OptionsCommand, leader_or_nearest_tie
 from services.model.options_bias import advance_robot
 from services.model.options_floats import advance
@@ -74,35 +73,50 @@ def test_two_boxes_tie_rule_is_the_sign_outside_the_tolerance(x: float, ex: floa
         assert got is None
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.lists(st.tuples(st.sampled_from(["move", "press", "stop", "idle"]),
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["move", "press", "stop", "idle", "home", "fault",
+                                           "clear"]),
                           st.sampled_from(["red", "blue"]), st.floats(0.01, 0.4)),
-                min_size=1, max_size=12))
+                min_size=1, max_size=16))
 def test_two_box_options_arm_moves_as_the_paper_arm(
     cmds: list[tuple[str, str, float]]
 ) -> None:
+    """The general arm on the paper's table is the paper's `SimArm` (its two-option kernel):
+    the same applied commands (action, box, reason) and the same states, bit for bit."""
     table = TableLayout()
     paper, options = SimArm(table), OptionsSimArm(OptionsLayout.from_table(table))
     paper.connect()
     options.connect()
-    index = {"red": 0, "blue": 1}
+    index = {"red": 0, "blue": 1, None: None}
     t = 0.0
     for action, colour, dt in cmds:
         sign = 1 if colour == "red" else -1
-        if action == "move":
-            a, b = ArmCommand.move(sign), OptionsCommand("move", index[colour])
-        elif action == "press":
-            a, b = ArmCommand.press(colour), OptionsCommand("press", index[colour])  # type: ignore[arg-type]
-        elif action == "stop":
-            a, b = ArmCommand.stop(), OptionsCommand("stop")
+        if action == "fault":
+            paper.inject_fault("bus")
+            options.inject_fault("bus")
+        elif action == "clear":
+            paper.clear_fault()
+            options.clear_fault()
         else:
-            a, b = ArmCommand.idle(), OptionsCommand("idle")
-        applied_a, applied_b = paper.send(a), options.send(b)
-        assert applied_b.action == applied_a.action
+            if action == "home":
+                applied_a, applied_b = paper.home(), options.home()
+            else:
+                if action == "move":
+                    a, b = ArmCommand.move(sign), OptionsCommand("move", index[colour])
+                elif action == "press":
+                    a = ArmCommand.press(colour)  # type: ignore[arg-type]
+                    b = OptionsCommand("press", index[colour])
+                elif action == "stop":
+                    a, b = ArmCommand.stop(), OptionsCommand("stop")
+                else:
+                    a, b = ArmCommand.idle(), OptionsCommand("idle")
+                applied_a, applied_b = paper.send(a), options.send(b)
+            assert (applied_b.action, applied_b.target, applied_b.reason) == (
+                applied_a.action, index[applied_a.target], applied_a.reason)
         t += dt
         sa, sb = paper.state(t), options.state(t)
-        assert sa.ee == sb.ee
-        assert sb.pressed == (None if sa.pressed is None else index[sa.pressed])
+        assert (sb.t, sb.ee, sb.moving, sb.fault) == (sa.t, sa.ee, sa.moving, sa.fault)
+        assert (sb.target, sb.pressed) == (index[sa.target], index[sa.pressed])
 
 
 def test_the_options_arm_presses_any_box_and_refuses_after_a_press() -> None:
@@ -111,7 +125,7 @@ def test_the_options_arm_presses_any_box_and_refuses_after_a_press() -> None:
     arm.connect()
     arm.send(OptionsCommand("press", 2))
     assert arm.send(OptionsCommand("move", 0)) == OptionsCommand(
-        "press", 2, "refused: press already committed"
+        "press", 2, "refused move: press already committed"
     )
     t = 0.0
     while arm.state(t).pressed is None and t < 10:

@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.model.arm import ArmDriver, ArmNotConnectedError, SimArm, SimArmParams
+from services.model.arm import ArmDriver, SimArm
+from services.model.arm_kinematics import ArmNotConnectedError, SimArmParams
 from services.model.behaviour import ArmCommand, BehaviourParams, RobotBehaviour
 from services.model.geometry import TableLayout
 
