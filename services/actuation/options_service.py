@@ -24,8 +24,8 @@ from services.core.options_messages import check_count, same_count, values_for
 from services.model.arm import OptionsSimArm
 from services.model.options_behaviour import OptionsCommand
 from services.model.options_geometry import OptionsLayout
-from services.model.options_robot import OptionsRobotTrial
 from services.model.params import NodConfig
+from services.model.robot import OptionsRobotTrial
 from services.model.safety import SafetyParams, Watchdog
 from services.safety.latch_file import LatchFile
 from services.safety.wiring import watch_safety_inputs

@@ -21,9 +21,9 @@ from services.model.options_bias import advance_robot
 from services.model.options_floats import advance
 from services.model.options_geometry import OptionsLayout
 from services.model.options_judge import OptionsOutcomeTracker
-from services.model.options_robot import OptionsRobotTrial
 from services.model.options_schedule import OptionsSchedule, schedule_from_table
 from services.model.outcome import OutcomeTracker
+from services.model.robot import OptionsRobotTrial
 
 opinions = st.floats(-2.0, 2.0, allow_nan=False)
 

@@ -5,11 +5,16 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from services.model.closed_loop import run_offline_session
 from services.model.judge import TrialJudge
+from services.model.options_geometry import OptionsLayout
 from services.model.params import NodConfig
 from services.model.protocol import TrialEnd
-from services.model.robot import RobotTrial
+from services.model.robot import OptionsRobotTrial, RobotTrial
 
 CFG = NodConfig()
 LAYOUT = CFG.layout
@@ -140,3 +145,58 @@ def test_a_replayed_hand_is_where_the_recording_was_after_go():
         assert "only 2 trial" in str(exc)
     else:
         raise AssertionError("a third trial out of a two-trial recording")
+
+
+# -- the reactor over N boxes: on the paper's table the general robot is the paper's -----------
+
+TWO = OptionsLayout.from_table(LAYOUT)  # option 0 is red
+INDEX = {"red": 0, "blue": 1, None: None}
+events = st.lists(
+    st.one_of(
+        st.tuples(st.just("z"), st.sampled_from([-1.0, -0.3, 0.0, 0.2, 1.0, None])),
+        st.tuples(st.just("hand"), st.sampled_from(["red", "blue", "away"])),
+        st.tuples(st.just("arm"), st.sampled_from(["red", "blue"])),
+        st.tuples(st.sampled_from(["go", "setup", "void"]), st.none()),
+    ),
+    min_size=1, max_size=60,
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(events, st.floats(0.2, 0.8))
+def test_two_boxes_the_general_robot_is_the_papers(
+    stream: list[tuple[str, object]], x: float
+) -> None:
+    """`OptionsRobotTrial` on the paper's table and `RobotTrial` (its two-option kernel) give the
+    same commands (action, box), phases, human presses and robot presses, event for event."""
+    paper = robot()
+    general = OptionsRobotTrial(TWO, CFG.behaviour, CFG.debounce, CFG.protocol.trial_timeout_s)
+    ee, where = (x, 0.5), {"red": RED_IN, "blue": BLUE_IN, "away": AWAY}
+    for i, (kind, value) in enumerate(stream):
+        t = 0.03 * (i + 1)
+        if kind == "z":
+            z = None if value is None else float(str(value))
+            a = paper.step(t, z, ee)
+            b = general.step(t, None if z is None else np.array([z, -z]), ee)
+            assert (a is None) == (b is None)
+            if a is not None and b is not None:
+                assert (b.action, b.target) == (a.action, INDEX[a.target])
+        elif kind == "hand":
+            landmarks = [where[str(value)]]
+            assert INDEX[paper.see_hand(landmarks)] == general.see_hand(landmarks)
+        elif kind == "arm":
+            colour = "red" if value == "red" else "blue"
+            assert paper.arm_pressed(colour) == general.arm_pressed(INDEX[colour])
+        elif kind == "go":
+            if paper.running:
+                continue  # Algorithm 2 starts once a trial
+            a, b = paper.go(t), general.go(t)
+            assert (b.action, b.target) == (a.action, INDEX[a.target])
+        elif kind == "setup":
+            paper.setup(i)
+            general.setup(i)
+        else:
+            paper.interrupted()
+            general.interrupted()
+        assert general.machine.phase == paper.machine.phase
+        assert (general.running, general.pressed) == (paper.running, INDEX[paper.pressed])
