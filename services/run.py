@@ -14,6 +14,7 @@ its session's last trial (Ctrl-C, a service given up) prints `resume with: nod r
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import os
 import shlex
@@ -44,6 +45,7 @@ from services.experiment.resume import (
     resume_argv,
     resume_line,
     resume_problem,
+    session_status,
     stored_unfinished,
 )
 from services.launch.commands import command
@@ -472,12 +474,31 @@ def _spec(
     if service == "experiment":
         at = cmd.index("--session")
         resumed = [*cmd[:at], "--resume", cmd[at + 1], *cmd[at + 2 :]]
-        resume = lambda: resumed  # noqa: E731
+        resume = functools.partial(conductor_restart, Path(args.db), cmd[at + 1], cmd, resumed)
         if getattr(args, "resume", None) is not None:  # `nod run --resume`: from the start
             cmd = resumed
     log_path = logs / f"{service}{suffix}.log"
     log_path.write_text("")  # a fresh log per run; restarts append to it
     return ServiceSpec(service, cmd, log=log_path, restart_argv=resume)
+
+
+def conductor_restart(
+    db: Path, session: str, fresh: list[str], resumed: list[str]
+) -> list[str] | None:
+    """A dead conductor's restart, by what the store holds of its session.
+
+    Stored and unfinished: resume it. Not stored (it died before its first write): start it
+    again as it was started. Complete (it died after storing its end): nothing to do — a resume
+    of a complete session is refused, and the supervisor gave up on a run whose every trial was
+    stored.
+    """
+    try:
+        status = session_status(db, session)
+    except (OSError, StoreError):  # the store unreadable: the resume itself will say why
+        return resumed
+    if status is None:
+        return fresh
+    return None if status == "complete" else resumed
 
 
 def _waiting_lines(

@@ -71,6 +71,15 @@ def stored_unfinished(db: Path | Store, session: str) -> bool:
             store.close()
 
 
+def session_status(db: Path, session: str) -> str | None:
+    """A session's stored status (running, aborted, complete), or None if it is not stored."""
+    if not Path(db).is_file():
+        return None
+    with Store(db) as store:
+        return next((str(s["status"]) for s in store.sessions() if s["session"] == session),
+                    None)
+
+
 def resume_problem(store: Store, session: str, rig: str) -> str | None:
     """Why `--resume session` may not go on in `store` on `rig` (one line), or None.
 

@@ -62,8 +62,9 @@ class ServiceSpec:
     log: Path | None = None  # stdout and stderr go here (appended); None: inherit
     restart: bool = True  # restart after an abnormal exit
     env: dict[str, str] = field(default_factory=dict)
-    # The command of a restart, when it differs (a conductor resumes its session).
-    restart_argv: Callable[[], Sequence[str]] | None = None
+    # The command of a restart, when it differs (a conductor resumes its session); None from it
+    # means there is nothing left to do (the conductor's session was complete when it died).
+    restart_argv: Callable[[], Sequence[str] | None] | None = None
 
 
 @dataclass
@@ -204,9 +205,13 @@ class Supervisor:
                 self._event(s, "restarting", code,
                             f"{describe_exit(code)}; again in {delay:.2f} s{cause}")
             elif s.state == "waiting" and now >= s.due_at and not self.stopping:
+                argv = s.spec.restart_argv() if s.spec.restart_argv else s.spec.argv
+                if argv is None:  # its work was done before it died: nothing to restart for
+                    s.state = "done"
+                    self._event(s, "exited", s.last_code, "its work was done: not restarted")
+                    continue
                 s.restarts += 1
                 s.recent.append(now)
-                argv = s.spec.restart_argv() if s.spec.restart_argv else s.spec.argv
                 self._spawn(s, argv)
 
     def state(self, name: str) -> State:

@@ -117,6 +117,34 @@ def test_restart_argv_is_used_for_restarts(tmp_path: Path) -> None:
     assert out.read_text().splitlines() == ["--session abc", "--resume abc"]
 
 
+def test_a_restart_with_nothing_left_to_do_ends_the_service_as_done(tmp_path: Path) -> None:
+    events: list[tuple[str, str, str]] = []
+    sup = Supervisor(FAST, on_event=lambda name, kind, code, restarts, text: events.append(
+        (name, kind, text)))
+    sup.start(ServiceSpec("conductor", [PY, "-c", "raise SystemExit(1)"],
+                          restart_argv=lambda: None))
+    run_until(sup, lambda: sup.state("conductor") == "done")
+    assert sup.failed() == [] and sup.services["conductor"].restarts == 0
+    assert ("conductor", "exited", "its work was done: not restarted") in events
+
+
+def test_a_dead_conductor_restarts_by_what_the_store_holds_of_its_session(tmp_path: Path):
+    from services.model.params import NodConfig
+    from services.run import conductor_restart
+    from services.store import Store
+
+    db, fresh, resumed = tmp_path / "s.sqlite", ["--session", "s1"], ["--resume", "s1"]
+    assert conductor_restart(db, "s1", fresh, resumed) == fresh  # no store yet
+    with Store(db) as store:
+        assert conductor_restart(db, "s1", fresh, resumed) == fresh  # died before its write
+        store.begin_session("s1", "P01", "rig1", 1, 10**12, NodConfig().summary())
+        assert conductor_restart(db, "s1", fresh, resumed) == resumed  # unfinished: resume
+        store.finish_session("s1", 2 * 10**12, "aborted")
+        assert conductor_restart(db, "s1", fresh, resumed) == resumed
+        store.finish_session("s1", 3 * 10**12, "complete")
+        assert conductor_restart(db, "s1", fresh, resumed) is None  # nothing left to do
+
+
 def test_stop_terminates_then_kills(tmp_path: Path) -> None:
     sup = Supervisor(FAST)
     polite = sup.start(ServiceSpec("polite", [PY, "-c", "import time; time.sleep(60)"]))
