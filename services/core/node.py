@@ -161,10 +161,14 @@ class Node:
         key = self.keys.topic(topic)
         cls: type[m.Message] = check_subscriber(topic, self.service).message
         limit = max_payload_bytes(cls)
-        locked = self._urgent_lock if urgent else self._data_lock
 
         def on_sample(sample: zenoh.Sample) -> None:
-            if not urgent and self._urgent_count:  # the CPU to the e-stop first, not a decode
+            # A data handler stands aside while a safety handler waits (unlocked reads: at worst
+            # one more data handler goes first). Python's lock is not fair: a flood's thread,
+            # releasing it and asking again sample after sample, mostly won it back, and the
+            # e-stop waited behind. Checked before the decode (the CPU to the e-stop first) and
+            # again before the lock (an e-stop that came during the decode).
+            if not urgent and self._urgent_count:
                 self._stand_aside()
             size = len(sample.payload)
             if size > limit:  # before copying it out of zenoh's buffer
@@ -175,7 +179,9 @@ class Node:
             except m.MessageError as exc:
                 self._drop(topic, str(exc))
                 return
-            with locked():
+            if not urgent and self._urgent_count:
+                self._stand_aside()
+            with self._urgent_lock() if urgent else self.lock:
                 self.received[topic] += 1
                 try:
                     handler(msg)
@@ -199,18 +205,6 @@ class Node:
             with self._urgent_waiting:
                 self._urgent_count -= 1
                 self._urgent_waiting.notify_all()
-
-    @contextmanager
-    def _data_lock(self) -> Iterator[None]:
-        """The node's lock for a data handler, taken only while no safety handler waits for it.
-
-        Python's lock is not fair: a thread that releases it and asks again at once (a flood's
-        handler, sample after sample) mostly wins it back, and the e-stop waited behind.
-        """
-        if self._urgent_count:  # unlocked read: at worst one more data handler goes first
-            self._stand_aside()
-        with self.lock:
-            yield
 
     def _stand_aside(self) -> None:
         """Wait (without the interpreter lock) until no safety handler waits or runs."""
