@@ -17,9 +17,8 @@ from collections.abc import Iterable
 from dataclasses import astuple, dataclass, replace
 from typing import Any
 
-from services.model.scoring import trial_points
 from services.store.records import RigEventRecord, SafetyEvent
-from services.store.store import Store, StoreError
+from services.store.store import Store
 
 OPTIONS_SCHEMA = """
 CREATE TABLE IF NOT EXISTS option_sets (
@@ -129,18 +128,8 @@ class OptionsStore:
     def set_clicks(self, session: str, trial: int, clicks: int | None) -> OptionsTrialRecord:
         """Enter a stored trial's counter clicks and rescore it (`Store.set_clicks`' rule)."""
         stored = {t.trial: t for t in self.trials(session)}.get(trial)
-        if stored is None:
-            raise StoreError(f"session {session!r} has no stored trial {trial}")
-        if stored.interrupted:
-            raise StoreError(f"trial {trial} of session {session} was interrupted: never scored")
-        points = trial_points(stored.human, stored.robot, stored.violations, clicks,
-                              self.store.target_clicks(session))
-        with self.db:
-            self.db.execute("BEGIN")
-            self.db.execute(
-                "UPDATE option_trials SET clicks = ?, score = ? WHERE session = ? AND trial = ?",
-                (clicks, points, session, trial),
-            )
+        points = self.store.write_clicks("option_trials", session, trial, stored, clicks)
+        assert stored is not None  # write_clicks refused a missing trial
         return replace(stored, clicks=clicks, score=points)
 
     def trials(self, session: str) -> list[OptionsTrialRecord]:

@@ -32,7 +32,7 @@ import struct
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, Protocol
 
 from services.model.scoring import trial_points
 from services.store.records import (
@@ -177,6 +177,19 @@ def refusal(path: Path, problems: Sequence[str]) -> str:
         return (f"{what}: restore its backup — move it (and any {path.name}-wal, -shm) aside "
                 f"and copy {backup} in its place; {check}")
     return f"{what}; it has no backup ({backup}): {check}; restore it from a copy of your own"
+
+
+class ScoredTrial(Protocol):
+    """What rescoring a stored trial reads (a `TrialRecord`, or an N-option trial's record)."""
+
+    @property
+    def human(self) -> Any: ...  # noqa: D102 - the fields of the records
+    @property
+    def robot(self) -> Any: ...  # noqa: D102
+    @property
+    def violations(self) -> int: ...  # noqa: D102
+    @property
+    def interrupted(self) -> Any: ...  # noqa: D102
 
 
 class Store:
@@ -522,6 +535,19 @@ class Store:
         target). StoreError if there is no such trial or it was interrupted (never scored).
         """
         stored = {t.trial: t for _, t in self.trials(session)}.get(trial)
+        points = self.write_clicks("trials", session, trial, stored, clicks)
+        assert stored is not None  # write_clicks refused a missing trial
+        return replace(stored, clicks=clicks, score=points)
+
+    def write_clicks(
+        self, table: Literal["trials", "option_trials"], session: str, trial: int,
+        stored: ScoredTrial | None, clicks: int | None,
+    ) -> int:
+        """Check a stored trial can take clicks, rescore it and write both; its new points.
+
+        The one writer of entered clicks for both trial tables (`set_clicks`, and the N-option
+        store's). StoreError if the trial is missing or interrupted, or the clicks negative.
+        """
         if stored is None:
             raise StoreError(f"session {session!r} has no stored trial {trial}")
         if stored.interrupted:
@@ -533,10 +559,10 @@ class Store:
         with self.db:
             self.db.execute("BEGIN")
             self.db.execute(
-                "UPDATE trials SET clicks = ?, score = ? WHERE session = ? AND trial = ?",
+                f"UPDATE {table} SET clicks = ?, score = ? WHERE session = ? AND trial = ?",
                 (clicks, points, session, trial),
             )
-        return replace(stored, clicks=clicks, score=points)
+        return points
 
     def target_clicks(self, session: str) -> int:
         """The counter target the session ran with (its stored protocol; 10 if not stored)."""
