@@ -62,22 +62,17 @@ def resume_line(argv: list[str]) -> str:
 
 def stored_unfinished(db: Path | Store, session: str) -> bool:
     """Whether `session` is in the store and not complete (a resume has something to do)."""
-    store = db if isinstance(db, Store) else Store(db)
-    try:
-        return any(s["session"] == session and s["status"] != "complete"
-                   for s in store.sessions())
-    finally:
-        if store is not db:
-            store.close()
+    return session_status(db, session) not in (None, "complete")
 
 
-def session_status(db: Path, session: str) -> str | None:
+def session_status(db: Path | Store, session: str) -> str | None:
     """A session's stored status (running, aborted, complete), or None if it is not stored."""
+    if isinstance(db, Store):
+        return next((str(s["status"]) for s in db.sessions() if s["session"] == session), None)
     if not Path(db).is_file():
         return None
     with Store(db) as store:
-        return next((str(s["status"]) for s in store.sessions() if s["session"] == session),
-                    None)
+        return session_status(store, session)
 
 
 def resume_problem(store: Store, session: str, rig: str) -> str | None:
