@@ -3,14 +3,12 @@ no axis stretched over near-constant data (the figures are measured with the Agg
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 from matplotlib.figure import Figure
 
-from services.analysis.figures import pyplot
 from services.fit.figures import draw_intervals, draw_predictive, value_limits, write_figures
 from services.fit.report import MEANING, OUTCOME_KEYS
 from tests.unit.figure_checks import assert_readable, titles_overhanging
@@ -49,15 +47,6 @@ def fit_doc(n: int) -> dict[str, Any]:
     return {"participants": rows, "identifiable": list(NAMES),
             "not_identifiable": {"preference_mean": {}, "trust0": {}, "perception_delay_s": {}},
             "check": check, "level": 0.9, "meaning": {k: MEANING[k] for k in NAMES}}
-
-
-@pytest.fixture
-def close() -> Iterator[list[Figure]]:
-    """Figures to close after the test."""
-    figs: list[Figure] = []
-    yield figs
-    for fig in figs:
-        pyplot().close(fig)
 
 
 @pytest.mark.parametrize("n", [1, 3, 20, 60])

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -19,7 +18,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 from matplotlib.figure import Figure
 
-from services.analysis.figures import pyplot
 from services.analysis.power import TESTS
 from services.analysis.power import draw as draw_power
 from services.analysis.study import OUTCOMES, ParticipantOutcomes, analyze_study
@@ -53,15 +51,6 @@ def study(n: int, kind: str = "varied", seed: int = 0) -> dict[str, Any]:
             by_trial[5] = None
         parts.append(ParticipantOutcomes(f"P{i + 1:03d}", f"s{i}", "complete", by_trial))
     return analyze_study(parts)
-
-
-@pytest.fixture
-def close() -> Iterator[list[Figure]]:
-    """Figures to close after the test."""
-    figs: list[Figure] = []
-    yield figs
-    for fig in figs:
-        pyplot().close(fig)
 
 
 @pytest.mark.parametrize("n", [10, 60, 200])
