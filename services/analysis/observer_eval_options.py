@@ -24,9 +24,8 @@ import numpy as np
 
 from services.analysis.observer_eval import GRACE_S, HAND_RADIUS, HEIGHT, LANDMARK_PX, WIDTH
 from services.model.dynamics import leading_option
-from services.model.geometry import HAND_TEMPLATE, Point
+from services.model.geometry import HAND_TEMPLATE, OptionsLayout, Point
 from services.model.observer import ObserverParams
-from services.model.options_geometry import OptionsLayout
 from services.model.options_observer import OptionsObserver
 
 REST: Point = (0.5, 0.85)  # where the hand waits, on the participant's side of the table

@@ -34,8 +34,7 @@ from services.core.messages import (
     TrialPhase,
     Unit,
 )
-from services.model.geometry import Box, CommitLine
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import Box, CommitLine, OptionsLayout
 from services.model.options_schedule import MAX_OPTIONS
 
 OPTIONS_SCHEMA_VERSION = 2

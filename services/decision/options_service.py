@@ -16,8 +16,8 @@ from services.core import options_messages as om
 from services.core.node import Node
 from services.core.options_messages import check_count, same_count
 from services.model.decision import DecisionParams
+from services.model.geometry import OptionsLayout
 from services.model.options_decision import OptionsDecision
-from services.model.options_geometry import OptionsLayout
 
 log = logging.getLogger("nod.decision")
 

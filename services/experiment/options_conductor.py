@@ -36,8 +36,7 @@ from services.experiment.fields import GazeFields
 from services.experiment.hold import SessionHold
 from services.experiment.rig_watch import RigWatch
 from services.experiment.waiting import wait_for_services
-from services.model.geometry import Point
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import OptionsLayout, Point
 from services.model.options_judge import OptionsTrialJudge
 from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig

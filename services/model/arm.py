@@ -26,9 +26,8 @@ from types import TracebackType
 
 from services.model.arm_kinematics import PointArm, SimArmParams
 from services.model.behaviour import ArmCommand
-from services.model.geometry import Colour, Point, TableLayout
+from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
 from services.model.options_behaviour import OptionsCommand
-from services.model.options_geometry import OptionsLayout
 
 
 @dataclass(frozen=True, slots=True)

@@ -428,3 +428,21 @@ def subspace_basis(n_options: int) -> np.ndarray:
         q[k, k - 1] = -float(k)
         q[:, k - 1] /= math.sqrt(k * (k + 1))
     return q
+
+
+def float_rates(
+    z: list[float], social: list[float], b: list[float],
+    d: float, u: float, alpha: float, gamma: float,
+) -> list[float]:
+    """One agent's ż over N_o options on plain floats, for β = δ = 0: F minus its mean.
+
+    `general_rates`' arithmetic for one agent, without NumPy's per-call overhead on vectors
+    of three (the decision engine's and the simulated person's camera-rate loops).
+
+    `social` is the neighbour's opinion times the adjacency weight (a_rh ẑ_h, a_hr z_r).
+    """
+    tanh = math.tanh
+    f = [-d * zj + u * tanh(alpha * zj + gamma * sj) + bj
+         for zj, sj, bj in zip(z, social, b, strict=True)]
+    mean = sum(f) / len(f)
+    return [fj - mean for fj in f]

@@ -30,8 +30,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
 
-from services.model.geometry import Colour, Point
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import Colour, OptionsLayout, Point
 
 GazeLevelName: TypeAlias = Literal[
     "neutral", "minimal", "low", "moderate", "significant", "extreme"

@@ -1,4 +1,7 @@
-"""Table geometry shared by every service: the two buzzer boxes and the decision commit line.
+"""Table geometry shared by every service: the buzzer boxes and the decision commit line.
+
+The paper's table is `TableLayout` (a red and a blue box); a table of N_o options is
+`OptionsLayout` (a box per option; option 0 is red on the paper's table, `from_table`).
 
 Coordinates are normalised image coordinates: x to the right, y down, both in [0, 1] (SPEC §2).
 """
@@ -136,3 +139,63 @@ class TableLayout:
         # A tie is a tie within rounding: the default boxes' centres come out 0.79 and
         # 0.21000000000000002, which put the arm's home, midway, 1 ulp nearer blue.
         return "blue" if d_blue < d_red - TIE else "red"
+
+
+# The paper's table edge: the two-option boxes span x 0.14-0.86 at y 0.12-0.26 (geometry.py).
+_EDGE = (0.21, 0.79)  # the outer boxes' centres
+_Y = (0.12, 0.26)
+_WIDTH = 0.14
+
+
+@dataclass(frozen=True, slots=True)
+class OptionsLayout:
+    """The table over N_o options: a box per option (`boxes[j]`) and the commit line."""
+
+    boxes: tuple[Box, ...]
+    commit: CommitLine = field(default_factory=CommitLine)
+
+    def __post_init__(self) -> None:
+        if len(self.boxes) < 2:
+            raise ValueError(f"a layout needs at least 2 boxes, got {len(self.boxes)}")
+
+    @property
+    def n_options(self) -> int:
+        """How many boxes (options) the table has."""
+        return len(self.boxes)
+
+    @classmethod
+    def row(cls, n_options: int) -> OptionsLayout:
+        """N_o boxes in a row on the paper's far table edge, left to right, equally spaced.
+
+        Each is the paper's 0.14 wide, narrowed to 90 % of the spacing when they would touch.
+        """
+        if n_options < 2:
+            raise ValueError(f"a layout needs at least 2 boxes, got {n_options}")
+        centres = np.linspace(_EDGE[0], _EDGE[1], n_options)
+        half = 0.5 * min(_WIDTH, 0.9 * (centres[1] - centres[0]))
+        return cls(tuple(Box(float(c - half), _Y[0], float(c + half), _Y[1]) for c in centres))
+
+    @classmethod
+    def from_table(cls, layout: TableLayout) -> OptionsLayout:
+        """The two-option table as options (red, blue): option 0 is red, as z > 0 is."""
+        return cls((layout.red, layout.blue), layout.commit)
+
+    def nearest(self, p: Point) -> int:
+        """The option whose box centre is nearest to p (Algorithm 2's press).
+
+        A tie (within `TIE`) goes to the lower index, as `TableLayout.nearest` gives it to red.
+        """
+        best, best_d = 0, math.dist(p, self.boxes[0].center)
+        for j in range(1, len(self.boxes)):
+            d = math.dist(p, self.boxes[j].center)
+            if d < best_d - TIE:
+                best, best_d = j, d
+        return best
+
+    def pressed(self, points: Iterable[Point]) -> int | None:
+        """The option whose box holds any of the points (a hand landmark), or None."""
+        for p in points:
+            for j, box in enumerate(self.boxes):
+                if box.contains(p):
+                    return j
+        return None

@@ -24,8 +24,7 @@ import numpy as np
 from services.model.behaviour import Action, BehaviourParams, Phase
 from services.model.debounce import DebounceParams
 from services.model.dynamics import leading_option
-from services.model.geometry import TIE, Point
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import TIE, OptionsLayout, Point
 
 
 class LeaderDebouncer:

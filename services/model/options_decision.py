@@ -18,10 +18,9 @@ import numpy as np
 
 from services.model.decision import DecisionParams
 from services.model.dynamics import OptionsParams, option_vector
-from services.model.geometry import Point
+from services.model.geometry import OptionsLayout, Point
 from services.model.options_bias import split_span
 from services.model.options_floats import advance
-from services.model.options_geometry import OptionsLayout
 from services.model.options_observer import OptionsObservation, OptionsObserver
 from services.model.protocol import MODES, Mode
 

@@ -10,28 +10,11 @@ back to the NumPy form otherwise. A test checks the two agree to 1e-12.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from services.model.bias import BiasParams
-from services.model.dynamics import OptionsParams, leading_option, option_vector
+from services.model.dynamics import OptionsParams, float_rates, leading_option, option_vector
 from services.model.options_bias import advance_robot
-
-
-def rate(
-    z: list[float], social: list[float], b: list[float],
-    d: float, u: float, alpha: float, gamma: float,
-) -> list[float]:
-    """One agent's ż (`options.robot_rate`, `human_rate`) with β = δ = 0: F minus its mean.
-
-    `social` is the neighbour's opinion times the adjacency weight (a_rh ẑ_h, a_hr z_r).
-    """
-    tanh = math.tanh
-    f = [-d * zj + u * tanh(alpha * zj + gamma * sj) + bj
-         for zj, sj, bj in zip(z, social, b, strict=True)]
-    mean = sum(f) / len(f)
-    return [fj - mean for fj in f]
 
 
 def advance(
@@ -66,29 +49,29 @@ def advance(
         half = 0.5 * dt
         running = v is not None and h is not None and z[h] < max(z)
         b = [s * vj for vj in v] if v is not None else zero
-        k1 = rate(z, social, b, d, u, alpha, gamma)
+        k1 = float_rates(z, social, b, d, u, alpha, gamma)
         if running:
             assert v is not None
             k1b = biasrate(s, z)
             z2 = [zj + half * kj for zj, kj in zip(z, k1, strict=True)]
             s2 = s + half * k1b
-            k2 = rate(z2, social, [s2 * vj for vj in v], d, u, alpha, gamma)
+            k2 = float_rates(z2, social, [s2 * vj for vj in v], d, u, alpha, gamma)
             k2b = biasrate(s2, z2)
             z3 = [zj + half * kj for zj, kj in zip(z, k2, strict=True)]
             s3 = s + half * k2b
-            k3 = rate(z3, social, [s3 * vj for vj in v], d, u, alpha, gamma)
+            k3 = float_rates(z3, social, [s3 * vj for vj in v], d, u, alpha, gamma)
             k3b = biasrate(s3, z3)
             z4 = [zj + dt * kj for zj, kj in zip(z, k3, strict=True)]
             s4 = s + dt * k3b
-            k4 = rate(z4, social, [s4 * vj for vj in v], d, u, alpha, gamma)
+            k4 = float_rates(z4, social, [s4 * vj for vj in v], d, u, alpha, gamma)
             k4b = biasrate(s4, z4)
             s = min(b_max, max(-b_max, s + (dt / 6.0) * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)))
         else:
-            k2 = rate([zj + half * kj for zj, kj in zip(z, k1, strict=True)], social, b,
+            k2 = float_rates([zj + half * kj for zj, kj in zip(z, k1, strict=True)], social, b,
                        d, u, alpha, gamma)
-            k3 = rate([zj + half * kj for zj, kj in zip(z, k2, strict=True)], social, b,
+            k3 = float_rates([zj + half * kj for zj, kj in zip(z, k2, strict=True)], social, b,
                        d, u, alpha, gamma)
-            k4 = rate([zj + dt * kj for zj, kj in zip(z, k3, strict=True)], social, b,
+            k4 = float_rates([zj + dt * kj for zj, kj in zip(z, k3, strict=True)], social, b,
                        d, u, alpha, gamma)
         z = [zj + (dt / 6.0) * (a + 2.0 * (bb + c) + e)
              for zj, a, bb, c, e in zip(z, k1, k2, k3, k4, strict=True)]

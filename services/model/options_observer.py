@@ -23,7 +23,7 @@ vector graded by every box's cos θ_j would let jitter move the argmax between n
 boxes, whose bearings are closer with more boxes on the same table edge.
 
 Pure: time (s) is passed in with each pose. The boxes are an `OptionsLayout`
-(`services.model.options_geometry`).
+(`services.model.geometry`).
 """
 
 from __future__ import annotations
@@ -35,10 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from services.model.dynamics import option_vector
-from services.model.geometry import Point
+from services.model.geometry import OptionsLayout, Point
 from services.model.observer import ObserverParams, hand_center
 from services.model.observer_robust import MotionWindow
-from services.model.options_geometry import OptionsLayout
 
 # The switch margin is capped at this share of the cos gap between two boxes' bearings
 NEIGHBOUR_SHARE = 0.5

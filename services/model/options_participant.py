@@ -25,11 +25,15 @@ from collections import deque
 
 import numpy as np
 
-from services.model.dynamics import OptionsParams, PairParams, leading_option, option_vector
+from services.model.dynamics import (
+    OptionsParams,
+    PairParams,
+    float_rates,
+    leading_option,
+    option_vector,
+)
 from services.model.gaze import GazeCommand, read_gaze
-from services.model.geometry import HAND_TEMPLATE, CommitLine
-from services.model.options_floats import rate
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import HAND_TEMPLATE, CommitLine, OptionsLayout
 from services.model.participant import ParticipantParams
 
 
@@ -126,12 +130,12 @@ class OptionsParticipant:
         social = [self.dynamics.pair.a_hr * float(r) for r in self._robot_perceived()]
         z, b = [float(x) for x in self.z_h], [float(x) for x in self.b_h]
         # eq 2 over options (`options.human_rate`, on floats: this runs every 2 ms simulated)
-        k1 = rate(z, social, b, a.d, a.u, a.alpha, a.gamma)
-        k2 = rate([x + 0.5 * h * k for x, k in zip(z, k1, strict=True)], social, b,
+        k1 = float_rates(z, social, b, a.d, a.u, a.alpha, a.gamma)
+        k2 = float_rates([x + 0.5 * h * k for x, k in zip(z, k1, strict=True)], social, b,
                   a.d, a.u, a.alpha, a.gamma)
-        k3 = rate([x + 0.5 * h * k for x, k in zip(z, k2, strict=True)], social, b,
+        k3 = float_rates([x + 0.5 * h * k for x, k in zip(z, k2, strict=True)], social, b,
                   a.d, a.u, a.alpha, a.gamma)
-        k4 = rate([x + h * k for x, k in zip(z, k3, strict=True)], social, b,
+        k4 = float_rates([x + h * k for x, k in zip(z, k3, strict=True)], social, b,
                   a.d, a.u, a.alpha, a.gamma)
         self.z_h = np.array([x + (h / 6.0) * (p1 + 2.0 * (p2 + p3) + p4)
                              for x, p1, p2, p3, p4 in zip(z, k1, k2, k3, k4, strict=True)])

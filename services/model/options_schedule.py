@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from services.model.gaze import GAZE_LEVEL_NAMES, gaze_toward
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import OptionsLayout
 from services.model.schedule import MAX_TRIALS, MODES, Mode, TrialSpec
 
 MAX_OPTIONS = 8  # boxes on one table edge: past this the row's boxes are too narrow to press

@@ -36,9 +36,8 @@ import numpy as np
 
 from services.model.behaviour import ArmCommand, BehaviourParams, RobotBehaviour
 from services.model.debounce import DebounceParams
-from services.model.geometry import Colour, Point, TableLayout
+from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
 from services.model.options_behaviour import OptionsBehaviour, OptionsCommand
-from services.model.options_geometry import OptionsLayout
 
 Command_co = TypeVar("Command_co", covariant=True)
 Box_contra = TypeVar("Box_contra", contravariant=True)

@@ -9,8 +9,7 @@ red or blue box of three is drawn and found exactly as the paper's two.
 
 from __future__ import annotations
 
-from services.model.geometry import Box
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import Box, OptionsLayout
 
 BGR = tuple[int, int, int]
 HsvRange = tuple[tuple[int, int, int], tuple[int, int, int]]

@@ -22,7 +22,7 @@ from services.core import options_messages as om
 from services.core.node import Node
 from services.core.options_messages import check_count, layout_message_fields
 from services.model.gaze import GazeCommand
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import OptionsLayout
 from services.model.options_participant import OptionsParticipant
 from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.model.geometry import CommitLine
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import CommitLine, OptionsLayout
 from services.scene.option_colours import colour_of
 from services.vision.calibration import CalibrationError, HsvThresholds, find_colour_box
 

@@ -23,8 +23,7 @@ from services.model.gaze import (
     read_gaze,
     read_geometric_gaze,
 )
-from services.model.geometry import Box, TableLayout
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import Box, OptionsLayout, TableLayout
 from services.model.servos import (
     SERVO_NAMES,
     EyesCalibration,

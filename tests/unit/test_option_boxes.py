@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from services.model.geometry import CommitLine
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import CommitLine, OptionsLayout
 from services.scene.option_colours import painted_boxes
 from services.scene.render import SceneRenderer
 from services.vision.calibration import CalibrationError

@@ -9,9 +9,8 @@ from hypothesis import strategies as st
 
 from services.model.behaviour import ArmCommand, RobotBehaviour
 from services.model.debounce import SignDebouncer
-from services.model.geometry import Colour, TableLayout
+from services.model.geometry import Colour, OptionsLayout, TableLayout
 from services.model.options_behaviour import LeaderDebouncer, OptionsBehaviour, OptionsCommand
-from services.model.options_geometry import OptionsLayout
 
 samples = st.lists(st.sampled_from([-1.0, -0.3, 0.0, 0.2, 1.0]), min_size=1, max_size=60)
 

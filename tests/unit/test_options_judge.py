@@ -14,7 +14,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import OptionsLayout
 from services.model.options_judge import OptionsTrialJudge
 from services.model.params import NodConfig
 from services.model.protocol import TrialEnd

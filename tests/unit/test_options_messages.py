@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from services.core import messages as m
 from services.core import options_messages as om
 from services.core.contract import TOPICS
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import OptionsLayout
 
 vectors = st.lists(st.floats(-1e6, 1e6), min_size=2, max_size=8).map(tuple)
 

@@ -9,7 +9,7 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from services.core import options_messages as om
-from services.model.options_geometry import OptionsLayout
+from services.model.geometry import OptionsLayout
 from services.monitor.bridge import APPLICATION_ID, RerunBridge, blueprint, rrd_rows
 
 T0 = 1_700_000_000_000_000_000

@@ -8,10 +8,9 @@ import pytest
 from services.analysis.observer_eval import frames, paths
 from services.analysis.observer_eval_options import evaluate, reaches, score
 from services.model.dynamics import leading_option
-from services.model.geometry import TableLayout
+from services.model.geometry import OptionsLayout, TableLayout
 from services.model.observer import ObserverParams
 from services.model.observer_robust import RobustObserver
-from services.model.options_geometry import OptionsLayout
 from services.model.options_observer import OptionsObserver
 
 

@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.model.closed_loop import run_offline_session
+from services.model.geometry import OptionsLayout
 from services.model.judge import TrialJudge
-from services.model.options_geometry import OptionsLayout
 from services.model.params import NodConfig
 from services.model.protocol import TrialEnd
 from services.model.robot import OptionsRobotTrial, RobotTrial
