@@ -1,6 +1,6 @@
 """The N_o-box observer on realistic hand paths: wrong-argmax frames, unread frames, changes.
 
-The paths (services/analysis/observer_eval_options.py) are made independently of the simulated
+The paths (services/analysis/observer_eval.py) are made independently of the simulated
 participant: minimum-jerk reaches over a row of N_o boxes on the paper's table — straight, with
 a pause, from an off-centre start, slow, and for every ordered pair of boxes a hand that starts
 toward one and turns to the other — at 640×480 with 1, 2 and 3 px of common landmark jitter
@@ -20,7 +20,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from services.analysis.observer_eval_options import evaluate, frame_to_frame  # noqa: E402
+from services.analysis.observer_eval import evaluate_options, frame_to_frame  # noqa: E402
 from services.model.observer import ObserverParams  # noqa: E402
 
 GOAL = 0.02  # wrong-argmax frames, N_o = 3, both rates
@@ -38,7 +38,7 @@ def main() -> int:
     for n in args.options:
         for name, params in (("frame-to-frame", frame_to_frame()), ("robust", ObserverParams())):
             for hz in (30.0, 60.0):
-                s = evaluate(n, params, hz, seeds=args.seeds)
+                s = evaluate_options(n, params, hz, seeds=args.seeds)
                 lat = "/".join("never" if v == float("inf") else f"{v * 1e3:.0f}"
                                for v in (s.latency_median, s.latency_p90))
                 print(f"| {n} | {name} | {hz:.0f} | {s.wrong_frac * 100:.2f} % | "

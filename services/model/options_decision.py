@@ -19,9 +19,9 @@ import numpy as np
 from services.model.decision import DecisionParams
 from services.model.dynamics import OptionsParams, option_vector
 from services.model.geometry import OptionsLayout, Point
+from services.model.observer_robust import OptionsObservation, OptionsObserver
 from services.model.options_bias import split_span
 from services.model.options_floats import advance
-from services.model.options_observer import OptionsObservation, OptionsObserver
 from services.model.protocol import MODES, Mode
 
 
