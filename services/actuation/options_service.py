@@ -22,8 +22,8 @@ from services.core import options_messages as om
 from services.core.node import Node
 from services.core.options_messages import check_count, same_count, values_for
 from services.model.arm import OptionsSimArm
+from services.model.behaviour import OptionsCommand
 from services.model.geometry import OptionsLayout
-from services.model.options_behaviour import OptionsCommand
 from services.model.params import NodConfig
 from services.model.robot import OptionsRobotTrial
 from services.model.safety import SafetyParams, Watchdog

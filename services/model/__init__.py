@@ -6,8 +6,8 @@ Where each piece lives (services call these; the tests test these):
     observer.py     eq 7 and Algorithm 1's direction reading: ẑ_h from hand motion
     bias.py         eq 6: the robot's bias controller and its freeze (Algorithm 1)
     decision.py     the decision engine: observer → eq 1 + eq 6 with a zero-order hold
-    debounce.py     the one sign debounce (C_max) of Algorithm 2 and the switch count
-    behaviour.py    Algorithm 2: the robot's moves and press
+    debounce.py     the one debounce (C_max) of Algorithm 2 and the switch count, any N
+    behaviour.py    Algorithm 2: the robot's moves and press, over any number of boxes
     arm.py          the arm interface and the kinematic simulated arm
     outcome.py      C / CH / D / DH, switches, rule violations; `judge_trial`
     scoring.py      the participant's score (Sec 3.2)
@@ -20,7 +20,7 @@ Where each piece lives (services call these; the tests test these):
     params.py       NodConfig: every SPEC default in one typed tree
     options*.py     more than two options (docs/multi-option.md): N_o-option dynamics and
                     thresholds, the N_o-box table and observer, eq 6 toward O among N_o
-                    options, Algorithm 2 over N_o boxes
+                    options
 
 Nothing here imports zenoh, OpenCV, serial, Rerun, SQLite, msgpack, threads or clocks: time is
 passed in (import-linter holds this; see pyproject.toml).

@@ -25,9 +25,8 @@ from dataclasses import dataclass
 from types import TracebackType
 
 from services.model.arm_kinematics import PointArm, SimArmParams
-from services.model.behaviour import ArmCommand
+from services.model.behaviour import ArmCommand, OptionsCommand
 from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
-from services.model.options_behaviour import OptionsCommand
 
 
 @dataclass(frozen=True, slots=True)

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from services.model.debounce import LeaderDebouncer
 from services.model.dynamics import leading_option
 from services.model.geometry import CommitLine, OptionsLayout, Point
-from services.model.options_behaviour import LeaderDebouncer
 from services.model.outcome import Outcome
 from services.model.params import NodConfig
 from services.model.protocol import Mode, TrialEnd

@@ -34,10 +34,15 @@ from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 
-from services.model.behaviour import ArmCommand, BehaviourParams, RobotBehaviour
+from services.model.behaviour import (
+    ArmCommand,
+    BehaviourParams,
+    OptionsBehaviour,
+    OptionsCommand,
+    RobotBehaviour,
+)
 from services.model.debounce import DebounceParams
 from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
-from services.model.options_behaviour import OptionsBehaviour, OptionsCommand
 
 Command_co = TypeVar("Command_co", covariant=True)
 Box_contra = TypeVar("Box_contra", contravariant=True)

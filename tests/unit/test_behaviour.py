@@ -1,14 +1,21 @@
-"""Algorithm 2 (SPEC §4): the robot's behaviour state machine."""
+"""Algorithm 2 (SPEC §4): the robot's behaviour state machine, the paper's and over N boxes."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.model.behaviour import ArmCommand, BehaviourParams, RobotBehaviour
+from services.model.behaviour import (
+    ArmCommand,
+    BehaviourParams,
+    OptionsBehaviour,
+    OptionsCommand,
+    RobotBehaviour,
+)
 from services.model.debounce import DebounceParams
-from services.model.geometry import TableLayout
+from services.model.geometry import Colour, OptionsLayout, TableLayout
 
 LAYOUT = TableLayout()
 HOME = (0.5, 0.08)
@@ -295,3 +302,79 @@ def test_time_and_input_validation() -> None:
         b.step(1.5, float("nan"), None, HOME)
     with pytest.raises(ValueError):
         b.step(float("inf"), 1.0, None, HOME)
+
+
+# -- the general form over N boxes, and its two-option kernel ------------------------------
+
+
+def as_options(cmd: ArmCommand) -> OptionsCommand:
+    target = {"red": 0, "blue": 1, None: None}[cmd.target]
+    return OptionsCommand(cmd.action, target, "")
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(st.tuples(st.sampled_from([-1.0, 0.0, 0.5, 1.0, None]), st.booleans()),
+             min_size=1, max_size=80),
+    st.floats(0.2, 0.8),
+    st.integers(1, 5),
+)
+def test_two_boxes_command_the_arm_as_the_paper(
+    stream: list[tuple[float | None, bool]], x: float, c_max: int
+) -> None:
+    # The kernel (RobotBehaviour, z_r a number) and the general form (z_r = (x, −x)) agree.
+    table, debounce = TableLayout(), DebounceParams(c_max)
+    paper = RobotBehaviour(table, debounce=debounce)
+    options = OptionsBehaviour(OptionsLayout.from_table(table), debounce=debounce)
+    assert as_options(paper.start(0.0, 10.0)).action == options.start(0.0, 10.0).action
+    ee = (x, 0.5)
+    for i, (z, press) in enumerate(stream):
+        t = 0.03 * (i + 1)
+        pressed: Colour | None = "red" if press and i % 7 == 6 else None
+        want = paper.step(t, z, pressed, ee)
+        got = options.step(t, None if z is None else np.array([z, -z]),
+                           None if pressed is None else 0, ee)
+        assert (got.action, got.target) == (as_options(want).action, as_options(want).target)
+        assert options.phase == paper.phase and options.heading == paper.heading
+        assert options.pressed_option == {"red": 0, "blue": 1, None: None}[paper.pressed_colour]
+
+
+def test_three_boxes_follow_the_leader_and_press_the_nearest() -> None:
+    layout = OptionsLayout.row(3)
+    robot = OptionsBehaviour(layout)
+    robot.start(0.0, 10.0)
+    to = [np.eye(3)[j] * 2 - 2 / 3 for j in range(3)]
+    assert robot.step(0.01, np.zeros(3), None, (0.5, 0.7)).action == "idle"  # no leader yet
+    first = robot.step(0.02, to[2], None, (0.5, 0.7))
+    assert first == OptionsCommand("move", 2, "first leading option")
+    for k in range(3):  # three samples toward 0: not yet (C_max = 4)
+        assert robot.step(0.03 + 0.01 * k, to[0], None, (0.6, 0.5)).target == 2
+    assert robot.step(0.06, to[0], None, (0.6, 0.5)).action == "stop"
+    assert robot.step(0.10, to[0], None, (0.6, 0.5)).action == "stop"  # pausing 0.1 s
+    assert robot.step(0.17, to[0], None, (0.6, 0.5)) == OptionsCommand("move", 0, "pause over")
+    press = robot.step(0.5, to[0], 1, layout.boxes[1].center)  # the human pressed box 1
+    assert (press.action, press.target) == ("press", 1)  # the arm was at box 1: it presses it
+    assert robot.pressed_option == 1 and robot.ended
+    assert robot.step(0.6, to[2], None, (0.0, 0.0)) == press  # final
+
+
+@pytest.mark.parametrize("n", [2, 3, 5])
+def test_a_non_finite_z_r_is_refused_for_any_n(n: int) -> None:
+    robot = OptionsBehaviour(OptionsLayout.row(n))
+    robot.start(0.0, 10.0)
+    z = np.zeros(n)
+    z[-1] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        robot.step(0.1, z, None, HOME)
+
+
+def test_nearest_and_pressed_over_n_boxes() -> None:
+    layout = OptionsLayout.row(4)
+    for j, box in enumerate(layout.boxes):
+        assert layout.nearest(box.center) == j
+        assert layout.pressed([(0.5, 0.9), box.center]) == j
+    assert layout.pressed([(0.5, 0.9)]) is None
+    mid = (0.5 * (layout.boxes[1].center[0] + layout.boxes[2].center[0]), 0.5)
+    assert layout.nearest(mid) == 1  # a tie goes to the lower index, as red wins the paper's
+    with pytest.raises(ValueError, match="needs a target box"):
+        OptionsCommand("move")

@@ -10,13 +10,18 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from services.model.arm import OptionsSimArm, SimArm
-from services.model.behaviour import ArmCommand, BehaviourParams
+from services.model.behaviour import (
+    TIE_TOLERANCE,
+    ArmCommand,
+    BehaviourParams,
+    OptionsCommand,
+    leader_or_nearest_tie,
+)
 from services.model.bias import BiasParams
 from services.model.debounce import DebounceParams
 from services.model.dynamics import OptionsParams, leading_option, option_vector
 from services.model.gaze import GAZE_LEVEL_NAMES, cue_strength, gaze_toward, read_gaze
 from services.model.geometry import CommitLine, OptionsLayout, TableLayout
-from services.model.options_behaviour import TIE_TOLERANCE, OptionsCommand, leader_or_nearest_tie
 from services.model.options_bias import advance_robot
 from services.model.options_floats import advance
 from services.model.options_judge import OptionsOutcomeTracker
