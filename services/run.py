@@ -32,11 +32,11 @@ from typing import Any
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import SEED, Parser, fail, int_in
+from services.core.cli import SEED, Parser, add_options_arg, fail, int_in
 from services.core.clock import Clock
+from services.core.config import load_with_options
 from services.core.keys import Keys, check_rig
 from services.core.lifeline import nod_command
-from services.core.options_config import add_options_arg, load_with_options
 from services.core.rigfile import Host, Rig
 from services.core.session import DEFAULT_ROUTER, make_config, open_session
 from services.core.signals import on_stop_signal

@@ -19,10 +19,9 @@ from pathlib import Path
 
 from services.actuation.drivers import ARM_DRIVERS, make_arm_driver
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args, fail
-from services.core.config import params_hash
+from services.core.cli import Parser, add_options_arg, add_service_args, fail
+from services.core.config import load_with_options, params_hash
 from services.core.node import Node, setup_logging
-from services.core.options_config import add_options_arg, load_with_options
 from services.core.priority import raise_priority
 from services.core.session import Fabric
 from services.model.arm import ArmDriver

@@ -1,4 +1,4 @@
-"""What every `nod` command line shares: one-line errors, the session flags, `--params`, `-v`."""
+"""What every `nod` command line shares: one-line errors, session flags, `--params`, `--options`."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from services.core.text import one_line
+from services.model.schedule import MAX_OPTIONS
 
 __all__ = ["one_line"]  # re-exported: the commands take it from here with the other helpers
 
@@ -97,6 +98,18 @@ def add_params_arg(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="FILE.toml",
         help="experiment parameters overriding SPEC defaults (see deploy/params.example.toml)",
+    )
+
+
+def add_options_arg(parser: argparse.ArgumentParser) -> None:
+    """Add `--options N`: a table of N boxes (default: the params file's, else the paper's 2).
+
+    Read with `services.core.config.load_with_options`, which checks it against the file.
+    """
+    parser.add_argument(
+        "--options", type=int_in(2, MAX_OPTIONS), default=None, metavar="N",
+        help="options (boxes) on the table: 2 is the paper's study (default), 3 or more run "
+        "the N-option rig (docs/multi-option.md); a params file may list them instead",
     )
 
 

@@ -3,6 +3,13 @@
 `from_mapping(cls, data)` builds a (possibly nested) dataclass from a TOML table, rejecting
 unknown keys and wrong types with a message that names the offending key, so a typo in a lab's
 config file fails at start-up instead of silently using a default.
+
+The option set of a session is read here too: a params file whose `[protocol]` table has
+`options = [...]` runs that many options (`services.model.schedule.OptionsSchedule`); its
+`trials` then name options, and everything else in the file is the paper's `NodConfig` as
+`load_params` reads it. Without `options` the file is the paper's, and `--options N`
+(`services.core.cli.add_options_arg`; N > 2) picks the default schedule of N options. Two
+options are the paper's study, run by its own code (`load_with_options` gives None for them).
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from services.model.params import NodConfig
+from services.model.schedule import OptionsSchedule, schedule_from_table
 
 T = TypeVar("T")
 
@@ -108,7 +116,7 @@ def without_option_set(data: dict[str, Any]) -> dict[str, Any]:
     """A params mapping without its option set (`[protocol] options` and the trials naming them).
 
     A file listing three or more options is the paper's `NodConfig` plus a schedule that only
-    the N-option runners read (`services.core.options_config`); every other reader of the file
+    the N-option runners read (`load_with_options`); every other reader of the file
     (the eyes, the recorder, the launchers) takes the rest, so one file serves the whole rig.
     """
     protocol = data.get("protocol")
@@ -123,6 +131,54 @@ def load_params(path: str | Path | None) -> NodConfig:
     if path is None:
         return NodConfig()
     return from_mapping(NodConfig, without_option_set(load_toml(path)))
+
+
+def split_options(data: dict[str, Any]) -> tuple[dict[str, Any], OptionsSchedule | None]:
+    """A params mapping without its option set, and the option set's schedule (None: none)."""
+    protocol = data.get("protocol")
+    if not isinstance(protocol, dict) or "options" not in protocol:
+        return data, None
+    try:
+        schedule = schedule_from_table(protocol)
+    except ValueError as exc:
+        raise ConfigError(f"protocol: {exc}") from None
+    return without_option_set(data), schedule
+
+
+def load_with_options(
+    path: str | Path | None,
+    n_options: int | None = None,
+    participant: dict[str, Any] | None = None,
+) -> tuple[NodConfig, OptionsSchedule | None]:
+    """The parameters and, for more than two options, the N_o-option schedule.
+
+    `n_options` (the `--options` flag; None: the file's, or 2) must agree with a file's list.
+    `participant`: traits under the file's `[participant]` (the sim's fitted person).
+    """
+    data = load_toml(path) if path is not None else {}
+    rest, schedule = split_options(data)
+    if participant is not None:
+        own = rest.get("participant", {})
+        if not isinstance(own, dict):
+            raise ConfigError(f"{path}: participant: expected a table, got {type(own).__name__}")
+        rest = {**rest, "participant": {**participant, **own}}
+    cfg = from_mapping(NodConfig, rest)
+    if schedule is not None and n_options is not None and n_options != schedule.n_options:
+        raise ConfigError(
+            f"--options {n_options} but {path} lists {schedule.n_options} options "
+            f"{list(schedule.names)}: drop --options or make them agree"
+        )
+    if schedule is None and n_options is not None and n_options != 2:
+        try:
+            schedule = OptionsSchedule.default(n_options)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    if schedule is not None and schedule.n_options == 2:
+        raise ConfigError(
+            "two options are the paper's study: drop [protocol] options (red and blue are "
+            "its buzzers) or list three or more"
+        )
+    return cfg, schedule
 
 
 def as_dict(obj: Any) -> dict[str, Any]:

@@ -35,7 +35,7 @@ from services.core.messages import (
     Unit,
 )
 from services.model.geometry import Box, CommitLine, OptionsLayout
-from services.model.options_schedule import MAX_OPTIONS
+from services.model.schedule import MAX_OPTIONS
 
 OPTIONS_SCHEMA_VERSION = 2
 OptionCount: TypeAlias = Annotated[int, msgspec.Meta(ge=2, le=MAX_OPTIONS)]

@@ -13,10 +13,9 @@ import logging
 import math
 
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args, fail
-from services.core.config import params_hash
+from services.core.cli import Parser, add_options_arg, add_service_args, fail
+from services.core.config import load_with_options, params_hash
 from services.core.node import Node, setup_logging
-from services.core.options_config import add_options_arg, load_with_options
 from services.core.session import Fabric
 from services.model.decision import DecisionModel
 

@@ -38,9 +38,9 @@ from services.experiment.rig_watch import RigWatch
 from services.experiment.waiting import wait_for_services
 from services.model.geometry import OptionsLayout, Point
 from services.model.options_judge import OptionsTrialJudge
-from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig
 from services.model.protocol import Cue, Mode, SessionProtocol
+from services.model.schedule import OptionsSchedule
 from services.store import Interruption
 from services.store.options import OptionsStore, OptionsTrialRecord
 

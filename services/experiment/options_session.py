@@ -21,8 +21,8 @@ from services.core.session import Fabric
 from services.experiment.options_conductor import OptionsConductor
 from services.experiment.rig_claim import claim_the_rig, watch_rivals
 from services.model.options_loop import table_for
-from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig
+from services.model.schedule import OptionsSchedule
 from services.store import Store, back_up
 from services.store.options import OptionsStore
 from services.store.participants import next_free_ids

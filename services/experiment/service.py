@@ -18,10 +18,9 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
-from services.core.cli import SEED, Parser, add_service_args, fail
-from services.core.config import params_hash
+from services.core.cli import SEED, Parser, add_options_arg, add_service_args, fail
+from services.core.config import load_with_options, params_hash
 from services.core.node import Node, setup_logging
-from services.core.options_config import add_options_arg, load_with_options
 from services.core.rigfile import CONTROL, Host, RigFileError, load_rig, session_flags
 from services.core.session import Fabric
 from services.experiment.conductor import Conductor

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from services.model.options_schedule import OptionsSchedule
+from services.model.schedule import OptionsSchedule
 
 TABLE_READERS = ("decision", "actuation", "sim", "vision", "experiment")
 NOT_YET = ("resume", "order", "again", "record")

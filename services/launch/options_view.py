@@ -18,8 +18,8 @@ from services.core import options_messages as om
 from services.core.keys import Keys
 from services.core.node import clip
 from services.launch.view import SessionView
-from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig
+from services.model.schedule import OptionsSchedule
 
 log = logging.getLogger("nod.launch")
 

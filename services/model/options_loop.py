@@ -19,12 +19,11 @@ from services.model.geometry import OptionsLayout
 from services.model.options_decision import OptionsDecision
 from services.model.options_judge import OptionsTrialJudge
 from services.model.options_participant import OptionsParticipant
-from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig
 from services.model.participant import jittered
 from services.model.protocol import Cue, SessionProtocol
 from services.model.robot import OptionsRobotTrial
-from services.model.schedule import Mode
+from services.model.schedule import Mode, OptionsSchedule
 
 
 @dataclass(frozen=True, slots=True)

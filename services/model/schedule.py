@@ -1,16 +1,38 @@
-"""The trial schedule (paper Sec 3.2, SPEC §6): the 8 trials, their parameters and timelines.
+"""The trial schedule (paper Sec 3.2, SPEC §6) over N ≥ 2 options: the trials, times, timelines.
 
 What a session runs — each trial's mode, O, gaze level, the protocol's times and bounds, the
 order of O a participant gets, and each trial's timeline (gaze, countdown, "go") — as plain
 data and pure functions. `services.model.protocol.SessionProtocol` runs it.
+
+One schedule for any option set (docs/multi-option.md): `OptionsSchedule` holds the option
+names (box j of the row, left to right, is `names[j]`) and its `OptionsTrial`s, each naming O
+by index. The paper's study is its two-option case, `OptionsSchedule.default(2)`: the options
+red and blue and the paper's 8 trials (1-3 dissensus, 4-8 consensus on B R R B R). The clock
+runs `TrialSpec`s, the paper's trial form (O a colour, the gaze its printed row):
+`paper_specs` gives them for the paper's colours and `default_schedule` is that of the
+paper's schedule; `timing_specs` gives the clock's trials on any table (index, gaze toward O,
+gesture, level; the N-option runner reads mode and O from the schedule by index). Both trial
+forms are checked by the same rules (`check_trial`, `check_trial_numbers`).
+
+A TOML params file selects an option set with a list in `[protocol]`
+(`services.core.config.load_with_options`):
+
+    [protocol]
+    options = ["red", "blue", "green"]
+    trials = [                        # optional; default: `default_options_trials`
+        { index = 1, mode = "dissensus" },
+        { index = 4, mode = "consensus", option = "green", gaze_level = "minimal",
+          attention_gesture = true },
+        ...
+    ]
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Literal, TypeAlias
+from typing import Any, Literal, TypeAlias
 
 from services.model.gaze import (
     GAZE_LEVEL_NAMES,
@@ -18,8 +40,9 @@ from services.model.gaze import (
     GazeCommand,
     attention_gesture,
     gaze_level,
+    gaze_toward,
 )
-from services.model.geometry import Colour
+from services.model.geometry import Colour, OptionsLayout
 
 Mode: TypeAlias = Literal["dissensus", "consensus"]
 ControlLabels: TypeAlias = Literal["agreement", "switches"]
@@ -41,11 +64,47 @@ MAX_ATTEMPTS = 10  # starts of one trial: a trial interrupted 10 times is a rig 
 MAX_TARGET_CLICKS = 1000
 MAX_TRIALS = 10_000  # the wire's trial number (services.core.messages.Trial) goes no higher
 MAX_GAZE_RAD = math.pi  # the wire's gaze angles (messages.Radians): beyond, the eyes refuse it
+MAX_OPTIONS = 8  # boxes on one table edge: past this the row's boxes are too narrow to press
+OPTION_NAMES = ("red", "blue", "green", "yellow", "white", "black", "orange", "purple")
+# The paper's consensus gaze levels in its rising order, trial 4 with the attention gesture
+_CONSENSUS_LEVELS = ("minimal", "low", "moderate", "significant", "extreme")
+# The paper's O of its consensus trials 4-8 (B R R B R) as indices into its (red, blue)
+_PAPER_ORDER = (1, 0, 0, 1, 0)
+
+
+def check_trial(index: object, mode: object, option: object, level: object) -> None:
+    """What a trial must be over any option set, so both trial forms refuse the same rows.
+
+    An integer index >= 1, a known mode, an O in a consensus trial and none in a dissensus
+    one, a known gaze level. Whether O is one of the options is the caller's: a colour for
+    `TrialSpec`, an index below N_o for `OptionsSchedule`.
+    """
+    if isinstance(index, bool) or not isinstance(index, int) or index < 1:
+        raise ValueError(f"trial index must be an integer >= 1, got {index!r}")
+    if mode not in MODES:
+        raise ValueError(f"trial {index}: mode must be one of {MODES}, got {mode!r}")
+    if (mode == "consensus") != (option is not None):
+        raise ValueError(
+            f"trial {index}: a consensus trial needs an option O and a dissensus trial "
+            f"none, got mode {mode!r} with option {option!r}"
+        )
+    if level not in GAZE_LEVEL_NAMES:
+        raise ValueError(
+            f"trial {index}: unknown gaze level {level!r}; expected one of {GAZE_LEVEL_NAMES}"
+        )
+
+
+def check_trial_numbers(indices: Sequence[int], where: str) -> None:
+    """A session's trials: 1 to `MAX_TRIALS` of them, numbered 1..n in order."""
+    if not 1 <= len(indices) <= MAX_TRIALS:
+        raise ValueError(f"{where} must hold 1 to {MAX_TRIALS} trials, got {len(indices)}")
+    if list(indices) != list(range(1, len(indices) + 1)):
+        raise ValueError(f"{where} must be numbered 1..n in order, got {list(indices)}")
 
 
 @dataclass(frozen=True, slots=True)
 class TrialSpec:
-    """What one trial does.
+    """What one trial does, as the clock runs it: the paper's trial form (O red or blue).
 
     `yaw`/`pitch` default to the gaze table's row for `gaze_level`, turned toward `option`
     (`services.model.gaze.GAZE_LEVELS`); give them only to override the table.
@@ -60,20 +119,10 @@ class TrialSpec:
     attention_gesture: bool = False  # run the attention gesture before setting the gaze
 
     def __post_init__(self) -> None:
-        if isinstance(self.index, bool) or not isinstance(self.index, int) or self.index < 1:
-            raise ValueError(f"TrialSpec.index must be an integer >= 1, got {self.index!r}")
-        if self.mode not in MODES:
+        check_trial(self.index, self.mode, self.option, self.gaze_level)
+        if self.option is not None and self.option not in ("red", "blue"):
             raise ValueError(
-                f"TrialSpec.mode must be 'dissensus' or 'consensus', got {self.mode!r}"
-            )
-        if self.mode == "consensus" and self.option not in ("red", "blue"):
-            raise ValueError(f"trial {self.index}: consensus mode needs option 'red' or 'blue'")
-        if self.mode == "dissensus" and self.option is not None:
-            raise ValueError(f"trial {self.index}: dissensus mode has no option, got {self.option}")
-        if self.gaze_level not in GAZE_LEVEL_NAMES:
-            raise ValueError(
-                f"trial {self.index}: unknown gaze level {self.gaze_level!r}; "
-                f"expected one of {GAZE_LEVEL_NAMES}"
+                f"trial {self.index}: a trial's option O is 'red' or 'blue', got {self.option!r}"
             )
         table = gaze_level(self.gaze_level).toward(self.option)
         if self.yaw is None:
@@ -98,18 +147,167 @@ class TrialSpec:
         return self.option if self.mode == "consensus" else None
 
 
+@dataclass(frozen=True, slots=True)
+class OptionsTrial:
+    """One trial over N_o options: its mode, O (an option index; consensus only), its gaze."""
+
+    index: int  # 1-based trial number
+    mode: Mode
+    option: int | None = None  # O, the consensus option; None in a dissensus trial
+    gaze_level: str = "neutral"
+    attention_gesture: bool = False
+
+    def __post_init__(self) -> None:
+        check_trial(self.index, self.mode, self.option, self.gaze_level)
+
+
+def default_options_trials(n_options: int) -> tuple[OptionsTrial, ...]:
+    """The paper's 8 trials over N_o options: 1-3 dissensus, 4-8 consensus.
+
+    Trials 1-3 have the neutral gaze, 4-8 the paper's levels in its rising order (the attention
+    gesture before trial 4). At N_o = 2 the consensus trials converge on the paper's order
+    (B R R B R over red, blue: the two-option kernel, so the paper's study is this schedule's
+    two-option case). For more, the k-th consensus trial (k = 0…4) converges on option
+    k mod N_o, so with up to 5 options every option is O at least once; the paper's order does
+    not generalise, and counterbalancing N_o options is left to the study design.
+    """
+    trials = [OptionsTrial(i, "dissensus") for i in (1, 2, 3)]
+    for k, level in enumerate(_CONSENSUS_LEVELS):
+        option = _PAPER_ORDER[k] if n_options == 2 else k % n_options
+        trials.append(OptionsTrial(4 + k, "consensus", option, level, k == 0))
+    return tuple(trials)
+
+
+@dataclass(frozen=True, slots=True)
+class OptionsSchedule:
+    """A session over N_o options: the option names (box j is `names[j]`) and the trials."""
+
+    names: tuple[str, ...]
+    trials: tuple[OptionsTrial, ...]
+
+    def __post_init__(self) -> None:
+        n = len(self.names)
+        if not 2 <= n <= MAX_OPTIONS:
+            raise ValueError(f"[protocol] options needs 2 to {MAX_OPTIONS} names, got {n}")
+        if any(not isinstance(s, str) or not s for s in self.names) or len(set(self.names)) != n:
+            raise ValueError(
+                f"[protocol] options must be distinct non-empty names, got {list(self.names)}"
+            )
+        check_trial_numbers([t.index for t in self.trials], "trials")
+        for t in self.trials:
+            if t.option is not None and not 0 <= t.option < n:
+                raise ValueError(f"trial {t.index}: option {t.option} is not one of the {n}")
+
+    @property
+    def n_options(self) -> int:
+        """How many options (boxes) the table has."""
+        return len(self.names)
+
+    @classmethod
+    def default(cls, n_options: int) -> OptionsSchedule:
+        """The default names (red, blue, green, …) and `default_options_trials`.
+
+        `default(2)` is the paper's schedule: red, blue and its 8 trials.
+        """
+        if not 2 <= n_options <= MAX_OPTIONS:
+            raise ValueError(f"--options must be in 2..{MAX_OPTIONS}, got {n_options}")
+        return cls(OPTION_NAMES[:n_options], default_options_trials(n_options))
+
+    def name(self, option: int | None) -> str | None:
+        """The name of an option index (None stays None)."""
+        return None if option is None else self.names[option]
+
+    def index_of(self, name: str) -> int:
+        """The index of an option name, with the list of names when it is none of them."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ValueError(
+                f"unknown option {name!r}; [protocol] options are {list(self.names)}"
+            ) from None
+
+    def trial(self, index: int) -> OptionsTrial:
+        """Trial `index` (1-based)."""
+        return self.trials[index - 1]
+
+    def paper_specs(self) -> tuple[TrialSpec, ...]:
+        """The trials in the paper's form: each O by its colour, its gaze the printed row.
+
+        Defined for a schedule whose options are the paper's colours (red, blue): what the
+        paper's clock and decision model read, O named as they name it.
+        """
+        colours: dict[str, Colour] = {"red": "red", "blue": "blue"}
+        if set(self.names) != set(colours):
+            raise ValueError(
+                f"the paper's trial form names O red or blue, not {list(self.names)}"
+            )
+        return tuple(
+            TrialSpec(t.index, t.mode, None if t.option is None else colours[self.names[t.option]],
+                      t.gaze_level, attention_gesture=t.attention_gesture)
+            for t in self.trials
+        )
+
+    def timing_specs(self, layout: OptionsLayout) -> tuple[TrialSpec, ...]:
+        """One `TrialSpec` per trial for `SessionProtocol`'s clock on any table (module doc).
+
+        Each carries the trial's index, gaze command (toward its O on this table), level name
+        and gesture; its mode is the clock's placeholder: the runner reads mode and O here.
+        """
+        if layout.n_options != self.n_options:
+            raise ValueError(
+                f"the table has {layout.n_options} boxes but the schedule {self.n_options} options"
+            )
+        specs = []
+        for t in self.trials:
+            gaze = gaze_toward(layout, t.option, t.gaze_level)
+            specs.append(
+                TrialSpec(t.index, "dissensus", None, t.gaze_level, gaze.yaw, gaze.pitch,
+                          t.attention_gesture)
+            )
+        return tuple(specs)
+
+
+_TRIAL_KEYS = {"index", "mode", "option", "gaze_level", "attention_gesture"}
+
+
+def schedule_from_table(protocol: Mapping[str, Any]) -> OptionsSchedule:
+    """The schedule of a params file's `[protocol]` table holding `options` (module doc)."""
+    names = protocol["options"]
+    if not isinstance(names, Sequence) or isinstance(names, str):
+        raise ValueError(f"[protocol] options must be an array of names, got {names!r}")
+    names = tuple(names)
+    raw = protocol.get("trials")
+    if raw is None:
+        return OptionsSchedule(names, default_options_trials(len(names)))
+    trials = []
+    for row in raw:
+        if not isinstance(row, Mapping):
+            raise ValueError(f"[protocol] trials: each trial is a table, got {row!r}")
+        unknown = sorted(set(row) - _TRIAL_KEYS)
+        if unknown:
+            raise ValueError(
+                f"[protocol] trials: unknown key(s) {unknown}; known keys are {sorted(_TRIAL_KEYS)}"
+            )
+        fields = dict(row)
+        option = fields.pop("option", None)
+        if option is not None:
+            if option not in names:
+                raise ValueError(f"[protocol] trials: option {option!r} is not in {list(names)}")
+            option = names.index(option)
+        try:
+            trials.append(OptionsTrial(option=option, **fields))
+        except TypeError as exc:  # a missing index or mode
+            raise ValueError(f"[protocol] trials: {row!r}: {exc}") from None
+    return OptionsSchedule(names, tuple(trials))
+
+
 def default_schedule() -> tuple[TrialSpec, ...]:
-    """The paper's 8 trials (SPEC §5/§6): 1–3 dissensus with neutral gaze, 4–8 consensus."""
-    return (
-        TrialSpec(1, "dissensus", None, "neutral"),
-        TrialSpec(2, "dissensus", None, "neutral"),
-        TrialSpec(3, "dissensus", None, "neutral"),
-        TrialSpec(4, "consensus", "blue", "minimal", attention_gesture=True),
-        TrialSpec(5, "consensus", "red", "low"),
-        TrialSpec(6, "consensus", "red", "moderate"),
-        TrialSpec(7, "consensus", "blue", "significant"),
-        TrialSpec(8, "consensus", "red", "extreme"),
-    )
+    """The paper's 8 trials (SPEC §5/§6) in its trial form: the two-option default schedule.
+
+    1–3 dissensus with neutral gaze, 4–8 consensus on B R R B R at rising gaze levels, the
+    attention gesture before trial 4.
+    """
+    return OptionsSchedule.default(2).paper_specs()
 
 
 Order: TypeAlias = tuple[Colour, ...]  # O of each consensus trial of a schedule, in trial order
@@ -225,11 +423,7 @@ class ProtocolParams:
                 raise ValueError(
                     f"ProtocolParams.{name} must be an integer in [1, {top}], got {value!r}"
                 )
-        if not 1 <= len(self.trials) <= MAX_TRIALS:
-            raise ValueError(f"ProtocolParams.trials must hold 1 to {MAX_TRIALS} trials")
-        indices = [t.index for t in self.trials]
-        if indices != list(range(1, len(indices) + 1)):
-            raise ValueError(f"ProtocolParams.trials must be numbered 1..n in order, got {indices}")
+        check_trial_numbers([t.index for t in self.trials], "ProtocolParams.trials")
 
 
 @dataclass(frozen=True, slots=True)

@@ -24,9 +24,9 @@ from services.core.options_messages import check_count, layout_message_fields
 from services.model.gaze import GazeCommand
 from services.model.geometry import OptionsLayout
 from services.model.options_participant import OptionsParticipant
-from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig
 from services.model.participant import jittered
+from services.model.schedule import OptionsSchedule
 from services.sim.service import publish_frame
 
 if TYPE_CHECKING:  # imported at run time only with --render (it loads OpenCV)

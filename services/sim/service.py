@@ -20,9 +20,9 @@ import numpy as np
 
 from services.cohort.person import fitted_traits
 from services.core import messages as m
-from services.core.cli import SEED, Parser, add_service_args, fail
+from services.core.cli import SEED, Parser, add_options_arg, add_service_args, fail
+from services.core.config import load_with_options
 from services.core.node import Node, TopicPublisher, setup_logging
-from services.core.options_config import add_options_arg, load_with_options
 from services.core.session import Fabric
 from services.model.geometry import colour_sign
 from services.model.params import NodConfig

@@ -32,12 +32,11 @@ import cv2
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser, add_params_arg, fail, int_in
+from services.core.cli import Parser, add_options_arg, add_params_arg, fail, int_in
 from services.core.clock import add_clock_args
-from services.core.config import ConfigError
+from services.core.config import ConfigError, load_with_options
 from services.core.contract import check_publisher
 from services.core.node import Node, declare_publisher, setup_logging
-from services.core.options_config import add_options_arg, load_with_options
 from services.core.session import Fabric, add_zenoh_args
 from services.model.geometry import TableLayout
 from services.vision.calibration import load_calibration

@@ -7,11 +7,10 @@ from pathlib import Path
 import pytest
 
 from services.cohort.person import fitted_traits
-from services.core.config import ConfigError, load_params, params_hash
-from services.core.options_config import load_with_options
+from services.core.config import ConfigError, load_params, load_with_options, params_hash
 from services.model.options_loop import OptionsOfflineTrial, run_options_session
-from services.model.options_schedule import OptionsSchedule
 from services.model.params import NodConfig
+from services.model.schedule import OptionsSchedule
 
 SCHEDULE = OptionsSchedule.default(3)
 

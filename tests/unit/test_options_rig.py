@@ -1,4 +1,4 @@
-"""The N_o-option rig's pure parts: arm, gaze, schedule, float integrator, tie rule, judge."""
+"""The N_o-option rig's pure parts: arm, gaze, float integrator, tie rule, judge."""
 
 from __future__ import annotations
 
@@ -25,7 +25,6 @@ from services.model.geometry import CommitLine, OptionsLayout, TableLayout
 from services.model.options_bias import advance_robot
 from services.model.options_floats import advance
 from services.model.options_judge import OptionsOutcomeTracker
-from services.model.options_schedule import OptionsSchedule, schedule_from_table
 from services.model.outcome import OutcomeTracker
 from services.model.robot import OptionsRobotTrial
 
@@ -163,36 +162,6 @@ def test_the_middle_box_is_told_from_neutral_by_pitch() -> None:
     assert abs(middle.yaw) < 1e-12 and middle.pitch < -0.3
     right, left = gaze_toward(layout, 2, "low"), gaze_toward(layout, 0, "low")
     assert right.yaw > 0 > left.yaw and right.yaw == pytest.approx(-left.yaw)  # +x: red's side
-
-
-def test_the_default_schedule_has_every_option_as_o() -> None:
-    s = OptionsSchedule.default(3)
-    assert s.names == ("red", "blue", "green")
-    assert [t.mode for t in s.trials] == ["dissensus"] * 3 + ["consensus"] * 5
-    assert {t.option for t in s.trials if t.option is not None} == {0, 1, 2}
-    assert s.trials[3].attention_gesture and s.trials[3].gaze_level == "minimal"
-    specs = s.timing_specs(OptionsLayout.row(3))
-    assert [sp.index for sp in specs] == list(range(1, 9))
-    assert specs[0].yaw == 0.0 and specs[5].gaze == gaze_toward(OptionsLayout.row(3), 2,
-                                                                "moderate")
-
-
-def test_a_params_table_names_options_and_trials() -> None:
-    s = schedule_from_table({
-        "options": ["left", "mid", "right"],
-        "trials": [{"index": 1, "mode": "dissensus"},
-                   {"index": 2, "mode": "consensus", "option": "right", "gaze_level": "low"}],
-    })
-    assert s.n_options == 3 and s.trial(2).option == 2 and s.name(2) == "right"
-    with pytest.raises(ValueError, match="'far' is not in"):
-        schedule_from_table({"options": ["a", "b"], "trials": [
-            {"index": 1, "mode": "consensus", "option": "far"}]})
-    with pytest.raises(ValueError, match="unknown key"):
-        schedule_from_table({"options": ["a", "b"], "trials": [{"index": 1, "mood": "x"}]})
-    with pytest.raises(ValueError, match="distinct"):
-        schedule_from_table({"options": ["a", "a"]})
-    with pytest.raises(ValueError, match="2..8"):
-        OptionsSchedule.default(9)
 
 
 samples = st.lists(

@@ -1,4 +1,7 @@
-"""The 8-trial schedule and one trial's timeline (SPEC §5/§6)."""
+"""The trial schedule over N options and one trial's timeline (SPEC §5/§6).
+
+The paper's 8 trials are the schedule's two-option case (`OptionsSchedule.default(2)`).
+"""
 
 from __future__ import annotations
 
@@ -7,13 +10,15 @@ import dataclasses
 import pytest
 
 from services.core.config import ConfigError, from_mapping
-from services.model.gaze import GAZE_LEVELS, AttentionGestureParams, GazeCommand
+from services.model.gaze import GAZE_LEVELS, AttentionGestureParams, GazeCommand, gaze_toward
+from services.model.geometry import OptionsLayout, TableLayout
 from services.model.protocol import (
     ProtocolParams,
     TrialSpec,
     default_schedule,
     trial_timeline,
 )
+from services.model.schedule import OptionsSchedule, OptionsTrial, schedule_from_table
 
 EXPECTED = [
     # index, mode, option, level, yaw, pitch, gesture
@@ -42,18 +47,83 @@ def test_schedule_agrees_with_the_gaze_table() -> None:
             assert (spec.yaw > 0) == (spec.option == "red")
 
 
+def test_the_papers_schedule_is_the_two_option_default() -> None:
+    paper = OptionsSchedule.default(2)
+    assert paper.names == ("red", "blue")
+    assert paper.paper_specs() == default_schedule()
+    # On the paper's table the clock's trials look where the paper's do (gaze's 2-option kernel)
+    timing = paper.timing_specs(OptionsLayout.from_table(TableLayout()))
+    for spec, clock in zip(default_schedule(), timing, strict=True):
+        assert (clock.index, clock.gaze_level, clock.attention_gesture, clock.gaze) == (
+            spec.index, spec.gaze_level, spec.attention_gesture, spec.gaze)
+    with pytest.raises(ValueError, match="red or blue"):
+        OptionsSchedule.default(3).paper_specs()
+
+
+@pytest.mark.parametrize("n", [3, 4, 5])
+def test_the_default_schedule_of_n_options_has_every_option_as_o(n: int) -> None:
+    s = OptionsSchedule.default(n)
+    assert s.names == ("red", "blue", "green", "yellow", "white")[:n]
+    assert [t.mode for t in s.trials] == ["dissensus"] * 3 + ["consensus"] * 5
+    assert {t.option for t in s.trials if t.option is not None} == set(range(n))
+    assert s.trials[3].attention_gesture and s.trials[3].gaze_level == "minimal"
+    specs = s.timing_specs(OptionsLayout.row(n))
+    assert [sp.index for sp in specs] == list(range(1, 9))
+    assert specs[0].yaw == 0.0
+    assert specs[5].gaze == gaze_toward(OptionsLayout.row(n), 2 % n, "moderate")
+
+
+def test_a_params_table_names_options_and_trials() -> None:
+    s = schedule_from_table({
+        "options": ["left", "mid", "right"],
+        "trials": [{"index": 1, "mode": "dissensus"},
+                   {"index": 2, "mode": "consensus", "option": "right", "gaze_level": "low"}],
+    })
+    assert s.n_options == 3 and s.trial(2).option == 2 and s.name(2) == "right"
+    with pytest.raises(ValueError, match="'far' is not in"):
+        schedule_from_table({"options": ["a", "b"], "trials": [
+            {"index": 1, "mode": "consensus", "option": "far"}]})
+    with pytest.raises(ValueError, match="unknown key"):
+        schedule_from_table({"options": ["a", "b"], "trials": [{"index": 1, "mood": "x"}]})
+    with pytest.raises(ValueError, match="distinct"):
+        schedule_from_table({"options": ["a", "a"]})
+    with pytest.raises(ValueError, match="numbered"):
+        schedule_from_table({"options": ["a", "b"], "trials": [{"index": 2, "mode": "dissensus"}]})
+    with pytest.raises(ValueError, match="2..8"):
+        OptionsSchedule.default(9)
+
+
+# The paper's trial form (O a colour) and the N-option form (O an index) refuse the same rows
+FORMS = {"paper": (TrialSpec, "red"), "options": (OptionsTrial, 0)}
+
+
+@pytest.mark.parametrize("form", sorted(FORMS))
 @pytest.mark.parametrize(
     "kwargs",
     [
         {"index": 0},
+        {"index": True},
         {"mode": "chaos"},
         {"mode": "consensus", "option": None},
-        {"mode": "dissensus", "option": "red"},
+        {"mode": "dissensus", "option": "O"},
         {"gaze_level": "furious"},
-        {"yaw": float("nan")},
     ],
 )
+def test_both_trial_forms_refuse_the_same_rows(form: str, kwargs: dict[str, object]) -> None:
+    make, option = FORMS[form]
+    row: dict[str, object] = {"index": 1, "mode": "dissensus", "option": None,
+                              "gaze_level": "neutral"}
+    row.update({k: option if v == "O" else v for k, v in kwargs.items()})
+    make(index=1, mode="consensus", option=option)  # the valid row each form starts from
+    with pytest.raises(ValueError):
+        make(**row)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"mode": "consensus", "option": "green"}, {"yaw": float("nan")}, {"pitch": 4.0}]
+)
 def test_trial_spec_validation(kwargs: dict[str, object]) -> None:
+    """What only the paper's form checks: O a colour, the gaze angles it carries."""
     base: dict[str, object] = {
         "index": 1,
         "mode": "dissensus",
