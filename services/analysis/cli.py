@@ -246,24 +246,19 @@ def _build_parser() -> Parser:
     )
     p.add_argument("--json", action="store_true", help="print every number as JSON")
     p.add_argument(
-        "--out", metavar="DIR", help="write Figs 8a-8d, report.md and study.json here"
+        "--out", metavar="DIR",
+        help="write Figs 8a-8d, the option shares, report.md and study.json here",
+    )
+    p.add_argument(
+        "--options", metavar="NAMES", default=None,
+        help="the option set to analyse, comma separated, e.g. red,blue,green (default: the "
+        "only one stored, else the paper's red,blue); sessions of another set are listed as "
+        "excluded",
     )
     p.add_argument(
         "--format", type=_formats, default=("png",), metavar="FMT",
         help="figure formats for --out: png, pdf, svg, comma separated (default png)",
     )
-    p = sub.add_parser(
-        "options-study",
-        help="the study over sessions of three or more options (docs/multi-option.md)",
-        description="Sessions of N options in a database (nod run --sim --options N): the "
-        "outcome frequencies per trial, the Stuart-Maxwell tests as `study` computes them, "
-        "and per trial how often each option was pressed by the human and the robot, both on "
-        "O (consensus trials) and the robot elsewhere (control trials).",
-    )
-    p.add_argument("--db", required=True, metavar="FILE", help="session database (nod run)")
-    p.add_argument("--json", action="store_true", help="print every number as JSON")
-    p.add_argument("--out", metavar="DIR",
-                   help="write Figs 8a-8d, fig_option_shares.png and options_study.json here")
     return parser
 
 

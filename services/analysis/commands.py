@@ -180,7 +180,10 @@ def study(args: argparse.Namespace) -> int:
     from services.analysis.study_report import finite_json, markdown, summary
 
     rule = InclusionRule(args.min_trials)
-    doc = finite_json(load_study(args.db, rule, args.correction, args.include_withdrawn))
+    options = args.options.split(",") if args.options else None
+    doc = finite_json(
+        load_study(args.db, rule, args.correction, args.include_withdrawn, options)
+    )
     if doc["withdrawn"]["note"]:  # one line, on stderr: stdout stays the summary or the JSON
         print(f"nod analyze study: {doc['withdrawn']['note']}", file=sys.stderr)
     if args.out:
@@ -197,7 +200,8 @@ def study(args: argparse.Namespace) -> int:
         print(summary(doc))
         if args.out:
             kinds = "/".join(args.format)
-            print(f"wrote {Path(args.out) / 'report.md'}, study.json and 4 figures ({kinds})")
+            print(f"wrote {Path(args.out) / 'report.md'}, study.json and {len(figures)} figures "
+                  f"({kinds})")
     return 0
 
 
@@ -323,26 +327,6 @@ def trial(args: argparse.Namespace) -> int:
     return 0
 
 
-def options_study(args: argparse.Namespace) -> int:
-    """`nod analyze options-study`: the study over sessions of three or more options."""
-    from services.analysis.options_figures import write_options_figures
-    from services.analysis.options_study import analyze_options_study, summary
-    from services.analysis.study_report import finite_json
-
-    doc = finite_json(analyze_options_study(args.db))
-    if args.out:
-        out = Path(args.out)
-        try:
-            figures = write_options_figures(doc, out)
-            (out / "options_study.json").write_text(json.dumps(doc, indent=2) + "\n")
-        except OSError as exc:
-            raise UsageError(f"cannot write to --out {args.out!r}: {exc}") from None
-    print(json.dumps(doc, indent=2, allow_nan=False) if args.json else summary(doc))
-    if args.out and not args.json:
-        print(f"wrote {Path(args.out) / 'options_study.json'} and {len(figures)} figures")
-    return 0
-
-
 COMMANDS = {
     "trial": trial,
     "power": power,
@@ -355,5 +339,4 @@ COMMANDS = {
     "square-claim": square_claim,
     "stuart-maxwell": stuart_maxwell,
     "study": study,
-    "options-study": options_study,
 }

@@ -38,6 +38,11 @@ class ParticipantOutcomes:
     interrupted: frozenset[int] = frozenset()  # stored as interrupted (their outcome is None)
     control_labels: str = "agreement"  # the rule that labelled its control trials (SPEC §6)
     rig: str = ""  # the rig its conductor ran it on
+    options: tuple[str, ...] = ("red", "blue")  # the session's option set (the paper's)
+    # per stored trial, (O, the human's press, the robot's press) by option name (None: none)
+    choices: Mapping[int, tuple[str | None, str | None, str | None]] = field(
+        default_factory=dict
+    )
 
     def outcome(self, trial: int) -> str | None:
         """The trial's outcome, or None for a timeout or a trial never stored."""
@@ -133,12 +138,25 @@ def scheduled_trials(config: str | None) -> int:
     return len(trials) if isinstance(trials, list) and trials else len(TRIALS)
 
 
-def is_options_session(config: str | None) -> bool:
-    """Whether a session ran a table of three or more options (its config lists them)."""
+PAPER_MODES = [(t, "dissensus" if t <= 3 else "consensus") for t in TRIALS]
+
+
+def check_schedule(session: str, config: str | None) -> None:
+    """Refuse a session whose stored option schedule is not trials 1-3 dissensus, 4-8 consensus.
+
+    The study's statistics (control trials against experiment trials) need that structure; the
+    paper's sessions and the default schedule of N options have it. ValueError, one line.
+    """
     try:
-        return bool(json.loads(config or "{}").get("options"))
-    except (ValueError, AttributeError):
-        return False
+        rows = json.loads(config or "{}")["option_schedule"]
+        modes = [(int(r["index"]), str(r["mode"])) for r in rows]
+    except (ValueError, KeyError, TypeError):
+        return
+    if modes and modes != PAPER_MODES:
+        raise ValueError(
+            f"session {session} ran another schedule than trials 1-3 dissensus, 4-8 consensus: "
+            "the study statistics here need that structure"
+        )
 
 
 def control_labels(config: str | None) -> str:
@@ -189,8 +207,7 @@ def select_sessions(
     notes: list[str] = []
     for s in withdrawn.sessions(store.sessions()):  # oldest first: later ones supersede
         sid, pid, status = str(s["session"]), str(s["participant"]), str(s["status"])
-        if is_options_session(s.get("config")):  # 3+ options: `nod analyze options-study`
-            continue
+        check_schedule(sid, s.get("config"))
         trials = [t for _, t in store.trials(sid)]
         bad = sorted(
             {t.outcome for t in trials if t.outcome is not None and t.outcome not in OUTCOMES}
@@ -226,6 +243,8 @@ def select_sessions(
             interrupted=frozenset(t.trial for t in trials if t.interrupted),
             control_labels=control_labels(s.get("config")),
             rig=str(s.get("rig") or ""),
+            options=store.option_names(sid),
+            choices={t.trial: (t.option, t.human, t.robot) for t in trials},
         )
         if pid in latest:
             old = latest[pid]

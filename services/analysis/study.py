@@ -218,6 +218,10 @@ def analyze_study(
             f"{first.session} of {first.participant}: {first.reason}); --min-trials N lets "
             "in sessions with at least N scored trials"
         )
+    sets = {p.options for p in parts}
+    if len(sets) > 1:  # one table per study (`one_option_set` picks one)
+        raise ValueError(f"the sessions ran {len(sets)} option sets: analyse one at a time")
+    (names,) = sets
     trial_excluded = [
         {
             "participant": p.participant,
@@ -290,17 +294,86 @@ def analyze_study(
         "questionnaire_excluded": sorted({q.participant for q in questionnaires} & left_out),
         "questionnaire_without_session": sorted(answered - included),
         "sessions_without_questionnaire": sorted(included - answered),
+        "options": list(names),
+        "option_shares": option_shares(names, parts),
     }
+
+
+PAPER_OPTIONS: tuple[str, ...] = ("red", "blue")
+
+
+def one_option_set(
+    parts: Sequence[ParticipantOutcomes], options: Sequence[str] | None = None
+) -> tuple[tuple[str, ...], list[ParticipantOutcomes], list[ExcludedSession]]:
+    """The option set analysed, its sessions, and the sessions of any other set, left out.
+
+    The statistics compare outcomes (C, CH, D, DH), which mean the same for any number of
+    options, but a study is one table: sessions run with other buzzers are another study.
+    `options` picks the set; by default the only one there, else the paper's (red, blue) if
+    any session ran it. Several sets and no choice is a ValueError naming them (one line).
+    """
+    sets = sorted({p.options for p in parts})
+    if options is not None:
+        chosen = tuple(options)
+    elif len(sets) <= 1:
+        chosen = sets[0] if sets else PAPER_OPTIONS
+    elif PAPER_OPTIONS in sets:
+        chosen = PAPER_OPTIONS
+    else:
+        listed = "; ".join(",".join(s) for s in sets)
+        raise ValueError(f"the sessions ran {len(sets)} option sets ({listed}): --options "
+                         "NAMES picks the one to analyse")
+    kept = [p for p in parts if p.options == chosen]
+    other = [
+        ExcludedSession(
+            p.session, p.participant, p.status, len(p.outcomes),
+            len(p.outcomes) - len(p.interrupted), len(TRIALS),
+            f"ran options {', '.join(p.options)}: --options {','.join(p.options)} analyses them",
+        )
+        for p in parts
+        if p.options != chosen
+    ]
+    return chosen, kept, other
+
+
+def option_shares(
+    names: Sequence[str], parts: Sequence[ParticipantOutcomes]
+) -> dict[str, dict[str, Any]]:
+    """Per trial: how many humans and robots pressed each option, and the agreements.
+
+    `human` / `robot`: presses per option name (`human.none`: no press, a timeout or an
+    interrupted trial); `both_on_o` in a consensus trial: both pressed O (the consensus claim);
+    `robot_not_human` in a control trial: the robot pressed another box than the human.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    for trial in TRIALS:
+        recs = [p.choices[trial] for p in parts if trial in p.choices]
+        row: dict[str, Any] = {
+            "n": len(recs),
+            "human": {n: sum(h == n for _, h, _ in recs) for n in names},
+            "robot": {n: sum(r == n for _, _, r in recs) for n in names},
+        }
+        row["human"]["none"] = sum(h is None for _, h, _ in recs)
+        if trial in CONTROL_TRIALS:
+            row["robot_not_human"] = sum(
+                r is not None and h is not None and r != h for _, h, r in recs
+            )
+        else:
+            row["both_on_o"] = sum(o is not None and h == o == r for o, h, r in recs)
+        out[str(trial)] = row
+    return out
 
 
 def load_study(
     paths: str | Sequence[str], rule: InclusionRule | None = None,
     correction: Correction = "holm", include_withdrawn: bool = False,
+    options: Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """Open the study's stores (one per rig, or one), select their sessions, analyse them as one.
 
     A participant id in two stores or on two rigs is a ValueError (`open_stores`), not a merge.
     Withdrawn participants are left out (sessions and answers) unless `include_withdrawn`.
+    The sessions of one option set are analysed (`one_option_set`; `options` picks it).
     """
     names = [paths] if isinstance(paths, str) else list(paths)
     with open_stores(names) as stores:
@@ -309,11 +382,12 @@ def load_study(
         answers = [q for _, store in stores for q in store.questionnaires()
                    if keep.keeps(q.participant)]
     parts = sorted((p for c in chosen for p in c.participants), key=lambda p: p.participant)
+    option_set, parts, other = one_option_set(parts, options)
     doc = analyze_study(
         parts, sorted(answers, key=lambda q: q.participant),
-        [n for c in chosen for n in c.notes], [e for c in chosen for e in c.excluded],
+        [n for c in chosen for n in c.notes], [e for c in chosen for e in c.excluded] + other,
         chosen[0].rule, correction,
     )
     withdrawn = {"left_out": keep.left_out, "included": sorted(keep.withdrawn) if
                  include_withdrawn else [], "note": keep.note()}
-    return {**doc, "stores": names, "withdrawn": withdrawn}
+    return {**doc, "stores": names, "withdrawn": withdrawn, "options": list(option_set)}

@@ -1,4 +1,8 @@
-"""Figures 8a-8d (PNG, PDF or SVG) of the study analysis (Secs 7-8).
+"""Figures 8a-8d (PNG, PDF or SVG) of the study analysis (Secs 7-8), and the option shares.
+
+`fig_option_shares`: per trial, the share of humans who pressed each option (stacked, in the
+options' colours, for any number of options), with the consensus trials' "both on O" and the
+control trials' "robot elsewhere" counts above the bars.
 
 Everything here draws the JSON document of services.analysis.study.analyze_study; no number is
 computed twice. Each figure has a `draw_*` that returns the matplotlib Figure (the tests measure
@@ -18,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 from services.analysis.figures import FORMATS, pyplot
 from services.analysis.multiplicity import NAMES
 from services.analysis.study import CONTROL_TRIALS, OUTCOMES
+from services.scene.option_colours import COLOURS as OPTION_COLOURS
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -35,12 +40,14 @@ TITLES: Mapping[str, str] = {
     "8b": "Control → experiment flows",
     "8c": "Per-participant outcomes",
     "8d": "Contingency table",
+    "shares": "Option pressed by the human per trial",
 }
 FIGURES: Mapping[str, str] = {
     "8a": "fig8a_frequencies",
     "8b": "fig8b_flows",
     "8c": "fig8c_grid",
     "8d": "fig8d_contingency",
+    "shares": "fig_option_shares",
 }
 # Fig 8c: participants per block before the next block starts beside it, and at most how many
 # blocks side by side (beyond that the rows get shorter and only every k-th id is written).
@@ -298,18 +305,58 @@ def _p(x: float) -> str:
     return f"{x:.3g}" if x >= 1e-3 else f"{x:.2e}"
 
 
+_GREY = "#9e9e9e"
+
+
+def _hex(name: str) -> str:
+    """An option's colour as the rendered table paints it (grey for a name it has none for)."""
+    if name not in OPTION_COLOURS:
+        return _GREY
+    b, g, r = OPTION_COLOURS[name][0]
+    return f"#{r:02x}{g:02x}{b:02x}"
+
+
+def draw_option_shares(doc: Mapping[str, Any]) -> Figure:
+    """Per trial, the % of humans pressing each option, and the agreements above the bars."""
+    plt = pyplot()
+    names, shares, trials = doc["options"], doc["option_shares"], doc["trials"]
+    fig, ax = plt.subplots(figsize=(8.0, 3.8), dpi=120)
+    bottom = [0.0] * len(trials)
+    for name in [*names, "none"]:
+        ys = [100.0 * shares[str(t)]["human"][name] / max(1, shares[str(t)]["n"])
+              for t in trials]
+        label = "no press (timeout)" if name == "none" else name
+        ax.bar(trials, ys, 0.7, bottom=bottom, color=_GREY if name == "none" else _hex(name),
+               label=label, edgecolor="white", linewidth=0.5)
+        bottom = [b + y for b, y in zip(bottom, ys, strict=True)]
+    for t in trials:
+        row = shares[str(t)]
+        agree = row.get("both_on_o", row.get("robot_not_human", 0))
+        ax.text(t, 102, f"{agree}/{row['n']}", ha="center", va="bottom", fontsize=7)
+    ax.set_xticks(trials)
+    ax.set_ylim(0, 112)
+    ax.set_xlabel("trial (1-3: robot elsewhere / n; 4-8: both on O / n)")
+    ax.set_ylabel("% of humans pressing")
+    ax.set_title(TITLES["shares"], loc="left", fontsize=10)
+    ax.legend(ncol=len(names) + 1, fontsize=8, loc="lower right", bbox_to_anchor=(1.0, 1.04),
+              frameon=False)
+    fig.tight_layout()
+    return fig
+
+
 DRAW: Mapping[str, Callable[[Mapping[str, Any]], Figure]] = {
     "8a": draw_frequencies,
     "8b": draw_flows,
     "8c": draw_grid,
     "8d": draw_contingency,
+    "shares": draw_option_shares,
 }
 
 
 def write_figures(
     doc: Mapping[str, Any], out: Path, formats: tuple[str, ...] = ("png",)
 ) -> dict[str, Path]:
-    """Draw Figs 8a-8d into `out` in each format; return the first format's paths by figure."""
+    """Draw Figs 8a-8d and the option shares into `out` in each format; the first format's paths."""
     bad = [f for f in formats if f not in FORMATS]
     if bad or not formats:
         raise ValueError(f"figure formats must be among {', '.join(FORMATS)}, got {formats!r}")

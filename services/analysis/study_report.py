@@ -7,7 +7,7 @@ is computed twice. The figures it links are services.analysis.study_figures'.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -91,7 +91,8 @@ def markdown(doc: Mapping[str, Any], figures: Mapping[str, Path] | None = None) 
         )
     if figures:
         md += ["", "## Figures", ""]
-        md += [f"![Fig {k}: {TITLES[k]}]({p.name})\n" for k, p in figures.items()]
+        md += [f"![{f'Fig {k}' if k[0].isdigit() else 'Figure'}: {TITLES[k]}]({p.name})\n"
+           for k, p in figures.items()]
     md += ["", "## Frequencies per trial (Fig 8a)", ""]
     md += _table(
         ["trial", *OUTCOMES, "none", "n"],
@@ -204,6 +205,14 @@ def sources(doc: Mapping[str, Any]) -> str:
     return f"{len(stores)} store(s) ({', '.join(stores)}), participants {per_rig}"
 
 
+def _presses(row: Mapping[str, Any], names: Sequence[str]) -> str:
+    """One trial's option shares, short: the human's presses and the agreement counted."""
+    presses = " ".join(f"{n}:{row['human'][n]}" for n in names)
+    agree = (f"both on O {row['both_on_o']}/{row['n']}" if "both_on_o" in row
+             else f"robot elsewhere {row['robot_not_human']}/{row['n']}")
+    return f"  | {presses}  {agree}"
+
+
 def summary(doc: Mapping[str, Any]) -> str:
     """A few lines for the terminal."""
     lines = [
@@ -215,11 +224,17 @@ def summary(doc: Mapping[str, Any]) -> str:
         lines.append(f"  from {sources(doc)}")
     lines += [f"  excluded {e['participant']} ({e['session']}): {e['reason']}"
               for e in doc["excluded"]]
+    names = doc.get("options", ["red", "blue"])
+    more = names != ["red", "blue"]  # another table than the paper's: its presses per trial
+    if more:
+        lines.append(f"  options {', '.join(names)}: per trial the human's presses, and both "
+                     "on O (consensus trials) or the robot elsewhere (control trials)")
     for t, r in doc["frequencies"].items():
         lines.append(
             f"  trial {t}: "
             + "  ".join(f"{o} {r[o]:>2}" for o in OUTCOMES)
             + (f"  none {r['none']}" if r["none"] else "")
+            + (_presses(doc["option_shares"][t], names) if more else "")
         )
     family = len(doc["correction_family"])
     how = (

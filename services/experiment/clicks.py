@@ -16,8 +16,7 @@ from pathlib import Path
 
 from services.core.cli import Parser, fail, int_in
 from services.model.scoring import points_said
-from services.store import Store, StoreError, TrialRecord
-from services.store.options import OptionsStore, OptionsTrialRecord
+from services.store import Store, StoreError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -45,15 +44,8 @@ def main(argv: list[str] | None = None) -> int:
         return fail("nod clicks", exc)
     count = None if args.not_entered else args.count
     try:
-        options = OptionsStore(store)
-        before: TrialRecord | OptionsTrialRecord | None
-        if options.names(args.session) is not None:  # a session over N options: its own table
-            before = {t.trial: t for t in options.trials(args.session)}.get(args.trial)
-            record: TrialRecord | OptionsTrialRecord = options.set_clicks(
-                args.session, args.trial, count)
-        else:
-            before = {t.trial: t for _, t in store.trials(args.session)}.get(args.trial)
-            record = store.set_clicks(args.session, args.trial, count)
+        before = {t.trial: t for _, t in store.trials(args.session)}.get(args.trial)
+        record = store.set_clicks(args.session, args.trial, count)
         target = store.target_clicks(args.session)
     except StoreError as exc:
         return fail("nod clicks", exc)

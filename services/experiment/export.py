@@ -3,9 +3,8 @@
 Writes sessions.csv, trials.csv, samples.csv, questionnaires.csv, safety_events.csv,
 rig_events.csv, interruptions.csv, cues.csv (the countdown words and go as `nod speaker`
 played them: planned and played onset, rig-clock ns), fits.csv (`nod fit`'s per-participant
-estimates and 90 % intervals, identifiable parameters only) and, when the store holds sessions
-of three or more options, option_sets.csv and option_trials.csv (`services.store.options`),
-and participants.csv (each participant's consent record — every column of `participants`,
+estimates and 90 % intervals, identifiable parameters only) and participants.csv (each
+participant's consent record — every column of `participants`,
 demographics as JSON — and their withdrawal, if any: `withdrawn_ns`, `withdrawal_reason`,
 `withdrawal_deleted`, `deleted_ns`) into one directory, each with a header
 row of the database's column names (the per-session tables gain a `participant` column after
@@ -40,7 +39,6 @@ from typing import Any
 
 from services.core.cli import Parser, fail
 from services.store import StoreError
-from services.store.options import export_rows
 from services.store.records import unpack_landmarks
 from services.store.study_stores import open_stores, union_of
 from services.store.withdrawals import WithdrawnFilter, withdrawn_filter
@@ -51,8 +49,12 @@ MISSING = "NA"  # how a SQL NULL is written
 QUERIES: dict[str, str] = {
     # `control_labels`: the rule that labelled the session's control trials (SPEC §6); a session
     # stored before the rule existed was labelled by switches.
-    "sessions": "SELECT *, COALESCE(json_extract(config, '$.protocol.control_labels'), "
-    "'switches') AS control_labels FROM sessions ORDER BY started_ns, session",
+    # `options`: the session's option set as a JSON list of names (the paper's: red, blue); a
+    # trial's option, human and robot in trials.csv are names of it, whatever the number.
+    "sessions": "SELECT s.*, COALESCE(json_extract(s.config, '$.protocol.control_labels'), "
+    "'switches') AS control_labels, COALESCE(o.names, '[\"red\", \"blue\"]') AS options "
+    "FROM sessions s LEFT JOIN option_sets o ON o.session = s.session "
+    "ORDER BY s.started_ns, s.session",
     "trials": (
         "SELECT t.session, s.participant, t.trial, t.mode, t.option, t.gaze_level, t.yaw, "
         "t.pitch, t.t_go_ns, t.t_end_ns, t.human, t.robot, t.outcome, t.switches, "
@@ -141,7 +143,7 @@ def export(
     """Write every table of an open store as `<table>.csv` in `out`; rows written per table.
 
     The rows of withdrawn participants are left out (`keep`: the store's own filter when not
-    given), found by the `participant` column or, for the N-option tables, the session's.
+    given), found by the `participant` column or, in a table without one, by the session.
     """
     keep = keep if keep is not None else withdrawn_filter(db)
     out.mkdir(parents=True, exist_ok=True)
@@ -152,9 +154,6 @@ def export(
         cur = db.execute(query)
         header = [c[0] for c in cur.description]
         counts[name] = write_rows(out / f"{name}.csv", header, _kept(header, cur, keep, owner))
-    for name, (header, rows) in export_rows(db).items():  # sessions of 3+ options, if any
-        counts[name] = write_rows(out / f"{name}.csv", header,
-                                  _kept(header, rows, keep, owner))
     return counts
 
 

@@ -5,8 +5,8 @@ over the `options/*` keys: the gaze toward O's box on `eyes/cmd` (kept alive at 
 setup, countdown and "go" on `options/trial` (decision and actuation reset, the sim listens),
 then at the end `OptionsTrialJudge` on the poses (`vision/hand`) and ẑ_h vectors
 (`options/z_h`) from "go" to the human's press, with the robot's press (`options/press`); the
-trial goes into the store with the session's option set (`services.store.options`) and out on
-`options/result`.
+trial goes into the store's one `trials` table by option name, with the session's option set,
+and out on `options/result`.
 
 Safety as the paper's conductor: the devices' states (`options/arm_state`, `eyes/state`), the
 e-stop and the services' liveliness feed a `RigWatch`; a stop breaks the running trial, which
@@ -37,12 +37,11 @@ from services.experiment.hold import SessionHold
 from services.experiment.rig_watch import RigWatch
 from services.experiment.waiting import wait_for_services
 from services.model.geometry import OptionsLayout, Point
-from services.model.options_judge import OptionsTrialJudge
+from services.model.judge import OptionsTrialJudge
 from services.model.params import NodConfig
 from services.model.protocol import Cue, Mode, SessionProtocol
 from services.model.schedule import OptionsSchedule
-from services.store import Interruption
-from services.store.options import OptionsStore, OptionsTrialRecord
+from services.store import Interruption, Store, TrialRecord
 
 log = logging.getLogger("nod.experiment")
 NS = 1e-9
@@ -69,7 +68,7 @@ class OptionsConductor:
         cfg: NodConfig,
         schedule: OptionsSchedule,
         layout: OptionsLayout,
-        store: OptionsStore,
+        store: Store,
         clicks: Callable[[int], int | None],
     ) -> None:
         self.node = node
@@ -87,7 +86,7 @@ class OptionsConductor:
         self.trial = 0
         self.t_go_ns: int | None = None
         self.gaze_msg: GazeFields | None = None
-        self.results: list[OptionsTrialRecord] = []
+        self.results: list[TrialRecord] = []  # option, human, robot by name
         self._centers: OrderedDict[int, Point] = OrderedDict()  # recent poses' hand centres
         self.rig = RigWatch()
         self.hold = SessionHold(self.rig)
@@ -173,13 +172,15 @@ class OptionsConductor:
 
     def run_session(
         self, session: str, participant: str, seed: int | None
-    ) -> list[OptionsTrialRecord]:
+    ) -> list[TrialRecord]:
         """Run every trial of the schedule; store and publish each."""
         self.session = session
         schedule = [dataclasses.asdict(t) for t in self.schedule.trials]  # the analysis reads it
         self.store.begin_session(
             session, participant, self.node.keys.rig, seed, self.node.clock.now_ns(),
-            {**self.cfg.summary(), "option_schedule": schedule}, self.schedule.names,
+            {**self.cfg.summary(), "options": list(self.schedule.names),
+             "option_schedule": schedule},
+            self.schedule.names,
         )
         status = "aborted"
         protocol = SessionProtocol(self.params)
@@ -217,8 +218,8 @@ class OptionsConductor:
         finally:
             with self.node.lock:
                 events = self.rig.take_events()
-            self.store.store.write_events(session, events)
-            self.store.store.finish_session(session, self.node.clock.now_ns(), status)
+            self.store.write_events(session, events)
+            self.store.finish_session(session, self.node.clock.now_ns(), status)
             with self.node.lock:
                 self.gaze_msg = None
             self.pub_trial.put(n_options=self.n, phase="session_end" if status == "complete"
@@ -266,8 +267,7 @@ class OptionsConductor:
                     self.pub_gaze.put(**self.gaze_msg)
             elif cue.kind == "setup":
                 started = self.node.clock.now_ns()
-                self.store.store.begin_attempt(self.session, trial.index, protocol.attempt,
-                                               started)
+                self.store.begin_attempt(self.session, trial.index, protocol.attempt, started)
                 with self.node.lock:
                     self.trial, self.judge, self.robot, self.t_go_ns = trial.index, None, None, None
                     self.rig.begin(trial.index, protocol.attempt)
@@ -303,14 +303,15 @@ class OptionsConductor:
         # Stored the moment it ends, clicks not entered; the operator's answer updates it (a
         # Ctrl-C at the prompt leaves it stored once), as in the paper's conductor.
         j = judge.verdict(end, robot, None)
-        rec = OptionsTrialRecord(
-            trial.index, trial.mode, trial.option, trial.gaze_level, yaw, pitch, t_go,
-            self.node.clock.now_ns(), j.human, j.robot, j.outcome, j.switches, j.violations,
-            None, j.score, end.reason, attempts=protocol.attempt,
+        name = self.schedule.name
+        rec = TrialRecord(
+            trial.index, trial.mode, name(trial.option), trial.gaze_level, yaw, pitch, t_go,
+            self.node.clock.now_ns(), name(j.human), name(j.robot), j.outcome, j.switches,
+            j.violations, None, j.score, end.reason, attempts=protocol.attempt,
         )
         with self.node.lock:
             events = self.rig.take_events()
-        self.store.write_trial(self.session, rec, events)
+        self.store.write_trial(self.session, rec, (), events)  # no samples kept yet at N > 2
         self.results.append(rec)
         try:
             clicks = self.clicks(trial.index)
@@ -321,15 +322,20 @@ class OptionsConductor:
             rec = self.store.set_clicks(self.session, trial.index, clicks)
             self.results[-1] = rec
         self._publish(rec)
-        name = self.schedule.name
-        log.info("trial %d: human %s, robot %s -> %s (%+d)", trial.index, name(rec.human),
-                 name(rec.robot), rec.outcome, rec.score)
+        log.info("trial %d: human %s, robot %s -> %s (%+d)", trial.index, rec.human,
+                 rec.robot, rec.outcome, rec.score)
 
-    def _publish(self, rec: OptionsTrialRecord) -> None:
-        """A stored trial's result on `options/result`."""
+    def _index(self, name: str | None) -> int | None:
+        """The box index of a stored option name (None stays None)."""
+        return None if name is None else self.schedule.index_of(name)
+
+    def _publish(self, rec: TrialRecord) -> None:
+        """A stored trial's result on `options/result` (options by index, as its schema has)."""
+        index = self._index
         self.pub_result.put(
-            n_options=self.n, trial=rec.trial, mode=rec.mode, option=rec.option,
-            robot=rec.robot, human=rec.human, outcome=rec.outcome, switches=rec.switches,
+            n_options=self.n, trial=rec.trial, mode=rec.mode, option=index(rec.option),
+            robot=index(rec.robot), human=index(rec.human), outcome=rec.outcome,
+            switches=rec.switches,
             violations=rec.violations, score=rec.score, session=self.session,
         )
 
@@ -344,15 +350,15 @@ class OptionsConductor:
         log.warning("trial %d (attempt %d) INTERRUPTED: %s", trial.index, protocol.attempt, why)
         self.pub_trial.put(phase="interrupted", text=why[:400], **ev)
         record = Interruption(trial.index, protocol.attempt, self._trial_start_ns, now, why)
-        self.store.store.write_interruption(self.session, record, events)
+        self.store.write_interruption(self.session, record, events)
         proto = self.params
         if not proto.repeat_interrupted or protocol.attempt >= proto.max_attempts:
-            rec = OptionsTrialRecord(
-                trial.index, trial.mode, trial.option, trial.gaze_level, yaw, pitch, None, now,
-                None, None, None, 0, 0, None, 0, f"interrupted: {why}"[:400], interrupted=1,
-                attempts=protocol.attempt,
+            rec = TrialRecord(
+                trial.index, trial.mode, self.schedule.name(trial.option), trial.gaze_level,
+                yaw, pitch, None, now, None, None, None, 0, 0, None, 0,
+                f"interrupted: {why}"[:400], interrupted=True, attempts=protocol.attempt,
             )
-            self.store.write_trial(self.session, rec)
+            self.store.write_trial(self.session, rec, ())
             self.results.append(rec)
             # published as the paper's conductor does: the launcher's table and the monitor
             # show every trial stored, the one given up on as well

@@ -24,7 +24,6 @@ from services.model.options_loop import table_for
 from services.model.params import NodConfig
 from services.model.schedule import OptionsSchedule
 from services.store import Store, back_up
-from services.store.options import OptionsStore
 from services.store.participants import next_free_ids
 
 log = logging.getLogger("nod.experiment")
@@ -53,7 +52,7 @@ def run_options(
         node.close()
         return 2
     conductor = OptionsConductor(
-        node, cfg, schedule, table_for(cfg, schedule.n_options), OptionsStore(store),
+        node, cfg, schedule, table_for(cfg, schedule.n_options), store,
         clicks,
     )
     watch_rivals(claim, node, conductor.rig, lambda text: log.warning("%s", text))

@@ -144,7 +144,7 @@ def drop_session(store: Store, session: str) -> None:
     """Remove a session left half-stored (its trials and samples too), in one transaction."""
     with store.db:
         store.db.execute("BEGIN")
-        for table in ("samples", "trials", "sessions"):
+        for table in ("samples", "trials", "option_sets", "sessions"):
             store.db.execute(f"DELETE FROM {table} WHERE session = ?", (session,))
 
 

@@ -1,9 +1,11 @@
 """The session store's tables: one SQLite schema, created (IF NOT EXISTS) by every `Store`.
 
-Tables added later are migrated by `Store._migrate`; the N-option tables have a module of their
-own (`options.py`); `fits` (`FITS_SCHEMA`) and `withdrawals` are read and written by `fits.py`
-and `withdrawals.py`, their schemas are here, so every store, an older one too, has them once
-opened.
+Tables added later are migrated by `Store._migrate`. Every session's option set (the names of
+its buzzers, box j is `names[j]`; the paper's is red, blue) is in `option_sets`, and its trials,
+for any number of options, in `trials`, whose option, human and robot are names of that set
+(checked by `Store.write_trial`: SQL cannot check against another table's JSON). `fits`
+(`FITS_SCHEMA`) and `withdrawals` are read and written by `fits.py` and `withdrawals.py`, their
+schemas are here, so every store, an older one too, has them once opened.
 """
 
 SCHEMA = """
@@ -21,14 +23,14 @@ CREATE TABLE IF NOT EXISTS trials (
     session     TEXT NOT NULL REFERENCES sessions(session),
     trial       INTEGER NOT NULL,
     mode        TEXT NOT NULL CHECK (mode IN ('dissensus', 'consensus')),
-    option      TEXT CHECK (option IN ('red', 'blue')),
+    option      TEXT CHECK (option <> ''),
     gaze_level  TEXT NOT NULL,
     yaw         REAL NOT NULL,
     pitch       REAL NOT NULL,
     t_go_ns     INTEGER,
     t_end_ns    INTEGER,
-    human       TEXT CHECK (human IN ('red', 'blue')),
-    robot       TEXT CHECK (robot IN ('red', 'blue')),
+    human       TEXT CHECK (human <> ''),
+    robot       TEXT CHECK (robot <> ''),
     outcome     TEXT CHECK (outcome IN ('C', 'CH', 'D', 'DH')),
     switches    INTEGER NOT NULL,
     violations  INTEGER NOT NULL,
@@ -38,6 +40,11 @@ CREATE TABLE IF NOT EXISTS trials (
     interrupted INTEGER NOT NULL DEFAULT 0,
     attempts    INTEGER NOT NULL DEFAULT 1,
     PRIMARY KEY (session, trial)
+);
+CREATE TABLE IF NOT EXISTS option_sets (
+    session   TEXT PRIMARY KEY REFERENCES sessions(session),
+    n_options INTEGER NOT NULL CHECK (n_options >= 2),
+    names     TEXT NOT NULL
 );
 CREATE TABLE IF NOT EXISTS safety_events (
     session TEXT NOT NULL,

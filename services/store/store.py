@@ -32,7 +32,7 @@ import struct
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any
 
 from services.model.scoring import trial_points
 from services.store.records import (
@@ -47,6 +47,11 @@ from services.store.records import (
 from services.store.schema import FITS_SCHEMA, SCHEMA
 
 log = logging.getLogger("nod.store")
+
+PAPER_OPTIONS: tuple[str, str] = ("red", "blue")  # the paper's buzzers: its option set
+# PRAGMA user_version of this schema: 2 is one `trials` table for every option set (a store of
+# version 0 or 1 kept three or more options' trials in `option_trials`, by box index).
+STORE_VERSION = 2
 
 class StoreError(OSError):
     """The database file cannot be opened or is not a session database."""
@@ -179,19 +184,6 @@ def refusal(path: Path, problems: Sequence[str]) -> str:
     return f"{what}; it has no backup ({backup}): {check}; restore it from a copy of your own"
 
 
-class ScoredTrial(Protocol):
-    """What rescoring a stored trial reads (a `TrialRecord`, or an N-option trial's record)."""
-
-    @property
-    def human(self) -> Any: ...  # noqa: D102 - the fields of the records
-    @property
-    def robot(self) -> Any: ...  # noqa: D102
-    @property
-    def violations(self) -> int: ...  # noqa: D102
-    @property
-    def interrupted(self) -> Any: ...  # noqa: D102
-
-
 class Store:
     """A session database file."""
 
@@ -246,6 +238,66 @@ class Store:
             have = {row[1] for row in self.db.execute(f"PRAGMA table_info({table})")}
             if column not in have:
                 self.db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {decl}")
+        if self.db.execute("PRAGMA user_version").fetchone()[0] < STORE_VERSION:
+            self._one_trials_table()
+
+    def _one_trials_table(self) -> None:
+        """Version 2: every session's trials in `trials` by option name, its option set stored.
+
+        A store of an older version checked its trials' options against red and blue and kept
+        the trials of three or more options apart (`option_trials`, by box index). Rebuilt in one
+        transaction (SQLite cannot change a CHECK in place): the paper's rows as they were, the
+        others with each index replaced by its option's name, and every session without an
+        option set given the paper's (red, blue). A crash part-way leaves the old store whole.
+        """
+        with self.db:
+            self.db.execute("BEGIN IMMEDIATE")  # one migrator: a second one waits, then sees 2
+            if self.db.execute("PRAGMA user_version").fetchone()[0] >= STORE_VERSION:
+                return
+            (ddl,) = self.db.execute(
+                "SELECT sql FROM sqlite_master WHERE type = 'table' AND name = 'trials'"
+            ).fetchone()
+            if "IN ('red', 'blue')" in ddl:
+                cols = ", ".join(r[1] for r in self.db.execute("PRAGMA table_info(trials)"))
+                new = SCHEMA[SCHEMA.index("CREATE TABLE IF NOT EXISTS trials ("):]
+                new = new[: new.index(");") + 2].replace(" trials (", " trials_by_name (", 1)
+                self.db.execute(new)
+                self.db.execute(
+                    f"INSERT INTO trials_by_name ({cols}) SELECT {cols} FROM trials"
+                )
+                self.db.execute("DROP TABLE trials")
+                self.db.execute("ALTER TABLE trials_by_name RENAME TO trials")
+            tables = {r[0] for r in self.db.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table'")}
+            if "option_trials" in tables:
+                names = {s: json.loads(n) for s, n in self.db.execute(
+                    "SELECT session, names FROM option_sets")}
+                cur = self.db.execute("SELECT * FROM option_trials")
+                header = [c[0] for c in cur.description]
+                for row in cur.fetchall():
+                    rec = dict(zip(header, row, strict=True))
+                    for field in ("option", "human", "robot"):
+                        if rec[field] is None:
+                            continue
+                        known = names.get(rec["session"], [])
+                        if not 0 <= rec[field] < len(known):  # the whole migration is undone
+                            raise sqlite3.DatabaseError(
+                                f"option_trials: session {rec['session']} trial {rec['trial']}"
+                                f" has {field} {rec[field]}, not a box of its option set"
+                            )
+                        rec[field] = known[rec[field]]
+                    self.db.execute(
+                        f"INSERT INTO trials ({', '.join(header)}) "
+                        f"VALUES ({', '.join('?' * len(header))})",
+                        tuple(rec.values()),
+                    )
+                self.db.execute("DROP TABLE option_trials")
+            self.db.execute(
+                "INSERT INTO option_sets SELECT session, 2, ? FROM sessions "
+                "WHERE session NOT IN (SELECT session FROM option_sets)",
+                (json.dumps(list(PAPER_OPTIONS)),),
+            )
+            self.db.execute(f"PRAGMA user_version = {STORE_VERSION}")
 
     def close(self) -> None:
         """Close the database (checkpointing the WAL)."""
@@ -317,14 +369,29 @@ class Store:
         seed: int | None,
         started_ns: int,
         config: dict[str, Any],
+        options: Sequence[str] = PAPER_OPTIONS,
     ) -> None:
-        """Record a new session as running."""
+        """Record a new session as running, with its option set (default: the paper's)."""
+        names = tuple(options)
+        if len(names) < 2 or len(set(names)) != len(names) or not all(names):
+            raise ValueError(f"an option set is two or more distinct names, got {list(names)}")
         with self.db:
             self.db.execute("BEGIN")
             self.db.execute(
                 "INSERT INTO sessions VALUES (?, ?, ?, ?, ?, NULL, 'running', ?)",
                 (session, participant, rig, seed, started_ns, json.dumps(config, default=str)),
             )
+            self.db.execute(
+                "INSERT INTO option_sets VALUES (?, ?, ?)",
+                (session, len(names), json.dumps(list(names))),
+            )
+
+    def option_names(self, session: str) -> tuple[str, ...]:
+        """The option set a session ran (box j is `names[j]`); the paper's for an unknown one."""
+        row = self.db.execute(
+            "SELECT names FROM option_sets WHERE session = ?", (session,)
+        ).fetchone()
+        return PAPER_OPTIONS if row is None else tuple(json.loads(row[0]))
 
     def resume_session(self, session: str) -> tuple[str, int | None, int]:
         """Mark a stored session running again; (participant, seed, trials stored so far).
@@ -395,7 +462,17 @@ class Store:
         events: Iterable[SafetyEvent | RigEventRecord] = (),
         cues: Iterable[CueRecord] = (),
     ) -> None:
-        """Store one trial, its samples and cues, and the events since the last write, at once."""
+        """Store one trial, its samples and cues, and the events since the last write, at once.
+
+        ValueError if its option, human or robot is not a name of the session's option set.
+        """
+        names = self.option_names(session)
+        for field in ("option", "human", "robot"):
+            value = getattr(rec, field)
+            if value is not None and value not in names:
+                raise ValueError(
+                    f"trial {rec.trial}: {field} {value!r} is not one of {list(names)}"
+                )
         with self.db:
             self.db.execute("BEGIN")
             self.db.execute(
@@ -535,19 +612,6 @@ class Store:
         target). StoreError if there is no such trial or it was interrupted (never scored).
         """
         stored = {t.trial: t for _, t in self.trials(session)}.get(trial)
-        points = self.write_clicks("trials", session, trial, stored, clicks)
-        assert stored is not None  # write_clicks refused a missing trial
-        return replace(stored, clicks=clicks, score=points)
-
-    def write_clicks(
-        self, table: Literal["trials", "option_trials"], session: str, trial: int,
-        stored: ScoredTrial | None, clicks: int | None,
-    ) -> int:
-        """Check a stored trial can take clicks, rescore it and write both; its new points.
-
-        The one writer of entered clicks for both trial tables (`set_clicks`, and the N-option
-        store's). StoreError if the trial is missing or interrupted, or the clicks negative.
-        """
         if stored is None:
             raise StoreError(f"session {session!r} has no stored trial {trial}")
         if stored.interrupted:
@@ -559,10 +623,10 @@ class Store:
         with self.db:
             self.db.execute("BEGIN")
             self.db.execute(
-                f"UPDATE {table} SET clicks = ?, score = ? WHERE session = ? AND trial = ?",
+                "UPDATE trials SET clicks = ?, score = ? WHERE session = ? AND trial = ?",
                 (clicks, points, session, trial),
             )
-        return points
+        return replace(stored, clicks=clicks, score=points)
 
     def target_clicks(self, session: str) -> int:
         """The counter target the session ran with (its stored protocol; 10 if not stored)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import sqlite3
 import subprocess
 import sys
@@ -11,7 +12,6 @@ from pathlib import Path
 import pytest
 
 from services.store import Store
-from services.store.options import OptionsStore, export_rows
 from tests.processes import run_nod
 
 from .conftest import (
@@ -23,6 +23,7 @@ from .conftest import (
 )
 
 pytestmark = pytest.mark.integration
+NAMES = ("red", "blue", "green")
 
 # Three trials on the table of three (one control, two consensus): what the camera path and the
 # e-stop are about happens in the first two, so whole sessions take seconds, not a minute.
@@ -59,10 +60,8 @@ def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> Non
     try:
         (session,) = [s["session"] for s in store.sessions()]
         assert store.sessions()[0]["status"] == "complete"
-        options = OptionsStore(store)
-        assert options.names(session) == ("red", "blue", "green")
-        trials = options.trials(session)
-        rows = export_rows(store.db)
+        assert store.option_names(session) == ("red", "blue", "green")
+        trials = [t for _, t in store.trials(session)]
     finally:
         store.close()
     assert [t.trial for t in trials] == list(range(1, 9))
@@ -71,26 +70,30 @@ def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> Non
     scored = [t for t in trials if not t.interrupted]
     assert len(scored) >= 7, trials
     for t in scored:
-        assert t.human in (None, 0, 1, 2) and t.robot in (0, 1, 2), t
+        assert t.human in (None, "red", "blue", "green") and t.robot in NAMES, t
     assert sum(t.human is not None for t in scored) >= 7, trials
     control, consensus = trials[:3], trials[3:]
-    assert {t.option for t in consensus} == {0, 1, 2}
+    assert {t.option for t in consensus} == set(NAMES)
     # The default person is the fitted one (docs/study.md): a strategist wins some control trials
     # with a late switch (C by agreement), and 80-97 % of consensus trials end both on O per
     # trial, so a session of five gives four or five in most runs and three in some.
     assert sum(t.outcome in ("D", "DH") for t in control) >= 1, control
     assert sum(t.human == t.option == t.robot for t in consensus) >= 3, consensus
-    header, exported = rows["option_trials"]
-    assert len(exported) == 8 and header[-3:] == ["option_name", "human_name", "robot_name"]
-    assert rows["option_sets"][1] == [(session, 3, '["red", "blue", "green"]')]
     out = tmp_path / "csv"
     export = run_nod("export", "--db", str(db), "--out", str(out), timeout=60)
     assert export.returncode == 0, export.stderr
-    with (out / "option_trials.csv").open() as fh:
+    with (out / "trials.csv").open() as fh:  # one trials.csv, whatever the number of options
         csv_rows = list(csv.DictReader(fh))
     assert [r["trial"] for r in csv_rows] == [str(i) for i in range(1, 9)]
-    assert {r["human_name"] for r in csv_rows} <= {"red", "blue", "green"}
-    assert (out / "option_sets.csv").read_text().count("\n") == 2  # header and the session
+    assert {r["human"] for r in csv_rows} <= {*NAMES, "NA"}
+    with (out / "sessions.csv").open() as fh:
+        (exported,) = list(csv.DictReader(fh))
+    assert exported["options"] == '["red", "blue", "green"]'
+    analysis = run_nod("analyze", "study", "--db", str(db), "--json", timeout=120)
+    assert analysis.returncode == 0, analysis.stderr
+    doc = json.loads(analysis.stdout)  # `nod analyze study` reads the session of three options
+    assert doc["options"] == list(NAMES) and doc["participants"] == 1
+    assert sum(doc["option_shares"]["4"]["human"].values()) == 1
 
 
 def test_three_rendered_boxes_found_by_vision(tmp_path: Path) -> None:
@@ -106,11 +109,11 @@ def test_three_rendered_boxes_found_by_vision(tmp_path: Path) -> None:
     store = Store(db)
     try:
         (session,) = [s["session"] for s in store.sessions()]
-        trials = OptionsStore(store).trials(session)
+        trials = [t for _, t in store.trials(session)]
     finally:
         store.close()
-    assert len(trials) == 3 and all(t.robot in (0, 1, 2) for t in trials)
-    assert sum(t.human in (0, 1, 2) for t in trials) >= 2  # the hand is tracked to its press
+    assert len(trials) == 3 and all(t.robot in NAMES for t in trials)
+    assert sum(t.human in NAMES for t in trials) >= 2  # the hand is tracked to its press
 
 
 def test_flags_not_yet_there_for_options_are_refused_before_anything_starts(
@@ -147,7 +150,7 @@ def _estop_trial_2(tmp_path: Path, params: str) -> tuple[str, Path]:
 
     out = ""
     try:
-        wait_for(lambda: rows("SELECT COUNT(*) FROM option_trials") >= 1, 120, "trial 1 stored")
+        wait_for(lambda: rows("SELECT COUNT(*) FROM trials") >= 1, 120, "trial 1 stored")
         wait_for(lambda: rows("SELECT COUNT(*) FROM open_attempts WHERE trial = 2"), 60,
                  "trial 2 begun")
         engaged = run_nod("estop", "--connect", endpoint, "--reason", "bump", "--timeout", "5",
@@ -171,7 +174,7 @@ def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path: Pa
     """The N-option conductor's safety: an e-stop breaks trial 2, which is repeated."""
     out, db = _estop_trial_2(tmp_path, _short(tmp_path))
     trials, broken, events = last_session_record(
-        db, lambda store, session: OptionsStore(store).trials(session))
+        db, lambda store, session: [t for _, t in store.trials(session)])
     context = f"{trials}\n{broken}\n{events}\n{out}"
     assert_estop_broke_trial_2_and_every_break_was_repeated(trials, broken, context)
     kinds = [(e.device, e.event) for e in events if e.trial == 2]
@@ -185,7 +188,7 @@ def test_a_trial_given_up_on_is_stored_interrupted_and_shown_in_the_table(tmp_pa
     params.write_text(once)
     out, db = _estop_trial_2(tmp_path, str(params))
     trials, broken, _ = last_session_record(
-        db, lambda store, session: OptionsStore(store).trials(session))
+        db, lambda store, session: [t for _, t in store.trials(session)])
     context = f"{trials}\n{broken}\n{out}"
     assert [t.trial for t in trials] == [1, 2, 3] and trials[1].interrupted, context
     assert "3 trials of 1 participant(s) stored" in out, context

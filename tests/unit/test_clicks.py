@@ -138,20 +138,17 @@ def test_keys_typed_ahead_on_a_terminal_are_dropped_before_a_question():
         os.close(slave)
 
 
-def test_clicks_of_an_n_option_session_rescore_its_own_trial(tmp_path, capsys):
-    from services.store.options import OptionsStore, OptionsTrialRecord
-
+def test_clicks_of_an_n_option_session_rescore_its_trial(tmp_path, capsys):
     path = tmp_path / "o.sqlite"
     with Store(path) as store:
-        options = OptionsStore(store)
-        options.begin_session("o1", "P01", "rig1", 1, 10**12, NodConfig().summary(),
-                              ("red", "blue", "green"))
-        options.write_trial("o1", OptionsTrialRecord(
-            2, "consensus", 2, "low", 0.0, 0.0, 10**12, 2 * 10**12, 2, 2, "C", 0, 0, None,
-            trial_points(2, 2, 0, None), "human pressed"))
+        store.begin_session("o1", "P01", "rig1", 1, 10**12, NodConfig().summary(),
+                            ("red", "blue", "green"))
+        store.write_trial("o1", TrialRecord(
+            2, "consensus", "green", "low", 0.0, 0.0, 10**12, 2 * 10**12, "green", "green",
+            "C", 0, 0, None, trial_points("green", "green", 0, None), "human pressed"), ())
     assert clicks.main(["--db", str(path), "--session", "o1", "--trial", "2", "--count",
                         "10"]) == 0
     with Store(path) as store:
-        (rec,) = OptionsStore(store).trials("o1")
+        ((_, rec),) = store.trials("o1")
     assert (rec.clicks, rec.score) == (10, 2)
     assert "2 point(s)" in capsys.readouterr().out

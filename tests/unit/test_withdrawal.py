@@ -30,7 +30,6 @@ from services.store import (
     TrialRecord,
 )
 from services.store.fits import FitRecord, write_fits
-from services.store.options import OptionsStore, OptionsTrialRecord
 from services.store.participants import next_free_ids, record_consent, record_order
 from services.store.withdrawals import (
     delete_participant,
@@ -88,10 +87,9 @@ def study(tmp_path: Path) -> tuple[Path, Path]:
     for k, pid in enumerate(("P01", "P02", "P03", "P04"), start=1):
         _person(store, pid, k, 8, "complete", tmp_path)
     _person(store, "P05", 5, 3, "aborted", tmp_path)
-    opts = OptionsStore(store)
-    opts.begin_session("o-P02", "P02", "rig1", 2, 500, {}, ("a", "b", "c"))
-    opts.write_trial("o-P02", OptionsTrialRecord(1, "consensus", 0, "low", 0.1, 0.0, 1, 2, 0,
-                                                 1, "D", 0, 0, None, 0, "human pressed"))
+    store.begin_session("o-P02", "P02", "rig1", 2, 500, {}, ("a", "b", "c"))
+    store.write_trial("o-P02", TrialRecord(1, "consensus", "a", "low", 0.1, 0.0, 1, 2, "a",
+                                           "b", "D", 0, 0, None, 0, "human pressed"), ())
     shared = tmp_path / "shared.mcap"
     shared.write_bytes(b"both")
     store.add_recording("s-P02", shared, 1)
@@ -133,17 +131,20 @@ def test_a_withdrawn_participant_is_left_out_of_the_export(study, tmp_path, caps
     assert _line(printed, "left out (withdrawn)").endswith(
         "left out (withdrawn): P02; --include-withdrawn keeps them")
     seen = _csv_participants(out)
-    assert {"trials", "samples", "cues", "fits", "participants", "option_trials"} <= set(seen)
+    assert {"trials", "samples", "cues", "fits", "participants"} <= set(seen)
     assert all("P02" not in who for who in seen.values()), seen
     assert seen["trials"] == {"P01", "P03", "P04", "P05"}
     assert seen["participants"] == {"P01", "P03", "P04", "P05"}
-    assert seen["option_sets"] == set()  # P02's three-option session only
     # --include-withdrawn: back, and participants.csv says when they withdrew and why
     everyone = tmp_path / "all"
     assert export_main(["--db", str(db), "--out", str(everyone), "--include-withdrawn"]) == 0
     assert "included although withdrawn (--include-withdrawn): P02" in capsys.readouterr().out
     seen = _csv_participants(everyone)
-    assert "P02" in seen["trials"] and "P02" in seen["samples"] and seen["option_sets"] == {"P02"}
+    assert "P02" in seen["trials"] and "P02" in seen["samples"]
+    with (everyone / "sessions.csv").open() as fh:
+        sets = {r["session"]: r["options"] for r in csv.DictReader(fh)}
+    assert sets["o-P02"] == '["a", "b", "c"]' and sets["s-P01"] == '["red", "blue"]'
+
     with (everyone / "participants.csv").open() as fh:
         rows = {r["participant"]: r for r in csv.DictReader(fh)}
     assert rows["P02"]["consent"] == "1"
@@ -161,7 +162,9 @@ def test_a_withdrawn_participant_is_left_out_of_analyze_study(study, capsys):
     doc = json.loads(got.out)
     assert sorted(doc["grid"]) == ["P01", "P02", "P04"]
     assert [s["participant"] for s in doc["sessions"]] == ["P01", "P02", "P04"]
-    assert {e["participant"] for e in doc["excluded"]} == {"P05"}  # the aborted one, not P03
+    # the aborted one and P02's unfinished three-option session, not P03
+    assert {(e["participant"], e["session"]) for e in doc["excluded"]} == {
+        ("P05", "s-P05"), ("P02", "o-P02")}
     assert doc["questionnaire"]["q1"]["n"] == 3  # P03's answers are theirs too
     assert "P03" not in doc["questionnaire_without_session"] + doc["questionnaire_excluded"]
     assert doc["withdrawn"]["left_out"] == ["P03"]
@@ -238,7 +241,7 @@ def test_delete_removes_every_row_and_recording_of_theirs_and_nothing_else(study
     before = {p: _rows_of(db, p, owned[p]) for p in owned}
     assert {"sessions", "trials", "samples", "safety_events", "interruptions", "cues",
             "open_attempts", "questionnaires", "recordings", "participants", "session_orders",
-            "fits", "option_sets", "option_trials"} <= set(before["P02"])
+            "fits", "option_sets"} <= set(before["P02"])
     Store(db).backup()  # a backup made before: it is rewritten without them
     assert _withdraw(path, db, "P02", "--delete", "--dry-run") == 0
     assert "would delete" in capsys.readouterr().out and _rows_of(db, "P02", owned["P02"])
