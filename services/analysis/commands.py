@@ -35,20 +35,10 @@ def thresholds(args: argparse.Namespace) -> int:
 
     With more than two options (or β, δ ≠ 0) the N_o-option model's report instead.
     """
-    from services.analysis.thresholds_report import format_thresholds, thresholds_report
+    from services.analysis.thresholds_report import report
 
-    if args.options != 2 or args.beta != 0.0 or args.delta != 0.0:
-        from services.analysis.options_report import (
-            format_options_thresholds,
-            options_thresholds_report,
-        )
-
-        pair = pair_params(args.params)
-        report = options_thresholds_report(pair, args.options, args.beta, args.delta)
-        print(json.dumps(report, indent=2) if args.json else format_options_thresholds(report))
-        return 0
-    report = thresholds_report(pair_params(args.params))
-    print(json.dumps(report, indent=2) if args.json else format_thresholds(report))
+    doc, table = report(pair_params(args.params), args.options, args.beta, args.delta)
+    print(json.dumps(doc, indent=2) if args.json else table)
     return 0
 
 
