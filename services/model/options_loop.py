@@ -2,7 +2,7 @@
 
 `services.model.closed_loop` for a table of N_o boxes: the same `SessionProtocol` clock (its
 trials from `OptionsSchedule.timing_specs`, each trial's mode and O looked up in the schedule),
-reacted to with the N_o-option parts — `OptionsParticipant`, `OptionsDecision`,
+reacted to with the N_o-option parts — `Participant` (the one person), `OptionsDecision`,
 `OptionsRobotTrial`, `OptionsSimArm`, `OptionsTrialJudge` — all in lock step at camera rate,
 so a seed gives one exact session. The option count selects this loop; two options keep the
 paper's `run_offline_session`. Safety interruptions are not injected here.
@@ -15,12 +15,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from services.model.arm import OptionsSimArm
-from services.model.decision import OptionsDecision
 from services.model.geometry import OptionsLayout
+from services.model.options_decision import OptionsDecision
 from services.model.options_judge import OptionsTrialJudge
-from services.model.options_participant import OptionsParticipant
 from services.model.params import NodConfig
-from services.model.participant import jittered
+from services.model.participant import Participant, jittered
 from services.model.protocol import Cue, SessionProtocol
 from services.model.robot import OptionsRobotTrial
 from services.model.schedule import Mode, OptionsSchedule
@@ -58,7 +57,7 @@ class _OptionsLoop:
         self.cfg, self.schedule, self.clicks = cfg, schedule, clicks
         self.layout = table_for(cfg, schedule.n_options)
         params = jittered(cfg.participant, rng) if cohort else cfg.participant
-        self.person = OptionsParticipant(params, self.layout, int(rng.integers(2**31)))
+        self.person = Participant(params, self.layout, int(rng.integers(2**31)))
         self.model = OptionsDecision(self.layout, cfg.decision)
         self.robot = OptionsRobotTrial(
             self.layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s

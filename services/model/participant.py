@@ -1,28 +1,40 @@
 """A synthetic participant: eq 2 for the opinion, a kinematic hand, 21 noisy landmarks.
 
+One person for any table of N_o ≥ 2 boxes (the paper's two, red and blue, or an `OptionsLayout`).
 The participant's internal opinion follows eq 2,
     ż_h = −d z_h + u tanh(α z_h + γ_h · r̂) + b_h,
-where r̂ ∈ [−1, 1] is what the participant sees of the robot (the arm's heading, after a
+where r̂ is what the participant sees of the robot (the box the arm heads for, after a
 perception delay) and γ_h > 0 because the participant's objective is to *match* the robot
 (the paper's γ < 0 models the robot's deliberate disagreement, not the person's goal). The bias
-b_h = preference + gaze: a seeded random preference per trial, plus the gaze cue's pull toward
-the option the eyes look at, scaled by the cue's strength (|yaw|) and a trust that grows after
-trials where following the gaze paid off.
+b_h = preference + gaze: a seeded random preference per trial (a box and a strength), plus the
+gaze cue's pull toward the box the eyes look at, scaled by the cue's strength (|yaw| on the
+paper's table, `gaze.read_gaze` on any) and a trust that grows after trials where following the
+gaze paid off.
 
-The opinion steers a hand: after a reaction time the hand heads for the box of sign(z_h), its
-speed scaled by conviction |z_h| (low conviction = hesitation). Once past the commit line a
-rule-abiding participant keeps its choice; it switches at most `max_switches` times. The hand is
-published as 21 landmarks around its centre with Gaussian noise, exactly as vision would.
+The opinion steers a hand: after a reaction time the hand heads for the leading box, its speed
+scaled by conviction (low conviction = hesitation). Once past the commit line a rule-abiding
+participant keeps its choice; it switches at most `max_switches` times. The hand is published
+as 21 landmarks around its centre with Gaussian noise, exactly as vision would.
 
 In a control trial a strategist (`late_switch_*`, off by default) may instead play the paper's
-"quick, strategic end-moment switch": keep to the first side whatever the arm does, then, just
-before the commit line, turn quickly for the side the arm is on, too late for it to follow. The
+"quick, strategic end-moment switch": keep to the first box whatever the arm does, then, just
+before the commit line, turn quickly for the box the arm is at, too late for it to follow. The
 more control trials have shown the arm opposing them, the likelier they play it.
 
 In a consensus trial a contrarian (`contrarian_*`, off by default) distrusts the eyes: they head
-for the box the eyes do not look at, and then follow the arm to O (a pliant one, CH) or mostly
+for a box the eyes do not look at, and then follow the arm to O (a pliant one, CH) or mostly
 hold their box (a firm one, D). Each consensus trial so played makes the next less likely,
 except for a persistent one, who plays them all so.
+
+**Two boxes and N_o.** Over options (docs/multi-option.md) z_h is an N_o-vector on the zero-sum
+subspace, ż_h = F − mean(F) (`dynamics.float_rates`), r̂ = option_vector(the arm's box) and the
+preference and the pull are along their boxes' `option_vector`s. With two boxes this is eq 2 on
+x = z_0 = −z_1 (`dynamics`' reduction), so two boxes are stepped by the scalar eq 2 itself, the
+class's two-option kernel (`_step`, the paper's arithmetic, hot in a cohort), and N_o ≥ 3 by the
+general form (`_step_general`); everything else (draws, traits, the arm seen, the hand, the
+press, the camera) is one code. Random numbers are drawn in the same order for any N_o, so two
+boxes draw what the paper's person drew, and tests/unit/test_participant_options.py holds the
+general form on two boxes to the kernel bit for bit (opinion, hand, presses, landmarks).
 
 Pure: time is an argument, randomness comes from a seeded numpy Generator.
 """
@@ -32,18 +44,23 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Generic, TypeVar, cast, overload
 
 import numpy as np
 
-from services.model.dynamics import AgentParams
+from services.model.dynamics import AgentParams, float_rates, option_vector
+from services.model.gaze import GazeCommand, read_gaze
 from services.model.geometry import (
+    COLOURS,
     HAND_TEMPLATE,
     Colour,
+    OptionsLayout,
     Point,
     TableLayout,
-    colour_sign,
-    sign_colour,
 )
+
+# What the person calls an option: a colour on the paper's table, a box index over N_o boxes.
+Opt = TypeVar("Opt", Colour, int)
 
 
 @dataclass(frozen=True, slots=True)
@@ -165,12 +182,46 @@ class ParticipantParams:
             raise ValueError("ParticipantParams.late_switch_lead must be in [0, 0.3]")
 
 
-class Participant:
-    """One simulated person over a session of trials."""
+class Participant(Generic[Opt]):
+    """One simulated person over a session of trials, at a table of N_o ≥ 2 boxes.
 
-    def __init__(self, params: ParticipantParams, layout: TableLayout, seed: int) -> None:
+    The layout sets the person's vocabulary: on the paper's table (`TableLayout`) options are
+    colours and the arm's heading a sign, as the paper's services speak; over an `OptionsLayout`
+    options are box indices. Inside, boxes are indices either way (red is 0, as
+    `OptionsLayout.from_table`) and everything but the opinion's RK4 step is one code: the
+    draws, the traits, what the arm is seen doing, the hand, the press and the camera.
+    """
+
+    @overload
+    def __init__(
+        self: Participant[Colour], params: ParticipantParams, layout: TableLayout, seed: int,
+        *, general: bool = False,
+    ) -> None: ...
+
+    @overload
+    def __init__(
+        self: Participant[int], params: ParticipantParams, layout: OptionsLayout, seed: int,
+        *, general: bool = False,
+    ) -> None: ...
+
+    def __init__(
+        self, params: ParticipantParams, layout: TableLayout | OptionsLayout, seed: int,
+        *, general: bool = False,
+    ) -> None:
+        """A person at `layout`, its draws from `seed`.
+
+        `general`: step the opinion as an N_o-vector even on two boxes (where the scalar
+        kernel is otherwise used); the property test holding the two together needs it.
+        """
         self.p = params
         self.layout = layout
+        self._paper = isinstance(layout, TableLayout)  # colours, signs and the paper's yaw
+        self.table = OptionsLayout.from_table(layout) if isinstance(layout, TableLayout) else layout
+        self.n = self.table.n_options
+        self.general = general or self.n > 2
+        labels = COLOURS if self._paper else tuple(range(self.n))
+        self._labels: tuple[Opt, ...] = cast("tuple[Opt, ...]", labels)
+        self._vectors = tuple(tuple(option_vector(j, self.n).tolist()) for j in range(self.n))
         self.rng = np.random.default_rng(seed)
         self.trust = params.trust0
         self._x, self._y = params.start
@@ -180,28 +231,32 @@ class Participant:
         # Fixed for the person's life (params and layout are frozen): computed once, not every
         # 2 ms step. The same floats the layout's properties return, so the same motion.
         self._hand = HAND_TEMPLATE * params.hand_radius  # the landmarks around a zero centre
-        self._centers = {c: layout.box(c).center for c in ("red", "blue")}
+        self._centers = tuple(b.center for b in self.table.boxes)
         reach = self._reach
         self._near = tuple(  # per box: where the hand's centre may put a landmark inside it
-            (c, b.x1 - reach, b.x2 + reach, b.y1 - reach, b.y2 + reach)
-            for c, b in ((c, layout.box(c)) for c in ("red", "blue"))
+            (b.x1 - reach, b.x2 + reach, b.y1 - reach, b.y2 + reach) for b in self.table.boxes
         )
-        self._commit_y = layout.commit.y
-        self._commit_below = layout.commit.start_side == "below"
+        self._commit_y = self.table.commit.y
+        self._commit_below = self.table.commit.start_side == "below"
+        # The opinion: z_h (a float) is the two-option kernel's x = z_0 = −z_1 (> 0: box 0, red);
+        # the general form holds the N_o-vector in _z (Σ = 0) and keeps z_h = _z[0] (`opinion`).
         self.z_h = 0.0
         self.b_h = 0.0
+        self._z = [0.0] * self.n
+        self._b = [0.0] * self.n
         self.t_go: float | None = None
         self.t = 0.0
-        self.pressed: Colour | None = None
+        self.pressed: Opt | None = None
         self.switches = 0
-        self._heading: Colour | None = None
+        self._heading: int | None = None  # the box the hand heads for
         self._obeys_commit = True
-        self._robot_seen: deque[tuple[float, float]] = deque()
-        self._gaze_yaw = 0.0
-        self._preference = 0.0
-        self._gaze_sign = 0
-        self._gaze_pull = 0.0
-        self._last_seen = 0.0
+        self._robot_seen: deque[tuple[float, int | None]] = deque()  # (t, the arm's box)
+        self._gaze: GazeCommand | float = 0.0
+        self._pref_box = 0  # today's preference: a box and a strength (≥ 0)
+        self._strength = 0.0
+        self._cue: int | None = None  # the box the eyes' cue is taken for (None: no cue)
+        self._pull = 0.0
+        self._last_box: int | None = None  # the arm's box as last seen, None still
         self._max_switches = params.max_switches
         # The strategic late switch (ParticipantParams.late_switch_*). Drawn only when anyone can
         # be a strategist, so the SPEC person's random stream, hence its sessions, are unchanged.
@@ -209,11 +264,11 @@ class Participant:
         self.strategist = share > 0 and bool(self.rng.random() < share)
         self.opposed_trials = 0  # control trials in which the arm headed against the first choice
         self._control = False
-        self._feint = False  # playing the late switch this trial: first side until the line
+        self._feint = False  # playing the late switch this trial: first box until the line
         self._quick = False  # turned late toward the arm: straight on, at the switch's speed
-        self._first: Colour | None = None  # the side the hand first headed for this trial
-        self._arm_side = 0  # the side the arm was last seen heading for (it stays there parked)
-        self._opposed = False  # the arm was seen heading against the first side this trial
+        self._first: int | None = None  # the box the hand first headed for this trial
+        self._arm_box: int | None = None  # the box the arm was last seen heading for (parked)
+        self._opposed = False  # the arm was seen heading against the first box this trial
         # The contrarian (ParticipantParams.contrarian_*), drawn like the strategist: only when
         # anyone can be one, so a person without them keeps the random stream it had.
         c_share = params.contrarian_share
@@ -230,17 +285,34 @@ class Participant:
         self.contrary_trials = 0  # consensus trials played against the eyes so far
         self._contrary = False  # against the eyes this trial
 
+    def _draw_box(self, n: int) -> int:
+        """One of n choices, uniform, from one `random()`: below 0.5 is the first of two.
+
+        One draw for any n, so two boxes draw as the paper's person drew the preference's
+        sign (`random() < 0.5` for red).
+        """
+        return min(int(self.rng.random() * n), n - 1)
+
     # -- protocol events -------------------------------------------------------------------
 
-    def see_gaze(self, yaw: float) -> None:
-        """The eyes' current gaze cue (not the attention gesture's poses): yaw, > 0 toward red."""
-        self._gaze_yaw = yaw
+    def see_gaze(self, gaze: GazeCommand | float) -> None:
+        """The eyes' current gaze cue (not the attention gesture's poses).
 
-    def new_trial(self, option: Colour | None) -> None:
-        """Prepare for a trial ("setup"): draw today's preference, hand at rest."""
-        self._preference = abs(self.rng.normal(self.p.preference_mean, self.p.preference_sd))
-        self._preference *= 1 if self.rng.random() < 0.5 else -1
-        self.b_h = self._preference
+        A float is the paper's rig's yaw (> 0 toward red), a `GazeCommand` the full pose.
+        """
+        self._gaze = gaze
+
+    def new_trial(self, option: Opt | None) -> None:
+        """Prepare for a trial ("setup", `option` its O or None): draw today's preference."""
+        self._strength = abs(self.rng.normal(self.p.preference_mean, self.p.preference_sd))
+        self._pref_box = self._draw_box(self.n)
+        self._cue, self._pull = None, 0.0
+        if self.general:
+            self._z = [0.0] * self.n
+            self._b = [self._strength * v for v in self._vectors[self._pref_box]]
+            self.b_h = self._b[0]
+        else:
+            self.b_h = self._strength * (1 if self._pref_box == 0 else -1)
         self.z_h = 0.0
         self._x, self._y = self.p.start
         self._vx = self._vy = 0.0
@@ -252,7 +324,7 @@ class Participant:
         allowed = option is not None or self.rng.random() < self.p.control_switch_prob
         self._max_switches = self.p.max_switches if allowed else 0
         self._robot_seen.clear()
-        self._last_seen = 0.0
+        self._last_box = None
         self._control = option is None
         chance = late_switch_chance(
             self.p.late_switch_first, self.p.late_switch_learn, self.opposed_trials
@@ -265,26 +337,49 @@ class Participant:
         )
         self._quick = False
         self._first = None
-        self._arm_side = 0
+        self._arm_box = None
         self._opposed = False
+
+    def _read_gaze(self) -> tuple[int | None, float]:
+        """(the box the gaze points to or None, its strength): the paper's yaw on its table."""
+        gaze = self._gaze
+        if self._paper:  # the paper's rig: the side of the yaw, > 0 red, whatever the layout
+            yaw = gaze if isinstance(gaze, float | int) else gaze.yaw
+            return (None if abs(yaw) <= 1e-9 else 0 if yaw > 0 else 1), abs(yaw)
+        return read_gaze(self.table, gaze if isinstance(gaze, GazeCommand) else GazeCommand(gaze))
 
     def go(self, t: float) -> None:
         """The countdown said "go": the bias is today's preference plus the gaze cue's pull.
 
         The gaze is read at "go", when the participant has watched the eyes settle through the
-        countdown (the attention gesture before trial 4 is over by then).
+        countdown (the attention gesture before trial 4 is over by then). A contrarian playing
+        this trial against the eyes prefers a box they do not look at (their own if it is one,
+        else one of the others, drawn: with two boxes there is one, and no draw).
         """
-        yaw = self._gaze_yaw
-        self._gaze_sign = int(math.copysign(1, yaw)) if abs(yaw) > 1e-9 else 0
-        self._gaze_pull = self.p.gaze_gain * abs(yaw) * self.trust
-        if self._contrary and self._gaze_sign:  # today's preference is the box not looked at
-            self._preference = -self._gaze_sign * abs(self._preference) * self._resolve
+        cue, strength = self._read_gaze()
+        pull = self.p.gaze_gain * strength * self.trust
+        if self._contrary and cue is not None:  # today's preference is a box not looked at
+            if self._pref_box == cue:
+                others = [j for j in range(self.n) if j != cue]
+                self._pref_box = others[self._draw_box(len(others))] if len(others) > 1 else (
+                    others[0])
+            self._strength *= self._resolve
             self.contrary_trials += 1
-            self._gaze_sign, self._gaze_pull = 0, 0.0  # the eyes: neither pull nor lesson
-        self.b_h = self._preference + self._gaze_sign * self._gaze_pull
+            cue, pull = None, 0.0  # the eyes: neither pull nor lesson
+        self._cue, self._pull = cue, pull
+        box, s = self._pref_box, self._strength
+        if self.general:
+            b = [s * v for v in self._vectors[box]]
+            if cue is not None:
+                b = [bj + pull * c for bj, c in zip(b, self._vectors[cue], strict=True)]
+            self._b = b
+            self.b_h = b[0]
+        else:  # b_h = preference ± pull, the paper person's arithmetic
+            gaze_sign = 0 if cue is None else 1 if cue == 0 else -1
+            self.b_h = s * (1 if box == 0 else -1) + gaze_sign * pull
         self.t_go = t
 
-    def trial_ended(self, robot: Colour | None) -> None:
+    def trial_ended(self, robot: Opt | None) -> None:
         """Learn from the trial: following the gaze and agreeing with the robot builds trust.
 
         A control trial whose arm headed against the person's first choice teaches a strategist
@@ -292,24 +387,47 @@ class Participant:
         """
         if self._control and self._opposed:
             self.opposed_trials += 1
-        if self._gaze_sign and robot is not None and self.pressed is not None:
-            followed = colour_sign(self.pressed) == self._gaze_sign
+        if self._cue is not None and robot is not None and self.pressed is not None:
+            followed = self._labels.index(self.pressed) == self._cue
             if followed and self.pressed == robot:
                 self.trust += self.p.trust_step
             elif followed:
                 self.trust = max(0.0, self.trust - self.p.trust_step)
 
-    def see_robot(self, t: float, heading: int) -> None:
-        """What the arm is doing now: +1 toward red, −1 toward blue, 0 still."""
-        self._robot_seen.append((t, float(heading)))
+    def see_robot(self, t: float, heading: int | None) -> None:
+        """What the arm is doing now.
+
+        On the paper's table (`TableLayout`) its sign, as the paper's services give it: +1
+        toward red, −1 toward blue, 0 still. Over an `OptionsLayout`: the box it heads for,
+        None when still.
+        """
+        if self._paper:
+            self._robot_seen.append((t, None if not heading else 0 if heading > 0 else 1))
+        else:
+            self._robot_seen.append((t, heading))
 
     # -- dynamics --------------------------------------------------------------------------
 
-    def _robot_perceived(self) -> float:
+    def _arm_seen(self) -> tuple[int | None, float]:
+        """(the arm's box as seen now, None still; the weight of its pull).
+
+        Seen `perception_delay_s` late. The weight is 1, or 1 / (1 + gaze_over_robot · trust)
+        while the arm heads against the eyes' cue. Notes where the arm is parked and whether it
+        opposes the first choice (the strategist's lesson).
+        """
         cutoff = self.t - self.p.perception_delay_s
-        while self._robot_seen and self._robot_seen[0][0] <= cutoff:
-            self._last_seen = self._robot_seen.popleft()[1]
-        return self._last_seen
+        seen = self._robot_seen
+        while seen and seen[0][0] <= cutoff:
+            self._last_box = seen.popleft()[1]
+        box = self._last_box
+        if box is None:
+            return None, 1.0
+        self._arm_box = box
+        if self._first is not None and box != self._first:
+            self._opposed = True
+        if self._cue is not None and box != self._cue:  # the arm goes against the eyes
+            return box, 1.0 / (1.0 + self.p.gaze_over_robot * self.trust)
+        return box, 1.0
 
     def advance(self, t: float, dt: float = 0.002) -> None:
         """Integrate opinion (eq 2, RK4 with r̂ held) and hand motion up to time t."""
@@ -318,7 +436,7 @@ class Participant:
             return
         if self.t < self.t_go:
             self.t = min(t, self.t_go)
-        step = self._step
+        step = self._step_general if self.general else self._step
         while self.t < t - 1e-12:
             left = t - self.t
             h = left if left < dt else dt  # min(dt, left)
@@ -326,32 +444,16 @@ class Participant:
             self.t += h
 
     def _step(self, h: float) -> None:
-        """One step of h: eq 2 (one RK4 step, r̂ held), then the hand.
+        """One step of h on two boxes (the kernel): eq 2 on the scalar x, then the hand.
 
         Plain floats and locals throughout: this runs every 2 ms of simulated time, a third of
         a cohort's work (NumPy's per-call cost dominated, then the calls and attribute reads).
         """
         if self.pressed is not None:
             return
-        p = self.p
-        a = p.agent
-        r_hat = self._robot_perceived()
-        if r_hat:
-            self._arm_side = 1 if r_hat > 0 else -1
-            if self._first is not None and self._arm_side != colour_sign(self._first):
-                self._opposed = True
-        if r_hat * self._gaze_sign < 0:  # the arm goes against the eyes: believed less
-            r_hat /= 1.0 + p.gaze_over_robot * self.trust
-        x, y = self._x, self._y
-        heading = self._heading
-        committed = heading is not None and (
-            self._quick
-            or self.switches >= self._max_switches
-            or (
-                self._obeys_commit
-                and (y < self._commit_y if self._commit_below else y > self._commit_y)
-            )
-        )
+        a = self.p.agent
+        box, weight = self._arm_seen()
+        r_hat = 0.0 if box is None else weight if box == 0 else -weight  # r̂: > 0 toward red
 
         # One RK4 step (`rk4_step`) of eq 2 with the robot's perceived heading r̂ as z_r,
         # a_hr = 1: `opinion_rate` written out, the same float operations in the same order (so
@@ -369,16 +471,75 @@ class Participant:
         k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
         z = self.z_h = z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
-        if self.t_go is None or self.t < self.t_go + p.reaction_s:  # (set: `advance`)
+        if self.t_go is None or self.t < self.t_go + self.p.reaction_s:  # (set: `advance`)
             return
-        wanted: Colour = "red" if z > 0 else "blue"
+        self._move(h, 0 if z > 0 else 1, abs(z))
+
+    def _step_general(self, h: float) -> None:
+        """One step of h on N_o boxes: eq 2 over options (RK4, r̂ held), then the hand.
+
+        r̂ = option_vector(the arm's box) times its weight; the RK4 combination is the kernel's,
+        term for term, so on two boxes x = z_0 comes out bit for bit as `_step`'s (tanh is odd,
+        so F_1 = −F_0 and their mean is 0). The last option is set to minus the others' sum
+        (`dynamics.on_subspace`). The hand heads for the leading option, its conviction the lead
+        over the runner-up (|x| on two boxes).
+        """
+        if self.pressed is not None:
+            return
+        a = self.p.agent
+        box, weight = self._arm_seen()
+        n = self.n
+        social = [0.0] * n if box is None else [weight * v for v in self._vectors[box]]
+        z, b = self._z, self._b
+        d, u, alpha, gamma = a.d, a.u, a.alpha, a.gamma
+        hh = 0.5 * h
+        k1 = float_rates(z, social, b, d, u, alpha, gamma)
+        k2 = float_rates([x + hh * k for x, k in zip(z, k1, strict=True)],
+                         social, b, d, u, alpha, gamma)
+        k3 = float_rates([x + hh * k for x, k in zip(z, k2, strict=True)],
+                         social, b, d, u, alpha, gamma)
+        k4 = float_rates([x + h * k for x, k in zip(z, k3, strict=True)],
+                         social, b, d, u, alpha, gamma)
+        h6 = h / 6.0
+        z = [x + h6 * (q1 + 2.0 * q2 + 2.0 * q3 + q4)
+             for x, q1, q2, q3, q4 in zip(z, k1, k2, k3, k4, strict=True)]
+        z[-1] = -sum(z[:-1])
+        self._z = z
+        self.z_h = z[0]
+
+        if self.t_go is None or self.t < self.t_go + self.p.reaction_s:
+            return
+        top = max(z)
+        wanted = z.index(top) if z.count(top) == 1 else None  # a tie leads nowhere
+        self._move(h, wanted, 0.5 * (top - sorted(z)[-2]))
+
+    def _move(self, h: float, wanted: int | None, lead: float) -> None:
+        """The hand for one step of h, the opinion leading toward box `wanted` by `lead`.
+
+        Heads for the wanted box (the first once chosen, a switch after, none when committed);
+        a feint keeps to its first box until `_turn_at_the_line`. Speed: conviction = lead /
+        full_conviction within [min_conviction, 1], or 1 straight on (committed, a feint).
+        """
+        p = self.p
+        x, y = self._x, self._y
+        heading = self._heading
+        committed = heading is not None and (
+            self._quick
+            or self.switches >= self._max_switches
+            or (
+                self._obeys_commit
+                and (y < self._commit_y if self._commit_below else y > self._commit_y)
+            )
+        )
         if heading is None:
+            if wanted is None:
+                return
             heading = self._heading = self._first = wanted
         elif self._feint:
             self._turn_at_the_line()
             heading = self._heading
             assert heading is not None  # set above on the first step after the reaction time
-        elif wanted != heading and not committed:
+        elif wanted is not None and wanted != heading and not committed:
             heading = self._heading = wanted
             self.switches += 1
         tx, ty = self._centers[heading]
@@ -386,8 +547,8 @@ class Participant:
         dist = math.hypot(dx, dy)
         if committed or self._feint:
             conviction = 1.0  # a committed hand (or a feint) goes straight on
-        else:  # min(1, max(min_conviction, |z_h| / full_conviction)), without the calls
-            conviction = abs(z) / p.full_conviction
+        else:  # min(1, max(min_conviction, lead / full_conviction)), without the calls
+            conviction = lead / p.full_conviction
             if not conviction > p.min_conviction:
                 conviction = p.min_conviction
             if not conviction < 1.0:
@@ -402,7 +563,7 @@ class Participant:
             ax, ay = ax * max_dv / dv, ay * max_dv / dv
         vx, vy = self._vx, self._vy = vx + ax, vy + ay
         x, y = self._x, self._y = x + vx * h, y + vy * h
-        for _c, x1, x2, y1, y2 in self._near:  # `_press_test`, its cheap part inline
+        for x1, x2, y1, y2 in self._near:  # `_press_test`, its cheap part inline
             if x1 <= x <= x2 and y1 <= y <= y2:
                 self.pressed = self._press_test()
                 return
@@ -410,27 +571,38 @@ class Participant:
     def _turn_at_the_line(self) -> None:
         """The feint's end: within `late_switch_lead` of the commit line, turn toward the arm.
 
-        Decided once, at the line: if the arm is not seen on the other side, keep going.
+        Decided once, at the line: if the arm is not seen at another box, keep going.
         """
-        line = self.layout.commit
+        line = self.table.commit
         ahead = -self.p.late_switch_lead if line.start_side == "below" else self.p.late_switch_lead
         if not line.crossed((self._x, self._y + ahead)):
             return
         self._feint = False
-        arm = sign_colour(self._arm_side) if self._arm_side else None
+        arm = self._arm_box
         if arm is not None and arm != self._heading:
             self._heading = arm
             self.switches += 1
             self._quick = True
 
-    def _press_test(self) -> Colour | None:
-        """A landmark of the (noise-free) hand inside a buzzer box; cheap when far from both."""
+    def _press_test(self) -> Opt | None:
+        """A landmark of the (noise-free) hand inside a box; cheap when far from every box."""
         x, y = self._x, self._y
-        for _colour, x1, x2, y1, y2 in self._near:
+        for x1, x2, y1, y2 in self._near:
             if x1 <= x <= x2 and y1 <= y <= y2:
                 pts = [(float(x), float(y)) for x, y in self.landmarks(noise=False)]
-                return self.layout.pressed(pts)
+                box = self.table.pressed(pts)
+                return None if box is None else self._labels[box]
         return None
+
+    @property
+    def heading(self) -> Opt | None:
+        """The box the hand heads for (None before it moves)."""
+        return None if self._heading is None else self._labels[self._heading]
+
+    @property
+    def opinion(self) -> np.ndarray:
+        """z_h over the boxes (Σ = 0): on the kernel's two boxes (x, −x)."""
+        return np.array(self._z if self.general else (self.z_h, -self.z_h))
 
     @property
     def pos(self) -> np.ndarray:

@@ -1,6 +1,6 @@
 """`nod sim --options N`: a synthetic participant at a table of N boxes, on the fabric.
 
-`services.sim.service` with the N_o-option person (`services.model.options_participant`): at
+`services.sim.service` with the person at N_o boxes (`services.model.participant`): at
 camera rate it publishes 21 noisy landmarks on `vision/hand` and the table (option names and
 boxes) on `options/layout`; it follows `options/trial`, reads the gaze on `eyes/cmd` (the
 geometric gaze toward a box, `services.model.gaze`), watches the arm on
@@ -23,9 +23,8 @@ from services.core.node import Node
 from services.core.options_messages import check_count, layout_message_fields
 from services.model.gaze import GazeCommand
 from services.model.geometry import OptionsLayout
-from services.model.options_participant import OptionsParticipant
 from services.model.params import NodConfig
-from services.model.participant import jittered
+from services.model.participant import Participant, jittered
 from services.model.schedule import OptionsSchedule
 from services.sim.service import publish_frame
 
@@ -37,7 +36,7 @@ NS = 1e-9
 
 
 class OptionsSimService:
-    """Wires an OptionsParticipant to the rig's keys."""
+    """Wires a Participant at N_o boxes to the rig's keys."""
 
     def __init__(
         self,
@@ -56,7 +55,7 @@ class OptionsSimService:
         self.n = layout.n_options
         rng = np.random.default_rng(seed)
         params = jittered(cfg.participant, rng) if cohort else cfg.participant
-        self.person = OptionsParticipant(params, layout, int(rng.integers(2**31)))
+        self.person = Participant(params, layout, int(rng.integers(2**31)))
         self.person.advance(node.clock.now_ns() * NS)  # at rest: only sets its clock
         self.robot: int | None = None
         self.renderer: SceneRenderer | None = None

@@ -130,7 +130,8 @@ def test_the_participants_opinion_step_is_rk4_of_eq2_bit_for_bit(z, r_hat, b, h)
     person.new_trial("red")
     person.go(0.0)
     person.t = 0.0  # before the reaction time: the step moves the opinion, not the hand
-    person.z_h, person.b_h, person._last_seen = z, b, r_hat
+    person.z_h, person.b_h = z, b
+    person._last_box = {1.0: 0, -1.0: 1, 0.0: None}[r_hat]  # the arm seen at red, blue, still
     person._step(h)
     assert bits(person.z_h) == bits(plain_z_step(person.p, z, r_hat, b, h))
 
