@@ -59,6 +59,7 @@ from services.launch.view import SessionView
 from services.safety.latch_file import STATE_DIR_ENV
 from services.store import Store, StoreError
 from services.store.participants import next_free_ids, reuse_problem
+from services.store.store import PAPER_OPTIONS
 
 log = logging.getLogger("nod.run")
 # And the conductor, "experiment". The speaker (`--driver sim`: silent) is not required by a
@@ -71,7 +72,7 @@ MIN_SPEED, MAX_SPEED = 0.5, 10.0
 # What a resumed run keeps of the interrupted one (argparse dests; a session keeps its own
 # participant, seed and order).
 RESUME_FLAGS = (
-    "speed", "listen", "rig", "params", "clicks", "stale_ms", "logs", "record", "render",
+    "speed", "listen", "rig", "params", "options", "clicks", "stale_ms", "logs", "record", "render",
     "arm_driver", "arm_port", "arm_config", "eyes_driver", "eyes_port", "eyes_config",
     "eyes_trims", "verbose",
 )
@@ -411,8 +412,9 @@ def _preflight(args: argparse.Namespace) -> str | None:
         return str(exc)
     try:  # who runs: the ids given, or the first free ones; a done participant needs --again
         if args.resume is not None:  # the stored session's own participant and seed
-            if problem := resume_problem(store, args.resume, args.rig):
-                return problem  # not there, another rig's, or complete: the store unchanged
+            names = PAPER_OPTIONS if schedule is None else schedule.names
+            if problem := resume_problem(store, args.resume, args.rig, names):
+                return problem  # not there, another rig's, complete, another option set
             known = {s["session"]: s for s in store.sessions()}
             args.ids = [known[args.resume]["participant"]]
             if known[args.resume]["seed"] is not None:

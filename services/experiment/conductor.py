@@ -29,6 +29,7 @@ from services.experiment.fields import GazeFields, TrialFields
 from services.experiment.hold import SessionHold
 from services.experiment.operator import EnterStarts, OperatorGate
 from services.experiment.presses import RobotPresses
+from services.experiment.resume import attempts_so_far, file_open_attempt
 from services.experiment.rig_watch import RigWatch
 from services.experiment.trial_samples import TrialSamples
 from services.experiment.waiting import wait_for_services
@@ -302,42 +303,25 @@ class Conductor:
 
     def _file_open_attempt(self, lost: tuple[int, int, int], why: str) -> None:
         """Store an attempt left open, (trial, attempt, t_start_ns), as an interruption."""
-        trial, attempt, t_start_ns = lost
         with self.node.lock:
             self.trial_samples = None
             events, cues = self.rig.take_events(), self.cues.take()
-        log.warning("trial %d (attempt %d) INTERRUPTED: %s", trial, attempt, why)
-        self.store.write_interruption(
-            self.session, Interruption(trial, attempt, t_start_ns, self._now_ns(), why),
-            events, cues,
-        )
+        file_open_attempt(self.store, self.session, lost, why, self._now_ns(), events, cues)
 
     def _attempts_so_far(
         self, first_trial: int, lost: tuple[int, int, int] | None
     ) -> tuple[int, int]:
-        """(first trial to run, its starts so far) for a session that starts or resumes.
+        """(first trial to run, its starts so far): `attempts_so_far`, shared with N options.
 
-        A resumed session counts the starts its trial already had: interruptions stored before
-        the crash, and the attempt a dead conductor left open (`lost`), which is stored now as
-        the interruption it was. Like any interruption, the trial is then repeated while it has
-        attempts left, else stored interrupted (never scored) and the session goes on.
+        A trial out of attempts before the resume is stored interrupted, never scored.
         """
-        n = len(self.proto.trials)
-        while first_trial <= n:
-            made = self.store.attempts_made(self.session, first_trial)
-            if lost is not None and lost[0] == first_trial:
-                self._file_open_attempt(
-                    lost, "conductor lost (it died mid-trial; the session was resumed)"
-                )
-                made = max(made, lost[1])
-            if made == 0 or (self.proto.repeat_interrupted and made < self.proto.max_attempts):
-                return first_trial, made
-            spec = self.proto.trials[first_trial - 1]  # out of attempts: never scored
-            self._store_trial(spec, made, None, None, None, None,
-                              "interrupted: out of attempts before the session was resumed",
-                              interrupted=True)
-            first_trial += 1
-        return first_trial, 0
+        return attempts_so_far(
+            self.store, self.session, self.proto, first_trial, lost, self._file_open_attempt,
+            lambda trial, made, why: self._store_trial(
+                self.proto.trials[trial - 1], made, None, None, None, None, why,
+                interrupted=True,
+            ),
+        )
 
     def _wait_for_a_safe_rig(self) -> None:
         """Before the first trial: eyes neutral (kept alive), then wait until the rig is safe.

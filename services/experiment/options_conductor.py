@@ -12,8 +12,13 @@ Safety as the paper's conductor: the devices' states (`options/arm_state`, `eyes
 e-stop and the services' liveliness feed a `RigWatch`; a stop breaks the running trial, which
 is stored as an interruption (`interruptions`, with its safety events) and repeated once the
 rig is safe again, up to `max_attempts` (then stored interrupted, never scored); no trial
-starts on an unsafe rig. Not here yet (the paper's conductor has them): resume, the operator
-gate beyond opening it at once, samples, cues as played, the recorder.
+starts on an unsafe rig.
+
+Resume as the paper's conductor (`services.experiment.resume`, one code for both): a resumed
+session goes on at its first trial not stored, with the starts that trial already had; the
+attempt a dead conductor left open is stored as the interruption it was; the trials stored
+before are kept in `results`. Not here yet (the paper's conductor has them): the operator gate
+beyond opening it at once, samples, cues as played, the recorder.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from services.core.node import Node
 from services.core.options_messages import check_count, same_count, values_for
 from services.experiment.fields import GazeFields
 from services.experiment.hold import SessionHold
+from services.experiment.resume import attempts_so_far, file_open_attempt
 from services.experiment.rig_watch import RigWatch
 from services.experiment.waiting import wait_for_services
 from services.model.geometry import OptionsLayout, Point
@@ -70,7 +76,14 @@ class OptionsConductor:
         layout: OptionsLayout,
         store: Store,
         clicks: Callable[[int], int | None],
+        resume_at: tuple[int, int] | None = None,
     ) -> None:
+        """The conductor of one session of `schedule` on `node`'s rig, storing into `store`.
+
+        `resume_at`: the (trial, attempt) a resumed session stands in, as the paper's
+        `Conductor` takes it: the safety events heard before its next trial starts are filed
+        under it, not under trial 0.
+        """
         self.node = node
         self.cfg = cfg
         self.schedule = schedule
@@ -89,6 +102,8 @@ class OptionsConductor:
         self.results: list[TrialRecord] = []  # option, human, robot by name
         self._centers: OrderedDict[int, Point] = OrderedDict()  # recent poses' hand centres
         self.rig = RigWatch()
+        if resume_at is not None:
+            self.rig.begin(*resume_at)
         self.hold = SessionHold(self.rig)
         self._trial_start_ns = 0
         self.pub_trial = node.publisher("options/trial")
@@ -171,20 +186,46 @@ class OptionsConductor:
                     self.pub_gaze.put(**self.gaze_msg)
 
     def run_session(
-        self, session: str, participant: str, seed: int | None
+        self,
+        session: str,
+        participant: str,
+        seed: int | None,
+        first_trial: int = 1,
+        resume: bool = False,
+        lost: tuple[int, int, int] | None = None,
     ) -> list[TrialRecord]:
-        """Run every trial of the schedule; store and publish each."""
+        """Run the schedule from `first_trial`; store and publish each trial.
+
+        `resume`: the session is stored already (`prepare_resume`): its trials so far are kept
+        in `results`, and `lost` is the attempt a previous conductor left open when it died,
+        stored as an interruption and then repeated or moved past, as in the paper's session.
+        """
         self.session = session
-        schedule = [dataclasses.asdict(t) for t in self.schedule.trials]  # the analysis reads it
-        self.store.begin_session(
-            session, participant, self.node.keys.rig, seed, self.node.clock.now_ns(),
-            {**self.cfg.summary(), "options": list(self.schedule.names),
-             "option_schedule": schedule},
-            self.schedule.names,
-        )
+        if resume:
+            stored = self.store.option_names(session)
+            if stored != self.schedule.names:  # `resume_problem` refuses it before: a guard
+                raise ValueError(f"session {session} ran the options {list(stored)}, not "
+                                 f"{list(self.schedule.names)}")
+            self.results = [t for _, t in self.store.trials(session)]
+        else:
+            schedule = [dataclasses.asdict(t) for t in self.schedule.trials]  # the analysis
+            self.store.begin_session(
+                session, participant, self.node.keys.rig, seed, self.node.clock.now_ns(),
+                {**self.cfg.summary(), "options": list(self.schedule.names),
+                 "option_schedule": schedule},
+                self.schedule.names,
+            )
+            self.results = []
         status = "aborted"
-        protocol = SessionProtocol(self.params)
         try:
+            first_trial, attempts_before = attempts_so_far(
+                self.store, session, self.params, first_trial, lost, self._file_open_attempt,
+                self._give_up,
+            )
+            if first_trial > len(self.params.trials):  # the lost attempt was the last one's last
+                status = "complete"
+                return self.results
+            protocol = SessionProtocol(self.params, first_trial, attempts_before)
             self._wait_for_a_safe_rig()
             with self.node.lock:
                 cues = protocol.start(self._now_s())
@@ -225,6 +266,24 @@ class OptionsConductor:
             self.pub_trial.put(n_options=self.n, phase="session_end" if status == "complete"
                                else "abort", trial=self.trial, session=session, text=status)
         return self.results
+
+    def stop_mid_trial(self, why: str) -> bool:
+        """The conductor is stopped (SIGINT, SIGTERM): store the attempt under way as interrupted.
+
+        As the paper's conductor: a stop by the operator is on record as such, not filed as a
+        lost conductor by the resumed session. Returns whether an attempt was open.
+        """
+        lost = self.store.open_attempt(self.session) if self.session else None
+        if lost is not None:
+            self._file_open_attempt(lost, why)
+        return lost is not None
+
+    def _file_open_attempt(self, lost: tuple[int, int, int], why: str) -> None:
+        """Store an attempt left open, (trial, attempt, t_start_ns), as an interruption."""
+        with self.node.lock:
+            self.judge = None
+            events = self.rig.take_events()
+        file_open_attempt(self.store, self.session, lost, why, self.node.clock.now_ns(), events)
 
     def _rig_ready(self) -> bool:
         """Is the rig safe (and settled)? Says once when it is not, and when it is again."""
@@ -286,8 +345,7 @@ class OptionsConductor:
                 self._end_trial(protocol, cue.trial.yaw or 0.0, cue.trial.pitch or 0.0, ev)
                 cues.extend(protocol.judged(self._now_s()))
             elif cue.kind == "interrupted":
-                self._interrupted(protocol, cue.trial.yaw or 0.0, cue.trial.pitch or 0.0, ev,
-                                  cue.text)
+                self._interrupted(protocol, ev, cue.text)
 
     def _end_trial(
         self, protocol: SessionProtocol, yaw: float, pitch: float, ev: TrialFields
@@ -339,9 +397,7 @@ class OptionsConductor:
             violations=rec.violations, score=rec.score, session=self.session,
         )
 
-    def _interrupted(
-        self, protocol: SessionProtocol, yaw: float, pitch: float, ev: TrialFields, why: str
-    ) -> None:
+    def _interrupted(self, protocol: SessionProtocol, ev: TrialFields, why: str) -> None:
         """Store the broken start of a trial; the session pauses until the rig is safe."""
         with self.node.lock:
             self.judge = None
@@ -353,16 +409,25 @@ class OptionsConductor:
         self.store.write_interruption(self.session, record, events)
         proto = self.params
         if not proto.repeat_interrupted or protocol.attempt >= proto.max_attempts:
-            rec = TrialRecord(
-                trial.index, trial.mode, self.schedule.name(trial.option), trial.gaze_level,
-                yaw, pitch, None, now, None, None, None, 0, 0, None, 0,
-                f"interrupted: {why}"[:400], interrupted=True, attempts=protocol.attempt,
-            )
-            self.store.write_trial(self.session, rec, ())
-            self.results.append(rec)
-            # published as the paper's conductor does: the launcher's table and the monitor
-            # show every trial stored, the one given up on as well
-            self.pub_result.put(
-                n_options=self.n, trial=trial.index, mode=trial.mode, option=trial.option,
-                session=self.session, interrupted=True,
-            )
+            self._give_up(trial.index, protocol.attempt, f"interrupted: {why}")
+
+    def _give_up(self, index: int, attempts: int, reason: str) -> None:
+        """Store a trial out of attempts as interrupted (never scored) and publish it.
+
+        Called for a break on its last attempt, and by a resume for a trial whose attempts
+        were all used before (`attempts_so_far`).
+        """
+        trial, spec = self.schedule.trial(index), self.params.trials[index - 1]
+        rec = TrialRecord(
+            trial.index, trial.mode, self.schedule.name(trial.option), trial.gaze_level,
+            spec.yaw or 0.0, spec.pitch or 0.0, None, self.node.clock.now_ns(), None, None,
+            None, 0, 0, None, 0, reason[:400], interrupted=True, attempts=attempts,
+        )
+        self.store.write_trial(self.session, rec, ())
+        self.results.append(rec)
+        # published as the paper's conductor does: the launcher's table and the monitor
+        # show every trial stored, the one given up on as well
+        self.pub_result.put(
+            n_options=self.n, trial=trial.index, mode=trial.mode, option=trial.option,
+            session=self.session, interrupted=True,
+        )

@@ -28,12 +28,18 @@ from services.experiment.console import make_console
 from services.experiment.order import participant_problem, session_config
 from services.experiment.params_check import ParamsCheck
 from services.experiment.recording import RecorderProcess, recorder_command, recording_path
-from services.experiment.resume import resume_problem, say_how_to_resume
+from services.experiment.resume import (
+    prepare_resume,
+    resume_problem,
+    say_how_to_resume,
+    warn_of_interrupted,
+)
 from services.experiment.rig_claim import claim_the_rig, watch_rivals
 from services.experiment.waiting import hear_the_devices
 from services.model.protocol import order_of
 from services.store import Store, back_up
 from services.store.participants import next_free_ids, record_order
+from services.store.store import PAPER_OPTIONS
 
 log = logging.getLogger("nod.experiment")
 RECORDER_READY_S = 30.0  # wall seconds for `nod record` to start and subscribe
@@ -179,10 +185,12 @@ def main(argv: list[str] | None = None) -> int:
         from services.experiment.options_session import run_options
 
         try:
-            return run_options(args, cfg, schedule, clicks, store)
+            return run_options(args, cfg, schedule, clicks, store, build_parser())
         finally:
             store.close()
-    if args.resume is not None and (problem := resume_problem(store, args.resume, args.rig)):
+    if args.resume is not None and (
+        problem := resume_problem(store, args.resume, args.rig, PAPER_OPTIONS)
+    ):
         store.close()  # another rig's session, a complete one: refused, the store unchanged
         return fail("nod experiment", problem)
     try:
@@ -201,33 +209,16 @@ def main(argv: list[str] | None = None) -> int:
     resume_at: tuple[int, int] | None = None
     if args.resume is not None:
         try:
-            participant, seed, done = store.resume_session(args.resume)
+            point = prepare_resume(store, args.resume, len(cfg.protocol.trials))
         except OSError as exc:
             store.close()
             return fail("nod experiment", exc)
-        lost = store.open_attempt(args.resume)
-        broken = store.attempts_made(args.resume, done + 1)
-        # Where the session stands: in the attempt a dead conductor left open, paused after an
-        # interrupted start of its next trial, or between trials (after trial `done`).
-        resume_at = (
-            (lost[0], lost[1]) if lost is not None else (done + 1, broken) if broken else (done, 1)
-        )
-        if done >= len(cfg.protocol.trials) and lost is None:
-            store.finish_session(args.resume, time.time_ns(), "complete")
-            back_up(store)
+        if point is None:  # every trial stored: marked complete, nothing to do
             store.close()
-            print(f"nod experiment: session {args.resume} has all {done} trials; nothing to do")
             return 0
-        first = done + 1
-    for session, done in store.interrupted_sessions():
-        if session != args.resume:
-            log.warning(
-                "session %s was interrupted after %d stored trial(s): go on with it with "
-                "`nod experiment --resume %s`",
-                session,
-                done,
-                session,
-            )
+        participant, seed, first = point.participant, point.seed, point.first
+        lost, resume_at = point.lost, point.resume_at
+    warn_of_interrupted(store, args.resume)
     try:
         node = Node(
             "experiment", Fabric.from_args(args), retry_s=math.inf, params_hash=own_hash

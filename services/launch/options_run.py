@@ -14,7 +14,7 @@ from typing import Any
 from services.model.schedule import OptionsSchedule
 
 TABLE_READERS = ("decision", "actuation", "sim", "vision", "experiment")
-NOT_YET = ("resume", "order", "again", "record")
+NOT_YET = ("order", "again", "record")
 
 
 def with_options(sections: dict[str, dict[str, Any]], n_options: int) -> None:

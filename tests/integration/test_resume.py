@@ -4,11 +4,15 @@
 stored) prints `resume with: nod experiment --resume …`; that command goes on at the next trial
 and its console shows the trials stored before. `nod run --sim` stopped mid-session prints its
 own `nod run --sim --resume …`, which runs the rest of the session: the store has each trial of
-it once.
+it once. The same for a table of three options (`--options 3`, its 8 trials): stopped after
+three stored trials and resumed, its store, `nod export` and `nod analyze study` have all 8 by
+option name.
 """
 
 from __future__ import annotations
 
+import csv
+import json
 import os
 import shlex
 import signal
@@ -27,6 +31,7 @@ from .conftest import ROOT, SHORT, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 SPEED = "4"
+NAMES = ("red", "blue", "green")  # `--options 3`'s default option set
 
 
 class Output:
@@ -56,6 +61,17 @@ def _trials(db, session: str) -> list[tuple[int, int | None]]:
         ).fetchall()
     finally:
         con.close()
+
+
+def _stored(db) -> int:
+    """Trials stored so far in a store being written (0 before its tables are there)."""
+    if not db.exists():
+        return 0
+    with closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as ro:
+        try:
+            return int(ro.execute("SELECT COUNT(*) FROM trials").fetchone()[0])
+        except sqlite3.OperationalError:
+            return 0
 
 
 def _status(db, session: str) -> str:
@@ -130,19 +146,30 @@ def test_ctrl_c_at_the_click_prompt_prints_the_resume_line_and_it_resumes(
         stop_all([conductor, *rig])
 
 
-def test_nod_run_interrupted_prints_its_resume_line_and_resumes(tmp_path):
-    params = tmp_path / "short.toml"
-    params.write_text(SHORT)
+@pytest.mark.parametrize(
+    ("options", "stop_after", "n_trials"),
+    [(None, 1, 3), (3, 3, 8)],
+    ids=["paper", "three-options"],
+)
+def test_nod_run_interrupted_prints_its_resume_line_and_resumes(
+    tmp_path, options, stop_after, n_trials
+):
     db = tmp_path / "run.sqlite"
+    if options is None:  # the paper's: SHORT's three trials
+        params = tmp_path / "short.toml"
+        params.write_text(SHORT)
+        table = ["--params", str(params)]
+    else:  # a table of three: its default schedule of 8 trials
+        table = ["--options", str(options)]
     listen = f"tcp/127.0.0.1:{free_port()}"
     run = subprocess.Popen(
         [sys.executable, "-m", "services.cli", "run", "--sim", "--speed", SPEED, "--stale-ms",
-         "2000", "--params", str(params), "--db", str(db), "--listen", listen],
+         "2000", *table, "--db", str(db), "--listen", listen],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
     )
     try:
         out, err = Output(run.stdout), Output(run.stderr)
-        wait_for(lambda: "\n    1 " in out.text, 120, "trial 1 in the run's table")
+        wait_for(lambda: _stored(db) >= stop_after, 300, f"{stop_after} trial(s) stored")
         run.send_signal(signal.SIGINT)
         assert run.wait(30) == 130, out.text + err.text
         wait_for(lambda: "resume with: " in err.text, 5, "the resume line")
@@ -151,16 +178,18 @@ def test_nod_run_interrupted_prints_its_resume_line_and_resumes(tmp_path):
     argv = _resume_line(err.text)
     assert argv[:5] == ["nod", "run", "--sim", "--resume", argv[4]]
     session = argv[4]
-    assert argv[argv.index("--db") + 1] == str(db) and "--params" in argv
-    assert len(_trials(db, session)) < 3
+    assert argv[argv.index("--db") + 1] == str(db)
+    assert argv[argv.index(table[0]) + 1] == table[1]  # the same params, the same table
+    assert stop_after <= len(_trials(db, session)) < n_trials
     backup = db.with_name(db.name + ".backup")  # the stopped session's end backed the store up
     assert _trials(backup, session) == _trials(db, session)
 
-    resumed = run_nod(*argv[1:], timeout=300)
+    resumed = run_nod(*argv[1:], timeout=400)
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     assert f"resuming session {session}" in resumed.stdout
-    assert "3 trials of 1 participant(s) stored" in resumed.stdout  # the table went on
-    assert [t for t, _ in _trials(db, session)] == [1, 2, 3]  # every trial of it, once
+    # the table went on
+    assert f"{n_trials} trials of 1 participant(s) stored" in resumed.stdout
+    assert [t for t, _ in _trials(db, session)] == list(range(1, n_trials + 1))  # each, once
     assert _status(db, session) == "complete"
     con = sqlite3.connect(db)
     assert con.execute("SELECT COUNT(*) FROM sessions").fetchone()[0] == 1
@@ -173,6 +202,33 @@ def test_nod_run_interrupted_prints_its_resume_line_and_resumes(tmp_path):
     assert again.returncode == 2 and "is complete" in again.stderr, again.stdout + again.stderr
     assert len(again.stderr.strip().splitlines()) == 1, again.stderr
     assert _finished(db) == finished
+    if options is not None:
+        _assert_read_by_option_name(tmp_path, db, session, n_trials)
+
+
+def _assert_read_by_option_name(tmp_path, db, session: str, n_trials: int) -> None:
+    """The resumed session of three options: stored, exported and analysed by option name."""
+    with closing(sqlite3.connect(db)) as con:
+        (names,) = con.execute(
+            "SELECT names FROM option_sets WHERE session = ?", (session,)).fetchone()
+        stored = con.execute(
+            "SELECT option, human, robot FROM trials WHERE session = ? AND interrupted = 0",
+            (session,)).fetchall()
+    assert tuple(json.loads(names)) == NAMES
+    assert stored and all(v in (None, *NAMES) for row in stored for v in row), stored
+    assert {row[2] for row in stored} <= set(NAMES) and "green" in {
+        v for row in stored for v in row}, stored
+    out = tmp_path / "csv"
+    export = run_nod("export", "--db", str(db), "--out", str(out), timeout=60)
+    assert export.returncode == 0, export.stderr
+    with (out / "trials.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["trial"] for r in rows] == [str(i) for i in range(1, n_trials + 1)]
+    assert {r["robot"] for r in rows} <= {*NAMES, "NA"} and "green" in {r["option"] for r in rows}
+    analysis = run_nod("analyze", "study", "--db", str(db), "--json", timeout=120)
+    assert analysis.returncode == 0, analysis.stderr
+    doc = json.loads(analysis.stdout)
+    assert doc["options"] == list(NAMES) and doc["participants"] == 1
 
 
 def _finished(db) -> list[tuple[str, int | None]]:

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import shlex
+from pathlib import Path
 
-from services.experiment.resume import resume_argv, resume_line
+from services.experiment.resume import resume_argv, resume_line, resume_problem
 from services.experiment.service import build_parser
 from services.run import RESUME_FLAGS
 from services.run import build_parser as run_parser
+from services.store import Store
+from services.store.store import PAPER_OPTIONS
 
 
 def test_nod_experiment_resumes_with_the_flags_that_reach_the_rig_and_store() -> None:
@@ -38,3 +41,28 @@ def test_nod_run_resumes_with_its_own_form() -> None:
     assert argv[-4:] == ["--arm-driver", "feetech", "--arm-port", "/dev/x"]
     args = p.parse_args(argv[2:])
     assert (args.resume, args.speed, args.render) == ("s1", 4.0, True)
+
+
+def test_a_table_of_n_options_is_resumed_with_its_option_count() -> None:
+    for prog, parser, flags in (
+        (("nod", "experiment"), build_parser(), None),
+        (("nod", "run", "--sim"), run_parser(), RESUME_FLAGS),
+    ):
+        args = parser.parse_args([*prog[2:], "--options", "3", "--db", "s.sqlite"])
+        argv = resume_argv(parser, args, "s1", prog, *([flags] if flags else []))
+        assert argv[argv.index("--options") + 1] == "3", argv
+
+
+def test_a_session_is_resumed_only_with_its_own_option_set(tmp_path: Path) -> None:
+    store = Store(tmp_path / "s.sqlite")
+    try:
+        store.begin_session("s3", "P01", "rig1", 1, 0, {}, ("red", "blue", "green"))
+        store.begin_session("s2", "P02", "rig1", 2, 1, {})
+        assert resume_problem(store, "s3", "rig1", ("red", "blue", "green")) is None
+        assert resume_problem(store, "s2", "rig1", PAPER_OPTIONS) is None
+        problem = resume_problem(store, "s3", "rig1", PAPER_OPTIONS)
+        assert problem is not None and "--options 3" in problem and "\n" not in problem
+        problem = resume_problem(store, "s2", "rig1", ("red", "blue", "green"))
+        assert problem is not None and "['red', 'blue']" in problem
+    finally:
+        store.close()
