@@ -5,8 +5,9 @@
 Per 30 Hz pose (33 RK4 steps of 1 ms), three options, a consensus trial with the controller
 running (ẑ_h held on another option than O) and a dissensus one:
 
-- **Baseline**: `services.model.options_bias.advance_robot` (NumPy on vectors of three);
-- **Candidate**: `services.model.options_floats.advance` (the same scheme on floats), which
+- **Baseline**: the same scheme on NumPy vectors of three, its rates `general_rates`
+  (`tests/unit/robot_oracle.py`, the tests' reference);
+- **Candidate**: `services.model.decision.rk4_robot` (the scheme on floats), which
   `OptionsDecision` runs;
 - also printed: the paper's two-option `DecisionModel._integrate` over the same span (the
   engine the N-option one should come near), and the largest difference between candidate and
@@ -28,10 +29,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from services.model.decision import DecisionModel  # noqa: E402
+from services.model.decision import (
+    DecisionModel,  # noqa: E402
+    rk4_robot,  # noqa: E402
+)
 from services.model.dynamics import OptionsParams, option_vector  # noqa: E402
-from services.model.options_bias import advance_robot  # noqa: E402
-from services.model.options_floats import advance  # noqa: E402
+from tests.unit.robot_oracle import numpy_rk4_robot  # noqa: E402
 
 POSES = 60
 STEPS = [0.001] * 33 + [1 / 30 - 0.033]
@@ -66,9 +69,9 @@ def main() -> int:
                 z, s = step(z, s, z_hat, STEPS, params, option)  # noqa: B023
             return z, s
 
-        base = best_of(args.rounds, lambda: run(advance_robot))  # noqa: B023
-        cand = best_of(args.rounds, lambda: run(advance))  # noqa: B023
-        (zb, sb), (zc, sc) = run(advance_robot), run(advance)
+        base = best_of(args.rounds, lambda: run(numpy_rk4_robot))  # noqa: B023
+        cand = best_of(args.rounds, lambda: run(rk4_robot))  # noqa: B023
+        (zb, sb), (zc, sc) = run(numpy_rk4_robot), run(rk4_robot)
         diff = max(float(np.max(np.abs(zb - zc))), abs(sb - sc))
         paper = DecisionModel()
         paper.reset(mode, "red" if option is not None else None)  # type: ignore[arg-type]

@@ -1,6 +1,6 @@
 """`nod decision --options N`: hand poses in, ẑ_h / z_r / b_r over N options out.
 
-The N_o-option decision engine (`services.model.options_decision`) on the fabric, as
+The N_o-option decision engine (`services.model.decision.OptionsDecision`) on the fabric, as
 `services.decision.service` runs the paper's: every accepted hand pose advances the robot's
 state to the pose's own timestamp and publishes the three vectors on `options/z_h`, `z_r`,
 `b_r` (schema version 2) with `src_seq` = the pose's `seq`. `options/trial` events reset it
@@ -15,9 +15,8 @@ from services.core import messages as m
 from services.core import options_messages as om
 from services.core.node import Node
 from services.core.options_messages import check_count, same_count
-from services.model.decision import DecisionParams
+from services.model.decision import DecisionParams, OptionsDecision
 from services.model.geometry import OptionsLayout
-from services.model.options_decision import OptionsDecision
 
 log = logging.getLogger("nod.decision")
 

@@ -27,11 +27,28 @@ percentile of the simulated cohort's consensus presses), for both options and ev
 
 The freeze is decided once per integration step (see `services.model.decision`), |b_r| is
 clamped to b_max after each step, and b_r ≡ 0 in dissensus-mode trials (the controller is off).
+
+**Over N_o options** (docs/multi-option.md). The bias is a magnitude s along O's direction,
+b_r = s · option_vector(O) (its lead for O over every other option is 2 s, as b_r = ±s gives
+with two options), and
+
+    ṡ = −|σ| · z_r[h] + K |σ| · max(0, b* − |s|)      while the pair disagrees
+    ṡ = 0                                              otherwise (s frozen)
+
+where h is the human's leading option (the argmax of ẑ_h) and "disagrees" means the robot's
+opinion of h is below its largest one (`options_bias_active`, `options_bias_rate`). With
+N_o = 2, z_r = (x, −x) and ẑ_h = (m, −m): z_r[h] = x · sgn(m), "disagrees" is x · m < 0, and
+s = b_r · sgn(O), so ṡ = sgn(O) ḃ_r: eq 6 with SPEC §3's signs. The paper's two-option
+functions above are that case's kernel, which the paper's decision model runs; a property test
+holds the two to 1e-12 (tests/unit/test_bias.py). The parameters are the same `BiasParams`;
+with β = δ = 0 the bias must still beat u_r (the lead of tanh's saturation is 2 u_r, against
+the bias's 2 s) for any N_o.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from services.model.geometry import Colour, colour_sign
@@ -96,3 +113,23 @@ def bias_rate(
     """
     sgn = 1.0 if z_hat > 0 else -1.0
     return sigma * z_r * sgn + beta * max(0.0, b_star - abs(b_r))
+
+
+def options_bias_active(z_r: Sequence[float], h: int | None) -> bool:
+    """Whether the controller runs over N_o options (the reading of `bias_active`).
+
+    It runs while the human leads with h and the robot's opinion of h is not its largest. No
+    leading option for the human (h None: ẑ_h = 0 before any movement, or a tie) or a robot
+    already at its largest on h means no dissensus. Plain floats or an array alike.
+    """
+    return h is not None and bool(z_r[h] < max(z_r))
+
+
+def options_bias_rate(s: float, z_rh: float, sigma: float, K: float, b_star: float) -> float:
+    """ṡ over N_o options while the controller runs (`options_bias_active`), z_rh = z_r[h].
+
+    The magnitudes |σ| and K of `BiasParams`: the sign of O is in its direction, not in σ.
+    The one place the N_o-option eq 6 is written; the decision engine's N_o-option RK4
+    (`services.model.decision.rk4_robot`) calls it at every stage of an active step.
+    """
+    return -sigma * z_rh + K * sigma * max(0.0, b_star - abs(s))

@@ -4,21 +4,55 @@ Feed it hand poses with their source timestamps (`on_hand`). Between two poses t
 (z_r, b_r) is integrated with fixed-step RK4, holding the previously observed ẑ_h constant
 (zero-order hold, SPEC §1); then the new pose updates ẑ_h, which only affects later intervals.
 Time comes from the timestamps alone, so a recorded stream replays identically.
+
+Two engines share that time handling (`PoseEngine`) and the parameters (`DecisionParams`):
+
+- `DecisionModel`, the paper's two options (z_r, b_r and ẑ_h numbers, O a colour): the scalar
+  RK4 of eq 1 and eq 6 in `DecisionModel._run`, the paper's kernel, which the study's golden
+  and tests/unit/test_loop_speed.py hold bit for bit;
+- `OptionsDecision`, any N_o ≥ 2 options (vectors, O an option index): the general RK4
+  `rk4_robot` of the N_o-option rates (`services.model.dynamics`) and eq 6 toward O
+  (`services.model.bias.options_bias_rate`), on plain floats. At N_o = 2 it agrees with the
+  kernel to 1e-12 (tests/unit/test_decision_model.py: the integrators on random states, and
+  the two engines on the same pose stream).
+
+They are two classes, not one engine with N_o a parameter, because the paper's services,
+replay and closed loop speak DecisionModel's scalar API (`DecisionOutput`, the colour of O,
+the paper observer's `Observation`); giving it a vector form is left to the rig's fold.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Generic, NamedTuple, TypeVar
 
-from services.model.bias import BiasParams, beta_for, sigma_for
-from services.model.dynamics import PairParams
-from services.model.geometry import Colour, Point, TableLayout
+import numpy as np
+
+from services.model.bias import (
+    BiasParams,
+    beta_for,
+    options_bias_active,
+    options_bias_rate,
+    sigma_for,
+)
+from services.model.dynamics import (
+    OptionsParams,
+    PairParams,
+    float_rates,
+    general_rates,
+    leading_option,
+    option_vector,
+)
+from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
 from services.model.observer import Observation, ObserverParams
-from services.model.observer_robust import make_observer
+from services.model.observer_robust import OptionsObservation, OptionsObserver, make_observer
 from services.model.protocol import MODES, Mode
+
+Held = TypeVar("Held")  # ẑ_h as an engine holds it: a number (two options) or an N_o-vector
+Opt = TypeVar("Opt")  # the consensus option O: a colour (two options) or an option index
+Out = TypeVar("Out")  # what an engine reports after each pose
 
 
 @dataclass(frozen=True)
@@ -48,6 +82,120 @@ class DecisionParams:
             )
 
 
+def check_trial(mode: Mode, option: object, known: bool, options: str) -> None:
+    """Refuse an unknown mode, an option not on the table, or consensus without O.
+
+    `known` says whether the option is on the table; `options` names the valid ones.
+    """
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if not known:
+        raise ValueError(f"option must be {options} or None, got {option!r}")
+    if mode == "consensus" and option is None:
+        raise ValueError(f"consensus mode needs the consensus option O ({options})")
+
+
+class PoseEngine(Generic[Held, Opt, Out]):
+    """What every decision engine does with time, for any number of options (module doc).
+
+    A pose advances the state from the previous pose's time holding the ẑ_h read then
+    (`advance`), by at most `max_gap_s` (stale input must not wind up the state), then is read
+    (`read`); a pose whose timestamp does not advance is neither integrated to nor read. A
+    subclass says what ẑ_h is held (`_held`), how the state is integrated over a span
+    (`_integrate`), how a pose is read (`_observe`), what it reports (`_output`) and how a
+    trial starts (`reset`, which calls `_restart_clock`).
+    """
+
+    _t_ns: int | None  # the latest accepted pose's timestamp
+
+    def __init__(self, params: DecisionParams | None) -> None:
+        self._params = params if params is not None else DecisionParams()
+        self._dt_ns = max(1, round(self._params.dt * 1e9))
+        self._max_gap_ns = max(1, round(self._params.max_gap_s * 1e9))
+        self._restart_clock()
+
+    @property
+    def params(self) -> DecisionParams:
+        """The engine's parameters."""
+        return self._params
+
+    @property
+    def t_ns(self) -> int | None:
+        """Timestamp of the latest accepted pose, or None before the first pose."""
+        return self._t_ns
+
+    def reset(self, mode: Mode, option: Opt | None) -> None:
+        """Start a trial (the subclass's state, then `_restart_clock`)."""
+        raise NotImplementedError
+
+    def on_trial(self, phase: str, mode: Mode, option: Opt | None) -> bool:
+        """A protocol event: reset at "setup" and at "go" (opinions form from the cue on).
+
+        O is taken in consensus trials only. True if the event reset the state. The decision
+        services and offline re-runs of a recording (`nod replay --through decision`) both
+        call this, so they reset alike.
+        """
+        if phase not in ("setup", "go"):
+            return False
+        self.reset(mode, option if mode == "consensus" else None)
+        return True
+
+    def accepts(self, t_ns: int) -> bool:
+        """True if a pose stamped `t_ns` would advance the state (newer than the last one)."""
+        return self._t_ns is None or t_ns > self._t_ns
+
+    def on_hand(self, t_ns: int, landmarks: Sequence[Point] | None) -> Out:
+        """Advance to t_ns holding the previous ẑ_h, then read this pose (None: no hand).
+
+        A timestamp that does not advance (repeated or out of order) is not integrated and the
+        pose is not read; the current state is returned with the previous t_ns.
+        """
+        if not self.advance(t_ns):
+            return self._output()
+        return self.read(landmarks)
+
+    def advance(self, t_ns: int) -> bool:
+        """Integrate the robot's state to t_ns with the held ẑ_h; False if t_ns does not advance.
+
+        The first half of `on_hand`: z_r at the pose's time does not depend on the pose itself
+        (ẑ_h is held over the interval), so a caller can publish it before `read` the pose.
+        """
+        if self._t_ns is not None:
+            gap_ns = t_ns - self._t_ns
+            if gap_ns <= 0:
+                return False
+            self._integrate(min(gap_ns, self._max_gap_ns), self._held())
+            self._last_gap_ns = gap_ns
+        self._t_ns = t_ns
+        return True
+
+    def read(self, landmarks: Sequence[Point] | None) -> Out:
+        """The second half of `on_hand`: update ẑ_h from the pose at the time `advance` set."""
+        if self._t_ns is None:
+            raise RuntimeError(
+                f"{type(self).__name__}.read before advance: call advance(t_ns) first"
+            )
+        self._observe(landmarks, self._t_ns * 1e-9)
+        return self._output()
+
+    def _restart_clock(self) -> None:
+        """Time unset: the next pose is a trial's first (not integrated to)."""
+        self._t_ns = None
+        self._last_gap_ns = 0
+
+    def _held(self) -> Held:
+        raise NotImplementedError
+
+    def _integrate(self, span_ns: int, z_hat: Held) -> None:
+        raise NotImplementedError
+
+    def _observe(self, landmarks: Sequence[Point] | None, t: float) -> None:
+        raise NotImplementedError
+
+    def _output(self) -> Out:
+        raise NotImplementedError
+
+
 class DecisionOutput(NamedTuple):
     """The engine's state after one pose (a NamedTuple: built once per camera frame).
 
@@ -63,23 +211,20 @@ class DecisionOutput(NamedTuple):
     dissensus: bool  # z_r · ẑ_h < 0
 
 
-class DecisionModel:
-    """Robot opinion z_r and bias b_r driven by observed hand poses (Algorithm 1)."""
+class DecisionModel(PoseEngine[float, Colour, DecisionOutput]):
+    """Robot opinion z_r and bias b_r driven by observed hand poses (Algorithm 1).
+
+    The paper's two options; `OptionsDecision` is the same engine over N_o options.
+    """
 
     def __init__(self, params: DecisionParams | None = None, layout: TableLayout | None = None):
-        self._params = params if params is not None else DecisionParams()
-        self._observer = make_observer(self._params.observer, layout)
-        self._dt_ns = max(1, round(self._params.dt * 1e9))
-        self._max_gap_ns = max(1, round(self._params.max_gap_s * 1e9))
-        self._b_star = self._params.bias.threshold(self._params.pair.robot.u)
+        p = params if params is not None else DecisionParams()
+        self._observer = make_observer(p.observer, layout)
+        self._b_star = p.bias.threshold(p.pair.robot.u)
+        super().__init__(p)
         self.reset("dissensus", None)
 
     # --- state -------------------------------------------------------------------------------
-
-    @property
-    def params(self) -> DecisionParams:
-        """The engine's parameters."""
-        return self._params
 
     @property
     def layout(self) -> TableLayout:
@@ -112,11 +257,6 @@ class DecisionModel:
         return self._option
 
     @property
-    def t_ns(self) -> int | None:
-        """Timestamp of the latest accepted pose, or None before the first pose."""
-        return self._t_ns
-
-    @property
     def b_star(self) -> float:
         """The bias threshold b* in use (BiasParams.threshold of the robot's u)."""
         return self._b_star
@@ -126,19 +266,13 @@ class DecisionModel:
 
         Raises ValueError for an unknown mode, an unknown option, or consensus mode without O.
         """
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-        if option not in ("red", "blue", None):
-            raise ValueError(f"option must be 'red', 'blue' or None, got {option!r}")
-        if mode == "consensus" and option is None:
-            raise ValueError("consensus mode needs the consensus option O ('red' or 'blue')")
+        check_trial(mode, option, option in ("red", "blue", None), "'red' or 'blue'")
         self._mode: Mode = mode
         self._option: Colour | None = option
         self._z_r = 0.0
         self._b_r = 0.0
-        self._t_ns: int | None = None
+        self._restart_clock()
         self._ahead: list[tuple[float, float]] | None = None  # `look_ahead`'s states
-        self._last_gap_ns = 0
         self._observer.reset()
         self._observation = Observation(0.0, None, None, None, None, None, False, False)
         if mode == "consensus" and option is not None:
@@ -147,59 +281,17 @@ class DecisionModel:
         else:
             self._sigma = self._beta = 0.0
 
-    def on_trial(self, phase: str, mode: Mode, option: Colour | None) -> bool:
-        """A protocol event: reset at "setup" and at "go" (opinions form from the cue on).
-
-        O is taken in consensus trials only. True if the event reset the state. The decision
-        service and offline re-runs of a recording (`nod replay --through decision`) both call
-        this, so they reset alike.
-        """
-        if phase not in ("setup", "go"):
-            return False
-        self.reset(mode, option if mode == "consensus" else None)
-        return True
-
-    def accepts(self, t_ns: int) -> bool:
-        """True if a pose stamped `t_ns` would advance the state (newer than the last one)."""
-        return self._t_ns is None or t_ns > self._t_ns
-
     def set_layout(self, layout: TableLayout) -> None:
         """Use a new table layout for later poses (state and ẑ_h are kept)."""
         self._observer.layout = layout
 
     # --- stepping ----------------------------------------------------------------------------
 
-    def on_hand(self, t_ns: int, landmarks: Sequence[Point] | None) -> DecisionOutput:
-        """Advance to t_ns holding the previous ẑ_h, then read this pose (None: no hand).
+    def _held(self) -> float:
+        return self._observer.z_hat
 
-        A timestamp that does not advance (repeated or out of order) is not integrated and the
-        pose is not read; the current state is returned with the previous t_ns.
-        """
-        if not self.advance(t_ns):
-            return self._output()
-        return self.read(landmarks)
-
-    def advance(self, t_ns: int) -> bool:
-        """Integrate (z_r, b_r) to t_ns with the held ẑ_h; False if t_ns does not advance.
-
-        The first half of `on_hand`: z_r at the pose's time does not depend on the pose itself
-        (ẑ_h is held over the interval), so a caller can publish it before `read` the pose.
-        """
-        if self._t_ns is not None:
-            gap_ns = t_ns - self._t_ns
-            if gap_ns <= 0:
-                return False
-            self._integrate(min(gap_ns, self._max_gap_ns), self._observer.z_hat)
-            self._last_gap_ns = gap_ns
-        self._t_ns = t_ns
-        return True
-
-    def read(self, landmarks: Sequence[Point] | None) -> DecisionOutput:
-        """The second half of `on_hand`: update ẑ_h from the pose at the time `advance` set."""
-        if self._t_ns is None:
-            raise RuntimeError("DecisionModel.read before advance: call advance(t_ns) first")
-        self._observation = self._observer.update(landmarks, self._t_ns * 1e-9)
-        return self._output()
+    def _observe(self, landmarks: Sequence[Point] | None, t: float) -> None:
+        self._observation = self._observer.update(landmarks, t)
 
     def look_ahead(self) -> None:
         """Integrate the next interval's full steps now, before its pose arrives.
@@ -325,3 +417,176 @@ class DecisionModel:
                     path.extend([(z_r, b_r)] * (n - 1 - i))
                 break
         return z_r, b_r
+
+
+# -- Over N_o options ----------------------------------------------------------------------------
+
+
+def split_span(span_ns: int, dt_ns: int) -> list[float]:
+    """The RK4 steps (s) that cover span_ns: whole steps of dt_ns, then the rest.
+
+    The steps `DecisionModel._integrate` takes (its divmod), as a list for `rk4_robot`.
+    """
+    n_full, rest_ns = divmod(span_ns, dt_ns)
+    steps = [dt_ns * 1e-9] * n_full
+    if rest_ns:
+        steps.append(rest_ns * 1e-9)
+    return steps
+
+
+Vector = Sequence[float] | np.ndarray  # an opinion over N_o options
+Rates = Callable[[list[float], list[float]], list[float]]
+
+
+def _robot_rates(p: OptionsParams, z_hat: Vector) -> Rates:
+    """ż_r as a function of (z_r, b_r) over N_o options, ẑ_h held (ZOH), on plain floats.
+
+    For β = δ = 0 (the paper's weights, the engine's) `float_rates`: `general_rates`' arithmetic
+    without NumPy's per-call overhead on vectors of three, which would dominate the camera-rate
+    loop (4-6× slower per 30 Hz pose, benchmarks/options_decision.py). Otherwise
+    `general_rates` itself: the cross-option terms are written only there.
+    """
+    r = p.pair.robot
+    social = [p.pair.a_rh * float(x) for x in z_hat]
+    if p.beta == 0.0 and p.delta == 0.0:
+        d, u, alpha, gamma = r.d, r.u, r.alpha, r.gamma
+
+        def plain(z: list[float], b: list[float]) -> list[float]:
+            return float_rates(z, social, b, d, u, alpha, gamma)
+
+        return plain
+    social_v = np.array(social)
+
+    def crossed(z: list[float], b: list[float]) -> list[float]:
+        rates = general_rates(np.array(z), social_v, np.array(b), r, p.beta, p.delta)
+        return [float(x) for x in rates]
+
+    return crossed
+
+
+def rk4_robot(
+    z_r: Vector,
+    s: float,
+    z_hat: Vector,
+    steps: Sequence[float],
+    p: OptionsParams,
+    option: int | None,
+    bias: BiasParams | None = None,
+) -> tuple[np.ndarray, float]:
+    """The robot's (z_r, s) over N_o options after RK4 `steps` (s), ẑ_h held: the general form.
+
+    The bias is b_r = s · option_vector(O) (`services.model.bias`); `option` None: the
+    controller is off, s frozen (a dissensus trial). The scheme is `DecisionModel._run`'s: the
+    freeze decided once per step from the state at its start, s entering the stages at its
+    value before the clamp and |s| clamped after the step; and the zero-sum subspace kept by
+    construction (the last option set to minus the sum of the others after every step, as
+    `services.model.dynamics.rk4_network`). At N_o = 2 it agrees with that kernel to 1e-12
+    (tests/unit/test_decision_model.py). Returns the new z_r (an array) and s.
+    """
+    bp = bias if bias is not None else BiasParams()
+    rates = _robot_rates(p, z_hat)
+    b_star, sigma, gain, b_max = bp.threshold(p.pair.robot.u), bp.sigma, bp.K, bp.b_max
+    n = p.n_options
+    v = [float(x) for x in option_vector(option, n)] if option is not None else None
+    h = leading_option(np.asarray(z_hat, dtype=float))
+    z = [float(x) for x in z_r]
+    z[-1] = -sum(z[:-1])
+    zero = [0.0] * n
+    for dt in steps:
+        half = 0.5 * dt
+        b = [s * vj for vj in v] if v is not None else zero
+        k1 = rates(z, b)
+        if v is not None and h is not None and options_bias_active(z, h):
+            k1b = options_bias_rate(s, z[h], sigma, gain, b_star)
+            z2 = [zj + half * kj for zj, kj in zip(z, k1, strict=True)]
+            s2 = s + half * k1b
+            k2 = rates(z2, [s2 * vj for vj in v])
+            k2b = options_bias_rate(s2, z2[h], sigma, gain, b_star)
+            z3 = [zj + half * kj for zj, kj in zip(z, k2, strict=True)]
+            s3 = s + half * k2b
+            k3 = rates(z3, [s3 * vj for vj in v])
+            k3b = options_bias_rate(s3, z3[h], sigma, gain, b_star)
+            z4 = [zj + dt * kj for zj, kj in zip(z, k3, strict=True)]
+            s4 = s + dt * k3b
+            k4 = rates(z4, [s4 * vj for vj in v])
+            k4b = options_bias_rate(s4, z4[h], sigma, gain, b_star)
+            s = min(b_max, max(-b_max, s + (dt / 6.0) * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)))
+        else:  # s frozen: only z_r moves
+            k2 = rates([zj + half * kj for zj, kj in zip(z, k1, strict=True)], b)
+            k3 = rates([zj + half * kj for zj, kj in zip(z, k2, strict=True)], b)
+            k4 = rates([zj + dt * kj for zj, kj in zip(z, k3, strict=True)], b)
+        z = [zj + (dt / 6.0) * (a + 2.0 * (bb + c) + e)
+             for zj, a, bb, c, e in zip(z, k1, k2, k3, k4, strict=True)]
+        z[-1] = -sum(z[:-1])
+    return np.array(z), s
+
+
+@dataclass(frozen=True, slots=True)
+class OptionsDecisionOutput:
+    """The N_o-option engine's state after one pose (vectors over the N_o options)."""
+
+    t_ns: int
+    z_hat: np.ndarray
+    z_r: np.ndarray
+    b_r: np.ndarray
+    observation: OptionsObservation
+
+
+class OptionsDecision(PoseEngine[np.ndarray, int, OptionsDecisionOutput]):
+    """Robot opinion z_r and bias b_r over N_o options, driven by observed hand poses.
+
+    `DecisionModel` with vectors: the same `DecisionParams` (dynamics, observer, eq 6) and time
+    handling (`PoseEngine`); ẑ_h is `OptionsObserver`'s reading of the table's N_o boxes, the
+    robot's state (z_r, s) steps by `rk4_robot`, and b_r = s · option_vector(O) in a consensus
+    trial, 0 in a dissensus one.
+    """
+
+    def __init__(self, layout: OptionsLayout, params: DecisionParams | None = None) -> None:
+        """An engine for a table of N_o boxes with the two-option engine's parameters."""
+        super().__init__(params)
+        self.layout = layout
+        self.dynamics = OptionsParams(self._params.pair, n_options=layout.n_options)
+        self._observer = OptionsObserver(layout, self._params.observer)
+        self.reset("dissensus", None)
+
+    @property
+    def z_hat(self) -> np.ndarray:
+        """The observed human opinion ẑ_h currently held."""
+        return self._observer.z_hat
+
+    @property
+    def b_r(self) -> np.ndarray:
+        """The robot's bias vector s · option_vector(O) (zero in dissensus)."""
+        if self.option is None:
+            return np.zeros(self.layout.n_options)
+        return self.s * option_vector(self.option, self.layout.n_options)
+
+    def reset(self, mode: Mode, option: int | None) -> None:
+        """Start a trial: z_r = 0, s = 0, fresh observer; O is taken in consensus trials only."""
+        n = self.layout.n_options
+        check_trial(mode, option, option is None or 0 <= option < n, f"an option in 0..{n - 1}")
+        self.mode: Mode = mode
+        self.option = option if mode == "consensus" else None
+        self.z_r = np.zeros(n)
+        self.s = 0.0
+        self._restart_clock()
+        self._observer.reset()
+        self._observation = self._observer.update(None)
+
+    def _held(self) -> np.ndarray:
+        return self._observer.z_hat
+
+    def _integrate(self, span_ns: int, z_hat: np.ndarray) -> None:
+        self.z_r, self.s = rk4_robot(
+            self.z_r, self.s, z_hat, split_span(span_ns, self._dt_ns), self.dynamics,
+            self.option, self._params.bias,
+        )
+
+    def _observe(self, landmarks: Sequence[Point] | None, t: float) -> None:
+        self._observation = self._observer.update(landmarks, t)
+
+    def _output(self) -> OptionsDecisionOutput:
+        return OptionsDecisionOutput(
+            self._t_ns if self._t_ns is not None else 0, self._observer.z_hat, self.z_r.copy(),
+            self.b_r, self._observation,
+        )

@@ -15,8 +15,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from services.model.arm import OptionsSimArm
+from services.model.decision import OptionsDecision
 from services.model.geometry import OptionsLayout
-from services.model.options_decision import OptionsDecision
 from services.model.options_judge import OptionsTrialJudge
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered

@@ -1,4 +1,5 @@
-"""The decision engine: ZOH integration of eq 1 with eq 6, driven by poses (Algorithm 1).
+"""The decision engine: ZOH integration of eq 1 with eq 6, driven by poses (Algorithm 1); the
+same engine over N_o options (`OptionsDecision`, `rk4_robot`) against the paper's at N_o = 2.
 
 These tests pin the engine's timing (zero-order hold, timestamps, gaps), so they drive it with
 the paper's observer, which reads a pose's direction at once; the default observer's reading
@@ -9,15 +10,18 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from services.analysis.observer_eval import frames, paths
 from services.model.bias import BiasParams
-from services.model.decision import DecisionModel, DecisionParams
-from services.model.dynamics import PairParams, rk4_step, robot_rate
-from services.model.geometry import Box, TableLayout
+from services.model.decision import DecisionModel, DecisionParams, OptionsDecision, rk4_robot
+from services.model.dynamics import OptionsParams, PairParams, option_vector, rk4_step, robot_rate
+from services.model.geometry import Box, OptionsLayout, TableLayout
 from services.model.observer import ObserverParams
+from tests.unit.robot_oracle import numpy_rk4_robot
 
 NS = 1_000_000_000
 PAPER = DecisionParams(observer=ObserverParams(mode="paper"))
@@ -273,3 +277,127 @@ def test_look_ahead_changes_no_value(events, trial):
 def test_read_before_advance_says_what_to_do():
     with pytest.raises(RuntimeError, match="advance"):
         DecisionModel().read([(0.5, 0.8)])
+
+
+# -- Over N_o options: the general engine, and the paper's kernel at N_o = 2 ---------------------
+
+
+def pose_stream(seed: int) -> list[tuple[int, list[tuple[float, float]]]]:
+    """Jittered reaches (one a change of mind) at 30 Hz with the camera's uneven frame times,
+    one after another as the trials of a session."""
+    rng = np.random.default_rng(seed)
+    out: list[tuple[int, list[tuple[float, float]]]] = []
+    t_ns = NS
+    for path in paths()[:4]:
+        for _, landmarks, _ in frames(path, 30.0, 2.0, rng):
+            t_ns += int(rng.integers(25_000_000, 42_000_000))
+            out.append((t_ns, landmarks))
+    return out
+
+
+@pytest.mark.parametrize(("mode", "option"), [("dissensus", None), ("consensus", "red"),
+                                              ("consensus", "blue")])
+def test_two_options_the_general_engine_follows_the_papers(mode: str, option: str | None) -> None:
+    """On the same pose stream, `OptionsDecision` over the paper's two boxes is `DecisionModel`:
+    the same ẑ_h (the observers agree exactly), and z_r and b_r to 1e-12 at every pose, eq 6
+    included (the two RK4s, the gap bound and the step splitting)."""
+    table = TableLayout()
+    paper = DecisionModel(DecisionParams(), table)
+    general = OptionsDecision(OptionsLayout.from_table(table), DecisionParams())
+    index = {None: None, "red": 0, "blue": 1}[option]
+    paper.on_trial("go", mode, option)  # type: ignore[arg-type]
+    general.on_trial("go", mode, index)  # type: ignore[arg-type]
+    moving = 0
+    poses = pose_stream(7)
+    for t_ns, landmarks in poses:
+        want, got = paper.on_hand(t_ns, landmarks), general.on_hand(t_ns, landmarks)
+        assert got.t_ns == want.t_ns
+        assert got.z_hat.tolist() == [want.z_hat, -want.z_hat]
+        assert got.z_r[0] == pytest.approx(want.z_r, abs=1e-12)
+        assert got.z_r[1] == -got.z_r[0]
+        assert got.b_r[0] == pytest.approx(want.b_r, abs=1e-12)
+        moving += abs(want.z_r) > 0.02
+    assert moving > len(poses) // 3  # the stream moved the robot: the comparison was not of zeros
+    if mode == "consensus":
+        assert abs(paper.b_r) > 1.0  # and the controller ran
+
+
+# Opinions away from underflow: the freeze is a discrete test, and the kernel's z_r · ẑ_h < 0
+# reads a product that underflows to −0.0 (|z_r ẑ_h| < 1e-323) as agreement, where the general
+# form's argmax test sees the disagreement: a difference of no physical meaning.
+def readable(top: float) -> st.SearchStrategy[float]:
+    return st.one_of(st.just(0.0), st.floats(1e-3, top), st.floats(-top, -1e-3))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    z_r=readable(3.0),
+    b_r=st.floats(-5.5, 5.5),
+    z_hat=readable(8.0),
+    option=st.sampled_from([None, "red", "blue"]),
+    n=st.integers(1, 60),
+    h=st.sampled_from([1e-3, 3.33333e-4, 2.5e-3]),
+)
+def test_two_options_the_general_rk4_is_the_papers_kernel(z_r, b_r, z_hat, option, n, h):
+    """The kernel-vs-general property at N_o = 2: `rk4_robot` on (x, −x) with s = b_r · sgn(O)
+    and ẑ_h = (m, −m) gives `DecisionModel._run`'s (z_r, b_r) to 1e-12, eq 6's freeze, clamp
+    and sign of O included (b_r ≡ 0 in dissensus, as the engines keep it)."""
+    model = DecisionModel(DecisionParams())
+    model.reset("consensus" if option else "dissensus", option)
+    b_r = b_r if option else 0.0
+    sign_o = -1.0 if option == "blue" else 1.0
+    want_z, want_b = model._run(z_r, b_r, z_hat, n, h)
+    got_z, got_s = rk4_robot(
+        [z_r, -z_r], b_r * sign_o, [z_hat, -z_hat], [h] * n, OptionsParams(n_options=2),
+        {None: None, "red": 0, "blue": 1}[option], model.params.bias,
+    )
+    assert abs(got_z[0] - want_z) <= 1e-12
+    assert got_z[1] == -got_z[0]
+    assert abs(got_s * sign_o - want_b) <= 1e-12
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(2, 5), st.lists(st.floats(-2.0, 2.0), min_size=10, max_size=10),
+    st.floats(-5.5, 5.5), st.sampled_from([None, 0, 1]), st.integers(0, 4), st.floats(0.05, 3.0),
+    st.sampled_from([0.0, 0.3]), st.sampled_from([0.0, -0.7]),
+)
+def test_the_float_rk4_is_the_numpy_reference(
+    n: int, raw: list[float], s: float, option: int | None, h: int, m: float, beta: float,
+    delta: float,
+) -> None:
+    """`rk4_robot` on plain floats against the NumPy reference built on `general_rates`
+    (tests/unit/robot_oracle.py), for any N_o, β and δ: 1e-12, and on the subspace exactly."""
+    z_r = np.array(raw[:n]) - np.mean(raw[:n])
+    z_hat = m * option_vector(h % n, n)
+    p, bias = OptionsParams(n_options=n, beta=beta, delta=delta), BiasParams()
+    steps = [0.001] * 40 + [0.0004]
+    want_z, want_s = numpy_rk4_robot(z_r, s, z_hat, steps, p, option, bias)
+    got_z, got_s = rk4_robot(z_r, s, z_hat, steps, p, option, bias)
+    assert np.max(np.abs(got_z - want_z)) < 1e-12
+    assert abs(got_s - want_s) < 1e-12
+    assert got_z.sum() == pytest.approx(0.0, abs=1e-15)
+
+
+def test_bias_params_reach_the_general_rk4() -> None:
+    """A zero-gain controller leaves s at zero: the parameters passed in are the ones used."""
+    p = OptionsParams(n_options=3)
+    z_hat = 6.0 * option_vector(0, 3)
+    _, s = rk4_robot(np.zeros(3), 0.0, z_hat, [0.001] * 500, p, 1, BiasParams(sigma=0.0))
+    assert s == 0.0
+    _, s = rk4_robot(np.zeros(3), 0.0, z_hat, [0.001] * 500, p, 1)
+    assert s > 1.0
+
+
+def test_the_general_engine_refuses_what_the_papers_refuses() -> None:
+    engine = OptionsDecision(OptionsLayout.row(3))
+    with pytest.raises(ValueError, match="mode"):
+        engine.reset("both", None)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="option"):
+        engine.reset("consensus", 3)
+    with pytest.raises(ValueError, match="consensus option O"):
+        engine.reset("consensus", None)
+    with pytest.raises(RuntimeError, match="advance"):
+        engine.read(None)
+    assert engine.on_trial("go", "dissensus", 2) and engine.option is None
+    assert not engine.on_trial("end", "consensus", 2)

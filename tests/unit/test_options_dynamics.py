@@ -8,9 +8,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.analysis.observer_eval import frames, paths
-from services.model.bias import BiasParams
-from services.model.decision import DecisionModel, DecisionParams
 from services.model.dynamics import (
     AgentParams,
     OptionsParams,
@@ -26,7 +23,6 @@ from services.model.dynamics import (
     rk4_pair,
     subspace_basis,
 )
-from services.model.options_bias import advance_robot, split_span
 
 value = st.floats(min_value=-4.0, max_value=4.0, allow_nan=False)
 weight = st.floats(min_value=-3.0, max_value=3.0, allow_nan=False)
@@ -36,49 +32,6 @@ n_options = st.integers(min_value=2, max_value=6)
 def pair_vector(x: float) -> np.ndarray:
     """The two-option opinion x as (z_red, z_blue) = (x, −x)."""
     return np.array([x, -x])
-
-
-def stream(mode_seed: int) -> list[tuple[int, list[tuple[float, float]]]]:
-    """A representative pose stream: jittered reaches (one a change of mind) at 30 Hz, with the
-    camera's uneven frame times, one after another as the trials of a session."""
-    rng = np.random.default_rng(mode_seed)
-    out: list[tuple[int, list[tuple[float, float]]]] = []
-    t_ns = 1_000_000_000
-    for path in paths()[:4]:
-        for _, landmarks, _ in frames(path, 30.0, 2.0, rng):
-            t_ns += int(rng.integers(25_000_000, 42_000_000))
-            out.append((t_ns, landmarks))
-    return out
-
-
-@pytest.mark.parametrize(("mode", "option"), [("dissensus", None), ("consensus", "red"),
-                                              ("consensus", "blue")])
-def test_two_options_follow_the_live_eq1_trajectory(mode: str, option: str | None) -> None:
-    """Driven by the same ẑ_h sequence, the N_o = 2 robot is today's decision model to 1e-12."""
-    live = DecisionModel(DecisionParams())
-    live.reset(mode, option)  # type: ignore[arg-type]
-    p = OptionsParams(pair=live.params.pair, n_options=2)
-    dt_ns = round(live.params.dt * 1e9)
-    max_gap_ns = round(live.params.max_gap_s * 1e9)
-    index = {None: None, "red": 0, "blue": 1}[option]
-    z_r, s = np.zeros(2), 0.0
-    held, last_t = np.zeros(2), None
-    moving = 0
-    poses = stream(7)
-    for t_ns, landmarks in poses:
-        out = live.on_hand(t_ns, landmarks)
-        if last_t is not None:
-            steps = split_span(min(t_ns - last_t, max_gap_ns), dt_ns)
-            z_r, s = advance_robot(z_r, s, held, steps, p, index, live.params.bias)
-        last_t, held = t_ns, pair_vector(out.z_hat)
-        sign_o = 1.0 if option != "blue" else -1.0
-        assert z_r[0] == pytest.approx(out.z_r, abs=1e-12)
-        assert z_r[1] == -z_r[0]
-        assert s * sign_o == pytest.approx(out.b_r, abs=1e-12)
-        moving += abs(out.z_r) > 0.02
-    assert moving > len(poses) // 3  # the stream moved the robot: the comparison was not of zeros
-    if mode == "consensus":
-        assert abs(live.b_r) > 1.0  # and the controller ran
 
 
 @settings(max_examples=60, deadline=None)
@@ -167,16 +120,6 @@ def test_option_vector_leads_by_two_for_any_number_of_options() -> None:
             assert np.delete(v[j] - v, j) == pytest.approx(np.full(n - 1, 2.0))
     with pytest.raises(ValueError, match="option must be in 0..2"):
         option_vector(3, 3)
-
-
-def test_bias_params_reach_advance_robot() -> None:
-    """A zero-gain controller leaves s at zero: the parameters passed in are the ones used."""
-    p = OptionsParams(n_options=3)
-    z_hat = 6.0 * option_vector(0, 3)
-    _, s = advance_robot(np.zeros(3), 0.0, z_hat, [0.001] * 500, p, 1, BiasParams(sigma=0.0))
-    assert s == 0.0
-    _, s = advance_robot(np.zeros(3), 0.0, z_hat, [0.001] * 500, p, 1)
-    assert s > 1.0
 
 
 agent_values = st.builds(

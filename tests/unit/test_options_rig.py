@@ -1,4 +1,4 @@
-"""The N_o-option rig's pure parts: arm, gaze, float integrator, tie rule, judge."""
+"""The N_o-option rig's pure parts: arm, gaze, tie rule, judge."""
 
 from __future__ import annotations
 
@@ -17,37 +17,16 @@ from services.model.behaviour import (
     OptionsCommand,
     leader_or_nearest_tie,
 )
-from services.model.bias import BiasParams
 from services.model.debounce import DebounceParams
+from services.model.decision import rk4_robot
 from services.model.dynamics import OptionsParams, leading_option, option_vector
 from services.model.gaze import GAZE_LEVEL_NAMES, cue_strength, gaze_toward, read_gaze
 from services.model.geometry import CommitLine, OptionsLayout, TableLayout
-from services.model.options_bias import advance_robot
-from services.model.options_floats import advance
 from services.model.options_judge import OptionsOutcomeTracker
 from services.model.outcome import OutcomeTracker
 from services.model.robot import OptionsRobotTrial
 
 opinions = st.floats(-2.0, 2.0, allow_nan=False)
-
-
-@settings(max_examples=60, deadline=None)
-@given(
-    st.integers(2, 5), st.lists(opinions, min_size=10, max_size=10), st.floats(-5.5, 5.5),
-    st.sampled_from([None, 0, 1]), st.integers(0, 4), st.floats(0.05, 3.0),
-)
-def test_the_float_integrator_is_advance_robot(
-    n: int, raw: list[float], s: float, option: int | None, h: int, m: float
-) -> None:
-    z_r = np.array(raw[:n]) - np.mean(raw[:n])
-    z_hat = m * option_vector(h % n, n)
-    p, bias = OptionsParams(n_options=n), BiasParams()
-    steps = [0.001] * 40 + [0.0004]
-    want_z, want_s = advance_robot(z_r, s, z_hat, steps, p, option, bias)
-    got_z, got_s = advance(z_r, s, z_hat, steps, p, option, bias)
-    assert np.max(np.abs(got_z - want_z)) < 1e-12
-    assert abs(got_s - want_s) < 1e-12
-    assert got_z.sum() == pytest.approx(0.0, abs=1e-15)
 
 
 def test_a_dissensus_tie_goes_to_the_nearest_tied_box() -> None:
@@ -205,7 +184,7 @@ def dissensus_press(h: int, break_ties: bool) -> int | None:
     z_r, t = np.zeros(3), 0.0
     while arm.state(t).pressed is None and t < 6.0:
         t += 1 / 30
-        z_r, _ = advance(z_r, 0.0, z_hat, [0.001] * 33 + [1 / 30 - 0.033], p, None)
+        z_r, _ = rk4_robot(z_r, 0.0, z_hat, [0.001] * 33 + [1 / 30 - 0.033], p, None)
         cmd = robot.step(t, z_r, arm.state(t).ee)
         if cmd is not None:
             arm.send(cmd)
