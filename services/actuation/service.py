@@ -234,10 +234,9 @@ def main(argv: list[str] | None = None) -> int:
     raise_priority("actuation")  # once its configuration is good: errors stay one line
     if schedule is not None:  # a table of 3+ boxes: Algorithm 2 over N boxes, the sim arm
         from services.actuation.options_service import OptionsActuationService
-        from services.model.options_loop import table_for
 
         service = OptionsActuationService(
-            node, cfg, table_for(cfg, schedule.n_options), safety, latch_file
+            node, cfg, cfg.table(schedule.n_options), safety, latch_file
         )
         node.on_forced_exit(service.arm.hold)
         try:

@@ -113,9 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     log.info("effective config: %s", json.dumps(cfg.summary("decision")))
     if schedule is not None:  # a table of 3+ boxes: the N_o-option engine on options/* keys
         from services.decision.options_service import OptionsDecisionService
-        from services.model.options_loop import table_for
 
-        layout = table_for(cfg, schedule.n_options)
+        layout = cfg.table(schedule.n_options)
         OptionsDecisionService(node, cfg.decision, layout, cfg.safety.skew_ms)
     else:
         DecisionService(node, DecisionModel(cfg.decision, cfg.layout), cfg.safety.skew_ms)

@@ -27,7 +27,6 @@ from services.experiment.resume import (
     warn_of_interrupted,
 )
 from services.experiment.rig_claim import claim_the_rig, watch_rivals
-from services.model.options_loop import table_for
 from services.model.params import NodConfig
 from services.model.schedule import OptionsSchedule
 from services.store import Store, back_up
@@ -77,7 +76,7 @@ def run_options(
         node.close()
         return 2
     conductor = OptionsConductor(
-        node, cfg, schedule, table_for(cfg, schedule.n_options), store, clicks,
+        node, cfg, schedule, cfg.table(schedule.n_options), store, clicks,
         resume_at=resume_at,
     )
     watch_rivals(claim, node, conductor.rig, lambda text: log.warning("%s", text))

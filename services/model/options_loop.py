@@ -16,7 +16,6 @@ import numpy as np
 
 from services.model.arm import OptionsSimArm
 from services.model.decision import OptionsDecision
-from services.model.geometry import OptionsLayout
 from services.model.options_judge import OptionsTrialJudge
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered
@@ -42,11 +41,6 @@ class OptionsOfflineTrial:
     press_s: float | None  # from "go" to the human's press (None: never pressed)
 
 
-def table_for(cfg: NodConfig, n_options: int) -> OptionsLayout:
-    """The row of N_o boxes on the paper's table edge, with the session's commit line."""
-    return OptionsLayout(OptionsLayout.row(n_options).boxes, cfg.layout.commit)
-
-
 class _OptionsLoop:
     """One participant's session over N_o boxes: the protocol's cues dispatched to its parts."""
 
@@ -55,7 +49,7 @@ class _OptionsLoop:
     ) -> None:
         rng = np.random.default_rng(seed)
         self.cfg, self.schedule, self.clicks = cfg, schedule, clicks
-        self.layout = table_for(cfg, schedule.n_options)
+        self.layout = cfg.table(schedule.n_options)
         params = jittered(cfg.participant, rng) if cohort else cfg.participant
         self.person = Participant(params, self.layout, int(rng.integers(2**31)))
         self.model = OptionsDecision(self.layout, cfg.decision)

@@ -16,7 +16,7 @@ from services.model.arm_kinematics import SimArmParams
 from services.model.behaviour import BehaviourParams
 from services.model.debounce import DebounceParams
 from services.model.decision import DecisionParams
-from services.model.geometry import TableLayout
+from services.model.geometry import OptionsLayout, TableLayout
 from services.model.participant import ParticipantParams
 from services.model.protocol import ProtocolParams
 from services.model.safety import SafetyParams
@@ -41,3 +41,13 @@ class NodConfig:
         """The effective values of some sections (all when none named), for the start-up log."""
         full = dataclasses.asdict(self)
         return {k: v for k, v in full.items() if not sections or k in sections or k == "layout"}
+
+    def table(self, n_options: int) -> OptionsLayout:
+        """The table of `n_options` boxes, with the session's commit line.
+
+        The paper's two are `layout` (option 0 red, 1 blue, as z > 0 is red); more are a row
+        on its far edge (`OptionsLayout.row`).
+        """
+        if n_options == 2:
+            return OptionsLayout.from_table(self.layout)
+        return OptionsLayout(OptionsLayout.row(n_options).boxes, self.layout.commit)

@@ -184,10 +184,9 @@ def main(argv: list[str] | None = None) -> int:
         return fail("nod sim", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("participant")))
     if schedule is not None:  # a table of 3+ boxes: the N_o-option person
-        from services.model.options_loop import table_for
         from services.sim.options_service import OptionsSimService
 
-        layout = table_for(cfg, schedule.n_options)
+        layout = cfg.table(schedule.n_options)
         OptionsSimService(node, cfg, schedule, layout, args.seed, args.rate, args.cohort,
                           render=args.render)
     else:
