@@ -16,7 +16,7 @@ import numpy as np
 
 from services.model.arm import OptionsSimArm
 from services.model.decision import OptionsDecision
-from services.model.options_judge import OptionsTrialJudge
+from services.model.judge import OptionsTrialJudge
 from services.model.params import NodConfig
 from services.model.participant import Participant, jittered
 from services.model.protocol import Cue, SessionProtocol

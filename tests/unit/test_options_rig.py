@@ -22,8 +22,7 @@ from services.model.decision import rk4_robot
 from services.model.dynamics import OptionsParams, leading_option, option_vector
 from services.model.gaze import GAZE_LEVEL_NAMES, cue_strength, gaze_toward, read_gaze
 from services.model.geometry import CommitLine, OptionsLayout, TableLayout
-from services.model.options_judge import OptionsOutcomeTracker
-from services.model.outcome import OutcomeTracker
+from services.model.outcome import OptionsOutcomeTracker, OutcomeTracker
 from services.model.robot import OptionsRobotTrial
 
 opinions = st.floats(-2.0, 2.0, allow_nan=False)
@@ -156,7 +155,7 @@ def test_two_box_switches_and_violations_are_the_papers(
 ) -> None:
     line = CommitLine()
     paper = OutcomeTracker(DebounceParams(c_max), line, dead_band)
-    options = OptionsOutcomeTracker(c_max, line, dead_band)
+    options = OptionsOutcomeTracker(DebounceParams(c_max), line, dead_band)
     for z, y in stream:
         paper.add(z, (0.5, y))
         options.add(np.array([z, -z]), (0.5, y))
@@ -164,7 +163,7 @@ def test_two_box_switches_and_violations_are_the_papers(
 
 
 def test_three_boxes_count_a_change_of_leading_option() -> None:
-    tracker = OptionsOutcomeTracker(2, CommitLine(), 0.0)
+    tracker = OptionsOutcomeTracker(DebounceParams(2), CommitLine(), 0.0)
     to = [0.5 * option_vector(j, 3) for j in range(3)]
     for z in [to[0], to[0], to[2], to[1], to[1], to[1], to[2], to[2]]:
         tracker.add(z, (0.5, 0.8))

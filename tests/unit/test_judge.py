@@ -1,4 +1,4 @@
-"""The N_o-option judge's verdict (services/model/options_judge.py, SPEC §6 over N_o options).
+"""The judge's verdict over N options (services/model/judge.py, SPEC §6 over N_o options).
 
 Outcomes C / CH / D / DH from the switches of ẑ_h's leading option and whether both pressed
 the same box; a timeout (a press seen after it is not the person's choice); a robot that did not
@@ -14,8 +14,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.model.geometry import OptionsLayout
-from services.model.options_judge import OptionsTrialJudge
+from services.model.geometry import Colour, OptionsLayout, TableLayout
+from services.model.judge import OptionsTrialJudge, TrialJudge
 from services.model.params import NodConfig
 from services.model.protocol import TrialEnd
 
@@ -234,3 +234,44 @@ def test_the_verdict_follows_the_rules(case):
     assert v.score == expected_score(same, clicks, violations)
     # What the judge saw without the protocol's word (end=None): the hand's box as pressed.
     assert j.verdict(None, robot, clicks).human == hand
+
+
+# -- the two-option kernel ------------------------------------------------------------------
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.tuples(st.sampled_from([-2.0, -0.6, -0.5, -0.1, 0.0, 0.3, 0.5, 1.5]),
+                       st.sampled_from([BEFORE, AFTER, None])), min_size=1, max_size=40),
+    st.sampled_from([None, "red", "blue"]),  # the box the hand reached (None: never)
+    st.sampled_from([None, "red", "blue"]),  # the robot's box
+    st.booleans(),  # the protocol counted the press in time
+    st.sampled_from([None, TARGET - 1, TARGET]),
+    st.sampled_from(["consensus", "dissensus"]),
+    st.sampled_from(["agreement", "switches"]),
+)
+def test_two_boxes_the_general_judge_gives_the_papers_verdict(
+    stream, hand: Colour | None, robot: Colour | None, in_time: bool, clicks, mode, labels
+):
+    # The paper's TrialJudge (ẑ_h a number) and the general one fed ẑ_h = (x, −x) on the
+    # paper's table: the same verdict, red as option 0 (the dead band 0.5 lands on ±0.5).
+    cfg = replace(CFG, protocol=replace(CFG.protocol, control_labels=labels))
+    table = TableLayout()
+    paper = TrialJudge(cfg, table, mode)
+    general = OptionsTrialJudge(cfg, OptionsLayout.from_table(table), mode)
+    index = {"red": 0, "blue": 1, None: None}
+    for i, (z, center) in enumerate(stream):
+        paper.observe(z, center, 0.1 * i)
+        general.observe(np.array([z, -z]), center, 0.1 * i)
+    t = 0.1 * len(stream)
+    if hand is not None:
+        box = table.red if hand == "red" else table.blue
+        assert paper.see_hand([box.center], t) == hand
+        assert general.see_hand([box.center], t) == index[hand]
+    end = TrialEnd(in_time, robot is not None, t + 1.0)
+    want = paper.verdict(end, robot, clicks)
+    got = general.verdict(end, index[robot], clicks)
+    assert (got.human, got.robot) == (index[want.human], index[want.robot])
+    assert (got.outcome, got.switches, got.violations, got.score) == (
+        want.outcome, want.switches, want.violations, want.score)
+    assert general.tracker.samples == paper.tracker.samples
