@@ -1,11 +1,22 @@
 """`nod sim`: a synthetic participant publishing hand poses exactly as vision would.
 
 It stands in for the camera and the person: at camera rate it publishes 21 noisy landmarks on
-`vision/hand`, and the table geometry on `vision/layout`. It watches the protocol (trial events),
-the gaze cue (`eyes/cmd`) and the arm (`actuation/state`, `actuation/press`) the way a person
-watches the rig, and its opinion (eq 2) steers the hand. Seeded: the same seed and the same
-robot give the same participant. The participant is the default simulated person (the traits
-fitted to the paper, `services.cohort.person`) unless `--params` sets `[participant]` keys.
+`vision/hand`, and the table geometry on the layout key. It watches the protocol (trial events),
+the gaze cue (`eyes/cmd`) and the arm (its state and its press) the way a person watches the rig,
+and its opinion (eq 2) steers the hand. Seeded: the same seed and the same robot give the same
+participant. The participant is the default simulated person (the traits fitted to the paper,
+`services.cohort.person`) unless `--params` sets `[participant]` keys.
+
+One service for any number of options (`--options N`, or a params file's list): the person is
+one `Participant` at the table of N boxes, and the loop, timing, rendering and trial handling
+below are written once. What differs with N is only the key space it talks in, `SimKeys`: the
+paper's two options speak schema 1 (`experiment/trial`, `actuation/*`, `vision/layout`; options
+as colours, the arm's heading a sign), three or more speak schema 2 (`options/*`, options as
+box indices; `services.core.options_messages`). `sim_keys` picks one by the option count.
+
+With `--render` it is the camera instead: frames of the table (N boxes, each in its option's
+colour, `services.scene.option_colours`) on `sim/camera`, for `nod vision`, which publishes the
+hand and the table itself.
 """
 
 from __future__ import annotations
@@ -14,92 +25,224 @@ import argparse
 import json
 import logging
 import math
-from typing import TYPE_CHECKING
+from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING, Any, Generic
 
 import numpy as np
 
 from services.cohort.person import fitted_traits
 from services.core import messages as m
+from services.core import options_messages as om
 from services.core.cli import SEED, Parser, add_options_arg, add_service_args, fail
 from services.core.config import load_with_options
 from services.core.node import Node, TopicPublisher, setup_logging
 from services.core.session import Fabric
-from services.model.geometry import colour_sign
+from services.model.gaze import GazeCommand
+from services.model.geometry import Box, Colour, OptionsLayout, TableLayout, colour_sign
 from services.model.params import NodConfig
-from services.model.participant import Participant, jittered
+from services.model.participant import Opt, Participant, ParticipantParams, jittered
+from services.model.schedule import OptionsSchedule
 
 if TYPE_CHECKING:  # imported at run time only with --render (it loads OpenCV)
     from services.scene.render import SceneRenderer
 
 log = logging.getLogger("nod.sim")
 NS = 1e-9
+Painted = tuple[tuple[Box, tuple[int, int, int]], ...]
 
 
-class SimService:
-    """Wires a Participant to the rig's keys."""
+class SimKeys(ABC, Generic[Opt]):
+    """The key space the sim talks in: its keys, and their messages turned into the person's.
+
+    The one place where the paper's schema 1 and the N-option schema 2 differ for the sim, so
+    that unifying the two key spaces changes this seam and nothing of `SimService`.
+    """
+
+    trial: str  # the protocol's events
+    arm_state: str  # where the arm heads
+    press: str  # the arm's press
+    layout_key: str  # the table, published when the sim stands in for vision
+
+    @abstractmethod
+    def person(self, params: ParticipantParams, seed: int) -> Participant[Opt]:
+        """The person at this key space's table, naming options as its messages do."""
+
+    @abstractmethod
+    def trial_option(self, ev: Any) -> Opt | None:
+        """The O a trial event carries (None: a control trial), as the person names options."""
+
+    @abstractmethod
+    def heading(self, msg: Any) -> int | None:
+        """Where an arm state says the arm heads, in the person's `see_robot` terms."""
+
+    @abstractmethod
+    def pressed(self, msg: Any) -> Opt:
+        """The option an arm's press is on."""
+
+    @abstractmethod
+    def layout_fields(self) -> dict[str, Any]:
+        """The fields of this key space's layout message."""
+
+    @abstractmethod
+    def painted(self) -> Painted | None:
+        """The boxes a rendered frame paints in their options' colours (None: the paper's)."""
+
+
+class PaperKeys(SimKeys[Colour]):
+    """Schema 1, the paper's two options: colours, the arm's heading a sign (byte for byte)."""
+
+    trial = "experiment/trial"
+    arm_state = "actuation/state"
+    press = "actuation/press"
+    layout_key = "vision/layout"
+
+    def __init__(self, layout: TableLayout) -> None:
+        self.layout = layout
+
+    def person(self, params: ParticipantParams, seed: int) -> Participant[Colour]:
+        """The paper's person on its table (`TableLayout`): options are colours."""
+        return Participant(params, self.layout, seed=seed)
+
+    def trial_option(self, ev: m.TrialEvent) -> Colour | None:
+        """The paper's events carry O as a colour."""
+        return ev.option
+
+    def heading(self, msg: m.ArmStateMsg) -> int:
+        """+1 toward red, −1 toward blue, 0 still: the paper's sign."""
+        return colour_sign(msg.target) if msg.target and msg.moving else 0
+
+    def pressed(self, msg: m.PressMsg) -> Colour:
+        """The press names its buzzer's colour."""
+        return msg.colour
+
+    def layout_fields(self) -> dict[str, Any]:
+        """`vision/layout`: the red and blue boxes and the commit line."""
+        return m.layout_fields(self.layout)
+
+    def painted(self) -> None:
+        """The renderer's own red and blue buzzers."""
+        return None
+
+
+class OptionKeys(SimKeys[int]):
+    """Schema 2, three or more options: box indices, each message checked for our count."""
+
+    trial = "options/trial"
+    arm_state = "options/arm_state"
+    press = "options/press"
+    layout_key = "options/layout"
+
+    def __init__(self, names: tuple[str, ...], layout: OptionsLayout) -> None:
+        self.names = names
+        self.layout = layout
+        self.n = layout.n_options
+
+    def person(self, params: ParticipantParams, seed: int) -> Participant[int]:
+        """The person at the N boxes (`OptionsLayout`): options are box indices."""
+        return Participant(params, self.layout, seed)
+
+    def trial_option(self, ev: om.OptionsTrialEvent) -> int | None:
+        """O of a consensus trial (a box index), refused when for another option count."""
+        om.check_count(ev, self.n)
+        return ev.option if ev.mode == "consensus" else None
+
+    def heading(self, msg: om.OptionsArmState) -> int | None:
+        """The box the arm heads for, None when still."""
+        om.check_count(msg, self.n)
+        return msg.target if msg.moving else None
+
+    def pressed(self, msg: om.OptionsPress) -> int:
+        """The box pressed."""
+        om.check_count(msg, self.n)
+        return msg.option
+
+    def layout_fields(self) -> dict[str, Any]:
+        """`options/layout`: the option names, their boxes and the commit line."""
+        return dict(om.layout_message_fields(self.names, self.layout))
+
+    def painted(self) -> Painted:
+        """Each box in its option's colour."""
+        from services.scene.option_colours import painted_boxes
+
+        return painted_boxes(self.names, self.layout)
+
+
+def sim_keys(cfg: NodConfig, schedule: OptionsSchedule | None) -> SimKeys[Any]:
+    """The key space for the option count: the paper's for two, `options/*` for more."""
+    if schedule is None:
+        return PaperKeys(cfg.layout)
+    return OptionKeys(schedule.names, cfg.table(schedule.n_options))
+
+
+class SimService(Generic[Opt]):
+    """Wires a Participant to the rig's keys, in the key space of its option count."""
 
     def __init__(
         self,
         node: Node,
         cfg: NodConfig,
+        keys: SimKeys[Opt],
         seed: int,
         rate_hz: float,
         cohort: bool,
         render: bool = False,
-    ):
+    ) -> None:
         self.node = node
-        self.layout = cfg.layout
+        self.keys: SimKeys[Opt] = keys
         rng = np.random.default_rng(seed)
         params = jittered(cfg.participant, rng) if cohort else cfg.participant
-        self.person = Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
+        self.person: Participant[Opt] = keys.person(params, int(rng.integers(2**31)))
         self.person.advance(node.clock.now_ns() * NS)  # at rest: only sets its clock
-        self.option: str | None = None
-        self.robot: str | None = None
+        self.robot: Opt | None = None
         # --render: be the camera, not the tracker — frames go to `nod vision`, which publishes
         # the hand and the layout itself.
         self.renderer: SceneRenderer | None = None
         if render:
             from services.scene.render import SceneRenderer
 
-            self.renderer = SceneRenderer(layout=cfg.layout, noise=2.0, seed=seed)
+            self.renderer = SceneRenderer(layout=cfg.layout, noise=2.0, seed=seed,
+                                          options=keys.painted())
             self.pub_camera = node.publisher("sim/camera")
         else:
             self.pub_hand = node.publisher("vision/hand")
-            self.pub_layout = node.publisher("vision/layout")
-        node.subscribe("experiment/trial", self.on_trial)
+            self.pub_layout = node.publisher(keys.layout_key)
+        node.subscribe(keys.trial, self.on_trial)
         node.subscribe("eyes/cmd", self.on_gaze)
-        node.subscribe("actuation/state", self.on_arm)
-        node.subscribe("actuation/press", self.on_press)
+        node.subscribe(keys.arm_state, self.on_arm)
+        node.subscribe(keys.press, self.on_press)
         node.every(1.0 / rate_hz, self.frame)
         if not render:
             node.every(1.0, self.publish_layout)
 
     def on_gaze(self, msg: m.GazeMsg) -> None:
-        """The participant sees where the eyes look (the attention gesture is not a cue)."""
-        if not msg.gesture:
-            self.person.see_gaze(msg.yaw)
+        """The participant sees where the eyes look (the attention gesture is not a cue).
 
-    def on_trial(self, ev: m.TrialEvent) -> None:
+        The full pose: on the paper's table the person reads its yaw only, as ever.
+        """
+        if not msg.gesture:
+            self.person.see_gaze(GazeCommand(msg.yaw, msg.pitch))
+
+    def on_trial(self, ev: m.TrialEvent | om.OptionsTrialEvent) -> None:
         """Follow the protocol like a participant listening to the countdown."""
+        option = self.keys.trial_option(ev)  # and refused if for another option count
         t = self._advance(self.node.clock.now_ns())  # our clock, not the event's stamp
         if ev.phase == "setup":
             self.robot = None
-            self.person.new_trial(ev.option)
+            self.person.new_trial(option)
         elif ev.phase == "go":
             self.person.go(t)
         elif ev.phase == "end":
-            self.person.trial_ended(self.robot)  # type: ignore[arg-type]
+            self.person.trial_ended(self.robot)
         elif ev.phase == "interrupted":  # a void trial teaches nothing
             self.person.trial_ended(None)
 
-    def on_arm(self, msg: m.ArmStateMsg) -> None:
+    def on_arm(self, msg: m.ArmStateMsg | om.OptionsArmState) -> None:
         """Where the arm is heading, as the participant sees it."""
-        heading = colour_sign(msg.target) if msg.target and msg.moving else 0
-        self.person.see_robot(self.node.clock.now_ns() * NS, heading)
+        self.person.see_robot(self.node.clock.now_ns() * NS, self.keys.heading(msg))
 
-    def on_press(self, msg: m.PressMsg) -> None:
-        """The robot pressed a buzzer."""
-        self.robot = msg.colour
+    def on_press(self, msg: m.PressMsg | om.OptionsPress) -> None:
+        """The robot pressed a box."""
+        self.robot = self.keys.pressed(msg)
 
     def _advance(self, t_ns: int) -> float:
         t = t_ns * NS
@@ -111,7 +254,7 @@ class SimService:
         """One camera frame: advance the person and publish the hand."""
         self._advance(now_ns)
         if self.renderer is not None:
-            self._render(self.renderer, now_ns)
+            publish_frame(self.pub_camera, self.renderer, self.person.pos, now_ns)
             return
         pts = self.person.landmarks()
         center = pts.mean(axis=0)
@@ -123,12 +266,9 @@ class SimService:
             source="sim",
         )
 
-    def _render(self, renderer: SceneRenderer, now_ns: int) -> None:
-        publish_frame(self.pub_camera, renderer, self.person.pos, now_ns)
-
     def publish_layout(self, now_ns: int) -> None:
         """The table geometry, for every service that needs the boxes."""
-        self.pub_layout.put(t_ns=now_ns, **m.layout_fields(self.layout))
+        self.pub_layout.put(t_ns=now_ns, **self.keys.layout_fields())
 
 
 def publish_frame(
@@ -183,14 +323,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError, ConnectionError) as exc:
         return fail("nod sim", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("participant")))
-    if schedule is not None:  # a table of 3+ boxes: the N_o-option person
-        from services.sim.options_service import OptionsSimService
-
-        layout = cfg.table(schedule.n_options)
-        OptionsSimService(node, cfg, schedule, layout, args.seed, args.rate, args.cohort,
-                          render=args.render)
-    else:
-        SimService(node, cfg, args.seed, args.rate, args.cohort, render=args.render)
+    SimService(node, cfg, sim_keys(cfg, schedule), args.seed, args.rate, args.cohort,
+               render=args.render)
     node.run()
     return 0
 
