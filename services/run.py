@@ -50,12 +50,10 @@ from services.experiment.resume import (
 )
 from services.launch.commands import command
 from services.launch.events import RigEvents
-from services.launch.options_run import options_problem, with_options
-from services.launch.options_view import session_view
 from services.launch.rigs import RIG_FLAGS, check_rigs, next_seed, run_rigs
 from services.launch.run_logs import LogWatch, run_folder
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
-from services.launch.view import SessionView
+from services.launch.view import SessionView, session_view
 from services.safety.latch_file import STATE_DIR_ENV
 from services.store import Store, StoreError
 from services.store.participants import next_free_ids, reuse_problem
@@ -65,6 +63,11 @@ log = logging.getLogger("nod.run")
 # And the conductor, "experiment". The speaker (`--driver sim`: silent) is not required by a
 # trial; it reports the cues' onsets, stored with each trial. The sim comes last: it is per person.
 SERVICES = ("decision", "actuation", "eyes", "speaker", "sim")
+# Every service that reads the table gets `--options N` with a table of N boxes (the eyes need
+# none: the conductor sends them a gaze toward a box, as ever)
+TABLE_READERS = ("decision", "actuation", "sim", "vision", "experiment")
+# The flags of the paper's run that its conductor with N options does not take yet
+NOT_YET_WITH_OPTIONS = ("order", "again", "record")
 # The watchdogs judge freshness in wall time (250 ms): below 0.5x the sim camera (30 Hz of sim
 # time) and the gaze keep-alive (20 Hz) come too slowly; above 10x a 2-core host cannot carry
 # the message rates (30 Hz x speed poses, each answered three times) without late inputs.
@@ -213,7 +216,9 @@ def sim_rig(args: argparse.Namespace) -> Rig:
         conductor += ["--record", str(args.record)]
     sections["experiment"] = {"args": conductor}
     if getattr(args, "options", None) is not None:  # a table of N boxes: every reader of it
-        with_options(sections, args.options)
+        for service in TABLE_READERS:
+            sec = sections.setdefault(service, {})
+            sec["args"] = [*sec.get("args", []), "--options", str(args.options)]
     return Rig(
         path=Path("nod run --sim"),
         name=args.rig,
@@ -394,13 +399,24 @@ def _check_args(args: argparse.Namespace) -> str | None:
     return None
 
 
+def _options_problem(args: argparse.Namespace, n_options: int) -> str | None:
+    """Why this run cannot go with N options yet (one line), or None."""
+    given = [f"--{f}" for f in NOT_YET_WITH_OPTIONS if getattr(args, f, None) is not None]
+    given += ["--rigs"] if args.rigs > 1 else []
+    given += ["--arm-driver"] if args.arm_driver != "sim" else []
+    if not given:
+        return None
+    return (f"{', '.join(given)}: not yet with {n_options} options (docs/multi-option.md); "
+            "the paper's two-option run has them")
+
+
 def _preflight(args: argparse.Namespace) -> str | None:
     """Everything that can be checked before a process starts, as one line each."""
     try:
         _, schedule = load_with_options(args.params, args.options)
     except (ValueError, OSError) as exc:  # ConfigError is a ValueError
         return str(exc)
-    if schedule is not None and (problem := options_problem(args, schedule)):
+    if schedule is not None and (problem := _options_problem(args, schedule.n_options)):
         return problem
     try:
         make_config(mode="router", listen=[args.listen])

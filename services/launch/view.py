@@ -1,7 +1,10 @@
 """What a launcher's console shows of a session: a progress line and one row per trial.
 
-`nod run` and `nod up` subscribe to experiment/trial and experiment/result and feed them here:
+`nod run` and `nod up` subscribe to the conductor's trial events and results and feed them here:
 the operator sees every trial's outcome in the launcher's terminal, whoever runs the conductor.
+One view for any option set: the paper's messages name O, the robot's and the human's box
+(experiment/*), those of a table of N boxes index them (options/*); both are shown by name, in
+columns as wide as the longest name, so the paper's table is what it always was.
 """
 
 from __future__ import annotations
@@ -15,28 +18,54 @@ from typing import Any
 import zenoh
 
 from services.core import messages as m
+from services.core import options_messages as om
+from services.core.contract import TOPICS
 from services.core.keys import Keys
 from services.core.node import clip
+from services.model.params import NodConfig
+from services.model.schedule import OptionsSchedule
+from services.store.store import PAPER_OPTIONS
 
 log = logging.getLogger("nod.launch")
+# The conductor's events and results, on whichever key space the rig's conductor speaks
+FOLLOWED = ("experiment/trial", "experiment/result", "options/trial", "options/result")
+Event = m.TrialEvent | om.OptionsTrialEvent
+Result = m.TrialResult | om.OptionsResult
 
 
 class SessionView:
-    """Prints progress and the per-trial table from the conductor's events."""
+    """Prints progress and the per-trial table from the conductor's events, options by name."""
 
-    def __init__(self, n_trials: int, stream=sys.stdout, compact: bool = False) -> None:
+    def __init__(
+        self,
+        n_trials: int,
+        stream=sys.stdout,
+        compact: bool = False,
+        names: tuple[str, ...] = PAPER_OPTIONS,
+    ) -> None:
         self.n = n_trials
         self.compact = compact
+        self.names = names
+        longest = max(len(name) for name in names)
+        self.widths = (max(5, longest + 1), max(6, longest + 2))  # O; robot and human
         self.participant = ""
         self.total_trials = 0
         self.out = stream
         self.tty = stream.isatty()
         self.lock = threading.Lock()
-        self.results: list[m.TrialResult] = []
+        self.results: list[Result] = []
         self.finished = threading.Event()
         self._header_done = False
 
-    def on_trial(self, ev: m.TrialEvent) -> None:
+    def name(self, option: str | int | None) -> str:
+        """An option by name ('-' for none): an index of `options/*` into the table's names."""
+        if option is None or option == "":
+            return "-"
+        if isinstance(option, str):
+            return option
+        return self.names[option] if option < len(self.names) else f"box {option}"
+
+    def on_trial(self, ev: Event) -> None:
         """A protocol step: update the progress line."""
         with self.lock:
             if ev.phase in ("session_end", "abort"):
@@ -45,7 +74,7 @@ class SessionView:
             label = {"setup": f"gaze {ev.text}", "countdown": ev.text, "go": "go!"}.get(
                 ev.phase, ev.phase
             )
-            option = f" O={ev.option}" if ev.option else ""
+            option = f" O={self.name(ev.option)}" if ev.option is not None else ""
             who = f"{self.participant} " if self.compact else ""
             line = f"{who}trial {ev.trial}/{self.n} [{ev.mode}{option}]: {label}"
             if self.tty:
@@ -66,7 +95,7 @@ class SessionView:
             self.out.write(f"{text}\n")
             self.out.flush()
 
-    def on_result(self, r: m.TrialResult) -> None:
+    def on_result(self, r: Result) -> None:
         """A finished trial: a table row (one participant) or a participant's line (a study)."""
         with self.lock:
             self.results.append(r)
@@ -80,15 +109,17 @@ class SessionView:
                     self.out.write(f"{self.participant}: {outcomes}  score {score:>3}\n")
                 self.out.flush()
                 return
+            o, who = self.widths
             if not self._header_done:
                 self.out.write(
-                    f"{'trial':>5} {'mode':<10} {'O':<5} {'robot':<6} {'human':<6} "
+                    f"{'trial':>5} {'mode':<10} {'O':<{o}} {'robot':<{who}} {'human':<{who}} "
                     f"{'outcome':<8} {'switch':>6} {'viol':>4} {'score':>5}\n"
                 )
                 self._header_done = True
             self.out.write(
-                f"{r.trial:>5} {r.mode:<10} {r.option or '-':<5} {r.robot or '-':<6} "
-                f"{r.human or '-':<6} {r.outcome or '-':<8} {r.switches:>6} {r.violations:>4} "
+                f"{r.trial:>5} {r.mode:<10} {self.name(r.option):<{o}} "
+                f"{self.name(r.robot):<{who}} {self.name(r.human):<{who}} {r.outcome or '-':<8} "
+                f"{r.switches:>6} {r.violations:>4} "
                 f"{r.score:>5}{'  interrupted' if r.interrupted else ''}\n"
             )
             self.out.flush()
@@ -109,11 +140,21 @@ class SessionView:
 
             return on_sample
 
+        handlers = {"trial": self.on_trial, "result": self.on_result}
         return [
             session.declare_subscriber(
-                keys.topic("experiment/trial"), decoded(m.TrialEvent, self.on_trial)
-            ),
-            session.declare_subscriber(
-                keys.topic("experiment/result"), decoded(m.TrialResult, self.on_result)
-            ),
+                keys.topic(topic),
+                decoded(TOPICS[topic].message, handlers[topic.rsplit("/", 1)[1]]),
+            )
+            for topic in FOLLOWED
+            if topic in TOPICS  # one key space left when the other is folded into it
         ]
+
+
+def session_view(
+    cfg: NodConfig, schedule: OptionsSchedule | None, compact: bool = False
+) -> SessionView:
+    """The launcher's view of a session: of the schedule's options, or of the paper's."""
+    if schedule is not None:
+        return SessionView(len(schedule.trials), compact=compact, names=schedule.names)
+    return SessionView(len(cfg.protocol.trials), compact=compact)

@@ -7,12 +7,19 @@ trial on the `trial` sequence timeline. The entity tree (`ENTITIES`) and the blu
 it out live here too, so the paths are written once:
 
     opinion/{z_h,z_r,b_r}     time series of ẑ_h, z_r, b_r (one view)
+    options/{z_h,z_r,b_r}     over N options: a bar chart each, one bar per option
     table/{buzzers,commit_line,hand,arm}   the table: boxes, commit line, hand centre, end effector
     table/{arm_link,gaze}     the arm as a segment from its base, the gaze as arrows from the eyes
     eyes/gaze/{yaw,pitch}     the commanded gaze (rad);  eyes/servos: the servo targets (deg)
     state/{trial,arm,gaze}    protocol phase, arm phase and gaze level as state lanes
     log/{trial,result,arm,safety,services}   text log: events, countdown, outcomes, safety
     camera/frame              the vision service's low-rate JPEG frames, all at FRAME_SIZE
+
+One bridge for any option set: the paper's keys (`decision/*`, `vision/layout`, `actuation/*`,
+`experiment/*`) and those of a table of N boxes (`options/*`, options as indices) reach the same
+table, arm, trial and result lines; only the opinions differ (a scalar per key over two options,
+a vector over N, shown as bars). Boxes are drawn in their options' colours and labelled by name,
+so the paper's red and blue are the N-option case's red and blue.
 
 Not shown: `sim/camera`, the rendered 30 Hz camera that `nod sim --render` feeds to `nod vision`
 (full-size JPEGs at camera rate); the camera view shows vision's annotated `vision/frame` only.
@@ -32,7 +39,7 @@ import rerun.blueprint as rrb
 from services.core import messages as m
 from services.core import options_messages as om
 from services.model.servos import SERVO_NAMES
-from services.monitor import options_bridge as ob
+from services.scene.option_colours import COLOURS
 
 APPLICATION_ID = "nod_hri"
 TIMELINE = "time"  # the message's source timestamp, `t_ns`
@@ -54,6 +61,7 @@ GAZE_LENGTH = 0.25  # length of a gaze arrow (normalised)
 
 RED = (220, 50, 47)
 BLUE = (38, 110, 220)
+GREY = (160, 160, 160)  # a box whose option's name is not a known colour
 GAZE_COLOUR = (200, 120, 255)
 SCALAR_STYLE: dict[str, tuple[str, tuple[int, int, int]]] = {
     "decision/z_h": ("ẑ_h (human, observed)", (230, 140, 20)),
@@ -65,6 +73,9 @@ ENTITIES: dict[str, str] = {
     "decision/z_h": "opinion/z_h",
     "decision/z_r": "opinion/z_r",
     "decision/b_r": "opinion/b_r",
+    "options/z_h": "options/z_h",
+    "options/z_r": "options/z_r",
+    "options/b_r": "options/b_r",
     "hand": "table/hand",
     "buzzers": "table/buzzers",
     "commit_line": "table/commit_line",
@@ -86,15 +97,27 @@ ENTITIES: dict[str, str] = {
 }
 
 
-def blueprint() -> rrb.Blueprint:
-    """The at-a-glance layout: opinions and states left, table, camera and text log right."""
+def blueprint(bars: bool = False) -> rrb.Blueprint:
+    """The at-a-glance layout: opinions and states left, table, camera and text log right.
+
+    With `bars` the opinions are N-option vectors, one bar chart each (a time series of a vector
+    over N options does not read at a glance); everything else is the same layout.
+    """
+    opinions: rrb.Container | rrb.View = rrb.TimeSeriesView(
+        origin="opinion", name="opinions: ẑ_h, z_r, b_r"
+    )
+    if bars:
+        opinions = rrb.Horizontal(*(
+            rrb.BarChartView(origin=ENTITIES[f"options/{o}"], name=f"{label}, one bar per option")
+            for o, label in (("z_h", "ẑ_h"), ("z_r", "z_r"), ("b_r", "b_r"))
+        ))
     trail = rrb.VisibleTimeRange(
         TIMELINE,
         start=rrb.TimeRangeBoundary.cursor_relative(seconds=-TRAIL_S),
         end=rrb.TimeRangeBoundary.cursor_relative(),
     )
     left = rrb.Vertical(
-        rrb.TimeSeriesView(origin="opinion", name="opinions: ẑ_h, z_r, b_r"),
+        opinions,
         rrb.Horizontal(
             rrb.TimeSeriesView(origin="eyes/gaze", name="gaze command (rad)"),
             rrb.TimeSeriesView(origin="eyes/servos", name="eye servo targets (deg)"),
@@ -139,6 +162,18 @@ _NUMBERS = re.compile(r"\d+(\.\d+)?")
 
 def _opt(value: str | None) -> str:
     return value if value else "-"
+
+
+def box_colour(name: str) -> tuple[int, int, int]:
+    """The RGB of option `name`'s box: the paper's red and blue, a known colour, else grey."""
+    if name == "red":
+        return RED
+    if name == "blue":
+        return BLUE
+    if name in COLOURS:
+        b, g, r = COLOURS[name][0]  # BGR paint of the rendered table
+        return (r, g, b)
+    return GREY
 
 
 def gaze_arrows(yaw: float, length: float = GAZE_LENGTH) -> tuple[np.ndarray, np.ndarray]:
@@ -188,10 +223,9 @@ class RerunBridge:
         self._cmd: tuple[Any, ...] | None = None
         self._gaze_state: str | None = None
         self.frames_dropped = 0  # vision frames that did not decode
-        # A table of N boxes (`services.monitor.options_bridge`): its names, layout, blueprint
+        # The options of the table as last laid out (names of the indices of `options/*`)
         self.option_names: tuple[str, ...] = ()
-        self.options_layout: tuple[Any, ...] | None = None
-        self.options_seen = False
+        self.bars_sent = False  # the blueprint with bar charts, sent on the first vector
 
     def log_styles(self) -> None:
         """Static names and colours of the series (once, before any data)."""
@@ -241,25 +275,32 @@ class RerunBridge:
             self.rec.log(ENTITIES["hand"], rr.Points2D([msg.center]))
 
     def _on_layout(self, topic: str, msg: m.Layout) -> None:
-        key = (msg.red, msg.blue, msg.commit_y)
+        self._table(("red", "blue"), (msg.red, msg.blue), msg.commit_y)
+
+    def _on_options_layout(self, topic: str, msg: om.OptionsLayoutMsg) -> None:
+        self._table(msg.names, msg.boxes, msg.commit_y)
+
+    def _table(self, names: tuple[str, ...], boxes: tuple[Any, ...], commit_y: float) -> None:
+        """The boxes in their options' colours, labelled by name, and the commit line."""
+        key = (names, boxes, commit_y)
         if key == self._layout:
             return  # re-published every second; log only what changed
-        self._layout = key
+        self._layout, self.option_names = key, names
         # Static: always drawn, whatever the time cursor or the table's trail window.
         self.rec.log(
             ENTITIES["buzzers"],
             rr.Boxes2D(
-                array=np.array([msg.red, msg.blue], dtype=np.float32),
+                array=np.array(boxes, dtype=np.float32),
                 array_format=rr.Box2DFormat.XYXY,
-                colors=[RED, BLUE],
-                labels=["red", "blue"],
+                colors=[box_colour(n) for n in names],
+                labels=list(names),
             ),
             static=True,
         )
         self.rec.log(
             ENTITIES["commit_line"],
             rr.LineStrips2D(
-                [[(0.0, msg.commit_y), (1.0, msg.commit_y)]],
+                [[(0.0, commit_y), (1.0, commit_y)]],
                 colors=(128, 128, 128),
                 labels=["commit line"],
             ),
@@ -285,24 +326,42 @@ class RerunBridge:
     # ẑ_h is a scalar that also carries eq 7's θ and d: its value is plotted like z_r and b_r.
     _on_observed = _on_scalar
 
+    def _on_option_vector(self, topic: str, msg: om.OptionVector) -> None:
+        """ẑ_h, z_r or b_r over N options: a bar chart of the latest vector."""
+        if not self.bars_sent:  # the first vector: the layout shows bars, not time series
+            self.bars_sent = True
+            self.rec.send_blueprint(blueprint(bars=True))
+        path = ENTITIES.get(topic)
+        if path is not None:
+            self.rec.log(path, rr.BarChart(np.asarray(msg.values, dtype=np.float64)))
+
     # -- actuation -----------------------------------------------------------------------------
 
     def _on_arm_state(self, topic: str, msg: m.ArmStateMsg) -> None:
+        self._arm_state(msg.ee, msg.phase, msg.safe_stop, msg.safety_reason, msg.fault)
+
+    def _on_options_arm_state(self, topic: str, msg: om.OptionsArmState) -> None:
+        self._arm_state(msg.ee, msg.phase, msg.safe_stop, msg.safety_reason, "")
+
+    def _arm_state(
+        self, ee: tuple[float, float], phase: str, safe_stop: bool, reason: str, fault: str
+    ) -> None:
+        """The end effector, the arm's segment, its phase lane and its safety lines."""
         prev = self._arm
-        if prev.get("safe_stop") != msg.safe_stop:  # red while safe-stopped
-            colour = (230, 60, 60) if msg.safe_stop else (90, 200, 250)
+        if prev.get("safe_stop") != safe_stop:  # red while safe-stopped
+            colour = (230, 60, 60) if safe_stop else (90, 200, 250)
             self.rec.log(ENTITIES["arm"], rr.Points2D.from_fields(colors=colour))
             self.rec.log(ENTITIES["arm_link"], rr.LineStrips2D.from_fields(colors=colour))
-        self.rec.log(ENTITIES["arm"], rr.Points2D([msg.ee]))
-        self.rec.log(ENTITIES["arm_link"], rr.LineStrips2D([[ARM_BASE, msg.ee]]))
-        if prev.get("phase") != msg.phase:
-            self.rec.log(ENTITIES["state_arm"], rr.StateChange(state=msg.phase))
-        self._safety("arm", prev, msg.safe_stop, msg.safety_reason, msg.fault)
+        self.rec.log(ENTITIES["arm"], rr.Points2D([ee]))
+        self.rec.log(ENTITIES["arm_link"], rr.LineStrips2D([[ARM_BASE, ee]]))
+        if prev.get("phase") != phase:
+            self.rec.log(ENTITIES["state_arm"], rr.StateChange(state=phase))
+        self._safety("arm", prev, safe_stop, reason, fault)
         self._arm = {
-            "phase": msg.phase,
-            "safe_stop": msg.safe_stop,
-            "reason": _NUMBERS.sub("#", msg.safety_reason),
-            "fault": msg.fault,
+            "phase": phase,
+            "safe_stop": safe_stop,
+            "reason": _NUMBERS.sub("#", reason),
+            "fault": fault,
         }
 
     def _on_arm_cmd(self, topic: str, msg: m.ArmCommandMsg) -> None:
@@ -318,9 +377,15 @@ class RerunBridge:
         )
 
     def _on_press(self, topic: str, msg: m.PressMsg) -> None:
+        self._press(msg.trial, msg.colour)
+
+    def _on_options_press(self, topic: str, msg: om.OptionsPress) -> None:
+        self._press(msg.trial, self.name(msg.option))
+
+    def _press(self, trial: int, option: str) -> None:
         self.rec.log(
             ENTITIES["log_trial"],
-            rr.TextLog(f"trial {msg.trial}: robot pressed {msg.colour}", level="INFO"),
+            rr.TextLog(f"trial {trial}: robot pressed {option}", level="INFO"),
         )
 
     # -- eyes ----------------------------------------------------------------------------------
@@ -374,10 +439,17 @@ class RerunBridge:
 
     # -- experiment and safety -----------------------------------------------------------------
 
-    def _on_trial(self, topic: str, msg: m.TrialEvent) -> None:
+    def name(self, option: str | int | None) -> str:
+        """An option by name: the paper's messages name it, `options/*` index the table's."""
+        if option is None or isinstance(option, str):
+            return _opt(option)
+        names = self.option_names
+        return names[option] if option < len(names) else f"box {option}"
+
+    def _on_trial(self, topic: str, msg: m.TrialEvent | om.OptionsTrialEvent) -> None:
         self.rec.log(ENTITIES["state_trial"], rr.StateChange(state=msg.phase))
         if msg.phase == "setup":
-            option = f" O={msg.option}" if msg.option else ""
+            option = f" O={self.name(msg.option)}" if msg.option is not None else ""
             text = f"trial {msg.trial} setup: {msg.mode}{option}, gaze {_opt(msg.text)}"
         elif msg.phase == "countdown":
             text = f"trial {msg.trial} countdown {msg.text}"
@@ -387,11 +459,11 @@ class RerunBridge:
         level = "WARN" if msg.phase == "abort" else "INFO"
         self.rec.log(ENTITIES["log_trial"], rr.TextLog(text, level=level))
 
-    def _on_result(self, topic: str, msg: m.TrialResult) -> None:
-        option = f" O={msg.option}" if msg.option else ""
+    def _on_result(self, topic: str, msg: m.TrialResult | om.OptionsResult) -> None:
+        option = f" O={self.name(msg.option)}" if msg.option is not None else ""
         text = (
-            f"trial {msg.trial} [{msg.mode}{option}]: robot {_opt(msg.robot)}, human "
-            f"{_opt(msg.human)} → {_opt(msg.outcome)} (switches {msg.switches}, violations "
+            f"trial {msg.trial} [{msg.mode}{option}]: robot {self.name(msg.robot)}, human "
+            f"{self.name(msg.human)} → {_opt(msg.outcome)} (switches {msg.switches}, violations "
             f"{msg.violations}, score {msg.score})"
         )
         if msg.interrupted:
@@ -399,12 +471,9 @@ class RerunBridge:
         level = "WARN" if msg.interrupted else "INFO"
         self.rec.log(ENTITIES["log_result"], rr.TextLog(text, level=level))
 
-    # a table of N boxes: `services.monitor.options_bridge`
-    _on_option_vector = ob.on_option_vector
-    _on_options_layout = ob.on_options_layout
-    _on_options_arm_state = ob.on_options_arm_state
-    _on_options_trial = ob.on_options_trial
-    _on_options_result = ob.on_options_result
+    # a table of N boxes: the same lines, its options by name
+    _on_options_trial = _on_trial
+    _on_options_result = _on_result
 
     def _on_rig_event(self, topic: str, msg: m.RigEvent) -> None:
         level = {"gave_up": "ERROR", "restarting": "WARN", "exited": "WARN"}.get(msg.kind, "INFO")

@@ -11,7 +11,9 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from services.core import messages as m
+from services.core import options_messages as om
 from services.core.keys import Keys
+from services.model.geometry import OptionsLayout
 from services.monitor.bridge import (
     APPLICATION_ID,
     ARM_BASE,
@@ -20,10 +22,12 @@ from services.monitor.bridge import (
     FRAME_SIZE,
     GAZE_LENGTH,
     NOT_SHOWN,
+    RED,
     TIMELINE,
     TRIAL_TIMELINE,
     RerunBridge,
     blueprint,
+    box_colour,
     rrd_rows,
 )
 from services.monitor.inbox import Inbox, Item, lane_of
@@ -267,6 +271,103 @@ def test_the_arm_is_a_segment_from_its_base_and_the_gaze_arrows_from_the_eyes(tm
     # an eye 0.05 off the middle, looking at red, points into red's box's column (x 0.72-0.86)
     tip = np.array(EYES[1]) + red[1] * (0.19 / red[1][1])
     assert 0.6 < tip[0] < 0.9
+
+
+def _one_trial(n_options):
+    """A layout, one trial of O = the last option, the arm, its press and the result.
+
+    Two options come on the paper's keys (options by colour), more on `options/*` (by index):
+    one bridge draws and writes both alike.
+    """
+    if n_options == 2:
+        return ("red", "blue"), [
+            ("vision/layout", m.Layout(seq=0, t_ns=T0, red=(0.7, 0.1, 0.9, 0.3),
+                                       blue=(0.1, 0.1, 0.3, 0.3))),
+            ("experiment/trial", m.TrialEvent(seq=0, t_ns=T0, phase="setup", trial=4,
+                                              mode="consensus", option="blue", text="low")),
+            ("actuation/state", m.ArmStateMsg(seq=0, t_ns=T0 + 1, ee=(0.3, 0.2), phase="move")),
+            ("actuation/state", m.ArmStateMsg(seq=1, t_ns=T0 + 2, ee=(0.2, 0.2), safe_stop=True,
+                                              phase="stop", safety_reason="stale (257 ms)")),
+            ("actuation/press", m.PressMsg(seq=0, t_ns=T0 + 3, colour="blue", trial=4)),
+            ("experiment/result", m.TrialResult(seq=0, t_ns=T0 + 4, trial=4, mode="consensus",
+                                                option="blue", robot="blue", human="blue",
+                                                outcome="C", score=2)),
+        ]
+    names = ("red", "blue", "green", "yellow")[:n_options]
+    last = n_options - 1
+    layout = om.layout_message_fields(names, OptionsLayout.row(n_options))
+    return names, [
+        ("options/layout", om.OptionsLayoutMsg(seq=0, t_ns=T0, **layout)),
+        ("options/trial", om.OptionsTrialEvent(seq=0, t_ns=T0, n_options=n_options, phase="setup",
+                                               trial=4, mode="consensus", option=last,
+                                               text="low")),
+        ("options/arm_state", om.OptionsArmState(seq=0, t_ns=T0 + 1, n_options=n_options,
+                                                 ee=(0.3, 0.2), phase="move", target=last)),
+        ("options/arm_state", om.OptionsArmState(seq=1, t_ns=T0 + 2, n_options=n_options,
+                                                 ee=(0.2, 0.2), phase="stop", safe_stop=True,
+                                                 safety_reason="stale (257 ms)")),
+        ("options/press", om.OptionsPress(seq=0, t_ns=T0 + 3, n_options=n_options, option=last,
+                                          trial=4)),
+        ("options/result", om.OptionsResult(seq=0, t_ns=T0 + 4, n_options=n_options, trial=4,
+                                            mode="consensus", option=last, robot=last,
+                                            human=last, outcome="C", score=2)),
+    ]
+
+
+@pytest.mark.parametrize("n_options", [2, 3, 4])
+def test_the_table_and_the_trial_read_alike_for_any_option_count(tmp_path, n_options):
+    names, msgs = _one_trial(n_options)
+    path, bridge = _record(tmp_path, msgs + msgs[:1])  # the layout again: not logged twice
+    rows, static = rrd_rows(path)
+    assert bridge.trial == 4 and bridge.option_names == names
+    assert static["/table/buzzers"] == 1 and static["/table/commit_line"] == 1
+    boxes = [c for c in RrdReader(path).stream() if c.entity_path == "/table/buzzers"]
+    batch = boxes[0].to_record_batch()
+    labels = batch.column(batch.schema.get_field_index("Boxes2D:labels")).to_pylist()
+    assert labels == [list(names)]
+    assert box_colour("red") == RED  # the paper's red whatever the option count
+    assert len(_values(path, "/table/arm", "Points2D:positions")) == 2
+    assert len(_values(path, "/table/arm", "Points2D:colors")) == 2  # normal, then stopped
+    assert rows["/state/arm"] == 2 and rows["/state/trial"] == 1
+    last = names[-1]
+    assert [t[0] for t in _column(path, "/log/trial", "TextLog:text")] == [
+        f"trial 4 setup: consensus O={last}, gaze low", f"trial 4: robot pressed {last}"]
+    assert [t[0] for t in _column(path, "/log/result", "TextLog:text")] == [
+        f"trial 4 [consensus O={last}]: robot {last}, human {last} → C (switches 0, "
+        "violations 0, score 2)"]
+    assert [t[0] for t in _column(path, "/log/safety", "TextLog:text")] == [
+        "arm: SAFE STOP (stale (257 ms))"]
+
+
+def test_opinions_over_three_options_are_bar_charts_and_the_layout_shows_bars(tmp_path):
+    msgs = []
+    for i in range(4):
+        for topic in ("options/z_h", "options/z_r", "options/b_r"):
+            values = (0.2 * i, -0.1 * i, -0.1 * i)
+            msgs.append((topic, om.OptionVector(seq=i, t_ns=T0 + i, values=values)))
+    path, bridge = _record(tmp_path, msgs)
+    rows, _ = rrd_rows(path)
+    for topic in ("options/z_h", "options/z_r", "options/b_r"):
+        assert rows["/" + ENTITIES[topic]] == 4
+    assert bridge.bars_sent
+    bars = [str(v.origin) for v in _views(blueprint(bars=True)) if "BarChart" in type(v).__name__]
+    assert bars == ["options/z_h", "options/z_r", "options/b_r"]
+    paper = {str(v.origin) for v in _views(blueprint())}
+    assert {str(v.origin) for v in _views(blueprint(bars=True))} - paper == set(bars)
+
+
+def _views(bp):
+    """Every view of a blueprint, depth first."""
+    views = []
+
+    def walk(node):
+        for child in getattr(node, "contents", []) or []:
+            walk(child)
+        if hasattr(node, "origin"):
+            views.append(node)
+
+    walk(bp.root_container)
+    return views
 
 
 def test_the_table_view_shows_only_the_live_arm_and_gaze():

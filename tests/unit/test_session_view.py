@@ -4,40 +4,72 @@ from __future__ import annotations
 
 import io
 
+import pytest
+
 from services.core import messages as m
 from services.core import options_messages as om
-from services.launch.options_view import OptionsSessionView
-from services.launch.view import SessionView
+from services.launch.view import SessionView, session_view
+from services.model.params import NodConfig
+from services.model.schedule import OptionsSchedule
+
+NAMES = ("red", "blue", "green", "yellow")
 
 
 def _rows(text: str) -> dict[int, str]:
     return {int(line.split()[0]): line for line in text.splitlines() if line.split()[0].isdigit()}
 
 
-def test_the_paper_table_marks_an_interrupted_trial_and_counts_it() -> None:
+def _results(n_options: int) -> list[m.TrialResult | om.OptionsResult]:
+    """A consensus trial on the last option, then an interrupted one on the first.
+
+    Two options come as the paper's messages (options by colour), more as `options/*` (by
+    index): one table shows both by name.
+    """
+    if n_options == 2:
+        return [m.TrialResult(seq=0, t_ns=1, trial=1, mode="consensus", option="blue",
+                              robot="blue", human="blue", outcome="C", score=2),
+                m.TrialResult(seq=1, t_ns=2, trial=2, mode="consensus", option="red",
+                              interrupted=True)]
+    last = n_options - 1
+    return [om.OptionsResult(seq=0, t_ns=1, n_options=n_options, trial=1, mode="consensus",
+                             option=last, robot=last, human=last, outcome="C", score=2),
+            om.OptionsResult(seq=1, t_ns=2, n_options=n_options, trial=2, mode="consensus",
+                             option=0, interrupted=True)]
+
+
+@pytest.mark.parametrize("n_options", [2, 3, 4])
+def test_the_table_names_the_options_and_marks_an_interrupted_trial(n_options: int) -> None:
+    out = io.StringIO()
+    names = NAMES[:n_options]
+    view = SessionView(2, out, names=names)
+    for result in _results(n_options):
+        view.on_result(result)
+    rows = _rows(out.getvalue())
+    assert view.total_trials == 2 and sorted(rows) == [1, 2]
+    assert rows[2].endswith("interrupted") and rows[2].split()[2:4] == ["red", "-"]
+    assert rows[1].split()[2:6] == [names[-1]] * 3 + ["C"]
+    assert not rows[1].endswith("interrupted")
+
+
+def test_the_paper_table_keeps_its_columns() -> None:
     out = io.StringIO()
     view = SessionView(2, out)
     view.on_result(m.TrialResult(seq=0, t_ns=1, trial=1, robot="red", human="blue",
                                  outcome="D", score=0))
-    view.on_result(m.TrialResult(seq=1, t_ns=2, trial=2, interrupted=True))
-    rows = _rows(out.getvalue())
-    assert view.total_trials == 2 and sorted(rows) == [1, 2]
-    assert rows[2].endswith("interrupted") and not rows[1].endswith("interrupted")
-    assert rows[1].split()[3:6] == ["red", "blue", "D"]  # after the mode and O (none)
+    header, row = out.getvalue().splitlines()
+    assert header == "trial mode       O     robot  human  outcome  switch viol score"
+    assert row == "    1 dissensus  -     red    blue   D             0    0     0"
 
 
-def test_the_options_table_marks_an_interrupted_trial_and_counts_it() -> None:
-    out = io.StringIO()
-    view = OptionsSessionView(("red", "blue", "green"), 2, out)
-    view.on_options_result(om.OptionsResult(seq=0, t_ns=1, n_options=3, trial=1, mode="consensus",
-                                            option=2, robot=2, human=2, outcome="C", score=2))
-    view.on_options_result(om.OptionsResult(seq=1, t_ns=2, n_options=3, trial=2,
-                                            mode="consensus", option=0, interrupted=True))
-    rows = _rows(out.getvalue())
-    assert view.total_trials == 2 and sorted(rows) == [1, 2]
-    assert rows[2].endswith("interrupted") and rows[2].split()[2:4] == ["red", "-"]
-    assert rows[1].split()[2:6] == ["green", "green", "green", "C"]
-    assert not rows[1].endswith("interrupted")
+def test_the_view_of_a_run_is_of_its_option_set() -> None:
+    cfg = NodConfig()
+    assert session_view(cfg, None).names == ("red", "blue")
+    schedule = OptionsSchedule.default(3)
+    view = session_view(cfg, schedule)
+    assert view.names == schedule.names and view.n == len(schedule.trials)
+
+
+def test_an_interrupted_result_survives_the_wire() -> None:
     decoded = m.decode(om.OptionsResult, m.encode(om.OptionsResult(seq=2, t_ns=3, n_options=3,
                                                                    interrupted=True)))
     assert decoded.interrupted
