@@ -2,9 +2,28 @@
 
 The behaviour state machine decides; the watchdog may veto: while any input has not arrived
 within the stale bound (judged on this host's monotonic clock), a needed service's liveliness
-is lost (the conductor's too, during a trial), or an e-stop is engaged, the arm holds its
-position and the state key says why; the state also acknowledges the last e-stop command. The
-robot's press is published once per trial on `actuation/press`.
+is lost (the conductor's too, during a trial), the arm reports a device fault (a silent,
+garbled or unplugged bus), or an e-stop is engaged, the arm holds its position and the state
+key says why; the state also acknowledges the last e-stop command. The robot's press is
+published once per trial.
+
+One service for any number of options. What differs between the paper's table and one of
+N ≥ 3 boxes lives in one seam, the key space (`ArmKeys`), chosen by the option count
+(`arm_keys`): which keys carry z_r, the layout, the trial events and the robot's press, their
+messages and how they convert to the model's values, and which reactor and arm the model uses.
+
+- `PaperArmKeys` (schema 1, the paper's two): z_r a number on `decision/z_r`, `vision/layout`,
+  `experiment/trial`, `RobotTrial` over red and blue, any `ArmDriver` (sim or Feetech); it
+  publishes each applied command on `actuation/cmd` and the press on `actuation/press`.
+- `OptionsArmKeys` (schema 2, N ≥ 3): z_r a vector on `options/z_r`, `options/layout`,
+  `options/trial` (each checked against N), `OptionsRobotTrial` with the tie rule, the
+  `OptionsSimArm` (no real arm is calibrated for N poses yet); the arm's state by box on
+  `options/arm_state`, the press on `options/press`.
+
+The safety gate, Algorithm 2's timers, press detection, device-fault reporting and the e-stop
+wiring are `ActuationService`'s, written once; its safety state goes out on `actuation/state`
+whatever N (the e-stop's acknowledgement, `nod estop`, `nod status` and the recorders read it
+there). Unifying the key spaces (issue 34, step 3) replaces the seam and nothing else.
 """
 
 from __future__ import annotations
@@ -15,19 +34,26 @@ import json
 import logging
 import math
 import sys
+from abc import ABC, abstractmethod
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, ClassVar, Generic, NamedTuple, Protocol, TypeVar
+
+import numpy as np
 
 from services.actuation.drivers import ARM_DRIVERS, make_arm_driver
 from services.core import messages as m
+from services.core import options_messages as om
 from services.core.cli import Parser, add_options_arg, add_service_args, fail
 from services.core.config import load_with_options, params_hash
 from services.core.node import Node, setup_logging
 from services.core.priority import raise_priority
 from services.core.session import Fabric
-from services.model.arm import ArmDriver
-from services.model.behaviour import ArmCommand
+from services.model.arm import OptionsSimArm
+from services.model.behaviour import ArmCommand, OptionsCommand
+from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
 from services.model.params import NodConfig
-from services.model.robot import RobotTrial
+from services.model.robot import OptionsRobotTrial, RobotTrial, TrialReactor
 from services.model.safety import SafetyParams, Watchdog
 from services.safety.latch_file import LatchFile, add_state_dir_arg, default_state_dir
 from services.safety.wiring import watch_safety_inputs
@@ -35,41 +61,338 @@ from services.safety.wiring import watch_safety_inputs
 log = logging.getLogger("nod.actuation")
 NS = 1e-9
 
+L = TypeVar("L", TableLayout, OptionsLayout)  # the table: red and blue, or N boxes
+C = TypeVar("C", ArmCommand, OptionsCommand)  # an arm command: by colour, or by box index
+B = TypeVar("B")  # a box as the model names it: a colour, or an option index
+Z = TypeVar("Z")  # z_r: a number, or a vector over the options
+B_co = TypeVar("B_co", covariant=True)
+Handler = Callable[[Any], None]  # a subscriber's handler: the message type is the key's
 
-class ActuationService:
-    """Wires Algorithm 2, an arm driver and the safety watchdog to the rig's keys."""
+
+class ArmReport(Protocol[B_co]):
+    """What the service reads of an arm's state (`ArmState`, `OptionsArmState`)."""
+
+    @property
+    def ee(self) -> Point:
+        """The end effector in table coordinates."""
+
+    @property
+    def moving(self) -> bool:
+        """Whether the end effector moves."""
+
+    @property
+    def target(self) -> B_co | None:
+        """The box it heads for or presses."""
+
+    @property
+    def pressed(self) -> B_co | None:
+        """The box it finished pressing this trial."""
+
+    @property
+    def fault(self) -> str | None:
+        """Why the device refuses motion (its bus silent, garbled, unplugged), or None."""
+
+
+class Arm(Protocol[C, B_co]):
+    """An arm as the service drives it: any `ArmDriver` (by colour) or the `OptionsSimArm`."""
+
+    def connect(self) -> None:
+        """Open the connection (idempotent)."""
+
+    def disconnect(self) -> None:
+        """Close the connection (idempotent); callers hold the arm first."""
+
+    def send(self, cmd: C) -> C:
+        """Apply a command; return the one actually applied."""
+
+    def home(self) -> C:
+        """Back to the rest pose, the trial's press cleared."""
+
+    def hold(self) -> C:
+        """Safe stop: come to rest and hold."""
+
+    def state(self, t: float) -> ArmReport[B_co]:
+        """The arm's state at time t (s)."""
+
+
+class TrialStep(NamedTuple):
+    """What actuation reads of a trial event, whatever key space carried it."""
+
+    phase: str
+    trial: int
+
+
+# -- the seam: one key space each ----------------------------------------------------------------
+
+
+class ArmKeys(ABC, Generic[L, C, B, Z]):
+    """Everything actuation does differently in one key space (the module doc lists both).
+
+    The service's handlers are subscribed to this space's three input keys (`subscribe`) and
+    its messages converted by `z_r`, `layout` and `trial`; the service runs the `reactor` over
+    `table`, drives the arm `make_arm` built, and hands back what leaves on keys of this space
+    (`sent`, `pressed`, `report`).
+    """
+
+    schema: ClassVar[int]  # the messages' schema version
+
+    table: L  # the table until the layout key says otherwise
+
+    @abstractmethod
+    def __init__(self, node: Node, cfg: NodConfig, n_options: int) -> None:
+        """The space's publishers on `node` and its table of `n_options` boxes from `cfg`."""
+
+    @abstractmethod
+    def subscribe(self, node: Node, on_z_r: Handler, on_layout: Handler, on_trial: Handler) -> None:
+        """The robot's opinion (from decision), the table (vision, sim), the protocol's events."""
+
+    @classmethod
+    def check_driver(cls, driver: str, n_options: int) -> None:
+        """Refuse (ValueError, one line) an arm driver this space cannot drive (default: none)."""
+
+    @classmethod
+    @abstractmethod
+    def make_arm(
+        cls,
+        driver: str,
+        port: str | None,
+        arm_config: Path | None,
+        cfg: NodConfig,
+        n_options: int,
+        t0: float,
+    ) -> Arm[C, B]:
+        """An unconnected arm for this space's table (`t0`: the sim arm's start time, s)."""
+
+    @abstractmethod
+    def reactor(self, cfg: NodConfig) -> TrialReactor[L, C, B, Z]:
+        """Algorithm 2 over `table`, with the config's behaviour, debounce and trial timeout."""
+
+    @abstractmethod
+    def z_r(self, msg: Any) -> Z:
+        """The robot's opinion a message carries (MessageError: not for this table)."""
+
+    @abstractmethod
+    def layout(self, msg: Any) -> L:
+        """The table a layout message carries (MessageError: not for this table)."""
+
+    @abstractmethod
+    def trial(self, msg: Any) -> TrialStep:
+        """A trial event's phase and trial (MessageError: not for this table)."""
+
+    def arm_follows(self, arm: Arm[C, B], layout: L) -> None:
+        """Give the arm a new trial's table (by default it keeps its own poses)."""
+
+    @abstractmethod
+    def sent(self, applied: C) -> None:
+        """The command the arm applied (after Algorithm 2 and the safety gate)."""
+
+    @abstractmethod
+    def pressed(self, box: B, trial: int) -> None:
+        """The robot's press of this trial, published once."""
+
+    @abstractmethod
+    def colour(self, box: B | None) -> Colour | None:
+        """The box as `actuation/state` names it (a colour, or None where colours do not)."""
+
+    def report(
+        self, state: ArmReport[B], phase: str, safe_stop: bool, reason: str, trial: int
+    ) -> None:
+        """The arm's state on a key of this space's own, if it has one (50 Hz)."""
+
+
+class PaperArmKeys(ArmKeys[TableLayout, ArmCommand, Colour, float]):
+    """The paper's keys (schema 1): red and blue, z_r a number, any arm driver."""
+
+    schema = m.SCHEMA_VERSION
+
+    def __init__(self, node: Node, cfg: NodConfig, n_options: int = 2) -> None:
+        if n_options != 2:
+            raise ValueError(f"the paper's keys carry two options, not {n_options}")
+        self.table = cfg.layout
+        self.pub_cmd = node.publisher("actuation/cmd")
+        self.pub_press = node.publisher("actuation/press")
+
+    def subscribe(self, node: Node, on_z_r: Handler, on_layout: Handler, on_trial: Handler) -> None:
+        """`decision/z_r`, `vision/layout`, `experiment/trial`."""
+        node.subscribe("decision/z_r", on_z_r)
+        node.subscribe("vision/layout", on_layout)
+        node.subscribe("experiment/trial", on_trial)
+
+    @classmethod
+    def make_arm(
+        cls,
+        driver: str,
+        port: str | None,
+        arm_config: Path | None,
+        cfg: NodConfig,
+        n_options: int,
+        t0: float,
+    ) -> Arm[ArmCommand, Colour]:
+        """The `--driver` chosen: the sim arm, or a Feetech arm from its calibration file."""
+        return make_arm_driver(driver, port, arm_config, cfg.layout, cfg.sim_arm, t0=t0)
+
+    def reactor(self, cfg: NodConfig) -> RobotTrial:
+        """The paper's robot (the two-option kernel of `services.model.robot`)."""
+        return RobotTrial(self.table, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s)
+
+    def z_r(self, msg: m.Scalar) -> float:
+        """z_r as `decision/z_r` carries it: a number (> 0 red)."""
+        return msg.value
+
+    def layout(self, msg: m.Layout) -> TableLayout:
+        """The red and blue boxes of `vision/layout`."""
+        return m.layout_from_msg(msg)
+
+    def trial(self, msg: m.TrialEvent) -> TrialStep:
+        """An `experiment/trial` event."""
+        return TrialStep(msg.phase, msg.trial)
+
+    def sent(self, applied: ArmCommand) -> None:
+        """Every applied command on `actuation/cmd` (changes only: the service filters)."""
+        self.pub_cmd.put(
+            action=applied.action,
+            direction=applied.direction,
+            target=applied.target,
+            reason=applied.reason[:200],
+        )
+
+    def pressed(self, box: Colour, trial: int) -> None:
+        """The press on `actuation/press`."""
+        self.pub_press.put(colour=box, trial=trial)
+        log.info("trial %d: robot pressed %s", trial, box)
+
+    def colour(self, box: Colour | None) -> Colour | None:
+        """Boxes are colours already."""
+        return box
+
+
+class OptionsArmKeys(ArmKeys[OptionsLayout, OptionsCommand, int, np.ndarray]):
+    """The `options/*` keys (schema 2): N boxes by index, z_r a vector, the sim arm only."""
+
+    schema = om.OPTIONS_SCHEMA_VERSION
+
+    def __init__(self, node: Node, cfg: NodConfig, n_options: int) -> None:
+        self.table = cfg.table(n_options)
+        self.n = n_options
+        self.pub_state = node.publisher("options/arm_state")
+        self.pub_press = node.publisher("options/press")
+
+    def subscribe(self, node: Node, on_z_r: Handler, on_layout: Handler, on_trial: Handler) -> None:
+        """`options/z_r`, `options/layout`, `options/trial`."""
+        node.subscribe("options/z_r", on_z_r)
+        node.subscribe("options/layout", on_layout)
+        node.subscribe("options/trial", on_trial)
+
+    @classmethod
+    def check_driver(cls, driver: str, n_options: int) -> None:
+        """The simulated arm only."""
+        if driver != "sim":
+            raise ValueError(
+                f"--options {n_options} runs the simulated arm only (--driver sim): no real arm "
+                "is calibrated for more than two boxes yet"
+            )
+
+    @classmethod
+    def make_arm(
+        cls,
+        driver: str,
+        port: str | None,
+        arm_config: Path | None,
+        cfg: NodConfig,
+        n_options: int,
+        t0: float,
+    ) -> Arm[OptionsCommand, int]:
+        """The simulated arm, one pose per box: no real arm is calibrated for N boxes yet."""
+        cls.check_driver(driver, n_options)
+        return OptionsSimArm(cfg.table(n_options), cfg.sim_arm, t0=t0)
+
+    def reactor(self, cfg: NodConfig) -> OptionsRobotTrial:
+        """The robot over N boxes, with the dissensus tie rule."""
+        return OptionsRobotTrial(
+            self.table, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
+        )
+
+    def z_r(self, msg: om.OptionVector) -> np.ndarray:
+        """The vector of `options/z_r`, refused when it is not over our N options."""
+        return om.values_for(msg, self.n)
+
+    def layout(self, msg: om.OptionsLayoutMsg) -> OptionsLayout:
+        """The boxes of `options/layout`, refused when they are not N."""
+        return om.same_count(msg.layout(), self.n)
+
+    def trial(self, msg: om.OptionsTrialEvent) -> TrialStep:
+        """An `options/trial` event, refused when it is for another N."""
+        om.check_count(msg, self.n)
+        return TrialStep(msg.phase, msg.trial)
+
+    def arm_follows(self, arm: Arm[OptionsCommand, int], layout: OptionsLayout) -> None:
+        """The simulated arm heads for the boxes of the trial's table."""
+        if isinstance(arm, OptionsSimArm):
+            arm.layout = layout
+
+    def sent(self, applied: OptionsCommand) -> None:
+        """No command key in this space yet: the log has the moves."""
+        if applied.action != "idle":
+            log.debug("arm: %s %s (%s)", applied.action, applied.target, applied.reason)
+
+    def pressed(self, box: int, trial: int) -> None:
+        """The press on `options/press`."""
+        self.pub_press.put(n_options=self.n, option=box, trial=trial)
+        log.info("trial %d: robot pressed box %d", trial, box)
+
+    def colour(self, box: int | None) -> Colour | None:
+        """Colours do not name N boxes: `actuation/state` carries no target here."""
+        return None
+
+    def report(
+        self, state: ArmReport[int], phase: str, safe_stop: bool, reason: str, trial: int
+    ) -> None:
+        """The state by box on `options/arm_state` (the sim draws and the conductor reads it)."""
+        self.pub_state.put(
+            n_options=self.n, ee=state.ee, phase=phase, moving=state.moving,
+            target=state.target, safe_stop=safe_stop, safety_reason=reason[:400], trial=trial,
+        )
+
+
+def key_space(n_options: int) -> type[ArmKeys[Any, Any, Any, Any]]:
+    """The key space of a table of `n_options` boxes: the paper's for two, `options/*` above."""
+    return PaperArmKeys if n_options == 2 else OptionsArmKeys
+
+
+# -- the service, once for every key space -------------------------------------------------------
+
+
+class ActuationService(Generic[L, C, B, Z]):
+    """Wires Algorithm 2, an arm and the safety watchdog to the rig's keys, for any N options."""
 
     def __init__(
         self,
         node: Node,
         cfg: NodConfig,
-        arm: ArmDriver,
+        arm: Arm[C, B],
         safety: SafetyParams,
         latch_file: LatchFile | None,
+        n_options: int = 2,
     ) -> None:
+        """Drive `arm` (built by `key_space(n_options).make_arm`, connected) on the rig's keys."""
         self.node = node
-        self.layout = cfg.layout
-        self.arm = arm
+        self.arm: Arm[C, B] = arm
         self.cfg = cfg
-        self.robot = RobotTrial(
-            cfg.layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
-        )
+        self.keys: ArmKeys[L, C, B, Z] = key_space(n_options)(node, cfg, n_options)
+        self.layout: L = self.keys.table
+        self.robot: TrialReactor[L, C, B, Z] = self.keys.reactor(cfg)
         self.watchdog = Watchdog(safety, ("z_r", "hand"))
         # Stopped until the first check of the gate says otherwise: nothing reaches the arm before
         # the watchdog has judged its inputs once.
         self.safe_stop = True
         self.safety_reason = "starting"
-        self.last_cmd: ArmCommand | None = None
+        self.last_cmd: C | None = None
         # The service's own time (s) for Algorithm 2 and the arm: the rig clock, never a
         # message's timestamp (a peer's clock must not move the arm's timers), kept monotone.
         self._t = node.clock.now_ns() * NS
-        self.pub_cmd = node.publisher("actuation/cmd")
         self.pub_state = node.publisher("actuation/state")
-        self.pub_press = node.publisher("actuation/press")
-        node.subscribe("decision/z_r", self.on_z_r)
+        self.keys.subscribe(node, self.on_z_r, self.on_layout, self.on_trial)
         node.subscribe("vision/hand", self.on_hand)
-        node.subscribe("vision/layout", self.on_layout)
-        node.subscribe("experiment/trial", self.on_trial)
         watch_safety_inputs(
             node, self.watchdog, self.tick, latch_file, also_watch=("experiment",)
         )
@@ -77,30 +400,37 @@ class ActuationService:
 
     # -- inputs --------------------------------------------------------------------------------
 
-    def on_z_r(self, msg: m.Scalar) -> None:
-        """A new robot opinion: one Algorithm 2 step (if it is fresh by the watchdog's rule)."""
+    def on_z_r(self, msg: Any) -> None:
+        """A new robot opinion: one Algorithm 2 step (if it is fresh by the watchdog's rule).
+
+        Converted first: a vector for another number of options is refused before it counts
+        as fresh input.
+        """
+        z_r = self.keys.z_r(msg)
         if self.node.feed_watchdog(self.watchdog, "z_r", msg.t_ns):
-            self._step(msg.value)
+            self._step(z_r)
 
     def on_hand(self, pose: m.HandPose) -> None:
-        """Watch for the human's press: any landmark inside a buzzer box."""
+        """Watch for the human's press: any landmark inside a box."""
         if not self.node.feed_watchdog(self.watchdog, "hand", pose.t_ns):
             return
         if pose.detected:
             self.robot.see_hand(pose.landmarks)
 
-    def on_layout(self, msg: m.Layout) -> None:
+    def on_layout(self, msg: Any) -> None:
         """Use the geometry vision (or the sim) published (takes effect next trial)."""
-        self.layout = m.layout_from_msg(msg)
+        self.layout = self.keys.layout(msg)
 
-    def on_trial(self, ev: m.TrialEvent) -> None:
+    def on_trial(self, msg: Any) -> None:
         """Setup: home and reset; go: start Algorithm 2; end: the trial's choice is over.
 
         From setup to the end of a trial the conductor's liveliness is required too: without
         it nobody records the trial, so the robot must not press.
         """
+        ev = self.keys.trial(msg)
         if ev.phase == "setup":
             self.robot.setup(ev.trial, self.layout)
+            self.keys.arm_follows(self.arm, self.layout)
             self.watchdog.require("experiment", True)
             self.arm.state(self._now())
             if not self.safe_stop:
@@ -121,7 +451,7 @@ class ActuationService:
         self._t = max(self._t, self.node.clock.now_ns() * NS)
         return self._t
 
-    def _step(self, z_r: float | None) -> None:
+    def _step(self, z_r: Z | None) -> None:
         if not self.robot.running:
             return
         t = self._now()
@@ -129,31 +459,25 @@ class ActuationService:
         if cmd is not None:
             self._apply(cmd)
 
-    def _apply(self, cmd: ArmCommand) -> None:
+    def _apply(self, cmd: C) -> None:
         """Send the behaviour's command unless the safety gate holds the arm."""
         if self.safe_stop:
             return
         last = self.last_cmd
-        if last is None or (cmd.action, cmd.direction, cmd.target) != (
-            last.action,
-            last.direction,
-            last.target,
-        ):  # only changes reach the arm; the reason text alone is not a new command
+        # Only changes reach the arm; the reason text alone is not a new command (a paper
+        # command's direction follows from its target, so action and target say it all).
+        if last is None or (cmd.action, cmd.target) != (last.action, last.target):
             self._send(self.arm.send(cmd))
 
-    def _send(self, applied: ArmCommand) -> None:
+    def _send(self, applied: C) -> None:
         self.last_cmd = applied
-        self.pub_cmd.put(
-            action=applied.action,
-            direction=applied.direction,
-            target=applied.target,
-            reason=applied.reason[:200],
-        )
+        self.keys.sent(applied)
 
     def tick(self, now_ns: int) -> None:
         """Periodic: safety gate, timers of Algorithm 2, arm state and the robot's press."""
-        # A faulted bus (silent, garbled, unplugged) is a safety stop like a stale input: the
-        # conductor sees it on the state key and interrupts the trial.
+        # A faulted device (a bus silent, garbled, unplugged; a simulated fault) is a safety
+        # stop like a stale input, for every arm and every number of options: the conductor
+        # sees it on the state key and interrupts the trial.
         self.watchdog.set_fault(self.arm.state(self._now()).fault)
         status = self.watchdog.check(self.node.arrival_ns())
         if status.safe_stop and not self.safe_stop:
@@ -169,13 +493,14 @@ class ActuationService:
             self._step(None)
         state = self.arm.state(self._now())
         if state.pressed is not None and self.robot.arm_pressed(state.pressed):
-            self.pub_press.put(colour=state.pressed, trial=self.robot.trial)
-            log.info("trial %d: robot pressed %s", self.robot.trial, state.pressed)
+            self.keys.pressed(state.pressed, self.robot.trial)
+        phase = self.robot.machine.phase
+        self.keys.report(state, phase, self.safe_stop, self.safety_reason, self.robot.trial)
         self.pub_state.put(
             ee=state.ee,
-            phase=self.robot.machine.phase,
+            phase=phase,
             moving=state.moving,
-            target=state.target,
+            target=self.keys.colour(state.target),
             safe_stop=self.safe_stop,
             safety_reason=self.safety_reason[:400],
             fault=(state.fault or "")[:400],
@@ -215,11 +540,8 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose)
     try:
         cfg, schedule = load_with_options(args.params, args.options)
-        if schedule is not None and args.driver != "sim":
-            raise ValueError(
-                f"--options {schedule.n_options} runs the simulated arm only (--driver sim): no "
-                "real arm is calibrated for more than two boxes yet"
-            )
+        n_options = 2 if schedule is None else schedule.n_options
+        key_space(n_options).check_driver(args.driver, n_options)  # before anything opens
         safety = cfg.safety
         if args.stale_ms is not None:
             safety = dataclasses.replace(safety, stale_ms=args.stale_ms)
@@ -232,32 +554,15 @@ def main(argv: list[str] | None = None) -> int:
         return fail("nod actuation", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("behaviour", "sim_arm", "safety")))
     raise_priority("actuation")  # once its configuration is good: errors stay one line
-    if schedule is not None:  # a table of 3+ boxes: Algorithm 2 over N boxes, the sim arm
-        from services.actuation.options_service import OptionsActuationService
-
-        service = OptionsActuationService(
-            node, cfg, cfg.table(schedule.n_options), safety, latch_file
-        )
-        node.on_forced_exit(service.arm.hold)
-        try:
-            node.run()
-        finally:
-            service.arm.hold()
-        return 0
     try:
-        arm = make_arm_driver(
-            args.driver,
-            args.port,
-            args.arm_config,
-            cfg.layout,
-            cfg.sim_arm,
-            t0=node.clock.now_ns() * NS,
+        arm: Arm[Any, Any] = key_space(n_options).make_arm(
+            args.driver, args.port, args.arm_config, cfg, n_options, node.clock.now_ns() * NS
         )
         arm.connect()
     except (ValueError, OSError, ConnectionError) as exc:
         node.close()
         return fail("nod actuation", exc)
-    ActuationService(node, cfg, arm, safety, latch_file)
+    ActuationService(node, cfg, arm, safety, latch_file, n_options)
     node.on_forced_exit(arm.hold)  # if a signal's clean stop hangs: hold the arm, then exit
     try:
         node.run()

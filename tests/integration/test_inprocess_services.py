@@ -231,3 +231,62 @@ def test_a_silent_arm_bus_never_holds_up_the_actuation_safety(router, endpoint, 
             for other in (peer, camera, operator):
                 other.close()
             arm.disconnect()
+
+
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_an_arm_fault_is_a_safe_stop_whatever_the_number_of_options(
+    router, endpoint, client, n_options
+):
+    # The arm reports a device fault mid-trial (the sim arm's stand-in for a silent bus): the
+    # one actuation service stops on it, says so on actuation/state for any number of options
+    # (the N-option copy never told its watchdog), and clears once the device is healthy.
+    from services.actuation.service import ActuationService, key_space
+    from services.model.params import NodConfig
+
+    cfg = NodConfig()
+    fabric = Fabric(connect=(endpoint,))
+    node = Node("actuation", fabric)
+    keys = key_space(n_options)
+    arm = keys.make_arm("sim", None, None, cfg, n_options, node.clock.now_ns() * 1e-9)
+    arm.connect()
+    safety = SafetyParams(stale_ms=500.0, require_alive=("decision",))
+    ActuationService(node, cfg, arm, safety, None, n_options)
+    runner = threading.Thread(target=node.run, daemon=True)
+    runner.start()
+    peer = Node("decision", fabric)
+    z_r = peer.publisher("decision/z_r" if n_options == 2 else "options/z_r")
+    peer.ready()
+    camera = Node("sim", fabric)
+    hands = camera.publisher("vision/hand")
+    state = Collector(client, node.keys.topic("actuation/state"), m.ArmStateMsg)
+    z = {"value": 0.3} if n_options == 2 else {"values": (0.3, -0.1, -0.2)}
+    stop = threading.Event()
+
+    def inputs() -> None:
+        while not stop.wait(0.02):
+            z_r.put(src_seq=0, **z)
+            hands.put(detected=True, center=(0.5, 0.85), landmarks=((0.5, 0.85),))
+
+    pump = threading.Thread(target=inputs, daemon=True)
+    pump.start()
+    try:
+        wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 10.0, "arm up")
+        arm.inject_fault("bus silent")
+        wait_for(
+            lambda: any(
+                s.safe_stop and "device fault" in s.safety_reason and s.fault == "bus silent"
+                for s in state.messages[-3:]
+            ),
+            5.0,
+            "the device fault's safe stop",
+        )
+        arm.clear_fault()
+        wait_for(lambda: not state.messages[-1].safe_stop, 10.0, "clear once healthy")
+    finally:
+        stop.set()
+        pump.join()
+        node.stop.set()
+        runner.join(5)
+        for other in (peer, camera):
+            other.close()
+        arm.disconnect()
