@@ -2,9 +2,10 @@
 
 One place for both sides of the camera path over N options: the renderer paints option j's
 box in its name's BGR colour (`services.scene.render.SceneRenderer.options`), and vision finds
-it by that colour's HSV range (`services.vision.option_boxes`). The paper's red and blue are
-`services.scene.render`'s and `services.vision.calibration.HsvThresholds`' own values, so a
-red or blue box of three is drawn and found exactly as the paper's two.
+it by that colour's HSV range (`services.vision.calibration.find_option_boxes`) and draws it in
+that paint on the monitor's frame. The paper's red and blue are `services.scene.render`'s and
+`services.vision.calibration.HsvThresholds`' own values, so a red or blue box of three is drawn
+and found exactly as the paper's two.
 """
 
 from __future__ import annotations

@@ -15,11 +15,18 @@ shape of `TableLayout` — the same tables as `[layout]` in a params file:
     y = 0.45
     start_side = "below"
 
+A table of N boxes has one table per option, named by the option (`[red]`, `[blue]`,
+`[green]`, …), and the same `[commit]`: the paper's file is its two-option case, read by both
+`load_calibration` (the paper's `TableLayout`) and `load_boxes` (any option names, in their
+order). The order of the tables in the file does not matter: box j is the session's option j.
+
 `nod vision calibrate` writes it from a saved frame (or one grabbed from `--source`): each box
 either from two opposite corners given as numbers — the "clicks", in pixels of the frame unless
 `--units norm` — or, when not given, by finding the red and blue buzzers by colour (HSV
-thresholds; the largest blob of each colour, its bounding box grown by `--margin`). A preview
-image with the boxes drawn shows the result on a machine without a screen.
+thresholds; the largest blob of each colour, its bounding box grown by `--margin`). With
+`--names red,blue,green` it writes a table of N boxes, each found by its option's colour
+(`services.scene.option_colours`; `find_option_boxes`). A preview image with the boxes drawn
+shows the result on a machine without a screen.
 """
 
 from __future__ import annotations
@@ -29,13 +36,15 @@ import datetime as dt
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from services.core.cli import Parser, fail, int_in
 from services.core.config import ConfigError, from_mapping, load_toml
-from services.model.geometry import Box, CommitLine, TableLayout
+from services.model.geometry import Box, CommitLine, OptionsLayout, TableLayout
+from services.scene.option_colours import colour_of
 
 log = logging.getLogger("nod.vision.calibrate")
 
@@ -66,16 +75,64 @@ def load_calibration(path: str | Path) -> TableLayout:
         raise ConfigError(f"{path}: {exc}") from None
 
 
-def dump_calibration(layout: TableLayout, note: str = "") -> str:
-    """The TOML text of a calibration (4 decimals: 0.1 px on a 1000 px image)."""
+class MissingBoxError(ConfigError):
+    """A calibration file has no box for some option: it may still give the commit line."""
+
+
+def _tables(path: str | Path) -> dict[str, Any]:
+    data = load_toml(path)
+    return data["layout"] if set(data) == {"layout"} else data
+
+
+def load_commit(path: str | Path) -> CommitLine:
+    """The commit line of a calibration file, whatever boxes it holds."""
+    try:
+        return from_mapping(CommitLine, _tables(path).get("commit", {}), "calibration.commit")
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def load_boxes(path: str | Path, names: tuple[str, ...]) -> OptionsLayout:
+    """The boxes of options `names` (box j is option j) and the commit line of a calibration file.
+
+    Any file of boxes by option name: the paper's red/blue file is the case `("red", "blue")`.
+    A name without its table is refused (MissingBoxError) in one line naming the ones it has.
+    """
+    data = _tables(path)
+    have = sorted(k for k, v in data.items() if k != "commit" and isinstance(v, dict))
+    missing = [name for name in names if not isinstance(data.get(name), dict)]
+    if missing:
+        raise MissingBoxError(
+            f"{path}: no box for option(s) {', '.join(missing)} (the file has {', '.join(have)}); "
+            f"write one with `nod vision calibrate --names {','.join(names)}`"
+        )
+    try:
+        boxes = tuple(from_mapping(Box, data[name], f"calibration.{name}") for name in names)
+        return OptionsLayout(boxes, load_commit(path))
+    except (ConfigError, ValueError) as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def dump_calibration(
+    layout: TableLayout | OptionsLayout, note: str = "", names: tuple[str, ...] = ("red", "blue")
+) -> str:
+    """The TOML text of a calibration (4 decimals: 0.1 px on a 1000 px image).
+
+    A `TableLayout` is the paper's red and blue; an `OptionsLayout` writes box j as `names[j]`.
+    """
     lines = [
         "# nod vision calibration: buzzer boxes [x1, y1]-[x2, y2] and the commit line y,",
         "# in normalised image coordinates (x right, y down, both in [0, 1]).",
     ]
     if note:
         lines.append(f"# {note}")
-    for name in ("red", "blue"):
-        b: Box = getattr(layout, name)
+    if isinstance(layout, TableLayout):
+        named: tuple[tuple[str, Box], ...] = (("red", layout.red), ("blue", layout.blue))
+    elif len(names) != layout.n_options:
+        raise ValueError(f"{len(names)} names for a table of {layout.n_options} boxes")
+    else:
+        named = tuple(zip(names, layout.boxes, strict=True))
+    for name, b in named:
         lines += ["", f"[{name}]"] + [
             f"{k} = {getattr(b, k):.4f}" for k in ("x1", "y1", "x2", "y2")
         ]
@@ -136,6 +193,33 @@ def detect_buzzer(
     return box
 
 
+def find_option_boxes(
+    frame_bgr: np.ndarray, names: tuple[str, ...], commit: CommitLine,
+    min_area: float = HsvThresholds().min_area, margin: float = 0.0,
+) -> OptionsLayout:
+    """The boxes of `names` (box j is option j), each found by its option's colour in one frame.
+
+    The colours are `services.scene.option_colours`' (red and blue with the paper's ranges), the
+    box the largest blob of that colour; a box not found, or two that overlap, is refused in one
+    line.
+    """
+    boxes = []
+    h, w = frame_bgr.shape[:2]
+    for name in names:
+        box, area = find_colour_box(frame_bgr, colour_of(name)[1], min_area, margin)
+        if box is None:
+            raise CalibrationError(
+                f"no {name} box found by colour (largest {name} area {area} px, need "
+                f"{int(min_area * w * h)}); check the lighting and that every box is in view"
+            )
+        boxes.append(box)
+    for i, a in enumerate(boxes):
+        for j in range(i + 1, len(boxes)):
+            if a.contains(boxes[j].center) or boxes[j].contains(a.center):
+                raise CalibrationError(f"the {names[i]} and {names[j]} boxes overlap")
+    return OptionsLayout(tuple(boxes), commit)
+
+
 def box_from_numbers(text: str, width: int | None, height: int | None, colour: str) -> Box:
     """A box from two opposite corners "X1,Y1,X2,Y2" in pixels (with a size) or normalised."""
     try:
@@ -181,22 +265,32 @@ def calibrate(
         else:
             boxes[colour] = detect_buzzer(frame_bgr, colour, th, margin)
             how.append(f"{colour} by colour")
-    y = CommitLine().y if commit_y is None else commit_y
-    if commit_y is not None and units == "px":
-        y = commit_y / size[1]  # type: ignore[operator]
-    if not 0.0 <= y <= 1.0:
-        raise CalibrationError(f"--commit-y {commit_y} lies outside the image")
+    commit = commit_line(frame_bgr, commit_y, units, start_side)
     if boxes["red"].contains(boxes["blue"].center) or boxes["blue"].contains(boxes["red"].center):
         raise CalibrationError("the red and blue boxes overlap; check the corners or the colours")
     layout = TableLayout(
         red=boxes["red"],
         blue=boxes["blue"],
-        commit=CommitLine(y=y, start_side=start_side),  # type: ignore[arg-type]
+        commit=commit,
     )
     for colour in ("red", "blue"):
         if not layout.commit.crossed(layout.box(colour).center):  # type: ignore[arg-type]
             log.warning("the %s box is on the participant's side of the commit line", colour)
     return layout, ", ".join(how)
+
+
+def commit_line(
+    frame_bgr: np.ndarray | None, commit_y: float | None, units: str, start_side: str
+) -> CommitLine:
+    """The commit line from `--commit-y` (pixels of the frame, or normalised) and its side."""
+    y = CommitLine().y if commit_y is None else commit_y
+    if commit_y is not None and units == "px":
+        if frame_bgr is None:
+            raise CalibrationError("--commit-y in pixels needs the frame; or --units norm")
+        y = commit_y / frame_bgr.shape[0]
+    if not 0.0 <= y <= 1.0:
+        raise CalibrationError(f"--commit-y {commit_y} lies outside the image")
+    return CommitLine(y=y, start_side=start_side)  # type: ignore[arg-type]
 
 
 def grab_frame(source: str, skip: int = 10) -> np.ndarray:
@@ -245,6 +339,12 @@ def build_parser() -> argparse.ArgumentParser:
         default="below",
         help="where the participant's hand starts relative to the commit line (default below)",
     )
+    p.add_argument(
+        "--names",
+        metavar="A,B,C",
+        help="a table of these options' boxes (3 or more, named by colour: red,blue,green), "
+        "each found by its colour; the file then holds one box per name",
+    )
     p.add_argument("--margin", type=float, default=0.0, help="grow colour boxes by this (norm)")
     p.add_argument("--min-saturation", type=int_in(0, 255), default=120,
                    help="HSV S threshold (0-255)")
@@ -280,34 +380,57 @@ def main(argv: list[str] | None = None) -> int:
             origin = args.source
             if args.save_frame is not None:
                 cv2.imwrite(str(args.save_frame), frame)
-        layout, how = calibrate(
-            frame,
-            red=args.red,
-            blue=args.blue,
-            units=args.units,
-            commit_y=args.commit_y,
-            start_side=args.start_side,
-            margin=args.margin,
-            thresholds=_thresholds(args.min_saturation, args.min_value),
-        )
-    except (CalibrationError, OSError, RuntimeError) as exc:
+        layout: TableLayout | OptionsLayout
+        names: tuple[str, ...] = ("red", "blue")
+        if args.names is not None:
+            names, layout = _table_of_names(args, frame)
+            how = "every box by colour"
+        else:
+            layout, how = calibrate(
+                frame,
+                red=args.red,
+                blue=args.blue,
+                units=args.units,
+                commit_y=args.commit_y,
+                start_side=args.start_side,
+                margin=args.margin,
+                thresholds=_thresholds(args.min_saturation, args.min_value),
+            )
+    except (CalibrationError, OSError, RuntimeError, ValueError) as exc:
         return fail("nod vision calibrate", exc)
     size = f" ({frame.shape[1]}x{frame.shape[0]})" if frame is not None else ""
     stamp = dt.datetime.now().isoformat(timespec="seconds")
     note = f"written {stamp} from {origin or 'numbers'}{size}: {how}"
-    args.out.write_text(dump_calibration(layout, note))
+    args.out.write_text(dump_calibration(layout, note, names))
     if args.preview is not None and frame is not None:
         from services.vision.overlay import draw_layout
 
-        cv2.imwrite(str(args.preview), draw_layout(frame.copy(), layout))
-    print(_summary(layout, args.out))
+        cv2.imwrite(str(args.preview), draw_layout(frame.copy(), layout, names))
+    print(_summary(layout, args.out, names))
     return 0
+
+
+def _table_of_names(
+    args: argparse.Namespace, frame: np.ndarray | None
+) -> tuple[tuple[str, ...], OptionsLayout]:
+    """`--names`: the option names and their boxes, each found by its colour in the frame."""
+    names = tuple(n.strip() for n in args.names.split(",") if n.strip())
+    if len(names) < 2 or len(set(names)) != len(names):
+        raise CalibrationError(f"--names needs two or more different names, got {args.names!r}")
+    if args.red is not None or args.blue is not None:
+        raise CalibrationError("--names finds every box by colour: drop --red and --blue")
+    if frame is None:
+        raise CalibrationError("finding the boxes by colour needs the frame (--frame or --source)")
+    commit = commit_line(frame, args.commit_y, args.units, args.start_side)
+    min_area = _thresholds(args.min_saturation, args.min_value).min_area
+    return names, find_option_boxes(frame, names, commit, min_area, args.margin)
 
 
 def _fmt(box: Box) -> str:
     return f"({box.x1:.3f}, {box.y1:.3f})-({box.x2:.3f}, {box.y2:.3f})"
 
 
-def _summary(layout: TableLayout, out: Path) -> str:
-    red, blue, y = _fmt(layout.red), _fmt(layout.blue), layout.commit.y
-    return f"wrote {out}: red {red}, blue {blue}, commit y = {y:.3f}"
+def _summary(layout: TableLayout | OptionsLayout, out: Path, names: tuple[str, ...]) -> str:
+    boxes = (layout.red, layout.blue) if isinstance(layout, TableLayout) else layout.boxes
+    each = ", ".join(f"{name} {_fmt(box)}" for name, box in zip(names, boxes, strict=True))
+    return f"wrote {out}: {each}, commit y = {layout.commit.y:.3f}"

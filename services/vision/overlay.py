@@ -9,7 +9,8 @@ import cv2
 import numpy as np
 
 from services.core.messages import MAX_BLOB_BYTES
-from services.model.geometry import TableLayout
+from services.model.geometry import Box, OptionsLayout, TableLayout
+from services.scene.option_colours import colour_of
 from services.vision.trackers import TrackResult
 
 _BOX_COLOURS = {"red": (0, 0, 255), "blue": (255, 64, 0)}
@@ -22,14 +23,26 @@ def _px(x: float, y: float, w: int, h: int) -> tuple[int, int]:
     return (round(x * w - 0.5), round(y * h - 0.5))
 
 
-def draw_layout(img: np.ndarray, layout: TableLayout) -> np.ndarray:
-    """Outline both boxes in their colours and draw the commit line, in place."""
+def draw_layout(
+    img: np.ndarray, layout: TableLayout | OptionsLayout | None, names: tuple[str, ...] = ()
+) -> np.ndarray:
+    """Outline the boxes in their colours and draw the commit line, in place.
+
+    The paper's `TableLayout` in its own red and blue; an `OptionsLayout`'s box j in the paint
+    of option `names[j]` (`services.scene.option_colours`); None (a table not found yet): nothing.
+    """
+    if layout is None:
+        return img
     h, w = img.shape[:2]
     thick = max(1, w // 320)
-    for colour in ("red", "blue"):
-        box = layout.box(colour)
+    named: tuple[tuple[Box, tuple[int, int, int]], ...]
+    if isinstance(layout, TableLayout):
+        named = tuple((layout.box(c), _BOX_COLOURS[c]) for c in ("red", "blue"))
+    else:
+        named = tuple((b, colour_of(n)[0]) for n, b in zip(names, layout.boxes, strict=True))
+    for box, bgr in named:
         p1, p2 = _px(box.x1, box.y1, w, h), _px(box.x2, box.y2, w, h)
-        cv2.rectangle(img, p1, p2, _BOX_COLOURS[colour], thick, cv2.LINE_AA)
+        cv2.rectangle(img, p1, p2, bgr, thick, cv2.LINE_AA)
     y = round(layout.commit.y * h - 0.5)
     cv2.line(img, (0, y), (w - 1, y), _LINE, thick, cv2.LINE_AA)
     return img
@@ -51,13 +64,16 @@ def draw_hand(img: np.ndarray, result: TrackResult) -> np.ndarray:
 
 def monitor_jpeg(
     frame_bgr: np.ndarray,
-    layout: TableLayout,
+    layout: TableLayout | OptionsLayout | None,
     result: TrackResult,
     width: int = 320,
     quality: int = 70,
     max_bytes: int = MAX_BLOB_BYTES,
+    names: tuple[str, ...] = (),
 ) -> tuple[bytes, int, int]:
     """A downscaled frame with boxes and hand drawn, as JPEG bytes; returns (jpeg, w, h).
+
+    `layout` and `names` as `draw_layout`'s.
 
     The quality steps down until the JPEG fits `max_bytes` (the message's limit).
     """
@@ -65,7 +81,7 @@ def monitor_jpeg(
     w = max(16, min(width, w0))
     h = max(16, round(h0 * w / w0))
     small = cv2.resize(frame_bgr, (w, h), interpolation=cv2.INTER_AREA)
-    draw_hand(draw_layout(small, layout), result)
+    draw_hand(draw_layout(small, layout, names), result)
     q = quality
     while True:
         ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, q])

@@ -5,12 +5,19 @@ Keys (see docs/vision.md):
   (gaps = frames dropped), `t_ns` = its capture time, `detected`, the landmarks and their mean
   `center` in normalised image coordinates, `source` = the tracker's name. No hand → detected
   false and nothing else; no frame (a lost camera) → nothing at all, so the key goes stale.
-- `vision/layout` (Layout): the buzzer boxes and the commit line from `--calibration` (else the
-  params file's `[layout]`, else SPEC's defaults), once at start and then at 1 Hz, and answered
-  to a zenoh `get` on the same key for late joiners.
+- the table, once at start (or once found) and then at 1 Hz, and answered to a zenoh `get` on
+  the same key for late joiners: the paper's two options on `vision/layout` (Layout), the buzzer
+  boxes and the commit line from `--calibration` (else the params file's `[layout]`, else SPEC's
+  defaults); three or more on `options/layout` (OptionsLayoutMsg), the option names and their
+  boxes from a `--calibration` file with a box per option, else found by their colours in the
+  camera's frames (`calibration.find_option_boxes`; nothing is published until every box is
+  found, each tracked frame tries again, with a warning every 100 frames).
 - `vision/frame` (VisionFrame): a small JPEG with the boxes and the hand drawn, at
   `--frames-key-hz` (default 2, 0 = off), encoded on the node's tick thread, never on the
   tracking thread that publishes hand poses.
+
+One service for any number of options: what differs with N is the table alone (`PaperTable`,
+`OptionsTable`: its key, its message, where its boxes come from), picked by `vision_table`.
 
 The tracking thread takes the newest captured frame, tracks it and publishes the pose; the node's
 main thread runs the low-rate ticks (layout, monitor frame, a 10 s status line).
@@ -37,9 +44,18 @@ from services.core.clock import add_clock_args
 from services.core.config import ConfigError, load_with_options
 from services.core.contract import check_publisher
 from services.core.node import Node, declare_publisher, setup_logging
+from services.core.options_messages import layout_message_fields
 from services.core.session import Fabric, add_zenoh_args
-from services.model.geometry import TableLayout
-from services.vision.calibration import load_calibration
+from services.model.geometry import CommitLine, OptionsLayout, TableLayout
+from services.model.schedule import OptionsSchedule
+from services.vision.calibration import (
+    CalibrationError,
+    MissingBoxError,
+    find_option_boxes,
+    load_boxes,
+    load_calibration,
+    load_commit,
+)
 from services.vision.capture import (
     Capture,
     CaptureError,
@@ -94,15 +110,93 @@ class HandPublisher:
         return msg
 
 
+class PaperTable:
+    """The paper's two options (schema 1): red and blue on `vision/layout`, known at start."""
+
+    key = "vision/layout"
+    names: tuple[str, ...] = ("red", "blue")
+
+    def __init__(self, layout: TableLayout) -> None:
+        self.layout: TableLayout | OptionsLayout | None = layout
+        self.fields: dict[str, Any] | None = m.layout_fields(layout)
+
+    def look(self, image: Any) -> None:
+        """Nothing to find: the boxes came from the calibration, the params or SPEC."""
+
+
+class OptionsTable:
+    """Three or more options (schema 2): names and boxes on `options/layout`.
+
+    The boxes are given (a calibration file with one per option) or found by their colours in
+    the camera's frames, tried on every tracked frame until all are found.
+    """
+
+    key = "options/layout"
+
+    def __init__(
+        self, names: tuple[str, ...], commit: CommitLine, boxes: OptionsLayout | None = None
+    ) -> None:
+        self.names = names
+        self.commit = commit
+        self.layout: TableLayout | OptionsLayout | None = None
+        self.fields: dict[str, Any] | None = None
+        self._tries = 0
+        if boxes is not None:
+            self._found(boxes)
+
+    def _found(self, boxes: OptionsLayout) -> None:
+        self.fields = dict(layout_message_fields(self.names, boxes))
+        self.layout = boxes  # after the fields: whoever sees the layout can publish them
+
+    def look(self, image: Any) -> None:
+        """Until found: find every option's box by its colour in this frame."""
+        if self.fields is not None:
+            return
+        try:
+            boxes = find_option_boxes(image, self.names, self.commit)
+        except CalibrationError as exc:
+            self._tries += 1
+            if self._tries % 100 == 1:
+                log.warning("table of %d boxes not found yet: %s", len(self.names), exc)
+        else:
+            self._found(boxes)
+            log.info("found the %d boxes: %s", len(self.names), self.fields)
+
+
+VisionTable = PaperTable | OptionsTable
+
+
+def vision_table(
+    calibration: Path | None, params: Path | None, schedule: OptionsSchedule | None
+) -> tuple[VisionTable, str]:
+    """The table for the option count, and where its boxes come from (for the log).
+
+    Two options: `load_layout`'s. More: a calibration file's boxes when it has one per option;
+    else found by colour, with the commit line of the file (the paper's), the params or SPEC.
+    """
+    if schedule is None:
+        layout, origin = load_layout(calibration, params)
+        return PaperTable(layout), origin
+    names = schedule.names
+    if calibration is None:
+        layout, origin = load_layout(None, params)
+        return OptionsTable(names, layout.commit), f"colours in the frames, commit from {origin}"
+    try:
+        return OptionsTable(names, CommitLine(), load_boxes(calibration, names)), str(calibration)
+    except MissingBoxError as exc:  # the paper's file, say: its commit line, boxes by colour
+        log.info("%s; finding the %d boxes by colour", exc, len(names))
+    return OptionsTable(names, load_commit(calibration)), f"colours in the frames, {calibration}"
+
+
 class VisionService:
-    """Wires a Capture and a HandTracker to the rig's vision keys."""
+    """Wires a Capture and a HandTracker to the rig's vision keys, for the table of its options."""
 
     def __init__(
         self,
         node: Node,
         capture: Capture,
         tracker: HandTracker,
-        layout: TableLayout,
+        table: VisionTable,
         *,
         frames_hz: float = 2.0,
         frame_width: int = 320,
@@ -110,13 +204,12 @@ class VisionService:
         self.node = node
         self.capture = capture
         self.tracker = tracker
-        self.layout = layout
+        self.table = table
         self.frame_width = frame_width
         self.pub_hand = HandPublisher(node, lossless=capture.lossless)
-        self.pub_layout = node.publisher("vision/layout")
+        self.pub_layout = node.publisher(table.key)
         self.pub_frame = node.publisher("vision/frame") if frames_hz > 0 else None
-        self._layout = m.layout_fields(layout)
-        self._layout_key = node.keys.topic("vision/layout")
+        self._layout_key = node.keys.topic(table.key)
         self._queryable = node.session.declare_queryable(self._layout_key, self._on_layout_query)
         self._latest: tuple[Frame, TrackResult] | None = None
         self._shown = -1
@@ -132,7 +225,11 @@ class VisionService:
     # -- hot path (tracking thread) ------------------------------------------------------------
 
     def process(self, frame: Frame) -> TrackResult:
-        """Track one frame and publish its hand pose, stamped with the frame's seq and t_ns."""
+        """Track one frame and publish its hand pose, stamped with the frame's seq and t_ns.
+
+        A table still to be found looks for its boxes in the frame first.
+        """
+        self.table.look(frame.image)
         result = self.tracker.track(frame.image)
         self.pub_hand.put(frame, result, self.tracker.name)
         self.detected += result.detected
@@ -164,11 +261,16 @@ class VisionService:
     # -- low-rate ticks (node thread) ----------------------------------------------------------
 
     def publish_layout(self, now_ns: int) -> None:
-        """The boxes and commit line, latched by republishing every second."""
-        self.pub_layout.put(t_ns=now_ns, **self._layout)
+        """The boxes and commit line, latched by republishing every second (once known)."""
+        fields = self.table.fields
+        if fields is not None:
+            self.pub_layout.put(t_ns=now_ns, **fields)
 
     def _on_layout_query(self, query: zenoh.Query) -> None:
-        msg = m.Layout(seq=self.pub_layout.seq, t_ns=self.node.clock.now_ns(), **self._layout)
+        fields = self.table.fields
+        if fields is None:  # not found yet: no answer, as nothing is published
+            return
+        msg = self.pub_layout.cls(seq=self.pub_layout.seq, t_ns=self.node.clock.now_ns(), **fields)
         query.reply(self._layout_key, m.encode(msg))
 
     def publish_frame(self, now_ns: int) -> None:
@@ -177,7 +279,8 @@ class VisionService:
         if self.pub_frame is None or latest is None or latest[0].seq == self._shown:
             return
         frame, result = latest
-        jpeg, w, h = monitor_jpeg(frame.image, self.layout, result, width=self.frame_width)
+        jpeg, w, h = monitor_jpeg(frame.image, self.table.layout, result,
+                                  width=self.frame_width, names=self.table.names)
         self.pub_frame.put(
             t_ns=frame.t_ns,
             jpeg=jpeg,
@@ -323,7 +426,7 @@ def main(argv: list[str] | None = None) -> int:
         if not 16 <= args.frame_width <= 1920:
             raise ValueError(f"--frame-width must be in [16, 1920], got {args.frame_width}")
         _, schedule = load_with_options(args.params, args.options)
-        layout, layout_origin = load_layout(args.calibration, args.params)
+        table, layout_origin = vision_table(args.calibration, args.params, schedule)
         params = CaptureParams(
             width=args.width,
             height=args.height,
@@ -359,7 +462,7 @@ def main(argv: list[str] | None = None) -> int:
             node.close()
         return 2
     log.info("%s: %s", capture.source.label, info.describe(params))
-    log.info("tracker %s; layout from %s: %s", tracker.name, layout_origin, m.layout_fields(layout))
+    log.info("tracker %s; layout from %s: %s", tracker.name, layout_origin, table.fields)
     try:
         node = node or Node("vision", fabric, retry_s=math.inf)
     except (ValueError, OSError, ConnectionError) as exc:
@@ -367,9 +470,7 @@ def main(argv: list[str] | None = None) -> int:
         tracker.close()
         return fail("nod vision", exc)
     service = VisionService(
-        node, capture, tracker, layout, frames_hz=args.frames_key_hz, frame_width=args.frame_width
-    ) if schedule is None else _options_service(
-        node, capture, tracker, layout, schedule.names, args
+        node, capture, tracker, table, frames_hz=args.frames_key_hz, frame_width=args.frame_width
     )
     if args.wait_for_subscriber > 0 and not service.wait_for_subscriber(args.wait_for_subscriber):
         log.warning("no subscriber on %s yet; starting anyway", service.pub_hand.key)
@@ -387,19 +488,6 @@ def main(argv: list[str] | None = None) -> int:
         "vision: %d hand poses published (%d with a hand)", service.published, service.detected
     )
     return service.exit_code
-
-
-def _options_service(
-    node: Node, capture: Capture, tracker: HandTracker, layout: TableLayout,
-    names: tuple[str, ...], args: argparse.Namespace,
-) -> VisionService:
-    """The camera path over N boxes, found by their colours (`services.vision.options_service`)."""
-    from services.vision.options_service import OptionsVisionService
-
-    return OptionsVisionService(
-        node, capture, tracker, layout, names=names, commit=layout.commit,
-        frames_hz=args.frames_key_hz, frame_width=args.frame_width,
-    )
 
 
 if __name__ == "__main__":

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from services.core import messages as m
+from services.core import options_messages as om
 from services.core.keys import Keys
 from services.core.session import make_config, open_session
-from services.model.geometry import Box, CommitLine, TableLayout
+from services.model.geometry import Box, CommitLine, OptionsLayout, TableLayout
 from services.scene.render import HandPath, SceneRenderer, demo_path, write_video
 from services.vision.calibration import dump_calibration
 
@@ -87,26 +88,46 @@ def test_vision_publishes_the_rendered_path_of_a_video_file(client, spawn, tmp_p
     assert 0 <= shot.hand_seq < len(truth)
 
 
-def test_late_joiners_get_the_layout_and_sigterm_stops_cleanly(client, endpoint, spawn, tmp_path):
+THREE = OptionsLayout(
+    (Box(0.12, 0.10, 0.30, 0.28), Box(0.41, 0.10, 0.59, 0.28), Box(0.70, 0.10, 0.88, 0.28)),
+    CommitLine(0.5),
+)
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_late_joiners_get_the_layout_and_sigterm_stops_cleanly(
+    client, endpoint, spawn, tmp_path, n
+):
+    """The table from the calibration file: the paper's two on vision/layout, N on options/."""
     cal = tmp_path / "table.toml"
-    cal.write_text(dump_calibration(LAYOUT))
+    if n == 2:
+        cal.write_text(dump_calibration(LAYOUT))
+        key, cls, options = "vision/layout", m.Layout, ()
+    else:
+        cal.write_text(dump_calibration(THREE, names=("red", "blue", "green")))
+        key, cls, options = "options/layout", om.OptionsLayoutMsg, ("--options", "3")
     hands = Collector(client, KEYS.topic("vision/hand"), m.HandPose)
+    layouts = Collector(client, KEYS.topic(key), cls)
     proc = spawn(
         "vision",
         *("--source", "sim", "--tracker", "sim", "--realtime", "--loop", "--fps", "30"),
-        *("--calibration", str(cal), "--frames-key-hz", "0"),
+        *("--calibration", str(cal), "--frames-key-hz", "0", *options),
     )
     wait_for(lambda: sum(p.detected for p in hands.messages) >= 10, 20, "hand poses from sim")
     assert all(len(p.landmarks) == 21 for p in hands.messages if p.detected)
     assert {p.source for p in hands.messages} == {"sim"}
+    wait_for(lambda: layouts.messages, 5, "the layout published")
     late = open_session(make_config(mode="client", connect=[endpoint]))
     try:
-        replies = [r for r in late.get(KEYS.topic("vision/layout"), timeout=3.0) if r.ok]
+        replies = [r for r in late.get(KEYS.topic(key), timeout=3.0) if r.ok]
     finally:
         late.close()
     assert replies, "nobody answered a get on the layout key"
-    lay = m.decode(m.Layout, replies[0].ok.payload.to_bytes())
-    assert lay.red == (0.7, 0.1, 0.88, 0.28) and lay.commit_y == 0.5
+    for lay in (layouts.messages[0], m.decode(cls, replies[0].ok.payload.to_bytes())):
+        if n == 2:
+            assert lay.red == (0.7, 0.1, 0.88, 0.28) and lay.commit_y == 0.5
+        else:
+            assert lay.names == ("red", "blue", "green") and lay.layout() == THREE
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(10) == 0, proc.log_path.read_text()
 

@@ -7,8 +7,7 @@ import pytest
 from services.model.geometry import CommitLine, OptionsLayout
 from services.scene.option_colours import painted_boxes
 from services.scene.render import SceneRenderer
-from services.vision.calibration import CalibrationError
-from services.vision.option_boxes import find_option_boxes
+from services.vision.calibration import CalibrationError, find_option_boxes
 
 NAMES = ("red", "blue", "green", "yellow")
 

@@ -5,14 +5,18 @@ import numpy as np
 import pytest
 
 from services.core.config import ConfigError
-from services.model.geometry import Box, CommitLine, TableLayout
+from services.model.geometry import Box, CommitLine, OptionsLayout, TableLayout
+from services.scene.option_colours import painted_boxes
 from services.scene.render import SceneRenderer
 from services.vision.calibration import (
     CalibrationError,
+    MissingBoxError,
     box_from_numbers,
     calibrate,
     dump_calibration,
+    load_boxes,
     load_calibration,
+    load_commit,
     main,
 )
 from services.vision.service import main as vision_main
@@ -83,6 +87,48 @@ def test_the_file_round_trips_and_a_params_layout_table_is_accepted(tmp_path):
     bad.write_text("[red]\nx1 = 0.1\nwidth = 3\n")
     with pytest.raises(ConfigError, match="unknown key"):
         load_calibration(bad)
+
+
+NAMES = ("red", "blue", "green")
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_a_file_of_n_boxes_by_option_name_round_trips(tmp_path, n):
+    """The paper's red/blue file is the two-option case of a file of boxes by option name."""
+    path, names = tmp_path / "table.toml", NAMES[:n]
+    if n == 2:  # the paper's file, as `nod vision calibrate` has always written it
+        path.write_text(dump_calibration(MIRRORED, "test"))
+        want = OptionsLayout.from_table(MIRRORED)
+    else:
+        boxes = (Box(0.1, 0.1, 0.2, 0.2), Box(0.4, 0.1, 0.5, 0.2), Box(0.7, 0.1, 0.8, 0.2))
+        want = OptionsLayout(boxes, CommitLine(0.5, "above"))
+        path.write_text(dump_calibration(want, "test", names))
+        with pytest.raises(ConfigError, match="unknown key"):  # the paper's reader: two only
+            load_calibration(path)
+    assert load_boxes(path, names) == want
+    assert load_boxes(path, names[::-1]).boxes == want.boxes[::-1]  # by name, not file order
+    assert load_commit(path) == want.commit
+    with pytest.raises(MissingBoxError, match="no box for option.s. yellow.*--names"):
+        load_boxes(path, (*names, "yellow"))
+
+
+def test_nod_vision_calibrate_writes_a_table_of_three_boxes_by_colour(tmp_path, capsys):
+    layout = OptionsLayout.row(3)
+    frame_path, out, preview = tmp_path / "frame.png", tmp_path / "t.toml", tmp_path / "p.png"
+    renderer = SceneRenderer(options=painted_boxes(NAMES, layout), noise=2.0)
+    cv2.imwrite(str(frame_path), renderer.render((0.5, 0.8)))
+    args = ["--frame", str(frame_path), "--names", ",".join(NAMES), "--commit-y", "0.5",
+            "--units", "norm", "-o", str(out), "--preview", str(preview)]
+    assert main(args) == 0
+    assert "green (0." in capsys.readouterr().out
+    found = load_boxes(out, NAMES)
+    assert found.commit.y == 0.5
+    for got, want in zip(found.boxes, layout.boxes, strict=True):
+        assert _close(got, want, 2 / 480)
+    assert cv2.imread(str(preview)).shape == (480, 640, 3)
+    assert main(["--frame", str(frame_path), "--names", "red,blue,green", "--red", "1,2,3,4",
+                 "-o", str(out)]) == 2
+    assert "drop --red" in capsys.readouterr().err
 
 
 def test_nod_vision_calibrate_writes_the_file_and_a_preview(tmp_path, capsys):
