@@ -161,9 +161,9 @@ def _trims_file(path: Path) -> object:
 
 
 def _calibration_file(path: Path) -> object:
-    from services.vision.calibration import load_calibration
+    from services.vision.calibration import load_table
 
-    return load_calibration(path)
+    return load_table(path)  # the paper's two boxes, or N by option name
 
 
 def _folder(key: str, path: Path) -> list[str]:

@@ -113,6 +113,18 @@ def load_boxes(path: str | Path, names: tuple[str, ...]) -> OptionsLayout:
         raise ConfigError(f"{path}: {exc}") from None
 
 
+def load_table(path: str | Path) -> TableLayout | OptionsLayout:
+    """Whatever table a calibration file holds (what `nod rig`'s preflight checks).
+
+    The paper's red and blue are checked as `load_calibration` checks them (an unknown key
+    refused); a file with other names holds N boxes by option name (`load_boxes`).
+    """
+    names = tuple(k for k, v in _tables(path).items() if k != "commit" and isinstance(v, dict))
+    if set(names) <= {"red", "blue"}:
+        return load_calibration(path)
+    return load_boxes(path, names)
+
+
 def dump_calibration(
     layout: TableLayout | OptionsLayout, note: str = "", names: tuple[str, ...] = ("red", "blue")
 ) -> str:

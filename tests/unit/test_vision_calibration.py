@@ -17,6 +17,7 @@ from services.vision.calibration import (
     load_boxes,
     load_calibration,
     load_commit,
+    load_table,
     main,
 )
 from services.vision.service import main as vision_main
@@ -110,6 +111,8 @@ def test_a_file_of_n_boxes_by_option_name_round_trips(tmp_path, n):
     assert load_commit(path) == want.commit
     with pytest.raises(MissingBoxError, match="no box for option.s. yellow.*--names"):
         load_boxes(path, (*names, "yellow"))
+    # what `nod rig`'s preflight reads: the paper's table as it is, or the boxes by name
+    assert load_table(path) == (MIRRORED if n == 2 else want)
 
 
 def test_nod_vision_calibrate_writes_a_table_of_three_boxes_by_colour(tmp_path, capsys):
