@@ -13,12 +13,14 @@ import numpy as np
 import pytest
 
 from services.core import messages as m
+from services.core import options_messages as om
 from services.core.node import Node
 from services.core.session import Fabric
 from services.decision.service import DecisionService
 from services.eyes.service import EyesService
 from services.eyes.servos import SimServoDriver
-from services.model.decision import DecisionModel
+from services.model.decision import DecisionModel, OptionsDecision
+from services.model.params import NodConfig
 from services.model.safety import SafetyParams
 from tests.integration.conftest import Collector, wait_for
 
@@ -35,21 +37,36 @@ def _stream(n: int, hz: float = 30.0) -> list[tuple[int, list[tuple[float, float
     return out
 
 
-def test_live_decision_publishes_exactly_the_models_values(router, endpoint, client):
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_live_decision_publishes_exactly_the_models_values(router, endpoint, client, n_options):
+    # One decision service whatever the number of options: the paper's kernel on its scalar keys
+    # at two, the N-option engine on the options/* vectors at three, each value the engine's.
+    cfg = NodConfig()
     fabric = Fabric(connect=(endpoint,))
     decision = Node("decision", fabric)
-    DecisionService(decision, DecisionModel())
+    DecisionService(decision, cfg, n_options)
     decision.ready()
     camera = Node("sim", fabric)
-    z_r = Collector(client, camera.keys.topic("decision/z_r"), m.Scalar)
-    b_r = Collector(client, camera.keys.topic("decision/b_r"), m.Scalar)
+    if n_options == 2:
+        outputs, vector = "decision", m.Scalar
+        reference: DecisionModel | OptionsDecision = DecisionModel(cfg.decision, cfg.layout)
+        reference.reset("consensus", "red")
+        cue = {"option": "red"}
+    else:
+        outputs, vector = "options", om.OptionVector
+        reference = OptionsDecision(cfg.table(n_options), cfg.decision)
+        reference.reset("consensus", 0)
+        cue = {"n_options": n_options, "option": 0}
+    z_r = Collector(client, camera.keys.topic(f"{outputs}/z_r"), vector)
+    b_r = Collector(client, camera.keys.topic(f"{outputs}/b_r"), vector)
     conductor = Node("experiment", fabric)
-    trial = conductor.publisher("experiment/trial")
+    trial_key = "experiment/trial" if n_options == 2 else "options/trial"
+    trial = conductor.publisher(trial_key)
     hands = camera.publisher("vision/hand")
     try:
         wait_for(lambda: hands._pub.matching_status.matching, 5.0, "decision subscribed")
-        trial.put(phase="go", trial=5, mode="consensus", option="red")
-        wait_for(lambda: decision.received["experiment/trial"] == 1, 5.0, "the trial event")
+        trial.put(phase="go", trial=5, mode="consensus", **cue)
+        wait_for(lambda: decision.received[trial_key] == 1, 5.0, "the trial event")
         stream = _stream(60)
         for i, (t_ns, pts) in enumerate(stream):
             center = (sum(p[0] for p in pts) / 21, sum(p[1] for p in pts) / 21)
@@ -58,14 +75,21 @@ def test_live_decision_publishes_exactly_the_models_values(router, endpoint, cli
             # design (the intake keeps up with a camera, not with a stalled one), and a loaded
             # host stalls whatever pace a sleep here sets.
             wait_for(lambda n=i + 1: len(z_r.messages) >= n, 30.0, f"z_r of pose {i + 1}")
-        reference = DecisionModel()
-        reference.reset("consensus", "red")
         expected = [reference.on_hand(t, pts) for t, pts in stream]
-        got = sorted(z_r.messages, key=lambda msg: msg.src_seq)
-        assert [msg.value for msg in got] == [e.z_r for e in expected]
+
+        def values(x: object) -> object:  # a number, or a vector as its tuple
+            return tuple(x.tolist()) if isinstance(x, np.ndarray) else x
+
+        def got(msg: m.Scalar | om.OptionVector) -> object:
+            return msg.value if isinstance(msg, m.Scalar) else msg.values
+
+        received = sorted(z_r.messages, key=lambda msg: msg.src_seq)
+        assert [got(msg) for msg in received] == [values(e.z_r) for e in expected]
         wait_for(lambda: len(b_r.messages) == len(stream), 5.0, "one b_r per pose")
-        assert sorted(b.value for b in b_r.messages) == sorted(e.b_r for e in expected)
-        assert expected[-1].b_r > 0  # consensus toward red did run eq 6
+        by_seq = sorted(b_r.messages, key=lambda msg: msg.src_seq)
+        assert [got(msg) for msg in by_seq] == [values(e.b_r) for e in expected]
+        last = expected[-1].b_r
+        assert (last if n_options == 2 else last[0]) > 0  # consensus toward O did run eq 6
     finally:
         for node in (decision, camera, conductor):
             node.close()
@@ -175,7 +199,6 @@ def test_a_silent_arm_bus_never_holds_up_the_actuation_safety(router, endpoint, 
     from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
     from services.actuation.service import ActuationService
     from services.actuation.threaded_arm import ThreadedArm
-    from services.model.params import NodConfig
     from tests.emulators.feetech_emulator import FeetechBusEmulator
     from tests.emulators.links import LINK
 
@@ -241,7 +264,6 @@ def test_an_arm_fault_is_a_safe_stop_whatever_the_number_of_options(
     # one actuation service stops on it, says so on actuation/state for any number of options
     # (the N-option copy never told its watchdog), and clears once the device is healthy.
     from services.actuation.service import ActuationService, key_space
-    from services.model.params import NodConfig
 
     cfg = NodConfig()
     fabric = Fabric(connect=(endpoint,))
