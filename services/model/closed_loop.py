@@ -3,42 +3,61 @@
 It drives the same `SessionProtocol` as the conductor and reacts to its cues the way the
 services do on the fabric — decision and actuation reset at "setup", start at "go"; the
 participant reads the gaze, waits for "go" and watches the arm — with the same pure parts:
-`Participant`, `DecisionModel`, `RobotBehaviour`, `SimArm`, `OutcomeTracker`, `judge_trial`.
+`Participant`, the decision engine, the robot's Algorithm 2, the simulated arm and the judge.
 Everything advances in lock step at camera rate, so a seed gives one exact session. A
 distributed session gives the same kind of outcomes, not bit-identical ones: message timing
 differs.
+
+One loop for any option set (docs/multi-option.md): the cues, the protocol's pauses and
+repeats, the frame and the stored trial are written once (`_Loop`). What a table is made of
+is its subclass's: `_PaperLoop`, the two-option kernel — the paper's parts in red and blue
+(`DecisionModel`, `RobotTrial`, `SimArm`, `TrialJudge`), the gaze as its yaw, the arm's
+heading as a sign — kept because the cohort's sessions are pinned by the golden
+(tests/unit/test_golden.py); `_OptionsLoop`, the general form over a schedule's N options
+(`OptionsDecision`, `OptionsRobotTrial`, `OptionsSimArm`, `OptionsTrialJudge`; options as
+indices). Both draw the person's random numbers in the same order.
 """
 
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import NamedTuple
+from dataclasses import dataclass, replace
+from typing import Any, Generic, NamedTuple, Protocol, TypeVar, overload
 
 import numpy as np
 
-from services.model.arm import SimArm
-from services.model.decision import DecisionModel
-from services.model.geometry import Colour, Point, TableLayout, colour_sign
-from services.model.judge import TrialJudge
+from services.model.arm import OptionsSimArm, SimArm
+from services.model.decision import DecisionModel, OptionsDecision, PoseEngine
+from services.model.gaze import GazeCommand
+from services.model.geometry import Box, Colour, Point, colour_sign
+from services.model.judge import Judge, OptionsTrialJudge, TrialJudge
 from services.model.outcome import TrialJudgement
 from services.model.params import NodConfig
-from services.model.participant import Participant, jittered
-from services.model.protocol import Cue, SessionProtocol
+from services.model.participant import Participant, ParticipantParams, jittered
+from services.model.protocol import Cue, ProtocolParams, SessionProtocol
 from services.model.replayed_hand import Pose, ReplayedHand
-from services.model.robot import RobotTrial
+from services.model.robot import OptionsRobotTrial, RobotTrial, TrialReactor
+from services.model.schedule import Mode, OptionsSchedule, TrialSpec
+
+Opt = TypeVar("Opt", Colour, int)  # an option: the paper's colour, or an index of N
+Opt_co = TypeVar("Opt_co", covariant=True)
 
 
 class LoopSample(NamedTuple):
-    """One camera frame of a simulated trial: the hand, the decision's outputs, the arm."""
+    """One camera frame of a simulated trial: the hand, the decision's outputs, the arm.
+
+    Over N options ẑ_h, z_r, b_r are vectors with no faithful scalar: their columns are None,
+    as the conductor stores them (`services.experiment.keyspace`).
+    """
 
     t_ns: int
     hand_x: float
     hand_y: float
-    z_h: float
-    z_r: float
-    b_r: float
+    z_h: float | None
+    z_r: float | None
+    b_r: float | None
     ee_x: float
     ee_y: float
     theta: float | None  # eq 7's θ when this frame set ẑ_h
@@ -46,14 +65,14 @@ class LoopSample(NamedTuple):
 
 
 @dataclass(frozen=True, slots=True)
-class OfflineTrial:
-    """The result of one simulated trial."""
+class OfflineTrial(Generic[Opt]):
+    """The result of one simulated trial (options by colour, or by index into the schedule)."""
 
     trial: int
     mode: str
-    option: Colour | None
-    human: Colour | None
-    robot: Colour | None
+    option: Opt | None
+    human: Opt | None
+    robot: Opt | None
     outcome: str | None
     switches: int
     violations: int
@@ -78,48 +97,97 @@ def centre(pts: np.ndarray) -> Point:
 _SUM = np.add.reduce
 
 
-def box_bounds(layout: TableLayout) -> list[tuple[float, float, float, float]]:
-    """(x1, x2, y1, y2) of each buzzer box: a pose whose landmarks all lie outside presses none."""
-    return [(b.x1, b.x2, b.y1, b.y2) for b in (layout.red, layout.blue)]
+def box_bounds(boxes: Sequence[Box]) -> list[tuple[float, float, float, float]]:
+    """(x1, x2, y1, y2) of each box: a pose whose landmarks all lie outside presses none."""
+    return [(b.x1, b.x2, b.y1, b.y2) for b in boxes]
 
 
-class _Loop:
+class _ArmState(Protocol[Opt_co]):
+    """What the loop reads of either simulated arm's report."""
+
+    @property
+    def ee(self) -> Point: ...
+    @property
+    def moving(self) -> bool: ...
+    @property
+    def target(self) -> Opt_co | None: ...
+    @property
+    def pressed(self) -> Opt_co | None: ...
+
+
+class _Arm(Protocol[Opt_co]):
+    """Either simulated arm, as the loop drives it (commands are its robot's own)."""
+
+    def connect(self) -> None: ...
+    def home(self) -> object: ...
+    def hold(self) -> object: ...
+    def send(self, cmd: Any) -> object: ...
+    def state(self, t: float) -> _ArmState[Opt_co]: ...
+
+
+def _draws(cfg: NodConfig, seed: int, cohort: bool) -> tuple[ParticipantParams, int]:
+    """The person's traits (jittered in a cohort) and their own seed, drawn in this order."""
+    rng = np.random.default_rng(seed)
+    params = jittered(cfg.participant, rng) if cohort else cfg.participant
+    return params, int(rng.integers(2**31))
+
+
+class _Loop(ABC, Generic[Opt]):
     """One participant's session: the protocol's cues dispatched to the loop's parts."""
 
     def __init__(
         self,
         cfg: NodConfig,
-        seed: int,
-        cohort: bool,
         clicks: int | None,
-        record: bool = False,
-        hand: ReplayedHand | None = None,
+        record: bool,
+        person: Participant[Opt] | ReplayedHand,
+        model: PoseEngine[Any, Opt, Any],
+        robot: TrialReactor[Any, Any, Opt, Any],
+        arm: _Arm[Opt],
+        boxes: Sequence[Box],
+        protocol: ProtocolParams,
     ) -> None:
-        rng = np.random.default_rng(seed)
-        params = jittered(cfg.participant, rng) if cohort else cfg.participant
         self.cfg = cfg
         self.clicks = clicks
-        self.person: Participant | ReplayedHand = (
-            hand
-            if hand is not None
-            else Participant(params, cfg.layout, seed=int(rng.integers(2**31)))
-        )
-        self.model = DecisionModel(cfg.decision, cfg.layout)
-        self.robot = RobotTrial(
-            cfg.layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
-        )
-        self.arm = SimArm(cfg.layout, cfg.sim_arm, t0=0.0)
-        self._boxes = box_bounds(cfg.layout)
+        self.person: Participant[Opt] | ReplayedHand = person
+        self.model: PoseEngine[Any, Opt, Any] = model
+        self.robot: TrialReactor[Any, Any, Opt, Any] = robot
+        self.arm: _Arm[Opt] = arm
+        self._boxes = box_bounds(boxes)
         self.arm.connect()
-        self.protocol = SessionProtocol(cfg.protocol)
-        self.judge: TrialJudge | None = None  # from "go" to the trial's verdict
+        self.protocol = SessionProtocol(protocol)
+        self.judge: Judge[Any, Opt, Any] | None = None  # from "go" to the trial's verdict
         self.t_go = 0.0
         self.record = record
         self.samples: list[LoopSample] = []
-        self.results: list[OfflineTrial] = []
+        self.results: list[OfflineTrial[Opt]] = []
+
+    # -- what a table is made of -----------------------------------------------------------
+
+    @abstractmethod
+    def _trial(self, spec: TrialSpec) -> tuple[Mode, Opt | None, Opt | None]:
+        """The trial's mode, its O (the person's and the stored one), the decision engine's O."""
+
+    @abstractmethod
+    def _new_judge(self, mode: Mode) -> Judge[Any, Opt, Any]:
+        """The judge of a trial from its "go"."""
+
+    @abstractmethod
+    def _gaze(self, gaze: GazeCommand) -> GazeCommand | float:
+        """The gaze cue as the person reads it."""
+
+    @abstractmethod
+    def _heading(self, state: _ArmState[Opt]) -> int | None:
+        """What the person sees the arm head for (`Participant.see_robot`)."""
+
+    @abstractmethod
+    def _opinions(self, out: Any) -> tuple[float | None, ...]:
+        """A recorded frame's ẑ_h, z_r, b_r, θ and d."""
+
+    # -- the session, written once -----------------------------------------------------------
 
     @property
-    def human(self) -> Colour | None:
+    def human(self) -> Opt | None:
         """The human's press this trial (the judge's, the same one the robot sees)."""
         return self.judge.human if self.judge is not None else None
 
@@ -128,37 +196,41 @@ class _Loop:
             cue = cues.pop(0)
             spec = cue.trial
             if cue.kind == "gaze" and not cue.gesture and cue.gaze is not None:
-                self.person.see_gaze(cue.gaze.yaw)
-            elif cue.kind == "setup" and spec is not None:
-                self.model.reset(spec.mode, spec.consensus_option)
+                self.person.see_gaze(self._gaze(cue.gaze))
+            elif spec is None:
+                continue
+            elif cue.kind == "setup":
+                mode, option, decided = self._trial(spec)
+                self.model.reset(mode, decided)
                 self.robot.setup(spec.index)
                 self.arm.state(t)
                 self.arm.home()
-                self.person.new_trial(spec.option)
+                self.person.new_trial(option)
                 self.judge = None
                 self.samples = []
-            elif cue.kind == "go" and spec is not None:
-                self.model.reset(spec.mode, spec.consensus_option)
+            elif cue.kind == "go":
+                mode, _, decided = self._trial(spec)
+                self.model.reset(mode, decided)
                 self.robot.go(t)
                 self.person.go(t)
-                self.judge = TrialJudge(self.cfg, self.cfg.layout, spec.mode)
+                self.judge = self._new_judge(mode)
                 self.t_go = t
-            elif cue.kind == "end" and spec is not None:
-                self._judge(t, spec.index, spec.mode, spec.option)
+            elif cue.kind == "end":
+                self._judge(t, spec)
                 cues.extend(self.protocol.judged(t))
-            elif cue.kind == "interrupted" and spec is not None:
-                self._interrupted(t, spec.index, spec.mode, spec.option)
+            elif cue.kind == "interrupted":
+                self._interrupted(t, spec)
 
-    def _judge(self, t: float, index: int, mode: str, option: Colour | None) -> None:
+    def _judge(self, t: float, spec: TrialSpec) -> None:
         robot = self.robot.pressed
         self.person.trial_ended(robot)
         assert self.judge is not None  # set at "go", which precedes every "end"
         j = self.judge.verdict(self.protocol.end, robot, self.clicks)
         t_press = self.judge.t_press
         press_s = None if t_press is None or j.human is None else t_press - self.t_go
-        self._keep(t, index, mode, option, j, press_s, tuple(self.samples))
+        self._keep(t, spec, j, press_s, tuple(self.samples))
 
-    def _interrupted(self, t: float, index: int, mode: str, option: Colour | None) -> None:
+    def _interrupted(self, t: float, spec: TrialSpec) -> None:
         """A safe stop broke the trial: void it, and keep it if it is not repeated.
 
         The conductor's rule: after `max_attempts`, stored interrupted and never scored.
@@ -168,23 +240,22 @@ class _Loop:
         self.judge = None
         proto = self.cfg.protocol
         if not proto.repeat_interrupted or self.protocol.attempt >= proto.max_attempts:
-            self._keep(t, index, mode, option, TrialJudge.void(), None, (), interrupted=True)
+            self._keep(t, spec, Judge.void(), None, (), interrupted=True)
 
     def _keep(
         self,
         t: float,
-        index: int,
-        mode: str,
-        option: Colour | None,
-        j: TrialJudgement,
+        spec: TrialSpec,
+        j: TrialJudgement[Opt],
         press_s: float | None,
         samples: tuple[LoopSample, ...],
         interrupted: bool = False,
     ) -> None:
         """Store the trial ending at t with judgement j, as the conductor stores it."""
+        mode, option, _ = self._trial(spec)
         self.results.append(
             OfflineTrial(
-                index, mode, option, j.human, j.robot, j.outcome, j.switches, j.violations,
+                spec.index, mode, option, j.human, j.robot, j.outcome, j.switches, j.violations,
                 j.score, t - self.t_go, press_s, samples, interrupted=interrupted,
                 attempts=self.protocol.attempt,
             )
@@ -198,9 +269,9 @@ class _Loop:
         out = self.model.on_hand(int(round(t * 1e9)), landmarks)
         judge = self.judge
         center: Point | None = None  # the landmarks' mean, computed once when needed
-        # Whether a landmark can be in a box: judge and robot test every landmark against both
-        # boxes (`TableLayout.pressed`) and change nothing when none is; a hand whose bounding
-        # box meets neither box cannot press, so neither test needs to run.
+        # Whether a landmark can be in a box: judge and robot test every landmark against every
+        # box (the layout's `pressed`) and change nothing when none is; a hand whose bounding
+        # box meets no box cannot press, so neither test needs to run.
         xs, ys = pts.T.tolist()
         x_lo, x_hi, y_lo, y_hi = min(xs), max(xs), min(ys), max(ys)
         reach = any(
@@ -219,25 +290,133 @@ class _Loop:
         if cmd is not None:
             self.arm.send(cmd)
             state = self.arm.state(t)
-        heading = colour_sign(state.target) if state.target and state.moving else 0
-        self.person.see_robot(t, heading)
+        self.person.see_robot(t, self._heading(state))
         if self.record and judge is not None:
             cx, cy = center or centre(pts)
+            z_h, z_r, b_r, theta, distance = self._opinions(out)
+            ee_x, ee_y = state.ee
             self.samples.append(
-                LoopSample(
-                    round(t * 1e9),
-                    cx,
-                    cy,
-                    out.z_hat,
-                    out.z_r,
-                    out.b_r,
-                    *state.ee,
-                    out.observation.theta,
-                    out.observation.distance,
-                )
+                LoopSample(round(t * 1e9), cx, cy, z_h, z_r, b_r, ee_x, ee_y, theta, distance)
             )
         if state.pressed is not None:
             self.robot.arm_pressed(state.pressed)
+
+
+class _PaperLoop(_Loop[Colour]):
+    """The two-option kernel: the paper's table of red and blue and its own parts."""
+
+    def __init__(
+        self,
+        cfg: NodConfig,
+        seed: int,
+        cohort: bool,
+        clicks: int | None,
+        record: bool = False,
+        hand: ReplayedHand | None = None,
+    ) -> None:
+        params, person_seed = _draws(cfg, seed, cohort)
+        layout = cfg.layout
+        super().__init__(
+            cfg, clicks, record,
+            person=hand if hand is not None else Participant(params, layout, seed=person_seed),
+            model=DecisionModel(cfg.decision, layout),
+            robot=RobotTrial(layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s),
+            arm=SimArm(layout, cfg.sim_arm, t0=0.0),
+            boxes=(layout.red, layout.blue),
+            protocol=cfg.protocol,
+        )
+
+    def _trial(self, spec: TrialSpec) -> tuple[Mode, Colour | None, Colour | None]:
+        return spec.mode, spec.option, spec.consensus_option
+
+    def _new_judge(self, mode: Mode) -> TrialJudge:
+        return TrialJudge(self.cfg, self.cfg.layout, mode)
+
+    def _gaze(self, gaze: GazeCommand) -> float:
+        return gaze.yaw  # the paper's person reads the yaw (> 0 toward red)
+
+    def _heading(self, state: _ArmState[Colour]) -> int:
+        return colour_sign(state.target) if state.target and state.moving else 0
+
+    def _opinions(self, out: Any) -> tuple[float | None, ...]:
+        obs = out.observation
+        return out.z_hat, out.z_r, out.b_r, obs.theta, obs.distance
+
+
+class _OptionsLoop(_Loop[int]):
+    """The general form: a schedule's N options on the config's table of N boxes."""
+
+    def __init__(
+        self,
+        cfg: NodConfig,
+        schedule: OptionsSchedule,
+        seed: int,
+        cohort: bool,
+        clicks: int | None,
+        record: bool = False,
+        hand: ReplayedHand | None = None,
+    ) -> None:
+        params, person_seed = _draws(cfg, seed, cohort)
+        self.schedule = schedule
+        self.layout = layout = cfg.table(schedule.n_options)
+        super().__init__(
+            cfg, clicks, record,
+            person=hand if hand is not None else Participant(params, layout, person_seed),
+            model=OptionsDecision(layout, cfg.decision),
+            robot=OptionsRobotTrial(
+                layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
+            ),
+            arm=OptionsSimArm(layout, cfg.sim_arm, t0=0.0),
+            boxes=layout.boxes,
+            protocol=replace(cfg.protocol, trials=schedule.timing_specs(layout)),
+        )
+
+    def _trial(self, spec: TrialSpec) -> tuple[Mode, int | None, int | None]:
+        trial = self.schedule.trial(spec.index)  # the clock's spec carries no mode and no O
+        return trial.mode, trial.option, trial.option
+
+    def _new_judge(self, mode: Mode) -> OptionsTrialJudge:
+        return OptionsTrialJudge(self.cfg, self.layout, mode)
+
+    def _gaze(self, gaze: GazeCommand) -> GazeCommand:
+        return gaze
+
+    def _heading(self, state: _ArmState[int]) -> int | None:
+        return state.target if state.moving else None
+
+    def _opinions(self, out: Any) -> tuple[float | None, ...]:
+        return None, None, None, None, None
+
+
+@overload
+def run_offline_session(
+    cfg: NodConfig,
+    seed: int,
+    rate_hz: float = ...,
+    cohort: bool = ...,
+    clicks: int = ...,
+    record: bool = ...,
+    breaks: Mapping[tuple[int, int], float] | None = ...,
+    safe_again_s: float = ...,
+    hands: Mapping[int, Sequence[Pose]] | None = ...,
+    schedule: None = ...,
+) -> list[OfflineTrial[Colour]]: ...
+
+
+@overload
+def run_offline_session(
+    cfg: NodConfig,
+    seed: int,
+    rate_hz: float = ...,
+    cohort: bool = ...,
+    clicks: int = ...,
+    record: bool = ...,
+    breaks: Mapping[tuple[int, int], float] | None = ...,
+    safe_again_s: float = ...,
+    hands: Mapping[int, Sequence[Pose]] | None = ...,
+    *,
+    schedule: OptionsSchedule,
+) -> list[OfflineTrial[int]]: ...
 
 
 def run_offline_session(
@@ -250,8 +429,12 @@ def run_offline_session(
     breaks: Mapping[tuple[int, int], float] | None = None,
     safe_again_s: float = 1.0,
     hands: Mapping[int, Sequence[Pose]] | None = None,
-) -> list[OfflineTrial]:
+    schedule: OptionsSchedule | None = None,
+) -> list[OfflineTrial[Colour]] | list[OfflineTrial[int]]:
     """Simulate one participant's whole session; return each trial's outcome (and samples).
+
+    `schedule` runs its N options (options by index; `cfg.table(N)` their boxes); without
+    one, the paper's study (options by colour, the two-option kernel).
 
     `breaks` injects safety interruptions, as a rig's safe stops: (trial, attempt) → seconds
     after that attempt's setup at which a safe stop breaks it. The session then pauses, as the
@@ -263,7 +446,20 @@ def run_offline_session(
     them from a recording).
     """
     hand = ReplayedHand(hands) if hands is not None else None
-    loop = _Loop(cfg, seed, cohort, clicks, record, hand)
+    if schedule is None:
+        return _run(_PaperLoop(cfg, seed, cohort, clicks, record, hand), rate_hz, breaks,
+                    safe_again_s)
+    return _run(_OptionsLoop(cfg, schedule, seed, cohort, clicks, record, hand), rate_hz, breaks,
+                safe_again_s)
+
+
+def _run(
+    loop: _Loop[Opt],
+    rate_hz: float,
+    breaks: Mapping[tuple[int, int], float] | None,
+    safe_again_s: float,
+) -> list[OfflineTrial[Opt]]:
+    """Run the loop's session to its end at `rate_hz`, breaking the attempts `breaks` names."""
     breaks = dict(breaks or {})
     dt = 1.0 / rate_hz
     t = 0.0

@@ -36,7 +36,7 @@ class ReplayedHand:
         self._now = 0.0
         self.pressed: Colour | None = None  # unused: the judge reads the press from the poses
 
-    def new_trial(self, option: Colour | None) -> None:
+    def new_trial(self, option: object) -> None:
         """The next recorded trial begins ("setup")."""
         if self._next >= len(self._order):
             raise ValueError(f"the recording has only {len(self._order)} trial(s) with poses")
@@ -60,11 +60,11 @@ class ReplayedHand:
         return np.asarray(self._poses[i][1], dtype=float)
 
     # What a participant perceives: a recording perceives nothing.
-    def see_gaze(self, yaw: float) -> None:
+    def see_gaze(self, gaze: object) -> None:
         """Ignored: the recording already contains whatever the gaze did."""
 
-    def see_robot(self, t: float, heading: int) -> None:
+    def see_robot(self, t: float, heading: int | None) -> None:
         """Ignored: the recording already contains whatever the robot did."""
 
-    def trial_ended(self, robot: Colour | None) -> None:
+    def trial_ended(self, robot: object) -> None:
         """Ignored: nothing to learn."""

@@ -46,7 +46,7 @@ def test_true_person_is_the_person_the_cohort_simulates():
     """The fit's truth replays exactly the cohort's draw (traits and strategist flag)."""
     cfg = load_cohort_params(None)
     for seed in (3, 77):
-        loop = closed_loop._Loop(cfg, seed, cohort=True, clicks=10)
+        loop = closed_loop._PaperLoop(cfg, seed, cohort=True, clicks=10)
         params, kinds = true_person(cfg, seed)
         assert loop.person.p == params
         for kind, flag in (("late_switcher", "strategist"), ("contrarian", "contrarian"),
@@ -58,7 +58,7 @@ def test_true_person_is_the_person_the_cohort_simulates():
     cfg = dataclasses.replace(cfg, participant=person)
     persistent = []
     for seed in range(12):
-        loop = closed_loop._Loop(cfg, seed, cohort=True, clicks=10)
+        loop = closed_loop._PaperLoop(cfg, seed, cohort=True, clicks=10)
         _, kinds = true_person(cfg, seed)
         assert loop.person.persistent == kinds["persistent_contrarian"]
         persistent.append(kinds["persistent_contrarian"])

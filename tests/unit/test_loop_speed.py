@@ -26,6 +26,7 @@ from services.model.dynamics import opinion_rate, rk4_step
 from services.model.geometry import TableLayout
 from services.model.params import NodConfig
 from services.model.participant import Participant, ParticipantParams
+from services.model.schedule import OptionsSchedule
 
 LAYOUT = TableLayout()
 finite = st.floats(-3.0, 3.0, allow_nan=False)
@@ -207,12 +208,15 @@ def test_centre_is_numpys_mean_bit_for_bit():
             assert bits(*centre(pts)) == bits(pts[:, 0].mean(), pts[:, 1].mean())
 
 
+@pytest.mark.parametrize("n_options", [2, 3])
 @pytest.mark.parametrize("seed", [2, 7])
-def test_the_press_pre_test_changes_no_session(monkeypatch, seed):
-    """Judge and robot asked about every pose (boxes as wide as the table) give the same run."""
+def test_the_press_pre_test_changes_no_session(monkeypatch, seed, n_options):
+    """Judge and robot asked about every pose (boxes as wide as the table) give the same run,
+    on the paper's table and on one of three boxes alike."""
     cfg = NodConfig()
-    fast = run_offline_session(cfg, seed, cohort=True, record=True)
-    everywhere = [(-math.inf, math.inf, -math.inf, math.inf)] * 2
-    monkeypatch.setattr(closed_loop, "box_bounds", lambda layout: everywhere)
-    plain = run_offline_session(cfg, seed, cohort=True, record=True)
-    assert repr(fast) == repr(plain)
+    schedule = None if n_options == 2 else OptionsSchedule.default(n_options)
+    fast = run_offline_session(cfg, seed, cohort=True, record=True, schedule=schedule)
+    everywhere = (-math.inf, math.inf, -math.inf, math.inf)
+    monkeypatch.setattr(closed_loop, "box_bounds", lambda boxes: [everywhere] * len(boxes))
+    plain = run_offline_session(cfg, seed, cohort=True, record=True, schedule=schedule)
+    assert len(fast) == 8 and repr(fast) == repr(plain)

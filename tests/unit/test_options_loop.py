@@ -8,7 +8,7 @@ import pytest
 
 from services.cohort.person import fitted_traits
 from services.core.config import ConfigError, load_params, load_with_options, params_hash
-from services.model.options_loop import OptionsOfflineTrial, run_options_session
+from services.model.closed_loop import OfflineTrial, run_offline_session
 from services.model.params import NodConfig
 from services.model.schedule import OptionsSchedule
 
@@ -17,15 +17,15 @@ SEEDS = (4, 6)
 
 
 @pytest.fixture(scope="module")
-def sessions() -> dict[int, list[OptionsOfflineTrial]]:
+def sessions() -> dict[int, list[OfflineTrial[int]]]:
     # Two sessions of the SPEC person (seeds whose dissensus trials have unswitched hands for
     # the tie rule below; the draws are the one `Participant`'s, the paper's order at any N_o).
-    return {seed: run_options_session(NodConfig(), SCHEDULE, seed) for seed in SEEDS}
+    return {seed: run_offline_session(NodConfig(), seed, schedule=SCHEDULE) for seed in SEEDS}
 
 
 @pytest.mark.parametrize("seed", SEEDS)
 def test_three_option_sessions_reach_consensus_on_o_and_dissent_in_control(
-    sessions: dict[int, list[OptionsOfflineTrial]], seed: int
+    sessions: dict[int, list[OfflineTrial[int]]], seed: int
 ) -> None:
     results = sessions[seed]
     assert [r.trial for r in results] == list(range(1, 9))
@@ -39,7 +39,7 @@ def test_three_option_sessions_reach_consensus_on_o_and_dissent_in_control(
 
 
 def test_the_dissensus_robot_takes_the_tied_box_nearest_its_home(
-    sessions: dict[int, list[OptionsOfflineTrial]],
+    sessions: dict[int, list[OfflineTrial[int]]],
 ) -> None:
     # A human heading for h ties the robot among the other two (γ < 0 raises them equally);
     # from home, midway, the nearest of them is the middle box, or box 0 when h is the middle.
@@ -89,7 +89,8 @@ def test_the_default_person_mostly_ends_consensus_trials_on_o() -> None:
     assert schedule is not None
     on_o = []
     for seed in range(1, 13):
-        consensus = [r for r in run_options_session(cfg, schedule, seed) if r.mode == "consensus"]
+        session = run_offline_session(cfg, seed, schedule=schedule)
+        consensus = [r for r in session if r.mode == "consensus"]
         on_o.append(sum(r.human == r.option == r.robot for r in consensus))
     assert min(on_o) >= 2 and sum(on_o) / (5 * len(on_o)) >= 0.75, on_o
     assert sum(n >= 3 for n in on_o) >= 11, on_o  # the integration test's bar (its seed is 2)

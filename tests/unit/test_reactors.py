@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -15,6 +16,7 @@ from services.model.judge import TrialJudge
 from services.model.params import NodConfig
 from services.model.protocol import TrialEnd
 from services.model.robot import OptionsRobotTrial, RobotTrial
+from services.model.schedule import OptionsSchedule
 
 CFG = NodConfig()
 LAYOUT = CFG.layout
@@ -101,23 +103,33 @@ def test_a_void_trial_has_no_presses_no_class_no_points():
         None, None, None, 0, 0, 0)
 
 
-def test_the_offline_loop_interrupts_repeats_and_gives_up_like_the_conductor():
-    trials = run_offline_session(CFG, 4, breaks={(2, 1): 1.0, (5, 1): 2.0})
+def _schedule(n_options: int) -> OptionsSchedule | None:
+    """The paper's study at two options (its kernel), the default schedule of N otherwise."""
+    return None if n_options == 2 else OptionsSchedule.default(n_options)
+
+
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_the_offline_loop_interrupts_repeats_and_gives_up_like_the_conductor(n_options):
+    schedule = _schedule(n_options)
+    trials = run_offline_session(CFG, 4, breaks={(2, 1): 1.0, (5, 1): 2.0}, schedule=schedule)
     by = {t.trial: t for t in trials}
     assert sorted(by) == list(range(1, 9))
     assert by[2].attempts == 2 and by[5].attempts == 2 and by[1].attempts == 1
     assert not any(t.interrupted for t in trials)
     # Out of attempts: stored interrupted, never classified or scored, and the session goes on.
     cfg = replace(CFG, protocol=replace(CFG.protocol, max_attempts=2))
-    gave_up = run_offline_session(cfg, 4, breaks={(3, 1): 0.5, (3, 2): 0.5})
+    gave_up = run_offline_session(cfg, 4, breaks={(3, 1): 0.5, (3, 2): 0.5}, schedule=schedule)
     third = [t for t in gave_up if t.trial == 3]
     assert len(third) == 1 and third[0].interrupted and third[0].attempts == 2
     assert third[0].outcome is None and third[0].score == 0
     assert [t.trial for t in gave_up] == list(range(1, 9))
 
 
-def test_without_breaks_the_loop_is_the_same_session():
-    assert run_offline_session(CFG, 6) == run_offline_session(CFG, 6, breaks={})
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_without_breaks_the_loop_is_the_same_session(n_options):
+    schedule = _schedule(n_options)
+    assert run_offline_session(CFG, 6, schedule=schedule) == run_offline_session(
+        CFG, 6, breaks={}, schedule=schedule)
 
 
 def test_a_replayed_hand_is_where_the_recording_was_after_go():
