@@ -58,10 +58,16 @@ class SimKeys(ABC, Generic[Opt]):
     that unifying the two key spaces changes this seam and nothing of `SimService`.
     """
 
-    trial: str  # the protocol's events
-    arm_state: str  # where the arm heads
-    press: str  # the arm's press
-    layout_key: str  # the table, published when the sim stands in for vision
+    @abstractmethod
+    def wire(self, node: Node, sim: SimService[Opt], render: bool) -> TopicPublisher | None:
+        """Subscribe `sim` to the trials and the arm; return the table's publisher.
+
+        The protocol's events, the arm's state and its press come in; the table goes out
+        unless `--render` (None: vision publishes it then).
+
+        Written as literal calls per key space, so the contract's check of the code
+        (tests/unit/test_contract.py) reads every key each service uses.
+        """
 
     @abstractmethod
     def person(self, params: ParticipantParams, seed: int) -> Participant[Opt]:
@@ -91,13 +97,15 @@ class SimKeys(ABC, Generic[Opt]):
 class PaperKeys(SimKeys[Colour]):
     """Schema 1, the paper's two options: colours, the arm's heading a sign (byte for byte)."""
 
-    trial = "experiment/trial"
-    arm_state = "actuation/state"
-    press = "actuation/press"
-    layout_key = "vision/layout"
-
     def __init__(self, layout: TableLayout) -> None:
         self.layout = layout
+
+    def wire(self, node: Node, sim: SimService[Colour], render: bool) -> TopicPublisher | None:
+        """`experiment/trial`, `actuation/state`, `actuation/press`; `vision/layout` out."""
+        node.subscribe("experiment/trial", sim.on_trial)
+        node.subscribe("actuation/state", sim.on_arm)
+        node.subscribe("actuation/press", sim.on_press)
+        return None if render else node.publisher("vision/layout")
 
     def person(self, params: ParticipantParams, seed: int) -> Participant[Colour]:
         """The paper's person on its table (`TableLayout`): options are colours."""
@@ -127,15 +135,17 @@ class PaperKeys(SimKeys[Colour]):
 class OptionKeys(SimKeys[int]):
     """Schema 2, three or more options: box indices, each message checked for our count."""
 
-    trial = "options/trial"
-    arm_state = "options/arm_state"
-    press = "options/press"
-    layout_key = "options/layout"
-
     def __init__(self, names: tuple[str, ...], layout: OptionsLayout) -> None:
         self.names = names
         self.layout = layout
         self.n = layout.n_options
+
+    def wire(self, node: Node, sim: SimService[int], render: bool) -> TopicPublisher | None:
+        """`options/trial`, `options/arm_state`, `options/press`; `options/layout` out."""
+        node.subscribe("options/trial", sim.on_trial)
+        node.subscribe("options/arm_state", sim.on_arm)
+        node.subscribe("options/press", sim.on_press)
+        return None if render else node.publisher("options/layout")
 
     def person(self, params: ParticipantParams, seed: int) -> Participant[int]:
         """The person at the N boxes (`OptionsLayout`): options are box indices."""
@@ -205,11 +215,10 @@ class SimService(Generic[Opt]):
             self.pub_camera = node.publisher("sim/camera")
         else:
             self.pub_hand = node.publisher("vision/hand")
-            self.pub_layout = node.publisher(keys.layout_key)
-        node.subscribe(keys.trial, self.on_trial)
+        layout = keys.wire(node, self, render)
+        if layout is not None:
+            self.pub_layout = layout
         node.subscribe("eyes/cmd", self.on_gaze)
-        node.subscribe(keys.arm_state, self.on_arm)
-        node.subscribe(keys.press, self.on_press)
         node.every(1.0 / rate_hz, self.frame)
         if not render:
             node.every(1.0, self.publish_layout)

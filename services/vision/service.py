@@ -43,7 +43,7 @@ from services.core.cli import Parser, add_options_arg, add_params_arg, fail, int
 from services.core.clock import add_clock_args
 from services.core.config import ConfigError, load_with_options
 from services.core.contract import check_publisher
-from services.core.node import Node, declare_publisher, setup_logging
+from services.core.node import Node, TopicPublisher, declare_publisher, setup_logging
 from services.core.options_messages import layout_message_fields
 from services.core.session import Fabric, add_zenoh_args
 from services.model.geometry import CommitLine, OptionsLayout, TableLayout
@@ -120,6 +120,10 @@ class PaperTable:
         self.layout: TableLayout | OptionsLayout | None = layout
         self.fields: dict[str, Any] | None = m.layout_fields(layout)
 
+    def publisher(self, node: Node) -> TopicPublisher:
+        """The table's key (a literal call: the contract's check of the code reads it)."""
+        return node.publisher("vision/layout")
+
     def look(self, image: Any) -> None:
         """Nothing to find: the boxes came from the calibration, the params or SPEC."""
 
@@ -143,6 +147,10 @@ class OptionsTable:
         self._tries = 0
         if boxes is not None:
             self._found(boxes)
+
+    def publisher(self, node: Node) -> TopicPublisher:
+        """The table's key (a literal call: the contract's check of the code reads it)."""
+        return node.publisher("options/layout")
 
     def _found(self, boxes: OptionsLayout) -> None:
         self.fields = dict(layout_message_fields(self.names, boxes))
@@ -207,7 +215,7 @@ class VisionService:
         self.table = table
         self.frame_width = frame_width
         self.pub_hand = HandPublisher(node, lossless=capture.lossless)
-        self.pub_layout = node.publisher(table.key)
+        self.pub_layout = table.publisher(node)
         self.pub_frame = node.publisher("vision/frame") if frames_hz > 0 else None
         self._layout_key = node.keys.topic(table.key)
         self._queryable = node.session.declare_queryable(self._layout_key, self._on_layout_query)
