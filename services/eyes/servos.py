@@ -6,9 +6,9 @@ The mapping from a gaze to servo targets, with its limits, is pure and lives in
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
-from types import TracebackType
+from abc import abstractmethod
 
+from services.model.device import Device, SimConnection
 from services.model.gaze import GazeCommand
 from services.model.servos import EyesCalibration, ServoTargets, enforce_limits, servo_targets
 
@@ -17,25 +17,12 @@ class ServoNotConnectedError(RuntimeError):
     """Targets reached a servo driver before `connect()` (or after `disconnect()`)."""
 
 
-class ServoDriver(ABC):
+class ServoDriver(Device):
     """The interface every eyes driver (simulated, Pololu Maestro, …) implements."""
 
     def __init__(self, calibration: EyesCalibration | None = None) -> None:
         """Keep the calibration the driver enforces on every send."""
         self.calibration = calibration if calibration is not None else EyesCalibration()
-
-    @property
-    @abstractmethod
-    def is_connected(self) -> bool:
-        """Whether targets can be sent."""
-
-    @abstractmethod
-    def connect(self) -> None:
-        """Open the connection to the servo controller (idempotent)."""
-
-    @abstractmethod
-    def disconnect(self) -> None:
-        """Close the connection (idempotent)."""
 
     @abstractmethod
     def send(self, targets: ServoTargets) -> ServoTargets:
@@ -49,24 +36,12 @@ class ServoDriver(ABC):
         """Look straight ahead (the eyes' safe state)."""
         return self.look(GazeCommand())
 
-    def __enter__(self) -> ServoDriver:
-        self.connect()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        try:
-            if self.is_connected:
-                self.neutral()
-        finally:
-            self.disconnect()
+    def make_safe(self) -> ServoTargets:
+        """Look straight ahead (before disconnecting)."""
+        return self.neutral()
 
 
-class SimServoDriver(ServoDriver):
+class SimServoDriver(SimConnection, ServoDriver):
     """A driver that records every applied target instead of moving servos."""
 
     def __init__(self, calibration: EyesCalibration | None = None) -> None:
@@ -74,19 +49,6 @@ class SimServoDriver(ServoDriver):
         super().__init__(calibration)
         self._connected = False
         self.sent: list[ServoTargets] = []
-
-    @property
-    def is_connected(self) -> bool:
-        """Whether targets can be sent."""
-        return self._connected
-
-    def connect(self) -> None:
-        """Mark connected."""
-        self._connected = True
-
-    def disconnect(self) -> None:
-        """Mark disconnected."""
-        self._connected = False
 
     def send(self, targets: ServoTargets) -> ServoTargets:
         """Record the targets after enforcing the calibration's limits."""

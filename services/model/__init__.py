@@ -9,6 +9,7 @@ Where each piece lives (services call these; the tests test these):
     debounce.py     the one debounce (C_max) of Algorithm 2 and the switch count, any N
     behaviour.py    Algorithm 2: the robot's moves and press, over any number of boxes
     arm.py          the arm interface and the kinematic simulated arm
+    device.py       connect / disconnect, and a `with` block that leaves a device safe
     outcome.py      C / CH / D / DH, switches, rule violations; `judge_trial`
     scoring.py      the participant's score (Sec 3.2)
     protocol.py     the 8-trial schedule and `SessionProtocol`, the session state machine

@@ -20,12 +20,12 @@ the two apply the same commands and move bit for bit alike
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from dataclasses import dataclass
-from types import TracebackType
 
 from services.model.arm_kinematics import PointArm, SimArmParams
 from services.model.behaviour import ArmCommand, OptionsCommand
+from services.model.device import Device
 from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
 
 
@@ -41,21 +41,8 @@ class ArmState:
     fault: str | None  # why the arm refuses motion, or None when healthy
 
 
-class ArmDriver(ABC):
-    """The interface every arm (simulated or real) implements."""
-
-    @property
-    @abstractmethod
-    def is_connected(self) -> bool:
-        """Whether commands can be sent."""
-
-    @abstractmethod
-    def connect(self) -> None:
-        """Open the connection to the arm (idempotent)."""
-
-    @abstractmethod
-    def disconnect(self) -> None:
-        """Close the connection (idempotent); callers hold the arm first."""
+class ArmDriver(Device):
+    """The interface every arm (simulated or real) implements; its safe state is `hold`."""
 
     @abstractmethod
     def send(self, cmd: ArmCommand) -> ArmCommand:
@@ -73,21 +60,9 @@ class ArmDriver(ABC):
         """Safe stop: come to rest (bounded deceleration) and hold that position."""
         return self.send(ArmCommand.stop("hold"))
 
-    def __enter__(self) -> ArmDriver:
-        self.connect()
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        try:
-            if self.is_connected:
-                self.hold()
-        finally:
-            self.disconnect()
+    def make_safe(self) -> ArmCommand:
+        """Hold the arm (before disconnecting)."""
+        return self.hold()
 
 
 class SimArm(PointArm[Colour], ArmDriver):

@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
+from services.model.device import SimConnection
 from services.model.geometry import Point
 
 Target = TypeVar("Target")  # what a simulated arm's targets are named by: a colour, an option
@@ -55,7 +56,7 @@ class SimArmParams:
 _ARRIVED = 1e-6  # distance (normalised) under which the arm snaps onto its goal
 
 
-class PointArm(Generic[Target]):
+class PointArm(SimConnection, Generic[Target]):
     """A point end effector with speed and acceleration limits, moving over the table.
 
     The kinematics and the press hold of every simulated arm, whatever names its targets: a
@@ -81,20 +82,6 @@ class PointArm(Generic[Target]):
         self._press_started: float | None = None
         self._pressed: Target | None = None
         self._fault: str | None = None
-
-    # -- connection ------------------------------------------------------------------------
-    @property
-    def is_connected(self) -> bool:
-        """Whether commands can be sent."""
-        return self._connected
-
-    def connect(self) -> None:
-        """Mark the simulated arm connected."""
-        self._connected = True
-
-    def disconnect(self) -> None:
-        """Mark the simulated arm disconnected; its motion state is kept."""
-        self._connected = False
 
     # -- read-only state -------------------------------------------------------------------
     @property

@@ -23,8 +23,8 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
-from types import TracebackType
 
+from services.model.device import Scoped
 from tests.emulators.feetech_emulator import IDS, FeetechBusEmulator
 from tests.emulators.maestro_emulator import MaestroEmulator
 from tests.emulators.pty_device import PtyDevice
@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[2]
 KINDS = ("feetech", "maestro")
 
 
-class DeviceProcess:
+class DeviceProcess(Scoped):
     """The parent's handle: the port to open, and the faults to inject."""
 
     def __init__(self, kind: str, link_dir: Path) -> None:
@@ -44,20 +44,14 @@ class DeviceProcess:
         self._silent = False
         self._proc: subprocess.Popen[str] | None = None
 
-    def __enter__(self) -> DeviceProcess:
+    def _on_enter(self) -> None:
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "tests.emulators.own_process", self.kind, str(self.link_dir)],
             cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
         )
         self.port = self._reply().removeprefix("port ")
-        return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def _on_exit(self) -> None:
         proc = self._proc
         if proc is None:
             return

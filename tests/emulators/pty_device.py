@@ -17,12 +17,12 @@ import threading
 import tty
 from collections.abc import Callable
 from pathlib import Path
-from types import TracebackType
 
+from services.model.device import Scoped
 from tests.polling import eventually
 
 
-class PtyDevice:
+class PtyDevice(Scoped):
     """Base class: a byte-level device on a pty. Subclasses implement `feed`."""
 
     def __init__(self, link_dir: Path | None = None, name: str = "ttyEMU") -> None:
@@ -80,15 +80,10 @@ class PtyDevice:
             self._tmp.cleanup()
             self._tmp = None
 
-    def __enter__(self) -> PtyDevice:
-        return self.start()
+    def _on_enter(self) -> None:
+        self.start()
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def _on_exit(self) -> None:
         self.stop()
 
     # -- subclass hooks ------------------------------------------------------------------------

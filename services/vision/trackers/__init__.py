@@ -18,10 +18,11 @@ from __future__ import annotations
 import importlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from types import TracebackType
 from typing import ClassVar
 
 import numpy as np
+
+from services.model.device import Scoped
 
 Point = tuple[float, float]
 TRACKERS: dict[str, str] = {
@@ -69,7 +70,7 @@ def normalised(points_px: np.ndarray, width: int, height: int) -> tuple[Point, .
     return tuple((float(x), float(y)) for x, y in zip(xs, ys, strict=True))
 
 
-class HandTracker(ABC):
+class HandTracker(Scoped, ABC):
     """A hand tracker: one BGR frame in, one TrackResult out. Usable as a context manager."""
 
     name: ClassVar[str] = "tracker"
@@ -82,15 +83,7 @@ class HandTracker(ABC):
         """Release the backend's resources (models, sessions); idempotent."""
         return None
 
-    def __enter__(self) -> HandTracker:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def _on_exit(self) -> None:
         self.close()
 
 
