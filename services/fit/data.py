@@ -14,7 +14,7 @@ no hand samples (landmarks or their centre), which the fit reads.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from services.analysis.sessions import InclusionRule, select_sessions
@@ -105,6 +105,18 @@ def _left_out_line(left: dict[str, str], rule: InclusionRule) -> str | None:
     return f"left out (inclusion rule: {rule.label()}): {who}{more}"
 
 
+PAPER = ("red", "blue")
+
+
+def two_options_only(participant: str, options: tuple[str, ...]) -> str:
+    """Why a session of another option set is not fitted, in one line."""
+    return (
+        f"participant {participant!r} ran options {', '.join(options)}: the fit is defined for "
+        "the paper's two options only (its simulated person and estimator are trained on "
+        "two-option sessions; docs/multi-option.md)"
+    )
+
+
 def read_study(
     db: Path, participant: str | None = None, rule: InclusionRule | None = None,
     include_withdrawn: bool = False,
@@ -129,6 +141,12 @@ def read_study(
         keep = withdrawn_filter(store, include_withdrawn)
         chosen = select_sessions(store, rule, keep)
         left = chosen.left_out()
+        other = {p.participant: p.options for p in chosen.participants if p.options != PAPER}
+        if other:  # defined for two options only: say so in one line, fit the rest
+            chosen = replace(chosen, participants=[
+                p for p in chosen.participants if p.participant not in other])
+            if participant in other:
+                raise FitInputError(two_options_only(participant, other[participant]))
         if participant is not None:
             if not keep.keeps(participant):
                 raise FitInputError(f"participant {participant!r} withdrew from the study: not "
@@ -145,7 +163,13 @@ def read_study(
             left = {}
         notes = [n for n in (keep.note() if participant is None else None,
                              _left_out_line(left, rule)) if n]
+        if other and participant is None:
+            notes.append("left out (the fit is defined for two options only): " + ", ".join(
+                f"{who} ({', '.join(names)})" for who, names in sorted(other.items())))
         if not chosen.participants:
+            if other:
+                who = min(other)
+                raise FitInputError(two_options_only(who, other[who]))
             if left:
                 raise FitInputError(f"no session of {db} passes the inclusion rule: "
                                     f"{_left_out_line(left, rule)}")

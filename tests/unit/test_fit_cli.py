@@ -70,6 +70,20 @@ def test_a_participant_with_no_complete_trial_is_one_line(tmp_path, capsys):
     assert "'P09' has no stored trials" in _one_line(capsys)
 
 
+def test_a_session_of_three_options_is_not_fitted_and_says_why(tmp_path, capsys):
+    db = tmp_path / "three.sqlite"
+    with Store(db) as store:
+        store.begin_session("s1", "P01", "rig1", 1, 0, {}, ("red", "blue", "green"))
+        hand = [Sample(10**9 + i * 33_000_000, True, 0.5, 0.85 - 0.01 * i, None, None, None,
+                       None, None) for i in range(30)]
+        store.write_trial("s1", _record(1), hand)
+    assert main(["--db", str(db), "--min-trials", "1"]) == 2
+    assert _one_line(capsys) == (
+        "nod fit: error: participant 'P01' ran options red, blue, green: the fit is defined "
+        "for the paper's two options only (its simulated person and estimator are trained on "
+        "two-option sessions; docs/multi-option.md)")
+
+
 def test_fit_a_small_study_stores_and_exports_it(tmp_path, capsys):
     """Three simulated people, a tiny table: the JSON shape, the figures, the store, the CSV."""
     db = tmp_path / "study.sqlite"
