@@ -1,8 +1,10 @@
 """`nod display`: the participant's screen — countdown, go and points — as a web page on the rig.
 
-It follows the conductor's `experiment/trial` and `experiment/result` events and its liveliness
-(`services.display.screen` decides what may be shown) and serves the page and its Server-Sent
-Events stream (`services.display.web`) on `--http HOST:PORT`, for a browser in kiosk mode:
+It follows the conductor's `experiment/trial` and `experiment/result` events (`options/trial`
+and `options/result` on a table of three or more boxes: the screen shows the same) and its
+liveliness (`services.display.screen` decides what may be shown) and serves the page and its
+Server-Sent Events stream (`services.display.web`) on `--http HOST:PORT`, for a browser in
+kiosk mode:
 
     chromium --kiosk --noerrdialogs --no-first-run --app=http://127.0.0.1:8090/
 
@@ -20,6 +22,7 @@ import sys
 import threading
 
 from services.core import messages as m
+from services.core import options_messages as om
 from services.core.cli import Parser, add_service_args, fail, host_port
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -38,6 +41,9 @@ class DisplayService:
         self.feed = feed
         node.subscribe("experiment/trial", self.on_trial)
         node.subscribe("experiment/result", self.on_result)
+        # A table of N boxes: the same countdown, go and points (nothing here names an option)
+        node.subscribe("options/trial", self.on_trial)
+        node.subscribe("options/result", self.on_result)
         node.watch_liveliness("experiment", self.on_conductor)
 
     def _changed(self, changed: bool) -> None:
@@ -46,11 +52,11 @@ class DisplayService:
             log.info("display: %s %r %r", screen.kind, screen.big, screen.small)
             self.feed.publish(screen.as_json(self.state.version))
 
-    def on_trial(self, msg: m.TrialEvent) -> None:
+    def on_trial(self, msg: m.TrialEvent | om.OptionsTrialEvent) -> None:
         """A protocol event (ValueError: refused and counted by the node)."""
         self._changed(self.state.on_trial(msg))
 
-    def on_result(self, msg: m.TrialResult) -> None:
+    def on_result(self, msg: m.TrialResult | om.OptionsResult) -> None:
         """A trial's result."""
         self._changed(self.state.on_result(msg))
 

@@ -10,12 +10,14 @@ import urllib.error
 import urllib.request
 from http import HTTPStatus
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.core import messages as m
+from services.core import options_messages as om
 from services.display import web
 from services.display.screen import WAIT, DisplayState, Screen, points
 from services.display.web import (
@@ -37,12 +39,22 @@ ROOT = Path(__file__).resolve().parents[2]
 REVEALING = re.compile(r"red|blue|consensus|dissensus|low|significant|none|\b(C|CH|D|DH)\b", re.I)
 
 
-def ev(phase: str, trial: int = 1, text: str = "", session: str = "S1") -> m.TrialEvent:
+def ev(phase: str, trial: int = 1, text: str = "", session: str = "S1", n: int = 2) -> Any:
+    """A trial event of the paper's key (two options) or of a table of `n` boxes."""
+    if n > 2:
+        return om.OptionsTrialEvent(seq=0, t_ns=0, n_options=n, phase=phase, trial=trial,
+                                    mode="consensus", option=2, text=text, session=session)  # type: ignore[arg-type]
     return m.TrialEvent(seq=0, t_ns=0, phase=phase, trial=trial, mode="consensus", option="red",
                         text=text, session=session)  # type: ignore[arg-type]
 
 
-def res(trial: int, score: int, session: str = "S1", interrupted: bool = False) -> m.TrialResult:
+def res(trial: int, score: int, session: str = "S1", interrupted: bool = False,
+        n: int = 2) -> Any:
+    """A trial's result on the paper's key or of a table of `n` boxes."""
+    if n > 2:
+        return om.OptionsResult(seq=0, t_ns=0, n_options=n, trial=trial, mode="consensus",
+                                option=1, robot=1, human=2, outcome="D", score=score,
+                                session=session, interrupted=interrupted)
     return m.TrialResult(seq=0, t_ns=0, trial=trial, mode="consensus", option="blue",
                          robot="blue", human="red", outcome="D", score=score, session=session,
                          interrupted=interrupted)
@@ -56,15 +68,17 @@ def live(session: str = "S1") -> DisplayState:
     return state
 
 
-def test_a_trial_shows_ready_the_countdown_go_then_wait_then_its_points():
+@pytest.mark.parametrize("n", [2, 3])
+def test_a_trial_shows_ready_the_countdown_go_then_wait_then_its_points(n):
+    # the same screens whatever the number of options: nothing shown names one
     state = live()
     seen = []
-    for msg in (ev("setup", text="significant"), ev("countdown", text="1"),
-                ev("countdown", text="2"), ev("countdown", text="3"), ev("go", text="go"),
-                ev("end", text="human pressed")):
+    for msg in (ev("setup", text="significant", n=n), ev("countdown", text="1", n=n),
+                ev("countdown", text="2", n=n), ev("countdown", text="3", n=n),
+                ev("go", text="go", n=n), ev("end", text="human pressed", n=n)):
         state.on_trial(msg)
         seen.append((state.screen.kind, state.screen.big))
-    state.on_result(res(1, 2))
+    state.on_result(res(1, 2, n=n))
     seen.append((state.screen.kind, state.screen.big, state.screen.small))
     assert seen == [("ready", "Get ready"), ("countdown", "1"), ("countdown", "2"),
                     ("countdown", "3"), ("go", "GO"), ("wait", "Please wait"),
