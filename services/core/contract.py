@@ -228,11 +228,12 @@ OPTIONS_PRESS = Topic(
 )
 OPTIONS_TRIAL = Topic(
     "options/trial", om.OptionsTrialEvent, ("experiment",),
-    ("decision", "actuation", "sim", "speaker", "display", "run", "operator"), "per event",
+    ("decision", "actuation", "sim", "speaker", "display", "lsl", "run", "operator"),
+    "per event",
     CONTROL, "`n_options`, `phase`, `trial`, `mode`, `option` (O, a box), `text`, `session`",
 )
 OPTIONS_RESULT = Topic(
-    "options/result", om.OptionsResult, ("experiment",), ("display", "run"), "per trial",
+    "options/result", om.OptionsResult, ("experiment",), ("display", "lsl", "run"), "per trial",
     RELIABLE,
     "`n_options`, `trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, "
     "`violations`, `score`, `session`, `interrupted`",

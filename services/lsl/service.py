@@ -22,6 +22,7 @@ import sys
 from collections.abc import Callable
 
 from services.core import messages as m
+from services.core import options_messages as om
 from services.core.cli import Parser, add_service_args, fail
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -54,6 +55,10 @@ class LslService:
         node.subscribe("decision/b_r", self._value_handler("b_r"))
         node.subscribe("experiment/trial", self.on_trial)
         node.subscribe("experiment/result", self.on_result)
+        # A table of N boxes: the same markers (O and the presses as box indices). Its opinions
+        # are vectors on `options/*`, which the signal outlet's scalar channels do not carry.
+        node.subscribe("options/trial", self.on_trial)
+        node.subscribe("options/result", self.on_result)
         node.subscribe("safety/estop", self.on_estop)
         node.subscribe("safety/release", self.on_estop)
         node.subscribe("actuation/state", self.on_arm)
@@ -72,11 +77,11 @@ class LslService:
         self.outlets.push_marker(text, self.anchor.to_lsl(t_ns))
         log.debug("lsl: marker %s", text)
 
-    def on_trial(self, ev: m.TrialEvent) -> None:
+    def on_trial(self, ev: m.TrialEvent | om.OptionsTrialEvent) -> None:
         """A protocol event."""
         self._mark(trial_marker(ev), ev.t_ns)
 
-    def on_result(self, res: m.TrialResult) -> None:
+    def on_result(self, res: m.TrialResult | om.OptionsResult) -> None:
         """A trial's result."""
         self._mark(result_marker(res), res.t_ns)
 

@@ -10,6 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from services.core import messages as m
+from services.core import options_messages as om
 from services.lsl.clockmap import Anchor, read_anchor
 from services.lsl.samples import (
     PENDING,
@@ -99,6 +100,19 @@ def test_markers_are_json_with_what_an_analyst_needs():
                                               "robot": "red", "score": 0}
     assert json.loads(estop_marker(m.Estop(seq=0, t_ns=0, engaged=False, source="op@ctl"))) == {
         "event": "estop_release", "source": "op@ctl"}
+
+
+def test_a_table_of_n_boxes_gets_the_same_markers_with_box_indices():
+    ev = om.OptionsTrialEvent(seq=0, t_ns=0, n_options=3, phase="setup", trial=4,
+                              mode="consensus", option=2, text="low", session="S1")
+    assert json.loads(trial_marker(ev)) == {
+        "event": "setup", "trial": 4, "session": "S1", "n_options": 3, "mode": "consensus",
+        "option": 2, "gaze": "low"}
+    res = om.OptionsResult(seq=0, t_ns=0, n_options=3, trial=4, mode="consensus", option=2,
+                           robot=2, human=1, outcome="D", score=0, session="S1")
+    assert json.loads(result_marker(res)) == {
+        "event": "result", "trial": 4, "session": "S1", "outcome": "D", "robot": 2, "human": 1,
+        "score": 0, "n_options": 3}
 
 
 def test_a_safe_stop_is_marked_where_it_begins_and_ends_per_device():
