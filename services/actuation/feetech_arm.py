@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 from services.actuation.arm_path import POSE_NAMES, ArmPoses, Pose, locate, pose_at
 from services.actuation.feetech import RESOLUTION, FeetechBus, Series
-from services.core.serial_link import LinkConfig, LinkError, SerialLink
+from services.core.serial_link import LinkConfig, LinkedDevice, LinkError, SerialLink
 from services.model.arm import ArmDriver, ArmState
 from services.model.arm_kinematics import ArmNotConnectedError
 from services.model.behaviour import ArmCommand
@@ -92,7 +92,7 @@ class FeetechArmConfig:
 
 
 # -- driver -------------------------------------------------------------------------------------
-class FeetechArm(ArmDriver):
+class FeetechArm(LinkedDevice, ArmDriver):
     """The arm on a Feetech bus; `state(t)` drives the motion, time passed in (s)."""
 
     def __init__(
@@ -137,16 +137,6 @@ class FeetechArm(ArmDriver):
 
     # -- connection ----------------------------------------------------------------------------
     @property
-    def is_connected(self) -> bool:
-        """True between `connect()` and `disconnect()`, also while the bus is faulted."""
-        return self._connected
-
-    @property
-    def fault(self) -> str | None:
-        """What is wrong with the bus or a servo, or None when healthy."""
-        return self._fault
-
-    @property
     def path(self) -> tuple[float, float]:
         """(s, d): where the arm is on its calibrated path."""
         return self._s, self._d
@@ -155,16 +145,11 @@ class FeetechArm(ArmDriver):
         """Open the port, find every servo, hold where the arm is, torque on."""
         if self._connected:
             return
-        self.link.open()
-        try:
-            self._initialise()
-        except LinkError as exc:
-            self.link.close()
-            raise ConnectionError(
-                f"the Feetech arm on {self.link.port} did not answer ({exc}); check the servo "
-                f"power supply, the ids {list(self.config.ids)} and the baud rate "
-                f"{self.config.baudrate} in the arm file"
-            ) from None
+        self._open_link(
+            "the Feetech arm",
+            f"check the servo power supply, the ids {list(self.config.ids)} and the baud rate "
+            f"{self.config.baudrate} in the arm file",
+        )
         self._connected = True
 
     def disconnect(self) -> None:

@@ -16,6 +16,9 @@ behind a reopened port must be initialised again. `fault` says, in one line, wha
 what the link will do about it — the string services publish on their state key.
 
 The clock and the sleep function are injectable: unit tests drive the backoff without waiting.
+
+`LinkedDevice` is the driver side every device on a link shares (the Feetech arm, the servo
+controllers): connected while faulted, a `fault` string, and one `connect` failure message.
 """
 
 from __future__ import annotations
@@ -24,11 +27,14 @@ import contextlib
 import logging
 import math
 import time
+from abc import abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
 import serial
+
+from services.model.device import Device
 
 try:  # POSIX: pyserial lets termios.error escape from flush/ioctl calls on a vanished tty
     import termios
@@ -298,3 +304,46 @@ class SerialLink:
     def __repr__(self) -> str:
         state = "open" if self.is_open else "closed"
         return f"SerialLink({self.port!r}, {self.baudrate}, {state}, fault={self.fault!r})"
+
+
+class LinkedDevice(Device):
+    """A device driven over one `SerialLink`: what the Feetech arm and the servo drivers share.
+
+    Connected from `connect()` to `disconnect()`, also while the link is faulted: once
+    connected, a driver never raises on a link failure; it says what is wrong in `fault` (one
+    line, the string its service publishes) and recovers on its own. Only `connect()` raises,
+    naming the device, the port and how to fix it, so a wrong cable or baud rate is found at once.
+    """
+
+    link: SerialLink
+    _connected: bool = False
+    _fault: str | None = None
+
+    @property
+    def is_connected(self) -> bool:
+        """True between `connect()` and `disconnect()`, also while the link is faulted."""
+        return self._connected
+
+    @property
+    def fault(self) -> str | None:
+        """What is wrong with the link or the device, or None when healthy."""
+        return self._fault
+
+    @abstractmethod
+    def _initialise(self) -> None:
+        """Configure a freshly opened device; raise `LinkError` if it does not answer."""
+
+    def _open_link(self, device: str, hint: str) -> None:
+        """Open the port and `_initialise` the device, or close it and raise ConnectionError.
+
+        The message names the device, the port and the fix: "<device> on <port> did not answer
+        (<why>); <hint>".
+        """
+        self.link.open()
+        try:
+            self._initialise()
+        except LinkError as exc:
+            self.link.close()
+            raise ConnectionError(
+                f"{device} on {self.link.port} did not answer ({exc}); {hint}"
+            ) from None

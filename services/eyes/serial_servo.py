@@ -18,7 +18,7 @@ import threading
 import time
 from abc import abstractmethod
 
-from services.core.serial_link import LinkError, SerialLink
+from services.core.serial_link import LinkedDevice, LinkError, SerialLink
 from services.eyes.servos import ServoDriver, ServoNotConnectedError
 from services.model.servos import EyesCalibration, ServoTargets, enforce_limits
 
@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 FLUSH_S = 0.5  # how long disconnect() waits for the last targets to go out
 
 
-class SerialServoDriver(ServoDriver):
+class SerialServoDriver(LinkedDevice, ServoDriver):
     """Base of the Maestro and Arduino drivers; subclasses speak the protocol."""
 
     #: Human name of the controller, for messages.
@@ -53,16 +53,6 @@ class SerialServoDriver(ServoDriver):
 
     # -- interface -----------------------------------------------------------------------------
     @property
-    def is_connected(self) -> bool:
-        """True between `connect()` and `disconnect()`, also while the link is faulted."""
-        return self._connected
-
-    @property
-    def fault(self) -> str | None:
-        """What is wrong with the link or the controller, or None when healthy."""
-        return self._fault
-
-    @property
     def latched(self) -> ServoTargets | None:
         """The targets the driver holds the servos at (re-sent after a reconnect)."""
         return self._latched
@@ -71,14 +61,7 @@ class SerialServoDriver(ServoDriver):
         """Open the port and initialise the controller; raise ConnectionError with a hint."""
         if self._connected:
             return
-        self.link.open()
-        try:
-            self._initialise()
-        except LinkError as exc:
-            self.link.close()
-            raise ConnectionError(
-                f"{self.device} on {self.link.port} did not answer ({exc}); {self.hint}"
-            ) from None
+        self._open_link(self.device, self.hint)
         self._generation = self.link.opens
         self._connected = True
         self._fault = None
@@ -150,10 +133,6 @@ class SerialServoDriver(ServoDriver):
         return self._fault
 
     # -- protocol hooks ------------------------------------------------------------------------
-    @abstractmethod
-    def _initialise(self) -> None:
-        """Configure a freshly opened controller; raise `LinkError` if it does not answer."""
-
     @abstractmethod
     def _write_targets(self, targets: ServoTargets) -> str | None:
         """Write targets and confirm; return a controller-reported fault or None."""
