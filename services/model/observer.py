@@ -206,6 +206,20 @@ class ObserverBase:
         """The observation returned by the latest `update`, or None after `reset`."""
         return self._last
 
+    def _report(self, obs: Observation) -> Observation:
+        """Keep `obs` as `last` and return it: every reading of a pose ends here."""
+        self._last = obs
+        return obs
+
+    def _no_hand(self) -> Observation:
+        """A pose with no hand: ẑ_h held, nothing measured (stale == not detected)."""
+        return self._report(Observation(self._z_hat, None, None, None, None, None, False, False))
+
+    def _hold(self, center: Point, movement: Point | None) -> Observation:
+        """A hand seen but no direction read from it (yet): ẑ_h held."""
+        obs = Observation(self._z_hat, center, movement, None, None, None, False, True)
+        return self._report(obs)
+
 
 class PaperObserver(ObserverBase):
     """Algorithm 1 as printed (the "paper" mode): feed it one hand pose per camera frame."""
@@ -228,28 +242,23 @@ class PaperObserver(ObserverBase):
         if not landmarks:
             # Stale: keep ẑ_h and the reference, so the next detection's M is measured from the
             # last centre seen rather than reading a jump from nowhere.
-            obs = Observation(self._z_hat, None, None, None, None, None, False, False)
-            self._last = obs
-            return obs
+            return self._no_hand()
         center = hand_center(landmarks)
         prev = self._reference
         if prev is None:
             # First frame: no movement yet, ẑ_h stays 0 (SPEC §2).
             self._reference = center
-            obs = Observation(self._z_hat, center, None, None, None, None, False, True)
-            self._last = obs
-            return obs
+            return self._hold(center, None)
         movement = (center[0] - prev[0], center[1] - prev[1])
         reading = observe_movement(prev, center, self._layout, self._params)
         if reading is None:
             if self._params.reference == "frame":
                 self._reference = center
-            obs = Observation(self._z_hat, center, movement, None, None, None, False, True)
-        else:
-            theta, target, distance, z_hat = reading
-            self._z_hat = z_hat
-            self._reference = center
-            obs = Observation(z_hat, center, movement, theta, target, distance, True, True)
-        self._last = obs
-        return obs
+            return self._hold(center, movement)
+        theta, target, distance, z_hat = reading
+        self._z_hat = z_hat
+        self._reference = center
+        return self._report(
+            Observation(z_hat, center, movement, theta, target, distance, True, True)
+        )
 

@@ -116,9 +116,7 @@ class RobustObserver(ObserverBase):
     def update(self, landmarks: Sequence[Point] | None, t: float = 0.0) -> Observation:
         """Read one pose at time t (s): the landmarks of one hand, or None when none was seen."""
         if not landmarks:
-            obs = Observation(self._z_hat, None, None, None, None, None, False, False)
-            self._last = obs
-            return obs
+            return self._no_hand()
         center = hand_center(landmarks)
         p = self._params
         window = self._motion.add(center, t)
@@ -135,9 +133,9 @@ class RobustObserver(ObserverBase):
         sign = colour_sign(colour)
         self._sign = sign
         self._z_hat = sign * p.a * math.cos(theta) * math.tanh(p.k / distance)
-        obs = Observation(self._z_hat, center, movement, theta, colour, distance, True, True)
-        self._last = obs
-        return obs
+        return self._report(
+            Observation(self._z_hat, center, movement, theta, colour, distance, True, True)
+        )
 
     def _read(
         self, here: Point, movement: Point, length: float
@@ -163,11 +161,6 @@ class RobustObserver(ObserverBase):
         cos_theta, dist = cosines[best]
         theta = math.acos(max(-1.0, min(1.0, cos_theta)))
         return best, theta, max(dist, self._params.d_min)
-
-    def _hold(self, center: Point, movement: Point | None) -> Observation:
-        obs = Observation(self._z_hat, center, movement, None, None, None, False, True)
-        self._last = obs
-        return obs
 
 
 def make_observer(
