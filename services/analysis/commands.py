@@ -303,13 +303,15 @@ def trial(args: argparse.Namespace) -> int:
                 f"stored: {have}"
             )
         samples = store.samples(session, args.trial)
+        names = store.option_names(session)
     finally:
         store.close()
     rec = match[0]
-    layout = load_params(args.params).layout
+    cfg = load_params(args.params)
+    layout = cfg.layout if len(names) == 2 else cfg.table(len(names))
     try:
         paths = figure(samples, rec, layout, trial_title(participant, rec), Path(args.out),
-                       formats)
+                       formats, names)
     except OSError as exc:
         raise UsageError(f"cannot write to --out {args.out!r}: {exc}") from None
     print(f"participant {participant}, session {session}, trial {rec.trial}: wrote "

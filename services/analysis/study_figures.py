@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 from services.analysis.figures import FORMATS, pyplot
 from services.analysis.multiplicity import NAMES
 from services.analysis.study import CONTROL_TRIALS, OUTCOMES
-from services.scene.option_colours import COLOURS as OPTION_COLOURS
+from services.scene.option_colours import GREY_HEX, hex_of
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -305,16 +305,6 @@ def _p(x: float) -> str:
     return f"{x:.3g}" if x >= 1e-3 else f"{x:.2e}"
 
 
-_GREY = "#9e9e9e"
-
-
-def _hex(name: str) -> str:
-    """An option's colour as the rendered table paints it (grey for a name it has none for)."""
-    if name not in OPTION_COLOURS:
-        return _GREY
-    b, g, r = OPTION_COLOURS[name][0]
-    return f"#{r:02x}{g:02x}{b:02x}"
-
 
 def draw_option_shares(doc: Mapping[str, Any]) -> Figure:
     """Per trial, the % of humans pressing each option, and the agreements above the bars."""
@@ -326,7 +316,7 @@ def draw_option_shares(doc: Mapping[str, Any]) -> Figure:
         ys = [100.0 * shares[str(t)]["human"][name] / max(1, shares[str(t)]["n"])
               for t in trials]
         label = "no press (timeout)" if name == "none" else name
-        ax.bar(trials, ys, 0.7, bottom=bottom, color=_GREY if name == "none" else _hex(name),
+        ax.bar(trials, ys, 0.7, bottom=bottom, color=GREY_HEX if name == "none" else hex_of(name),
                label=label, edgecolor="white", linewidth=0.5)
         bottom = [b + y for b, y in zip(bottom, ys, strict=True)]
     for t in trials:

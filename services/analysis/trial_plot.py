@@ -4,6 +4,8 @@ Panels: (a) ẑ_h, z_r and b_r against time from "go" (z_r on its own axis, on t
 stays within tenths where ẑ_h reaches ±8); (b) θ; (c) d; (d) the hand's path over the
 table — the buzzer boxes, the commit line, where the human pressed — with the arm's end effector.
 Read from the session store (`nod analyze trial --db F --participant P01 --trial K --out DIR`).
+A session of N options draws its N boxes, each in its option's colour and labelled by name;
+its opinions are vectors the samples table does not hold, and panel (a) says so.
 The figure is titled by participant, trial, mode and O (not by the session id); the legends sit
 outside the panels, so no trace is hidden under one.
 """
@@ -15,7 +17,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from services.analysis.figures import pyplot
-from services.model.geometry import TableLayout
+from services.model.geometry import Box, OptionsLayout, TableLayout
+from services.scene.option_colours import hex_of
 from services.store import Sample, TrialRecord
 
 if TYPE_CHECKING:
@@ -48,14 +51,15 @@ def trial_title(participant: str, trial: TrialRecord) -> str:
 def figure(
     samples: Sequence[Sample],
     trial: TrialRecord,
-    layout: TableLayout,
+    layout: TableLayout | OptionsLayout,
     title: str,
     out: Path,
     formats: Sequence[str] = ("png",),
+    names: Sequence[str] = ("red", "blue"),
 ) -> list[Path]:
     """Draw the four panels (`draw`); write one file per format; return their paths."""
     plt = pyplot()
-    fig = draw(samples, trial, layout, title)
+    fig = draw(samples, trial, layout, title, names)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
     try:
@@ -69,9 +73,10 @@ def figure(
 
 
 def draw(
-    samples: Sequence[Sample], trial: TrialRecord, layout: TableLayout, title: str
+    samples: Sequence[Sample], trial: TrialRecord, layout: TableLayout | OptionsLayout,
+    title: str, names: Sequence[str] = ("red", "blue"),
 ) -> Figure:
-    """The four panels of one trial as a matplotlib Figure."""
+    """The four panels of one trial as a matplotlib Figure (`names`: an OptionsLayout's)."""
     from matplotlib.patches import Rectangle
 
     plt = pyplot()
@@ -112,11 +117,20 @@ def draw(
     ax_d.plot(t, [s.distance for s in samples], ".", ms=3, color="tab:brown")
     ax_d.set_ylabel("d")
     ax_d.set_xlabel("time from go (s)")
-    for name, colour in (("red", "tab:red"), ("blue", "tab:blue")):
-        box = layout.box(name)  # type: ignore[arg-type]
+    if all(v is None for v in z_h + z_r):  # a table of N boxes: vectors, not these scalars
+        ax_z.text(0.5, 0.5, "opinions over the options are vectors: not in the samples table",
+                  transform=ax_z.transAxes, ha="center", va="center", fontsize=8, color="grey")
+    if isinstance(layout, TableLayout):  # the paper's two buzzers, as Figs 6-7 colour them
+        boxes: list[tuple[Box, str, str | None]] = [
+            (layout.red, "tab:red", None), (layout.blue, "tab:blue", None)]
+    else:
+        boxes = [(b, hex_of(n), n) for b, n in zip(layout.boxes, names, strict=True)]
+    for box, colour, label in boxes:
         ax_path.add_patch(
             Rectangle((box.x1, box.y1), box.x2 - box.x1, box.y2 - box.y1, color=colour, alpha=0.35)
         )
+        if label is not None:
+            ax_path.text(*box.center, label, ha="center", va="center", fontsize=7)
     ax_path.axhline(layout.commit.y, color="grey", ls="--", lw=0.8, label="commit line")
     hx = [s.hand_x for s in samples if s.hand_x is not None]
     hy = [s.hand_y for s in samples if s.hand_y is not None]

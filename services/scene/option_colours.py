@@ -35,6 +35,17 @@ def colour_of(name: str) -> tuple[BGR, tuple[HsvRange, ...]]:
         ) from None
 
 
+GREY_HEX = "#9e9e9e"
+
+
+def hex_of(name: str) -> str:
+    """An option's paint as a plot colour (#rrggbb); grey for a name without a colour."""
+    if name not in COLOURS:
+        return GREY_HEX
+    b, g, r = COLOURS[name][0]
+    return f"#{r:02x}{g:02x}{b:02x}"
+
+
 def painted_boxes(names: tuple[str, ...], layout: OptionsLayout) -> tuple[tuple[Box, BGR], ...]:
     """Each option's box with its paint, for `SceneRenderer.options`."""
     if len(names) != layout.n_options:

@@ -219,6 +219,25 @@ def test_the_trial_figure_is_titled_by_participant(run_store: Path, close: list[
             assert box.y0 >= frame.y1 - 0.5 or box.y1 <= frame.y0 + 0.5
 
 
+def test_a_trial_of_three_options_draws_its_boxes_by_name_and_says_where_its_opinions_are(
+    run_store: Path, close: list[Figure]
+) -> None:
+    store = Store(run_store)
+    rec = next(t for _, t in store.trials("3f9a0c1b2d4e") if t.trial == 4)
+    samples = [replace(s, z_h=None, z_r=None, b_r=None)  # as a session of N options stores them
+               for s in store.samples("3f9a0c1b2d4e", 4)]
+    store.close()
+    names = ("red", "blue", "green")
+    fig = draw_trial(samples, rec, NodConfig().table(3), trial_title("P01", rec), names)
+    close.append(fig)
+    assert_readable(fig)
+    texts = {t.get_text() for ax in fig.axes for t in ax.texts}
+    assert set(names) <= texts
+    assert "opinions over the options are vectors: not in the samples table" in texts
+    table = fig.axes[3]
+    assert len(table.patches) == 3  # one box per option
+
+
 @pytest.mark.parametrize("trial", [1, 4, 7])
 def test_z_r_has_its_own_axis_scaled_to_its_range(
     run_store: Path, trial: int, close: list[Figure]
