@@ -21,9 +21,9 @@ import math
 import struct
 from dataclasses import dataclass, field
 
-from services.core.serial_link import LinkConfig, LinkCorruptError, LinkTimeoutError, SerialLink
+from services.core.serial_link import LinkConfig, LinkCorruptError, LinkTimeoutError
 from services.eyes.serial_servo import SerialServoDriver
-from services.model.servos import EyesCalibration, ServoTargets
+from services.model.servos import ServoTargets
 
 log = logging.getLogger(__name__)
 
@@ -102,26 +102,18 @@ class ArduinoEyesConfig:
 
 
 # -- driver -----------------------------------------------------------------------------------
-class ArduinoServoDriver(SerialServoDriver):
+class ArduinoServoDriver(SerialServoDriver[ArduinoEyesConfig]):
     """The eyes on an Arduino with four hobby servos (firmware/eyes/eyes.ino)."""
 
     device = "Arduino eyes"
     hint = "check that eyes.ino is flashed, the --port path and that both sides use 115200 baud"
+    #: The pulses the sketch echoed at its latest initialisation (None before the first).
+    firmware_pulses: tuple[int, ...] | None = None
 
-    def __init__(
-        self,
-        port: str,
-        config: ArduinoEyesConfig | None = None,
-        calibration: EyesCalibration | None = None,
-        *,
-        link: SerialLink | None = None,
-    ) -> None:
-        """Drive the eyes through the sketch on `port` (opened by `connect()`)."""
-        self.config = config if config is not None else ArduinoEyesConfig()
-        if link is None:
-            link = SerialLink(port, self.config.baudrate, self.config.link)
-        super().__init__(link, calibration)
-        self.firmware_pulses: tuple[int, ...] | None = None  # as echoed by the sketch
+    @classmethod
+    def default_config(cls) -> ArduinoEyesConfig:
+        """The controller's configuration when none is given: the defaults."""
+        return ArduinoEyesConfig()
 
     def request(self, cmd: int, payload: bytes = b"", *, counted: bool = True) -> bytes:
         """Send one frame and return the reply's payload; raise on NAK, CRC or silence."""

@@ -18,9 +18,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from services.core.serial_link import LinkConfig, SerialLink
+from services.core.serial_link import LinkConfig
 from services.eyes.serial_servo import SerialServoDriver
-from services.model.servos import EyesCalibration, ServoTargets
+from services.model.servos import ServoTargets
 
 SET_TARGET = 0x84
 SET_SPEED = 0x87
@@ -123,7 +123,7 @@ class MaestroConfig:
 
 
 # -- driver -----------------------------------------------------------------------------------
-class MaestroServoDriver(SerialServoDriver):
+class MaestroServoDriver(SerialServoDriver[MaestroConfig]):
     """The eyes on a Pololu Maestro (Micro Maestro 6 or any Mini Maestro)."""
 
     device = "Maestro"
@@ -132,19 +132,10 @@ class MaestroServoDriver(SerialServoDriver):
         "that its serial mode is USB Dual Port (Maestro Control Center → Serial Settings)"
     )
 
-    def __init__(
-        self,
-        port: str,
-        config: MaestroConfig | None = None,
-        calibration: EyesCalibration | None = None,
-        *,
-        link: SerialLink | None = None,
-    ) -> None:
-        """Drive the eyes through a Maestro on `port` (opened by `connect()`)."""
-        self.config = config if config is not None else MaestroConfig()
-        if link is None:
-            link = SerialLink(port, self.config.baudrate, self.config.link)
-        super().__init__(link, calibration)
+    @classmethod
+    def default_config(cls) -> MaestroConfig:
+        """The controller's configuration when none is given: the defaults."""
+        return MaestroConfig()
 
     def encode_targets(self, targets: ServoTargets) -> bytes:
         """The Set Target commands for four targets, in `SERVO_NAMES` order."""

@@ -17,8 +17,9 @@ import logging
 import threading
 import time
 from abc import abstractmethod
+from typing import Generic, Protocol, TypeVar
 
-from services.core.serial_link import LinkedDevice, LinkError, SerialLink
+from services.core.serial_link import LinkConfig, LinkedDevice, LinkError, SerialLink
 from services.eyes.servos import ServoDriver, ServoNotConnectedError
 from services.model.servos import EyesCalibration, ServoTargets, enforce_limits
 
@@ -26,17 +27,49 @@ log = logging.getLogger(__name__)
 FLUSH_S = 0.5  # how long disconnect() waits for the last targets to go out
 
 
-class SerialServoDriver(LinkedDevice, ServoDriver):
-    """Base of the Maestro and Arduino drivers; subclasses speak the protocol."""
+class PortConfig(Protocol):
+    """What a controller's configuration gives its driver to open the port with."""
+
+    @property
+    def baudrate(self) -> int:
+        """The port's baud rate."""
+
+    @property
+    def link(self) -> LinkConfig:
+        """The link's timeouts and reconnect backoff."""
+
+
+ConfigT = TypeVar("ConfigT", bound=PortConfig)
+
+
+class SerialServoDriver(LinkedDevice, ServoDriver, Generic[ConfigT]):
+    """Base of the Maestro and Arduino drivers; subclasses speak the protocol.
+
+    A subclass names its configuration type and its defaults (`default_config`); the port, the
+    link and the calibration are taken here, the same way for every controller.
+    """
 
     #: Human name of the controller, for messages.
     device = "servo controller"
     #: How to fix a controller that does not answer at connect time.
     hint = "check the cable, the --port path and the baud rate"
 
-    def __init__(self, link: SerialLink, calibration: EyesCalibration | None = None) -> None:
-        """Drive servos through `link` (not opened until `connect()`)."""
+    def __init__(
+        self,
+        port: str,
+        config: ConfigT | None = None,
+        calibration: EyesCalibration | None = None,
+        *,
+        link: SerialLink | None = None,
+    ) -> None:
+        """Drive the eyes through the controller on `port` (opened by `connect()`).
+
+        `link` replaces the link to `port` the configuration describes (tests pass their own).
+        """
         super().__init__(calibration)
+        self.config: ConfigT = config if config is not None else self.default_config()
+        if link is None:
+            link = SerialLink(port, self.config.baudrate, self.config.link)
         self.link = link
         self._connected = False
         self._generation = -1  # link.opens at the last initialisation of the controller
@@ -133,6 +166,11 @@ class SerialServoDriver(LinkedDevice, ServoDriver):
         return self._fault
 
     # -- protocol hooks ------------------------------------------------------------------------
+    @classmethod
+    @abstractmethod
+    def default_config(cls) -> ConfigT:
+        """The controller's configuration when none is given."""
+
     @abstractmethod
     def _write_targets(self, targets: ServoTargets) -> str | None:
         """Write targets and confirm; return a controller-reported fault or None."""
