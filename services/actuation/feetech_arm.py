@@ -28,6 +28,7 @@ from services.core.serial_link import LinkConfig, LinkedDevice, LinkError, Seria
 from services.model.arm import ArmDriver, ArmState
 from services.model.arm_kinematics import ArmNotConnectedError
 from services.model.behaviour import ArmCommand
+from services.model.checks import require_non_negative, require_positive
 from services.model.geometry import Colour, Point, TableLayout, colour_sign
 
 log = logging.getLogger(__name__)
@@ -70,12 +71,8 @@ class FeetechArmConfig:
             raise ValueError(f"FeetechArmConfig.series must be one of {sorted(RESOLUTION)}")
         if self.baudrate <= 0:
             raise ValueError(f"FeetechArmConfig.baudrate must be > 0, got {self.baudrate}")
-        for name in ("move_time_s", "press_time_s", "poll_interval_s"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value <= 0:
-                raise ValueError(f"FeetechArmConfig.{name} must be finite and > 0, got {value}")
-        if not math.isfinite(self.press_hold_s) or self.press_hold_s < 0:
-            raise ValueError(f"FeetechArmConfig.press_hold_s must be >= 0, got {self.press_hold_s}")
+        require_positive(self, "move_time_s", "press_time_s", "poll_interval_s")
+        require_non_negative(self, "press_hold_s")
         if not 0 <= self.goal_speed <= 0x7FFF or not 0 <= self.acceleration <= 254:
             raise ValueError(
                 "FeetechArmConfig: goal_speed must be in [0, 32767], acceleration in [0, 254]"

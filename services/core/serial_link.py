@@ -34,6 +34,7 @@ from typing import Protocol
 
 import serial
 
+from services.model.checks import require_positive
 from services.model.device import Device
 
 try:  # POSIX: pyserial lets termios.error escape from flush/ioctl calls on a vanished tty
@@ -106,10 +107,7 @@ class LinkConfig:
     max_timeouts: int = 3
 
     def __post_init__(self) -> None:
-        for name in ("timeout_s", "write_timeout_s", "backoff_initial_s", "backoff_max_s"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value <= 0:
-                raise ValueError(f"LinkConfig.{name} must be finite and > 0, got {value}")
+        require_positive(self, "timeout_s", "write_timeout_s", "backoff_initial_s", "backoff_max_s")
         if not math.isfinite(self.backoff_factor) or self.backoff_factor < 1:
             raise ValueError(f"LinkConfig.backoff_factor must be >= 1, got {self.backoff_factor}")
         if self.backoff_max_s < self.backoff_initial_s:

@@ -10,6 +10,7 @@ Where each piece lives (services call these; the tests test these):
     behaviour.py    Algorithm 2: the robot's moves and press, over any number of boxes
     arm.py          the arm interface and the kinematic simulated arm
     device.py       connect / disconnect, and a `with` block that leaves a device safe
+    checks.py       the parameter dataclasses' checks (finite, > 0, >= 0), worded once
     outcome.py      C / CH / D / DH, switches, rule violations; `judge_trial`
     scoring.py      the participant's score (Sec 3.2)
     protocol.py     the 8-trial schedule and `SessionProtocol`, the session state machine

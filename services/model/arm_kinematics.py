@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
+from services.model.checks import require_non_negative, require_positive
 from services.model.device import SimConnection
 from services.model.geometry import Point
 
@@ -42,15 +43,8 @@ class SimArmParams:
     def __post_init__(self) -> None:
         if len(self.home) != 2 or not all(math.isfinite(v) for v in self.home):
             raise ValueError(f"SimArmParams.home must be a finite (x, y), got {self.home!r}")
-        for name in ("max_speed", "max_accel", "step_s"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value <= 0:
-                raise ValueError(f"SimArmParams.{name} must be finite and > 0, got {value}")
-        if not math.isfinite(self.press_duration_s) or self.press_duration_s < 0:
-            raise ValueError(
-                f"SimArmParams.press_duration_s must be finite and >= 0, got "
-                f"{self.press_duration_s}"
-            )
+        require_positive(self, "max_speed", "max_accel", "step_s")
+        require_non_negative(self, "press_duration_s")
 
 
 _ARRIVED = 1e-6  # distance (normalised) under which the arm snaps onto its goal

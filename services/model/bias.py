@@ -51,6 +51,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from services.model.checks import require_finite
 from services.model.geometry import Colour, colour_sign
 
 
@@ -65,10 +66,7 @@ class BiasParams:
     b_max: float = 6.0  # clamp |b_r| ≤ b_max: in dissensus the σ term never stops on its own
 
     def __post_init__(self) -> None:
-        for name in ("sigma", "K", "b_star_margin", "b_max"):
-            value = getattr(self, name)
-            if not math.isfinite(value):
-                raise ValueError(f"BiasParams.{name} must be finite, got {value!r}")
+        require_finite(self, "sigma", "K", "b_star_margin", "b_max")
         if self.sigma < 0 or self.K < 0 or self.b_star_margin < 0:
             raise ValueError(
                 "BiasParams.sigma, K and b_star_margin are magnitudes and must be >= 0, got "

@@ -40,6 +40,8 @@ from typing import Any, TypeAlias, TypeVar, overload
 
 import numpy as np
 
+from services.model.checks import require_finite
+
 ArrayLike: TypeAlias = float | np.ndarray
 Y = TypeVar("Y", float, np.ndarray)  # a state: a float stays a float, an array an array
 
@@ -244,10 +246,7 @@ class OptionsParams:
             raise ValueError(f"OptionsParams.n_options must be an int, got {self.n_options!r}")
         if self.n_options < 2:
             raise ValueError(f"OptionsParams.n_options must be >= 2, got {self.n_options}")
-        for name in ("beta", "delta"):
-            value = getattr(self, name)
-            if not math.isfinite(value):
-                raise ValueError(f"OptionsParams.{name} must be finite, got {value!r}")
+        require_finite(self, "beta", "delta")
 
     def agents(self) -> tuple[AgentParams, AgentParams]:
         """(robot, human): the rows of Z."""

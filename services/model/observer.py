@@ -22,6 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
+from services.model.checks import require_finite, require_non_negative, require_positive
 from services.model.geometry import Colour, Point, TableLayout
 
 _TWO_PI = 2.0 * math.pi
@@ -69,26 +70,16 @@ class ObserverParams:
     def __post_init__(self) -> None:
         if self.mode not in ("robust", "paper"):
             raise ValueError(f"ObserverParams.mode must be 'robust' or 'paper', not {self.mode!r}")
-        for name in ("smooth_s", "window_s", "min_speed", "max_angle_deg", "switch_margin",
-                     "dead_band"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"ObserverParams.{name} must be finite and >= 0, got {value!r}")
+        require_non_negative(
+            self, "smooth_s", "window_s", "min_speed", "max_angle_deg", "switch_margin", "dead_band"
+        )
         if not 0 < self.window_s <= 2.0 or not 0 < self.max_angle_deg < 90:
             raise ValueError(
                 "ObserverParams.window_s must be in (0, 2] s and max_angle_deg in (0, 90)"
             )
-        for name in ("a", "k", "noise_threshold", "d_min"):
-            value = getattr(self, name)
-            if not math.isfinite(value):
-                raise ValueError(f"ObserverParams.{name} must be finite, got {value!r}")
-        for name in ("a", "k", "d_min"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"ObserverParams.{name} must be > 0, got {getattr(self, name)}")
-        if self.noise_threshold < 0:
-            raise ValueError(
-                f"ObserverParams.noise_threshold must be >= 0, got {self.noise_threshold}"
-            )
+        require_finite(self, "a", "k", "noise_threshold", "d_min")
+        require_positive(self, "a", "k", "d_min")
+        require_non_negative(self, "noise_threshold")
         if self.anchor not in ("corner", "center"):
             raise ValueError(
                 f"ObserverParams.anchor must be 'corner' or 'center', not {self.anchor!r}"
