@@ -1,12 +1,19 @@
-"""The conductor of one participant's session on the fabric.
+"""The conductor of one participant's session on the fabric, for any number of options.
 
 It drives the protocol state machine (`services.model.protocol.SessionProtocol`, the same one
 the offline loop drives) and does what its cues say: command the gaze (the attention gesture's
 poses too), announce the setup (decision and actuation reset), count "1, 2, 3, go", record the
 streams, and at the end of a trial (the human's press or the timeout, then the robot's press)
-judge it (`services.model.judge.TrialJudge`), store it with its samples and its cues as played
-(`nod speaker`, `services.experiment.cues`) in one SQLite transaction, and publish the
-result. `nod experiment` (`services.experiment.service`) is its command line.
+judge it (the key space's judge, `services.model.judge`), store it with its samples and its
+cues as played (`nod speaker`, `services.experiment.cues`) in one SQLite transaction, and
+publish the result. `nod experiment` (`services.experiment.service`) is its command line.
+
+One conductor for every option set: what differs by the number of options — the keys and
+message types (the paper's schema 1 or the `options/*` keys of schema 2), the judge, O as a
+colour or a box index — is the session's key space (`services.experiment.keyspace`), chosen by
+the option count. Everything else here (the operator gate, the cues as played, the console,
+the samples, the recorder's link, resume, the rig watch, interruptions, the clicks prompt) is
+written once, in option names.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from services.core import messages as m
 from services.core.node import Node
@@ -27,13 +35,13 @@ from services.experiment.console import SessionConsole
 from services.experiment.cues import CueLog
 from services.experiment.fields import GazeFields, TrialFields
 from services.experiment.hold import SessionHold
+from services.experiment.keyspace import ArmReading, KeySpace, Output, PaperKeys
 from services.experiment.operator import EnterStarts, OperatorGate
-from services.experiment.presses import RobotPresses
+from services.experiment.presses import Box, RobotPresses
 from services.experiment.resume import attempts_so_far, file_open_attempt
 from services.experiment.rig_watch import RigWatch
 from services.experiment.trial_samples import TrialSamples
 from services.experiment.waiting import wait_for_services
-from services.model.geometry import Colour
 from services.model.judge import TrialJudge
 from services.model.params import NodConfig
 from services.model.protocol import Cue, SessionProtocol, TrialEnd, TrialSpec
@@ -64,19 +72,23 @@ class Conductor:
         clicks: Callable[[int], int | None],
         console: SessionConsole | None = None,
         resume_at: tuple[int, int] | None = None,
+        keys: KeySpace | None = None,
     ):
         """The conductor of one session on `node`'s rig, storing into `store`.
 
         `resume_at`: the (trial, attempt) a resumed session is in — the one a lost conductor
         left open, or the last one stored — so the safety events seen before its next trial
         starts (a device's safe stop while no conductor ran) are filed under it, not trial 0.
+        `keys`: the session's key space (its configuration is the session's); default the
+        paper's two options on `cfg`.
         """
         self.node = node
         self.console = console or SessionConsole()
         self.console.interrupt = node.stop  # a prompt waiting for the operator ends on SIGINT
-        self.cfg = cfg
-        self.proto = cfg.protocol
-        self.layout = cfg.layout
+        self.keys = keys if keys is not None else PaperKeys(cfg)
+        self.cfg = cfg = self.keys.cfg
+        self.proto = dataclasses.replace(cfg.protocol, trials=self.keys.trials)
+        self.layout = self.keys.layout()
         self.store = store
         self.clicks = clicks
         self.alive: dict[str, bool] = {}
@@ -96,16 +108,10 @@ class Conductor:
         self._last_hand_seq: int | None = None
         self._seq_regressions = 0  # in the current trial
         self.recording: tuple[Path, int] | None = None  # (file, started_ns) of `--record`
-        self.pub_trial = node.publisher("experiment/trial")
-        self.pub_result = node.publisher("experiment/result")
+        self.pub_trial, self.pub_result = self.keys.publishers(node)
         self.pub_gaze = node.publisher("eyes/cmd")
         node.subscribe("vision/hand", self.on_hand)
-        node.subscribe("vision/layout", lambda msg: setattr(self, "layout", m.layout_from_msg(msg)))
-        node.subscribe("decision/z_h", lambda msg: self._scalar("z_h", msg))
-        node.subscribe("decision/z_r", lambda msg: self._scalar("z_r", msg))
-        node.subscribe("decision/b_r", lambda msg: self._scalar("b_r", msg))
-        node.subscribe("actuation/state", self.on_arm)
-        node.subscribe("actuation/press", self.on_press)
+        self.keys.wire(node, self)  # layout, decision outputs, the arm's state, its press
         node.subscribe("eyes/state", self.on_eyes)
         node.subscribe("safety/estop", self.on_estop)
         node.subscribe("safety/release", self.on_estop)
@@ -158,18 +164,24 @@ class Conductor:
         if self.trial_samples is not None:
             self.trial_samples.on_hand(pose)
 
-    def _scalar(self, name: str, msg: m.Scalar) -> None:
-        self.console.value(name, msg.value)
+    def on_output(self, name: str, out: Output) -> None:
+        """A decision output: on the console (a scalar), into the trial's samples and judge."""
+        if out.value is not None:
+            self.console.value(name, out.value)
         if self.trial_samples is not None:
-            self.trial_samples.on_scalar(name, msg, self._hands.get(msg.src_seq))
+            self.trial_samples.on_output(name, out, self._hands.get(out.src_seq))
 
-    def on_arm(self, msg: m.ArmStateMsg) -> None:
+    def on_layout(self, layout: Any) -> None:
+        """The table the camera (or the sim) sees: judged from the next trial's "go"."""
+        self.layout = layout
+
+    def on_arm(self, arm: ArmReading) -> None:
         """The arm's end effector for the samples, and its safety state."""
-        self.rig.device_state("actuation", msg.safe_stop, msg.safety_reason, self._now_ns())
-        self.presses.arm_state(msg.trial, msg.phase, msg.target)
-        self.console.robot(msg.phase, msg.target)
+        self.rig.device_state("actuation", arm.safe_stop, arm.safety_reason, self._now_ns())
+        self.presses.arm_state(arm.trial, arm.phase, arm.target)
+        self.console.robot(arm.phase, self.keys.name(arm.target))
         if self.trial_samples is not None:
-            self.trial_samples.on_arm(msg)
+            self.trial_samples.on_arm(arm.ee)
 
     def on_eyes(self, msg: m.EyesStateMsg) -> None:
         """The eyes' safety state."""
@@ -179,9 +191,9 @@ class Conductor:
         """An e-stop command: it breaks a running trial and holds the session until released."""
         self.rig.estop(msg.engaged, msg.reason, msg.source, self._now_ns())
 
-    def on_press(self, msg: m.PressMsg) -> None:
-        """The robot pressed a buzzer: taken once the arm's own state confirms it."""
-        self.presses.press(msg)
+    def on_press(self, trial: int, option: Box) -> None:
+        """The robot pressed a box: taken once the arm's own state confirms it."""
+        self.presses.press(trial, option)
 
     # -- the script (main thread) ----------------------------------------------------------
 
@@ -212,9 +224,14 @@ class Conductor:
         left open when it died: stored as an interruption, then repeated or moved past alike.
         """
         started = self.node.clock.now_ns()
+        if resume and (ran := self.store.option_names(session)) != self.keys.names:
+            # `resume_problem` refuses it before anything is written: a guard
+            raise ValueError(f"session {session} ran the options {list(ran)}, not "
+                             f"{list(self.keys.names)}")
         if not resume:
             self.store.begin_session(
-                session, participant, self.node.keys.rig, seed, started, self.cfg.summary()
+                session, participant, self.node.keys.rig, seed, started, self.keys.summary(),
+                self.keys.names,
             )
         if self.recording is not None:
             self.store.add_recording(session, *self.recording)
@@ -281,12 +298,12 @@ class Conductor:
             with self.node.lock:
                 self.gaze_msg = None
                 self.node.activity = {}  # no session under way
-            self.pub_trial.put(
+            self.pub_trial.put(**self.keys.trial_event(
                 phase="session_end" if status == "complete" else "abort",
                 trial=self.trial,
                 session=session,
                 text=status,
-            )
+            ))
             self.console.stop()
         return self.records
 
@@ -363,9 +380,10 @@ class Conductor:
             spec = cue.trial
             if spec is None:  # session_end: run_session publishes it once the store is closed
                 continue
-            ev: TrialFields = {"trial": spec.index, "mode": spec.mode, "option": spec.option}
+            mode, option = self.keys.trial(spec)
+            ev: TrialFields = {"trial": spec.index, "mode": mode, "option": option}
             if cue.kind in ("setup", "countdown", "go", "end", "interrupted"):
-                self.console.cue(cue.kind, spec.index, spec.mode, spec.option, cue.text)
+                self.console.cue(cue.kind, spec.index, mode, option, cue.text)
             if cue.kind == "gaze" and cue.gaze is not None:
                 with self.node.lock:
                     self.gaze_msg = {
@@ -390,21 +408,25 @@ class Conductor:
                     self.cues.begin(spec.index, protocol.attempt)
                     self._seq_regressions = 0
                     self._trial_start_ns = started
-                    self.pub_trial.put(phase="setup", text=cue.text, session=self.session, **ev)
+                    self._event("setup", cue.text, ev)
             elif cue.kind == "countdown":
-                self.pub_trial.put(phase="countdown", text=cue.text, session=self.session, **ev)
+                self._event("countdown", cue.text, ev)
             elif cue.kind == "go":
                 with self.node.lock:
-                    go = self.pub_trial.put(
-                        phase="go", text=cue.text, session=self.session, **ev
-                    )
-                    judge = TrialJudge(self.cfg, self.layout, spec.mode)
+                    go = self._event("go", cue.text, ev)
+                    judge = self.keys.judge(self.layout, mode)
                     self.trial_samples = TrialSamples(go.t_ns, judge)
             elif cue.kind == "end":
                 self._end_trial(spec, protocol)
                 cues.extend(protocol.judged(self._now_s()))
             elif cue.kind == "interrupted":
                 self._interrupted(spec, protocol, cue.text)
+
+    def _event(self, phase: str, text: str, ev: TrialFields) -> Any:
+        """Publish a step of a trial on the session's trial key (the sent message)."""
+        return self.pub_trial.put(
+            **self.keys.trial_event(phase=phase, text=text, session=self.session, **ev)
+        )
 
     def _interrupted(self, spec: TrialSpec, protocol: SessionProtocol, why: str) -> None:
         """Store the broken start of a trial; the session pauses until the rig is safe."""
@@ -413,14 +435,9 @@ class Conductor:
             events, cues = self.rig.take_events(), self.cues.take()
             now = self._now_ns()
         log.warning("trial %d (attempt %d) INTERRUPTED: %s", spec.index, protocol.attempt, why)
-        self.pub_trial.put(
-            phase="interrupted",
-            trial=spec.index,
-            mode=spec.mode,
-            option=spec.option,
-            text=why[:400],
-            session=self.session,
-        )
+        mode, option = self.keys.trial(spec)
+        self._event("interrupted", why[:400], {"trial": spec.index, "mode": mode,
+                                                "option": option})
         record = Interruption(spec.index, protocol.attempt, self._trial_start_ns, now, why)
         self.store.write_interruption(self.session, record, events, cues)
         last_chance = (
@@ -439,16 +456,18 @@ class Conductor:
             robot = self.presses.confirmed
             refused = self.presses.unconfirmed()
             arm = self.presses.where()
-        for colour in refused:  # pressed on the key, never shown by the arm: not the robot's
+        name = self.keys.name
+        for box in refused:  # pressed on the key, never shown by the arm: not the robot's
             log.warning(
-                "trial %d: a press of %s was never confirmed by actuation/state (last: trial %d, "
+                "trial %d: a press of %s was never confirmed by the arm's state (last: trial %d, "
                 "%s, at %s): refused (forged, or a second actuation?)",
-                spec.index, colour, *arm,
+                spec.index, name(box), arm[0], arm[1], name(arm[2]),
             )
         assert rec is not None and protocol.end is not None  # "go" precedes every "end"
-        self.pub_trial.put(
-            phase="end", trial=spec.index, mode=spec.mode, option=spec.option, session=self.session
-        )
+        mode, option = self.keys.trial(spec)
+        self.pub_trial.put(**self.keys.trial_event(
+            phase="end", trial=spec.index, mode=mode, option=option, session=self.session
+        ))
         # Stored the moment it ends, its clicks "not entered": the operator's prompt comes after
         # and its answer updates the stored trial. A Ctrl-C, a crash or a lost terminal at the
         # prompt leaves the trial stored once (clicks not entered, `nod clicks` enters them
@@ -477,7 +496,7 @@ class Conductor:
         attempt: int,
         end: TrialEnd | None,
         rec: TrialSamples | None,
-        robot: Colour | None,
+        robot: Box | None,
         clicks: int | None,
         reason: str,
         interrupted: bool = False,
@@ -491,9 +510,11 @@ class Conductor:
         with self.node.lock:
             events, cues = self.rig.take_events(), self.cues.take()
         # The judgement's fields (presses, outcome, switches, violations, score) are stored and
-        # published as they are.
-        verdict = dataclasses.asdict(j)
-        trial: TrialFields = {"trial": spec.index, "mode": spec.mode, "option": spec.option}
+        # published as they are, its presses by option name.
+        verdict = {**dataclasses.asdict(j), "human": self.keys.name(j.human),
+                   "robot": self.keys.name(j.robot)}
+        mode, option = self.keys.trial(spec)
+        trial: TrialFields = {"trial": spec.index, "mode": mode, "option": option}
         record = TrialRecord(
             **trial, **verdict, gaze_level=spec.gaze_level, yaw=spec.gaze.yaw,
             pitch=spec.gaze.pitch, t_go_ns=rec.t_go_ns if rec is not None else None,
@@ -513,9 +534,9 @@ class Conductor:
         """Show a stored trial on the console and publish its result (display, LSL, `nod run`)."""
         self.console.result(record.trial, record.mode, record.option, record.robot, record.human,
                             record.outcome, record.score, record.interrupted)
-        self.pub_result.put(
+        self.pub_result.put(**self.keys.result(
             trial=record.trial, mode=record.mode, option=record.option, human=record.human,
             robot=record.robot, outcome=record.outcome, switches=record.switches,
             violations=record.violations, score=record.score, session=self.session,
             interrupted=record.interrupted,
-        )
+        ))

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import TypedDict
 
-from services.model.geometry import Colour
 from services.model.protocol import Mode
 
 
@@ -19,8 +18,8 @@ class GazeFields(TypedDict, total=False):
 
 
 class TrialFields(TypedDict):
-    """The trial every `m.TrialEvent` of one cue names."""
+    """The trial every event of one cue names: O by name (the key space encodes it)."""
 
     trial: int
     mode: Mode
-    option: Colour | None
+    option: str | None

@@ -1,53 +1,50 @@
 """The conductor's participant checks and O order: `nod experiment --order … --again …`.
 
 A session runs the schedule of its parameters with the O of its consensus trials given by
-`--order` (a study's counterbalanced order, `nod study start`), or the schedule's own. The order
-is stored with the session (`services.store.participants`), and a resumed session runs the
-order it was started with. A participant who already has a complete session is refused, unless
-`--again REASON` says why they do the study once more (the reason is stored too).
+`--order` (a study's counterbalanced order, `nod study start`; over any option set, by name),
+or the schedule's own. The order is stored with the session (`services.store.participants`),
+and a resumed session runs the order it was started with. A participant who already has a
+complete session is refused, unless `--again REASON` says why they do the study once more (the
+reason is stored too).
 """
 
 from __future__ import annotations
 
-import dataclasses
-
-from services.model.params import NodConfig
-from services.model.protocol import Order, order_of, parse_order, with_order
+from services.experiment.keyspace import KeySpace, Order
 from services.store import Store
 from services.store.participants import check_id, order_of_session, reuse_problem
 from services.store.withdrawals import withdrawal_problem
 
 
-def session_config(
-    cfg: NodConfig, store: Store, order: str | None, resume: str | None
-) -> NodConfig:
-    """The configuration a session runs: `cfg` with its O order (ValueError: why not).
+def session_keys(
+    keys: KeySpace, store: Store, order: str | None, resume: str | None
+) -> KeySpace:
+    """The key space a session runs: `keys` with its O order (ValueError: why not).
 
-    `order` is the `--order` flag (None: not given); `resume` the session resumed (or None),
-    whose stored order wins, and a different `--order` is refused.
+    `order` is the `--order` flag (None: not given), by the option set's names (the paper's
+    colours or letters, `KeySpace.parse_order`); `resume` the session resumed (or None), whose
+    stored order wins, and a different `--order` is refused.
     """
-    trials = cfg.protocol.trials
-    wanted: Order | None = None if order is None else parse_order(order, len(order_of(trials)))
+    wanted: Order | None = None if order is None else keys.parse_order(order)
     if resume is not None:
         stored = order_of_session(store, resume)
         if stored is not None:
-            n = len(order_of(trials))
+            n = len(keys.order())
             if len(stored) != n:
                 raise ValueError(
                     f"session {resume} ran {len(stored)} consensus trials, these parameters "
                     f"have {n}: resume it with the --params it started with"
                 )
-            ran = parse_order(",".join(stored), n)
+            ran = keys.parse_order(",".join(stored))
             if wanted is not None and wanted != ran:
                 raise ValueError(
                     f"session {resume} runs the order {','.join(ran)}; --order "
                     f"{','.join(wanted)} differs (leave --order out to resume it)"
                 )
             wanted = ran
-    if wanted is None or wanted == order_of(trials):
-        return cfg
-    protocol = dataclasses.replace(cfg.protocol, trials=with_order(trials, wanted))
-    return dataclasses.replace(cfg, protocol=protocol)
+    if wanted is None or wanted == keys.order():
+        return keys
+    return keys.with_order(wanted)
 
 
 def participant_problem(

@@ -2,7 +2,9 @@
 
 The conductor itself is `services.experiment.conductor.Conductor`; this module reads the
 flags, opens (or resumes) the session in the store, refuses a second conductor on the rig,
-starts the recorder when asked, and runs the session.
+starts the recorder when asked, and runs the session. One command line for any option set:
+`--options N` (or a params file's `[protocol] options`) picks the session's key space
+(`services.experiment.keyspace`), and every flag means the same at N options.
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ from services.core.rigfile import CONTROL, Host, RigFileError, load_rig, session
 from services.core.session import Fabric
 from services.experiment.conductor import Conductor
 from services.experiment.console import make_console
-from services.experiment.order import participant_problem, session_config
+from services.experiment.keyspace import key_space
+from services.experiment.order import participant_problem, session_keys
 from services.experiment.params_check import ParamsCheck
 from services.experiment.recording import RecorderProcess, recorder_command, recording_path
 from services.experiment.resume import (
@@ -36,10 +39,8 @@ from services.experiment.resume import (
 )
 from services.experiment.rig_claim import claim_the_rig, watch_rivals
 from services.experiment.waiting import hear_the_devices
-from services.model.protocol import order_of
 from services.store import Store, back_up
 from services.store.participants import next_free_ids, record_order
-from services.store.store import PAPER_OPTIONS
 
 log = logging.getLogger("nod.experiment")
 RECORDER_READY_S = 30.0  # wall seconds for `nod record` to start and subscribe
@@ -181,20 +182,14 @@ def main(argv: list[str] | None = None) -> int:
         store = Store(args.db)
     except (ValueError, OSError) as exc:
         return fail("nod experiment", exc)
-    if schedule is not None:  # a table of 3+ boxes: the N_o-option conductor
-        from services.experiment.options_session import run_options
-
-        try:
-            return run_options(args, cfg, schedule, clicks, store, build_parser())
-        finally:
-            store.close()
+    keys = key_space(cfg, schedule)  # the paper's two options, or a table of N boxes
     if args.resume is not None and (
-        problem := resume_problem(store, args.resume, args.rig, PAPER_OPTIONS)
+        problem := resume_problem(store, args.resume, args.rig, keys.names)
     ):
         store.close()  # another rig's session, a complete one: refused, the store unchanged
         return fail("nod experiment", problem)
     try:
-        cfg = session_config(cfg, store, args.order, args.resume)
+        keys = session_keys(keys, store, args.order, args.resume)
     except ValueError as exc:
         store.close()
         return fail("nod experiment", exc)
@@ -209,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     resume_at: tuple[int, int] | None = None
     if args.resume is not None:
         try:
-            point = prepare_resume(store, args.resume, len(cfg.protocol.trials))
+            point = prepare_resume(store, args.resume, len(keys.trials))
         except OSError as exc:
             store.close()
             return fail("nod experiment", exc)
@@ -232,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
         store.close()
         return 2
     params_check = ParamsCheck(node)
-    conductor = Conductor(node, cfg, store, clicks, console, resume_at=resume_at)
+    conductor = Conductor(node, keys.cfg, store, clicks, console, resume_at=resume_at, keys=keys)
     watch_rivals(claim, node, conductor.rig, console.note)
     # The devices' states first, then this conductor's liveliness: a safe stop they hold
     # because no conductor ran is stored before they clear it (see `hear_the_devices`).
@@ -258,11 +253,10 @@ def main(argv: list[str] | None = None) -> int:
         if mismatch is not None:
             log.warning("%s (--allow-params-mismatch: running anyway)", mismatch)
         if args.resume is None:  # the order this session runs, and why it is another one
-            order = order_of(cfg.protocol.trials)
-            record_order(store, session, participant, order, args.again, time.time_ns())
+            record_order(store, session, participant, keys.order(), args.again, time.time_ns())
         log.info(
-            "session %s (%s): all services alive; trials %d-%d",
-            session, participant, first, len(cfg.protocol.trials),
+            "session %s (%s): all services alive; %d options %s, trials %d-%d",
+            session, participant, keys.n_options, list(keys.names), first, len(keys.trials),
         )
         conductor.run_session(
             session, participant, seed, first, resume=args.resume is not None, lost=lost

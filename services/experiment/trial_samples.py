@@ -1,7 +1,10 @@
 """One trial's samples, and the trial judge fed with the human's press and ẑ_h on the way.
 
-Decision outputs are joined to the hand pose that produced them through `src_seq`, so the
-stored samples line up exactly even when messages arrive interleaved.
+Written once for any number of options: outputs come as `keyspace.Output` (at N options their
+scalar columns stay NULL, `services.experiment.keyspace` says why) and the judge is the
+session's (`TrialJudge`, `OptionsTrialJudge`). Decision outputs are joined to the hand pose
+that produced them through `src_seq`, so the stored samples line up exactly even when messages
+arrive interleaved.
 
 A trial keeps at most `MAX_ROWS` poses, whatever a publisher floods the hand key with: the rest
 are counted (`dropped`, one log line) and `drop_records` puts the count in the trial's events.
@@ -11,14 +14,14 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from services.model.geometry import Colour
-from services.model.judge import TrialJudge
+from services.model.judge import Judge
 from services.store.records import RigEventRecord, Sample, pack_landmarks
 
 if TYPE_CHECKING:  # the recorder reads decoded messages; it needs no codec
     from services.core import messages as m
+    from services.experiment.keyspace import Output
 
 log = logging.getLogger(__name__)
 # Poses kept per trial: the longest trial the protocol's bounds allow (a 120 s timeout and a
@@ -40,7 +43,7 @@ class _Row:
 class TrialSamples:
     """Collects what happens between "go" and the end of one trial."""
 
-    def __init__(self, t_go_ns: int, judge: TrialJudge) -> None:
+    def __init__(self, t_go_ns: int, judge: Judge[Any, Any, Any]) -> None:
         self.t_go_ns = t_go_ns
         self.judge = judge  # its clock: the poses' and outputs' t_ns
         self._rows: dict[int, _Row] = {}
@@ -48,7 +51,7 @@ class TrialSamples:
         self.dropped = 0  # poses not kept: the trial had MAX_ROWS
 
     @property
-    def human(self) -> Colour | None:
+    def human(self) -> Any:
         """The human's press so far (the judge's)."""
         return self.judge.human
 
@@ -64,29 +67,28 @@ class TrialSamples:
         if pose.detected:  # a full trial still sees the press
             self.judge.see_hand(pose.landmarks, pose.t_ns)
 
-    def on_scalar(self, name: str, msg: m.Scalar, pose: m.HandPose | None) -> None:
-        """A decision output for hand pose `msg.src_seq`; ẑ_h feeds the outcome until the press."""
-        if msg.t_ns < self.t_go_ns:
+    def on_output(self, name: str, out: Output, pose: m.HandPose | None) -> None:
+        """A decision output for hand pose `out.src_seq`; ẑ_h feeds the outcome until the press."""
+        if out.t_ns < self.t_go_ns:
             return
-        row = self._rows.get(msg.src_seq)
+        row = self._rows.get(out.src_seq)
         if row is None:
             if pose is None:
                 return  # its pose was never seen (dropped): nothing to join it with
             if len(self._rows) >= MAX_ROWS:
                 return  # full: its pose, if it came here, was counted
-            row = self._rows[msg.src_seq] = _Row(pose.t_ns, pose.detected, pose.center)
+            row = self._rows[out.src_seq] = _Row(pose.t_ns, pose.detected, pose.center)
             if pose.detected:
                 row.landmarks = pack_landmarks(pose.landmarks)
-        row.values[name] = msg.value
+        row.values[name] = out.value
         if name == "z_h":
-            row.values["theta"] = getattr(msg, "theta", None)
-            row.values["distance"] = getattr(msg, "distance", None)
-        if name == "z_h":
-            self.judge.observe(msg.value, row.hand, msg.t_ns)
+            row.values["theta"] = out.theta
+            row.values["distance"] = out.distance
+            self.judge.observe(out.z, row.hand, out.t_ns)
 
-    def on_arm(self, msg: m.ArmStateMsg) -> None:
+    def on_arm(self, ee: tuple[float, float]) -> None:
         """The latest end-effector position, attached to the following samples."""
-        self._ee = msg.ee
+        self._ee = ee
 
     def _room(self) -> bool:
         """Whether one more row fits; if not, count it (and say so once)."""

@@ -33,6 +33,7 @@ from pathlib import Path
 import zenoh
 
 from services.core import messages as m
+from services.core import options_messages as om
 from services.core.cli import Parser, add_params_arg, fail, one_line, positive_float
 from services.core.config import load_params
 from services.core.contract import TOPICS
@@ -78,10 +79,11 @@ class Recorder:
             return
         self.out.write(self.out.channel(key), log_time_ns, msg.t_ns, payload, msg.seq)
         self.counts[key] += 1
-        if isinstance(msg, m.TrialEvent) and msg.session and msg.session not in self.sessions:
-            self.sessions.append(msg.session)
+        session = msg.session if isinstance(msg, m.TrialEvent | om.OptionsTrialEvent) else ""
+        if session and session not in self.sessions:  # the trial events of any option set
+            self.sessions.append(session)
             self.out.metadata(
-                SESSION_METADATA, {"session": msg.session, "key": key, "seen_ns": log_time_ns}
+                SESSION_METADATA, {"session": session, "key": key, "seen_ns": log_time_ns}
             )
         if self.images and isinstance(msg, m.VisionFrame):
             self.out.write_image(key, msg, log_time_ns)

@@ -37,6 +37,17 @@ mode = "consensus"
 option = "blue"
 gaze_level = "significant"
 """
+# SHORT on a table of three boxes: three trials, one control and two consensus, O by name (the
+# one conductor runs it on the `options/*` keys; the tests of N = 2 are parametrised with it).
+SHORT_THREE = """
+[protocol]
+options = ["red", "blue", "green"]
+trials = [
+    { index = 1, mode = "dissensus" },
+    { index = 2, mode = "consensus", option = "green", gaze_level = "low" },
+    { index = 3, mode = "consensus", option = "blue", gaze_level = "significant" },
+]
+"""
 # SHORT with the devices' safety bounds relaxed (stale inputs 1 s, clock skew 0.5 s), for tests
 # whose subject is something else (a bus fault, a kill -9, a resume) run at 2-4x: there a loaded
 # host's late messages would otherwise break every attempt of a trial and end the session early.

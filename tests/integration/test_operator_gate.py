@@ -1,5 +1,8 @@
 """The operator's start gate: with `gate = true` no trial starts before `nod experiment next`,
-and `nod experiment pause` holds the next trial of an ungated session (real processes)."""
+and `nod experiment pause` holds the next trial of an ungated session (real processes).
+
+One conductor for any option set: the gate's tests run on the paper's two options and on a
+table of three (its trial events on `options/trial`)."""
 
 from __future__ import annotations
 
@@ -9,15 +12,37 @@ import time
 import pytest
 
 from services.core import messages as m
+from services.core import options_messages as om
 from services.core.keys import Keys
 from services.store import Store
 from tests.processes import run_nod
 
-from .conftest import SHORT, Collector, wait_for
+from .conftest import SHORT, SHORT_THREE, Collector, wait_for
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
 SPEED = ("--speed", "4")
+# option count: (the 3-trial params, the conductor's trial-event key and message)
+SESSIONS: dict[int, tuple[str, str, type[m.Message]]] = {
+    2: (SHORT, "experiment/trial", m.TrialEvent),
+    3: (SHORT_THREE, "options/trial", om.OptionsTrialEvent),
+}
+by_option_count = pytest.mark.parametrize("n", sorted(SESSIONS), ids=lambda n: f"{n} options")
+
+
+def _params(n: int, gated: bool) -> str:
+    """The 3-trial params of `n` options, with the operator's gate if `gated`."""
+    text = SESSIONS[n][0]
+    if not gated:
+        return text
+    if "[protocol]\n" in text:
+        return text.replace("[protocol]\n", "[protocol]\ngate = true\n", 1)
+    return text.replace("[[protocol.trials]]", "[protocol]\ngate = true\n\n[[protocol.trials]]", 1)
+
+
+def _events(client, n: int) -> Collector:
+    _, key, cls = SESSIONS[n]
+    return Collector(client, KEYS.topic(key), cls)
 
 
 def _rig(spawn, params: str, epoch: str) -> None:
@@ -37,15 +62,15 @@ def _operator(endpoint: str, action: str) -> None:
     assert res.returncode == 0, res.stdout + res.stderr
 
 
+@by_option_count
 def test_a_gated_session_starts_each_trial_only_when_the_operator_says(
-    router, endpoint, client, spawn, tmp_path
+    router, endpoint, client, spawn, tmp_path, n
 ):
     params = tmp_path / "gated.toml"
-    params.write_text(SHORT.replace("[[protocol.trials]]", "[protocol]\ngate = true\n\n"
-                                    "[[protocol.trials]]", 1))
+    params.write_text(_params(n, gated=True))
     epoch = str(time.time_ns())
     _rig(spawn, str(params), epoch)
-    events = Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
+    events = _events(client, n)
     db = tmp_path / "s.sqlite"
     conductor = spawn("experiment", *SPEED, "--epoch-ns", epoch, "--params", str(params),
                       "--db", str(db), "--clicks", "10", "--console", "lines")
@@ -61,18 +86,21 @@ def test_a_gated_session_starts_each_trial_only_when_the_operator_says(
     store = Store(db)
     try:
         assert [t.trial for _, t in store.trials()] == [1, 2, 3]
+        (session,) = [s["session"] for s in store.sessions()]
+        assert len(store.option_names(session)) == n
     finally:
         store.close()
 
 
+@by_option_count
 def test_pause_holds_the_next_trial_of_an_ungated_session(
-    router, endpoint, client, spawn, tmp_path
+    router, endpoint, client, spawn, tmp_path, n
 ):
     params = tmp_path / "short.toml"
-    params.write_text(SHORT)
+    params.write_text(_params(n, gated=False))
     epoch = str(time.time_ns())
     _rig(spawn, str(params), epoch)
-    events = Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
+    events = _events(client, n)
     conductor = spawn("experiment", *SPEED, "--epoch-ns", epoch, "--params", str(params),
                       "--db", str(tmp_path / "s.sqlite"), "--clicks", "10", "--console", "lines")
     wait_for(lambda: 1 in _setups(events), 60, "trial 1 under way")

@@ -4,7 +4,8 @@ One short `nod run --sim --speed 4 --record DIR` session (3 trials) is recorded 
 module; the tests read that file with the mcap library, replay its hand path into a fresh router
 with fresh decision, actuation, eyes and conductor processes (no sim participant), and re-run the
 decision model on it offline with another b*. A recorder killed with SIGKILL leaves a file the
-library's stream reader reads up to its last chunk.
+library's stream reader reads up to its last chunk. The recording itself (one conductor for any
+option set) is checked on the paper's two options and on a table of three.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from services.recording.reaches import recorded_hands
 from services.store import Store
 from tests.processes import run_nod
 
-from .conftest import ROOT, SHORT, free_port, wait_for
+from .conftest import ROOT, SHORT, SHORT_THREE, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 SPEED = "4"
@@ -66,9 +67,25 @@ def _trials(db: Path) -> list[tuple]:
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory) -> Recorded:
     """A 3-trial sim session at 4x, recorded through `nod run --sim --record`."""
+    return _record(tmp_path_factory, SHORT)
+
+
+# option count: the keys of its decision outputs and results
+RESULT_KEYS = {2: ("decision/z_r", "experiment/result"), 3: ("options/z_r", "options/result")}
+
+
+@pytest.fixture(scope="module", params=sorted(RESULT_KEYS), ids=lambda n: f"{n} options")
+def recorded_any(request, tmp_path_factory) -> tuple[int, Recorded]:
+    """The paper's recorded session, and one on a table of three boxes."""
+    if request.param == 2:
+        return 2, request.getfixturevalue("recorded")
+    return request.param, _record(tmp_path_factory, SHORT_THREE)
+
+
+def _record(tmp_path_factory, params_text: str) -> Recorded:
     folder = tmp_path_factory.mktemp("recorded")
     params = folder / "short.toml"
-    params.write_text(SHORT)
+    params.write_text(params_text)
     db = folder / "s.sqlite"
     run = _nod(
         "run", "--sim", "--speed", SPEED, "--seed", "3", "--db", str(db),
@@ -82,7 +99,9 @@ def recorded(tmp_path_factory) -> Recorded:
     return Recorded(folder, db, params, files[0], session)
 
 
-def test_the_session_is_recorded_one_channel_per_key_and_linked_in_the_store(recorded):
+def test_the_session_is_recorded_one_channel_per_key_and_linked_in_the_store(recorded_any):
+    n, recorded = recorded_any
+    z_r, result = RESULT_KEYS[n]
     assert recorded.mcap.name == f"{recorded.session}.mcap"
     with recorded.mcap.open("rb") as fh:
         reader = make_reader(fh)
@@ -104,8 +123,8 @@ def test_the_session_is_recorded_one_channel_per_key_and_linked_in_the_store(rec
             assert channel.metadata["schema_version"] == str(m.SCHEMA_VERSION)
             assert channel.metadata["topic"] == topic
         assert counts["nod/rig1/vision/hand"] > 100
-        assert counts["nod/rig1/decision/z_r"] > 100
-        assert counts["nod/rig1/experiment/result"] == 3
+        assert counts[f"nod/rig1/{z_r}"] > 100
+        assert counts[f"nod/rig1/{result}"] == 3
         metadata = {md.name: md.metadata for md in reader.iter_metadata()}
         checked = 0
         for _schema, channel, message in reader.iter_messages():

@@ -47,9 +47,10 @@ def _short(tmp_path: Path) -> str:
 def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> None:
     db = tmp_path / "s.sqlite"
     # At 4x a 250 ms staleness bound is 62 ms of wall time: relaxed, as test_run_sim's runs
+    # A participant's O order over the three options, by initial (`--order`, as in a study)
     run = run_nod("run", "--sim", "--options", "3", "--speed", "4", "--seed", "2", "--db",
                   str(db), "--listen", f"tcp/127.0.0.1:{free_port()}", "--stale-ms", "2000",
-                  timeout=400)
+                  "--order", "GBRRG", timeout=400)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "8 trials of 1 participant(s) stored" in run.stdout
     assert "green" in run.stdout  # the table names the options
@@ -73,12 +74,30 @@ def test_three_options_through_the_whole_distributed_loop(tmp_path: Path) -> Non
         assert t.human in (None, "red", "blue", "green") and t.robot in NAMES, t
     assert sum(t.human is not None for t in scored) >= 7, trials
     control, consensus = trials[:3], trials[3:]
-    assert {t.option for t in consensus} == set(NAMES)
+    assert [t.option for t in consensus] == ["green", "blue", "red", "red", "green"]
     # The default person is the fitted one (docs/study.md): a strategist wins some control trials
     # with a late switch (C by agreement), and 80-97 % of consensus trials end both on O per
     # trial, so a session of five gives four or five in most runs and three in some.
     assert sum(t.outcome in ("D", "DH") for t in control) >= 1, control
     assert sum(t.human == t.option == t.robot for t in consensus) >= 3, consensus
+    # The one conductor stores what the paper's stores (test_run_sim): samples with the hand
+    # and its landmarks (the z columns NULL: a vector has no faithful scalar,
+    # services/experiment/keyspace.py), the countdown as played, the O order given.
+    con = sqlite3.connect(db)
+    try:
+        n_samples = dict(con.execute("SELECT trial, COUNT(*) FROM samples GROUP BY trial"))
+        z_values = con.execute("SELECT COUNT(*) FROM samples WHERE z_h IS NOT NULL OR "
+                               "z_r IS NOT NULL OR b_r IS NOT NULL").fetchone()[0]
+        hands = con.execute("SELECT COUNT(*) FROM samples WHERE detected = 1 AND hand_x IS NOT "
+                            "NULL AND length(landmarks) = 168").fetchone()[0]
+        cues = con.execute("SELECT trial, cue FROM cues WHERE trial >= 2").fetchall()
+        (order,) = con.execute("SELECT options FROM session_orders").fetchone()
+    finally:
+        con.close()
+    assert all(n_samples.get(t.trial, 0) >= 20 for t in scored if t.human), n_samples
+    assert z_values == 0 and hands > 100
+    assert sorted(set(cues)) == [(t, c) for t in range(2, 9) for c in ("1", "2", "3", "go")]
+    assert json.loads(order) == ["green", "blue", "red", "red", "green"]
     out = tmp_path / "csv"
     export = run_nod("export", "--db", str(db), "--out", str(out), timeout=60)
     assert export.returncode == 0, export.stderr
@@ -119,11 +138,11 @@ def test_three_rendered_boxes_found_by_vision(tmp_path: Path) -> None:
 def test_flags_not_yet_there_for_options_are_refused_before_anything_starts(
     tmp_path: Path,
 ) -> None:
-    run = run_nod("run", "--sim", "--options", "3", "--order", "RBG", "--db",
+    run = run_nod("run", "--sim", "--options", "3", "--arm-driver", "feetech", "--db",
                   str(tmp_path / "s.sqlite"), "--listen", f"tcp/127.0.0.1:{free_port()}",
                   timeout=60)
     assert run.returncode != 0
-    assert "--order: not yet with 3 options" in run.stderr
+    assert "--arm-driver: not yet with 3 options" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1
 
 

@@ -9,9 +9,11 @@ from pathlib import Path
 import pytest
 
 from services.experiment import service as experiment
-from services.experiment.order import participant_problem, session_config
+from services.experiment.keyspace import key_space
+from services.experiment.order import participant_problem, session_keys
 from services.model.params import NodConfig
-from services.model.protocol import default_schedule, order_of
+from services.model.protocol import default_schedule
+from services.model.schedule import OptionsSchedule
 from services.store import Store, TrialRecord
 from services.store.participants import (
     consent_of,
@@ -143,19 +145,33 @@ def test_nod_experiment_and_nod_run_refuse_a_participant_who_is_done(study_db, c
     store.close()
 
 
-def test_the_order_a_session_runs_and_a_resume_keeps_it(tmp_path):
+ORDERS = {  # option count: (an --order, the order it is, another --order)
+    2: ("RBBRB", ("red", "blue", "blue", "red", "blue"), "BRRBR"),
+    3: ("green,red,blue,blue,green", ("green", "red", "blue", "blue", "green"), "RBGRB"),
+}
+
+
+@pytest.mark.parametrize("n", sorted(ORDERS), ids=lambda n: f"{n} options")
+def test_the_order_a_session_runs_and_a_resume_keeps_it(tmp_path, n):
     store = Store(tmp_path / "o.sqlite")
-    cfg = NodConfig()
-    assert session_config(cfg, store, None, None) is cfg
-    turned = session_config(cfg, store, "RBBRB", None)
-    assert order_of(turned.protocol.trials) == ("red", "blue", "blue", "red", "blue")
-    assert turned.protocol.trials[4].yaw == pytest.approx(-0.53)  # trial 5 looks toward blue
-    record_order(store, "s7", "P07", order_of(turned.protocol.trials), None, 1)
-    assert order_of_session(store, "s7") == ("red", "blue", "blue", "red", "blue")
-    resumed = session_config(cfg, store, None, "s7")  # no --order: the stored one
-    assert order_of(resumed.protocol.trials) == order_of(turned.protocol.trials)
-    with pytest.raises(ValueError, match="session s7 runs the order red,blue,blue,red,blue"):
-        session_config(cfg, store, "BRRBR", "s7")
+    keys = key_space(NodConfig(), None if n == 2 else OptionsSchedule.default(n))
+    text, order, other = ORDERS[n]
+    assert session_keys(keys, store, None, None) is keys
+    turned = session_keys(keys, store, text, None)
+    assert turned.order() == order
+    # trial 4 now converges on another O: the clock's gaze (its yaw) turns toward it
+    assert turned.trials[3].yaw != keys.trials[3].yaw
+    if n == 2:
+        assert turned.trials[4].yaw == pytest.approx(-0.53)  # trial 5 looks toward blue
+    assert [turned.trial(t)[1] for t in turned.trials][3:] == list(order)
+    record_order(store, "s7", "P07", turned.order(), None, 1)
+    assert order_of_session(store, "s7") == order
+    resumed = session_keys(keys, store, None, "s7")  # no --order: the stored one
+    assert resumed.order() == order and resumed.trials == turned.trials
+    with pytest.raises(ValueError, match=f"session s7 runs the order {','.join(order)}"):
+        session_keys(keys, store, other, "s7")
+    with pytest.raises(ValueError, match="--order needs O for each of the 5 consensus trials"):
+        session_keys(keys, store, "purple" * 5, None)
     store.close()
 
 
