@@ -43,7 +43,6 @@ import numpy as np
 
 from services.actuation.drivers import ARM_DRIVERS, make_arm_driver
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.cli import Parser, add_options_arg, add_service_args, fail
 from services.core.config import load_with_options, params_hash
 from services.core.node import Node, setup_logging
@@ -269,7 +268,7 @@ class PaperArmKeys(ArmKeys[TableLayout, ArmCommand, Colour, float]):
 class OptionsArmKeys(ArmKeys[OptionsLayout, OptionsCommand, int, np.ndarray]):
     """The `options/*` keys (schema 2): N boxes by index, z_r a vector, the sim arm only."""
 
-    schema = om.OPTIONS_SCHEMA_VERSION
+    schema = m.OPTIONS_SCHEMA_VERSION
 
     def __init__(self, node: Node, cfg: NodConfig, n_options: int) -> None:
         self.table = cfg.table(n_options)
@@ -312,17 +311,17 @@ class OptionsArmKeys(ArmKeys[OptionsLayout, OptionsCommand, int, np.ndarray]):
             self.table, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
         )
 
-    def z_r(self, msg: om.OptionVector) -> np.ndarray:
+    def z_r(self, msg: m.OptionVector) -> np.ndarray:
         """The vector of `options/z_r`, refused when it is not over our N options."""
-        return om.values_for(msg, self.n)
+        return m.values_for(msg, self.n)
 
-    def layout(self, msg: om.OptionsLayoutMsg) -> OptionsLayout:
+    def layout(self, msg: m.OptionsLayoutMsg) -> OptionsLayout:
         """The boxes of `options/layout`, refused when they are not N."""
-        return om.same_count(msg.layout(), self.n)
+        return m.same_count(msg.layout(), self.n)
 
-    def trial(self, msg: om.OptionsTrialEvent) -> TrialStep:
+    def trial(self, msg: m.OptionsTrialEvent) -> TrialStep:
         """An `options/trial` event, refused when it is for another N."""
-        om.check_count(msg, self.n)
+        m.check_count(msg, self.n)
         return TrialStep(msg.phase, msg.trial)
 
     def arm_follows(self, arm: Arm[OptionsCommand, int], layout: OptionsLayout) -> None:

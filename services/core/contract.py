@@ -20,7 +20,6 @@ from dataclasses import dataclass
 from typing import Any, Generic, Literal, TypeAlias, TypeVar, overload
 
 from services.core import messages as m
-from services.core import options_messages as om
 
 Congestion: TypeAlias = Literal["block", "drop"]
 Priority: TypeAlias = Literal["real_time", "interactive_high", "data_high", "data"]
@@ -199,41 +198,41 @@ SAFETY_LATCH = Topic(
 # A table of three or more boxes (docs/multi-option.md): keys of their own, schema version 2,
 # so the paper's two-option keys and payloads stay as they are.
 OPTIONS_LAYOUT = Topic(
-    "options/layout", om.OptionsLayoutMsg, ("vision", "sim"),
+    "options/layout", m.OptionsLayoutMsg, ("vision", "sim"),
     ("decision", "actuation", "experiment"), "1 Hz", RELIABLE,
     "`names` of the options, `boxes` [x1,y1,x2,y2] one per option (vision: found by colour), "
     "`commit_y`",
 )
 OPTIONS_Z_H = Topic(
-    "options/z_h", om.OptionVector, ("decision",), ("experiment",), "per pose", STREAM,
+    "options/z_h", m.OptionVector, ("decision",), ("experiment",), "per pose", STREAM,
     "`values` ẑ_h, one per option, `src_seq`",
 )
 OPTIONS_Z_R = Topic(
-    "options/z_r", om.OptionVector, ("decision",), ("actuation",), "per pose", STREAM,
+    "options/z_r", m.OptionVector, ("decision",), ("actuation",), "per pose", STREAM,
     "`values` z_r, one per option, `src_seq`",
 )
 OPTIONS_B_R = Topic(
-    "options/b_r", om.OptionVector, ("decision",), (), "per pose", STREAM,
+    "options/b_r", m.OptionVector, ("decision",), (), "per pose", STREAM,
     "`values` b_r, one per option, `src_seq`",
 )
 OPTIONS_ARM_STATE = Topic(
-    "options/arm_state", om.OptionsArmState, ("actuation",), ("sim", "experiment"), "50 Hz",
+    "options/arm_state", m.OptionsArmState, ("actuation",), ("sim", "experiment"), "50 Hz",
     STREAM,
     "`n_options`, `ee` [x,y], `phase`, `moving`, `target` (a box), `safe_stop`, "
     "`safety_reason`, `trial`",
 )
 OPTIONS_PRESS = Topic(
-    "options/press", om.OptionsPress, ("actuation",), ("experiment", "sim"), "once per trial",
+    "options/press", m.OptionsPress, ("actuation",), ("experiment", "sim"), "once per trial",
     CONTROL, "`n_options`, `option` (the box the robot pressed), `trial`",
 )
 OPTIONS_TRIAL = Topic(
-    "options/trial", om.OptionsTrialEvent, ("experiment",),
+    "options/trial", m.OptionsTrialEvent, ("experiment",),
     ("decision", "actuation", "sim", "speaker", "display", "lsl", "run", "operator"),
     "per event",
     CONTROL, "`n_options`, `phase`, `trial`, `mode`, `option` (O, a box), `text`, `session`",
 )
 OPTIONS_RESULT = Topic(
-    "options/result", om.OptionsResult, ("experiment",), ("display", "lsl", "run"), "per trial",
+    "options/result", m.OptionsResult, ("experiment",), ("display", "lsl", "run"), "per trial",
     RELIABLE,
     "`n_options`, `trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, "
     "`violations`, `score`, `session`, `interrupted`",

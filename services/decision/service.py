@@ -31,7 +31,6 @@ from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Generic, NamedTuple, TypeVar
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.cli import Parser, add_options_arg, add_service_args, fail
 from services.core.config import load_with_options, params_hash
 from services.core.node import Node, setup_logging
@@ -161,7 +160,7 @@ class PaperDecisionKeys(DecisionKeys[DecisionModel]):
 class OptionsDecisionKeys(DecisionKeys[OptionsDecision]):
     """The `options/*` keys (schema 2): N options by index, vectors, `OptionsDecision`."""
 
-    schema = om.OPTIONS_SCHEMA_VERSION
+    schema = m.OPTIONS_SCHEMA_VERSION
 
     def __init__(self, node: Node, cfg: NodConfig, n_options: int) -> None:
         self.params = cfg.decision
@@ -180,14 +179,14 @@ class OptionsDecisionKeys(DecisionKeys[OptionsDecision]):
         node.subscribe("options/layout", on_layout)
         node.subscribe("options/trial", on_trial)
 
-    def trial(self, msg: om.OptionsTrialEvent) -> TrialCue:
+    def trial(self, msg: m.OptionsTrialEvent) -> TrialCue:
         """An `options/trial` event (O a box index), refused when it is for another N."""
-        om.check_count(msg, self.n)
+        m.check_count(msg, self.n)
         return TrialCue(msg.phase, msg.trial, msg.mode, msg.option)
 
-    def use_layout(self, engine: OptionsDecision, msg: om.OptionsLayoutMsg) -> None:
+    def use_layout(self, engine: OptionsDecision, msg: m.OptionsLayoutMsg) -> None:
         """The boxes for the next trial (refused when they are not N): see `at_setup`."""
-        self.table = om.same_count(msg.layout(), self.n)
+        self.table = m.same_count(msg.layout(), self.n)
 
     def at_setup(self, engine: OptionsDecision) -> OptionsDecision:
         """A new engine when the table changed (its observer's boxes are fixed at build)."""

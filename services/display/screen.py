@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 from typing import Literal, TypeAlias
 
 from services.core import messages as m
-from services.core import options_messages as om
 
 log = logging.getLogger("nod.display")
 ScreenKind: TypeAlias = Literal["wait", "ready", "countdown", "go", "score", "done"]
@@ -86,7 +85,7 @@ class DisplayState:
             return self._show(WAIT)
         return False  # back: the next event says what to show
 
-    def on_trial(self, ev: m.TrialEvent | om.OptionsTrialEvent) -> bool:
+    def on_trial(self, ev: m.TrialEvent | m.OptionsTrialEvent) -> bool:
         """A protocol event; True if the screen changed. Refuses what it cannot show honestly."""
         if ev.phase in ("setup", "countdown", "go", "end") and ev.trial < 1:
             raise ValueError(f"a {ev.phase} event for trial {ev.trial}: trials count from 1")
@@ -114,7 +113,7 @@ class DisplayState:
         # end (the result follows), interrupted, abort, result: nothing to celebrate yet
         return self._show(WAIT)
 
-    def on_result(self, res: m.TrialResult | om.OptionsResult) -> bool:
+    def on_result(self, res: m.TrialResult | m.OptionsResult) -> bool:
         """A trial's result; True if the screen changed."""
         if res.trial < 1:
             raise ValueError(f"a result for trial {res.trial}: trials count from 1")

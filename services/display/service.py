@@ -22,7 +22,6 @@ import sys
 import threading
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.cli import Parser, add_service_args, fail, host_port
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -52,11 +51,11 @@ class DisplayService:
             log.info("display: %s %r %r", screen.kind, screen.big, screen.small)
             self.feed.publish(screen.as_json(self.state.version))
 
-    def on_trial(self, msg: m.TrialEvent | om.OptionsTrialEvent) -> None:
+    def on_trial(self, msg: m.TrialEvent | m.OptionsTrialEvent) -> None:
         """A protocol event (ValueError: refused and counted by the node)."""
         self._changed(self.state.on_trial(msg))
 
-    def on_result(self, msg: m.TrialResult | om.OptionsResult) -> None:
+    def on_result(self, msg: m.TrialResult | m.OptionsResult) -> None:
         """A trial's result."""
         self._changed(self.state.on_result(msg))
 

@@ -9,7 +9,7 @@ says differently by its number of options lives here, chosen by the option count
   `actuation/press`, `vision/layout`), O a colour, ẑ_h a number, `TrialJudge`; its trials are
   the `TrialSpec`s of the configuration, which carry mode and O.
 - `OptionKeys`, a table of three or more boxes: the `options/*` keys of schema 2
-  (`services.core.options_messages`), O a box index, ẑ_h a vector, `OptionsTrialJudge`; the
+  (`services.core.messages`, schema 2), O a box index, ẑ_h a vector, `OptionsTrialJudge`; the
   clock runs `OptionsSchedule.timing_specs` and each trial's mode and O are the schedule's.
 
 The conductor speaks in option *names* (what the store keeps, the console shows, the analysis
@@ -38,9 +38,8 @@ from typing import Any, Protocol, cast
 import numpy as np
 
 from services.core import messages as m
-from services.core import options_messages as om
+from services.core.messages import check_count, same_count, values_for
 from services.core.node import Node, TopicPublisher
-from services.core.options_messages import check_count, same_count, values_for
 from services.experiment.presses import Box as Wire  # an option on the wire: colour or index
 from services.model.geometry import Colour, OptionsLayout, TableLayout
 from services.model.judge import Judge, OptionsTrialJudge, TrialJudge
@@ -284,19 +283,19 @@ class OptionKeys(KeySpace):
         """The `options/*` keys, each vector and box count checked against N."""
         n = self.n_options
 
-        def output(name: str, msg: om.OptionVector) -> None:
+        def output(name: str, msg: m.OptionVector) -> None:
             listener.on_output(name, Output(msg.t_ns, msg.src_seq, values_for(msg, n), None))
 
-        def arm(msg: om.OptionsArmState) -> None:
+        def arm(msg: m.OptionsArmState) -> None:
             check_count(msg, n)
             listener.on_arm(ArmReading(msg.trial, msg.phase, msg.target, msg.ee, msg.safe_stop,
                                        msg.safety_reason))
 
-        def press(msg: om.OptionsPress) -> None:
+        def press(msg: m.OptionsPress) -> None:
             check_count(msg, n)
             listener.on_press(msg.trial, msg.option)
 
-        def layout(msg: om.OptionsLayoutMsg) -> None:
+        def layout(msg: m.OptionsLayoutMsg) -> None:
             listener.on_layout(same_count(msg.layout(), n))
 
         node.subscribe("options/layout", layout)

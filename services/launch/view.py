@@ -18,7 +18,6 @@ from typing import Any
 import zenoh
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.contract import TOPICS
 from services.core.keys import Keys
 from services.core.node import clip
@@ -29,8 +28,8 @@ from services.store.store import PAPER_OPTIONS
 log = logging.getLogger("nod.launch")
 # The conductor's events and results, on whichever key space the rig's conductor speaks
 FOLLOWED = ("experiment/trial", "experiment/result", "options/trial", "options/result")
-Event = m.TrialEvent | om.OptionsTrialEvent
-Result = m.TrialResult | om.OptionsResult
+Event = m.TrialEvent | m.OptionsTrialEvent
+Result = m.TrialResult | m.OptionsResult
 
 
 class SessionView:

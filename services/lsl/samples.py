@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from services.core import messages as m
-from services.core import options_messages as om
 
 SIGNALS = ("z_h", "z_r", "b_r", "hand_x", "hand_y")
 SCALARS = ("z_h", "z_r", "b_r")
@@ -74,13 +73,13 @@ def marker(fields: dict[str, object]) -> str:
                       ensure_ascii=False, separators=(",", ":"))
 
 
-def trial_marker(ev: m.TrialEvent | om.OptionsTrialEvent) -> str:
+def trial_marker(ev: m.TrialEvent | m.OptionsTrialEvent) -> str:
     """A protocol event: setup (with mode, O and gaze level), a countdown word, go, end or why.
 
     On a table of N boxes O is a box index and the marker says `n_options`.
     """
     fields: dict[str, object] = {"event": ev.phase, "trial": ev.trial, "session": ev.session}
-    if isinstance(ev, om.OptionsTrialEvent):
+    if isinstance(ev, m.OptionsTrialEvent):
         fields["n_options"] = ev.n_options
     if ev.phase == "setup":
         fields |= {"mode": ev.mode, "option": ev.option, "gaze": ev.text}
@@ -91,13 +90,13 @@ def trial_marker(ev: m.TrialEvent | om.OptionsTrialEvent) -> str:
     return marker(fields)
 
 
-def result_marker(res: m.TrialResult | om.OptionsResult) -> str:
+def result_marker(res: m.TrialResult | m.OptionsResult) -> str:
     """A trial's result: outcome, presses and score (box indices and `n_options` for N boxes)."""
     return marker({
         "event": "result", "trial": res.trial, "session": res.session, "outcome": res.outcome,
         "robot": res.robot, "human": res.human, "score": res.score,
         "interrupted": res.interrupted or None,
-        "n_options": res.n_options if isinstance(res, om.OptionsResult) else None,
+        "n_options": res.n_options if isinstance(res, m.OptionsResult) else None,
     })
 
 

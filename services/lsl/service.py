@@ -22,7 +22,6 @@ import sys
 from collections.abc import Callable
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.cli import Parser, add_service_args, fail
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -77,11 +76,11 @@ class LslService:
         self.outlets.push_marker(text, self.anchor.to_lsl(t_ns))
         log.debug("lsl: marker %s", text)
 
-    def on_trial(self, ev: m.TrialEvent | om.OptionsTrialEvent) -> None:
+    def on_trial(self, ev: m.TrialEvent | m.OptionsTrialEvent) -> None:
         """A protocol event."""
         self._mark(trial_marker(ev), ev.t_ns)
 
-    def on_result(self, res: m.TrialResult | om.OptionsResult) -> None:
+    def on_result(self, res: m.TrialResult | m.OptionsResult) -> None:
         """A trial's result."""
         self._mark(result_marker(res), res.t_ns)
 

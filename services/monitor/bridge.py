@@ -37,7 +37,6 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.model.servos import SERVO_NAMES
 from services.scene.option_colours import COLOURS
 
@@ -250,7 +249,7 @@ class RerunBridge:
         handler = getattr(self, f"_on_{msg.KIND}", None)
         if handler is None or topic in NOT_SHOWN:
             return
-        if isinstance(msg, m.TrialEvent | m.TrialResult | om.OptionsTrialEvent | om.OptionsResult):
+        if isinstance(msg, m.TrialEvent | m.TrialResult | m.OptionsTrialEvent | m.OptionsResult):
             self.trial = msg.trial  # before stamping: an event belongs to its own trial
         self._stamp(msg.t_ns)
         handler(topic, msg)
@@ -277,7 +276,7 @@ class RerunBridge:
     def _on_layout(self, topic: str, msg: m.Layout) -> None:
         self._table(("red", "blue"), (msg.red, msg.blue), msg.commit_y)
 
-    def _on_options_layout(self, topic: str, msg: om.OptionsLayoutMsg) -> None:
+    def _on_options_layout(self, topic: str, msg: m.OptionsLayoutMsg) -> None:
         self._table(msg.names, msg.boxes, msg.commit_y)
 
     def _table(self, names: tuple[str, ...], boxes: tuple[Any, ...], commit_y: float) -> None:
@@ -326,7 +325,7 @@ class RerunBridge:
     # ẑ_h is a scalar that also carries eq 7's θ and d: its value is plotted like z_r and b_r.
     _on_observed = _on_scalar
 
-    def _on_option_vector(self, topic: str, msg: om.OptionVector) -> None:
+    def _on_option_vector(self, topic: str, msg: m.OptionVector) -> None:
         """ẑ_h, z_r or b_r over N options: a bar chart of the latest vector."""
         if not self.bars_sent:  # the first vector: the layout shows bars, not time series
             self.bars_sent = True
@@ -340,7 +339,7 @@ class RerunBridge:
     def _on_arm_state(self, topic: str, msg: m.ArmStateMsg) -> None:
         self._arm_state(msg.ee, msg.phase, msg.safe_stop, msg.safety_reason, msg.fault)
 
-    def _on_options_arm_state(self, topic: str, msg: om.OptionsArmState) -> None:
+    def _on_options_arm_state(self, topic: str, msg: m.OptionsArmState) -> None:
         self._arm_state(msg.ee, msg.phase, msg.safe_stop, msg.safety_reason, "")
 
     def _arm_state(
@@ -379,7 +378,7 @@ class RerunBridge:
     def _on_press(self, topic: str, msg: m.PressMsg) -> None:
         self._press(msg.trial, msg.colour)
 
-    def _on_options_press(self, topic: str, msg: om.OptionsPress) -> None:
+    def _on_options_press(self, topic: str, msg: m.OptionsPress) -> None:
         self._press(msg.trial, self.name(msg.option))
 
     def _press(self, trial: int, option: str) -> None:
@@ -446,7 +445,7 @@ class RerunBridge:
         names = self.option_names
         return names[option] if option < len(names) else f"box {option}"
 
-    def _on_trial(self, topic: str, msg: m.TrialEvent | om.OptionsTrialEvent) -> None:
+    def _on_trial(self, topic: str, msg: m.TrialEvent | m.OptionsTrialEvent) -> None:
         self.rec.log(ENTITIES["state_trial"], rr.StateChange(state=msg.phase))
         if msg.phase == "setup":
             option = f" O={self.name(msg.option)}" if msg.option is not None else ""
@@ -459,7 +458,7 @@ class RerunBridge:
         level = "WARN" if msg.phase == "abort" else "INFO"
         self.rec.log(ENTITIES["log_trial"], rr.TextLog(text, level=level))
 
-    def _on_result(self, topic: str, msg: m.TrialResult | om.OptionsResult) -> None:
+    def _on_result(self, topic: str, msg: m.TrialResult | m.OptionsResult) -> None:
         option = f" O={self.name(msg.option)}" if msg.option is not None else ""
         text = (
             f"trial {msg.trial} [{msg.mode}{option}]: robot {self.name(msg.robot)}, human "

@@ -33,7 +33,6 @@ from pathlib import Path
 import zenoh
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.cli import Parser, add_params_arg, fail, one_line, positive_float
 from services.core.config import load_params
 from services.core.contract import TOPICS
@@ -79,7 +78,7 @@ class Recorder:
             return
         self.out.write(self.out.channel(key), log_time_ns, msg.t_ns, payload, msg.seq)
         self.counts[key] += 1
-        session = msg.session if isinstance(msg, m.TrialEvent | om.OptionsTrialEvent) else ""
+        session = msg.session if isinstance(msg, m.TrialEvent | m.OptionsTrialEvent) else ""
         if session and session not in self.sessions:  # the trial events of any option set
             self.sessions.append(session)
             self.out.metadata(

@@ -12,7 +12,7 @@ one `Participant` at the table of N boxes, and the loop, timing, rendering and t
 below are written once. What differs with N is only the key space it talks in, `SimKeys`: the
 paper's two options speak schema 1 (`experiment/trial`, `actuation/*`, `vision/layout`; options
 as colours, the arm's heading a sign), three or more speak schema 2 (`options/*`, options as
-box indices; `services.core.options_messages`). `sim_keys` picks one by the option count.
+box indices; `services.core.messages`, schema 2). `sim_keys` picks one by the option count.
 
 With `--render` it is the camera instead: frames of the table (N boxes, each in its option's
 colour, `services.scene.option_colours`) on `sim/camera`, for `nod vision`, which publishes the
@@ -32,7 +32,6 @@ import numpy as np
 
 from services.cohort.person import fitted_traits
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.cli import SEED, Parser, add_options_arg, add_service_args, fail
 from services.core.config import load_with_options
 from services.core.node import Node, TopicPublisher, setup_logging
@@ -151,24 +150,24 @@ class OptionKeys(SimKeys[int]):
         """The person at the N boxes (`OptionsLayout`): options are box indices."""
         return Participant(params, self.layout, seed)
 
-    def trial_option(self, ev: om.OptionsTrialEvent) -> int | None:
+    def trial_option(self, ev: m.OptionsTrialEvent) -> int | None:
         """O of a consensus trial (a box index), refused when for another option count."""
-        om.check_count(ev, self.n)
+        m.check_count(ev, self.n)
         return ev.option if ev.mode == "consensus" else None
 
-    def heading(self, msg: om.OptionsArmState) -> int | None:
+    def heading(self, msg: m.OptionsArmState) -> int | None:
         """The box the arm heads for, None when still."""
-        om.check_count(msg, self.n)
+        m.check_count(msg, self.n)
         return msg.target if msg.moving else None
 
-    def pressed(self, msg: om.OptionsPress) -> int:
+    def pressed(self, msg: m.OptionsPress) -> int:
         """The box pressed."""
-        om.check_count(msg, self.n)
+        m.check_count(msg, self.n)
         return msg.option
 
     def layout_fields(self) -> dict[str, Any]:
         """`options/layout`: the option names, their boxes and the commit line."""
-        return dict(om.layout_message_fields(self.names, self.layout))
+        return dict(m.layout_message_fields(self.names, self.layout))
 
     def painted(self) -> Painted:
         """Each box in its option's colour."""
@@ -231,7 +230,7 @@ class SimService(Generic[Opt]):
         if not msg.gesture:
             self.person.see_gaze(GazeCommand(msg.yaw, msg.pitch))
 
-    def on_trial(self, ev: m.TrialEvent | om.OptionsTrialEvent) -> None:
+    def on_trial(self, ev: m.TrialEvent | m.OptionsTrialEvent) -> None:
         """Follow the protocol like a participant listening to the countdown."""
         option = self.keys.trial_option(ev)  # and refused if for another option count
         t = self._advance(self.node.clock.now_ns())  # our clock, not the event's stamp
@@ -245,11 +244,11 @@ class SimService(Generic[Opt]):
         elif ev.phase == "interrupted":  # a void trial teaches nothing
             self.person.trial_ended(None)
 
-    def on_arm(self, msg: m.ArmStateMsg | om.OptionsArmState) -> None:
+    def on_arm(self, msg: m.ArmStateMsg | m.OptionsArmState) -> None:
         """Where the arm is heading, as the participant sees it."""
         self.person.see_robot(self.node.clock.now_ns() * NS, self.keys.heading(msg))
 
-    def on_press(self, msg: m.PressMsg | om.OptionsPress) -> None:
+    def on_press(self, msg: m.PressMsg | m.OptionsPress) -> None:
         """The robot pressed a box."""
         self.robot = self.keys.pressed(msg)
 

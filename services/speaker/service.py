@@ -20,7 +20,6 @@ import threading
 from pathlib import Path
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.cli import Parser, add_service_args, fail
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -39,14 +38,14 @@ class SpeakerService:
         self.node = node
         self.driver = driver
         self.sounds = {phase: render(tone_for(phase)) for phase in PHASES}
-        self.pending: queue.Queue[m.TrialEvent | om.OptionsTrialEvent] = queue.Queue(QUEUE)
+        self.pending: queue.Queue[m.TrialEvent | m.OptionsTrialEvent] = queue.Queue(QUEUE)
         self.pub = node.publisher("speaker/played")
         node.subscribe("experiment/trial", self.on_trial)
         node.subscribe("options/trial", self.on_trial)  # a table of N boxes counts down alike
         self._thread = threading.Thread(target=self._play_loop, name="speaker", daemon=True)
         self._thread.start()
 
-    def on_trial(self, msg: m.TrialEvent | om.OptionsTrialEvent) -> None:
+    def on_trial(self, msg: m.TrialEvent | m.OptionsTrialEvent) -> None:
         """A countdown word or go: queue its tone (the other phases are silent)."""
         if msg.phase not in PHASES:
             return

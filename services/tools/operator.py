@@ -20,7 +20,6 @@ import time
 from pathlib import Path
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.cli import Parser, fail, int_in, positive_float
 from services.core.node import Node
 from services.core.rigfile import CONTROL, Host, RigFileError, load_rig, session_flags
@@ -79,7 +78,7 @@ def main(argv: list[str]) -> int:
         started = threading.Event()
         trial = getattr(args, "trial", 0)
 
-        def on_trial(ev: m.TrialEvent | om.OptionsTrialEvent) -> None:
+        def on_trial(ev: m.TrialEvent | m.OptionsTrialEvent) -> None:
             if ev.phase == "setup" and trial in (0, ev.trial):
                 started.set()
 

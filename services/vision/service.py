@@ -43,8 +43,8 @@ from services.core.cli import Parser, add_options_arg, add_params_arg, fail, int
 from services.core.clock import add_clock_args
 from services.core.config import ConfigError, load_with_options
 from services.core.contract import check_publisher
+from services.core.messages import layout_message_fields
 from services.core.node import Node, TopicPublisher, declare_publisher, setup_logging
-from services.core.options_messages import layout_message_fields
 from services.core.session import Fabric, add_zenoh_args
 from services.model.geometry import CommitLine, OptionsLayout, TableLayout
 from services.model.schedule import OptionsSchedule

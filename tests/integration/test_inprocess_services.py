@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.node import Node
 from services.core.session import Fabric
 from services.decision.service import DecisionService
@@ -53,7 +52,7 @@ def test_live_decision_publishes_exactly_the_models_values(router, endpoint, cli
         reference.reset("consensus", "red")
         cue = {"option": "red"}
     else:
-        outputs, vector = "options", om.OptionVector
+        outputs, vector = "options", m.OptionVector
         reference = OptionsDecision(cfg.table(n_options), cfg.decision)
         reference.reset("consensus", 0)
         cue = {"n_options": n_options, "option": 0}
@@ -80,7 +79,7 @@ def test_live_decision_publishes_exactly_the_models_values(router, endpoint, cli
         def values(x: object) -> object:  # a number, or a vector as its tuple
             return tuple(x.tolist()) if isinstance(x, np.ndarray) else x
 
-        def got(msg: m.Scalar | om.OptionVector) -> object:
+        def got(msg: m.Scalar | m.OptionVector) -> object:
             return msg.value if isinstance(msg, m.Scalar) else msg.values
 
         received = sorted(z_r.messages, key=lambda msg: msg.src_seq)

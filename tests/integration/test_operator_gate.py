@@ -12,7 +12,6 @@ import time
 import pytest
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.keys import Keys
 from services.store import Store
 from tests.processes import run_nod
@@ -25,7 +24,7 @@ SPEED = ("--speed", "4")
 # option count: (the 3-trial params, the conductor's trial-event key and message)
 SESSIONS: dict[int, tuple[str, str, type[m.Message]]] = {
     2: (SHORT, "experiment/trial", m.TrialEvent),
-    3: (SHORT_THREE, "options/trial", om.OptionsTrialEvent),
+    3: (SHORT_THREE, "options/trial", m.OptionsTrialEvent),
 }
 by_option_count = pytest.mark.parametrize("n", sorted(SESSIONS), ids=lambda n: f"{n} options")
 

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.keys import Keys
 from services.core.session import make_config, open_session
 from services.model.geometry import Box, CommitLine, OptionsLayout, TableLayout
@@ -105,7 +104,7 @@ def test_late_joiners_get_the_layout_and_sigterm_stops_cleanly(
         key, cls, options = "vision/layout", m.Layout, ()
     else:
         cal.write_text(dump_calibration(THREE, names=("red", "blue", "green")))
-        key, cls, options = "options/layout", om.OptionsLayoutMsg, ("--options", "3")
+        key, cls, options = "options/layout", m.OptionsLayoutMsg, ("--options", "3")
     hands = Collector(client, KEYS.topic("vision/hand"), m.HandPose)
     layouts = Collector(client, KEYS.topic(key), cls)
     proc = spawn(

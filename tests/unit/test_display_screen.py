@@ -17,7 +17,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.display import web
 from services.display.screen import WAIT, DisplayState, Screen, points
 from services.display.web import (
@@ -42,7 +41,7 @@ REVEALING = re.compile(r"red|blue|consensus|dissensus|low|significant|none|\b(C|
 def ev(phase: str, trial: int = 1, text: str = "", session: str = "S1", n: int = 2) -> Any:
     """A trial event of the paper's key (two options) or of a table of `n` boxes."""
     if n > 2:
-        return om.OptionsTrialEvent(seq=0, t_ns=0, n_options=n, phase=phase, trial=trial,
+        return m.OptionsTrialEvent(seq=0, t_ns=0, n_options=n, phase=phase, trial=trial,
                                     mode="consensus", option=2, text=text, session=session)  # type: ignore[arg-type]
     return m.TrialEvent(seq=0, t_ns=0, phase=phase, trial=trial, mode="consensus", option="red",
                         text=text, session=session)  # type: ignore[arg-type]
@@ -52,7 +51,7 @@ def res(trial: int, score: int, session: str = "S1", interrupted: bool = False,
         n: int = 2) -> Any:
     """A trial's result on the paper's key or of a table of `n` boxes."""
     if n > 2:
-        return om.OptionsResult(seq=0, t_ns=0, n_options=n, trial=trial, mode="consensus",
+        return m.OptionsResult(seq=0, t_ns=0, n_options=n, trial=trial, mode="consensus",
                                 option=1, robot=1, human=2, outcome="D", score=score,
                                 session=session, interrupted=interrupted)
     return m.TrialResult(seq=0, t_ns=0, trial=trial, mode="consensus", option="blue",

@@ -10,7 +10,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.lsl.clockmap import Anchor, read_anchor
 from services.lsl.samples import (
     PENDING,
@@ -103,12 +102,12 @@ def test_markers_are_json_with_what_an_analyst_needs():
 
 
 def test_a_table_of_n_boxes_gets_the_same_markers_with_box_indices():
-    ev = om.OptionsTrialEvent(seq=0, t_ns=0, n_options=3, phase="setup", trial=4,
+    ev = m.OptionsTrialEvent(seq=0, t_ns=0, n_options=3, phase="setup", trial=4,
                               mode="consensus", option=2, text="low", session="S1")
     assert json.loads(trial_marker(ev)) == {
         "event": "setup", "trial": 4, "session": "S1", "n_options": 3, "mode": "consensus",
         "option": 2, "gaze": "low"}
-    res = om.OptionsResult(seq=0, t_ns=0, n_options=3, trial=4, mode="consensus", option=2,
+    res = m.OptionsResult(seq=0, t_ns=0, n_options=3, trial=4, mode="consensus", option=2,
                            robot=2, human=1, outcome="D", score=0, session="S1")
     assert json.loads(result_marker(res)) == {
         "event": "result", "trial": 4, "session": "S1", "outcome": "D", "robot": 2, "human": 1,

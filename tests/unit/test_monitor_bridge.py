@@ -11,7 +11,6 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.keys import Keys
 from services.model.geometry import OptionsLayout
 from services.monitor.bridge import (
@@ -295,20 +294,20 @@ def _one_trial(n_options):
         ]
     names = ("red", "blue", "green", "yellow")[:n_options]
     last = n_options - 1
-    layout = om.layout_message_fields(names, OptionsLayout.row(n_options))
+    layout = m.layout_message_fields(names, OptionsLayout.row(n_options))
     return names, [
-        ("options/layout", om.OptionsLayoutMsg(seq=0, t_ns=T0, **layout)),
-        ("options/trial", om.OptionsTrialEvent(seq=0, t_ns=T0, n_options=n_options, phase="setup",
+        ("options/layout", m.OptionsLayoutMsg(seq=0, t_ns=T0, **layout)),
+        ("options/trial", m.OptionsTrialEvent(seq=0, t_ns=T0, n_options=n_options, phase="setup",
                                                trial=4, mode="consensus", option=last,
                                                text="low")),
-        ("options/arm_state", om.OptionsArmState(seq=0, t_ns=T0 + 1, n_options=n_options,
+        ("options/arm_state", m.OptionsArmState(seq=0, t_ns=T0 + 1, n_options=n_options,
                                                  ee=(0.3, 0.2), phase="move", target=last)),
-        ("options/arm_state", om.OptionsArmState(seq=1, t_ns=T0 + 2, n_options=n_options,
+        ("options/arm_state", m.OptionsArmState(seq=1, t_ns=T0 + 2, n_options=n_options,
                                                  ee=(0.2, 0.2), phase="stop", safe_stop=True,
                                                  safety_reason="stale (257 ms)")),
-        ("options/press", om.OptionsPress(seq=0, t_ns=T0 + 3, n_options=n_options, option=last,
+        ("options/press", m.OptionsPress(seq=0, t_ns=T0 + 3, n_options=n_options, option=last,
                                           trial=4)),
-        ("options/result", om.OptionsResult(seq=0, t_ns=T0 + 4, n_options=n_options, trial=4,
+        ("options/result", m.OptionsResult(seq=0, t_ns=T0 + 4, n_options=n_options, trial=4,
                                             mode="consensus", option=last, robot=last,
                                             human=last, outcome="C", score=2)),
     ]
@@ -344,7 +343,7 @@ def test_opinions_over_three_options_are_bar_charts_and_the_layout_shows_bars(tm
     for i in range(4):
         for topic in ("options/z_h", "options/z_r", "options/b_r"):
             values = (0.2 * i, -0.1 * i, -0.1 * i)
-            msgs.append((topic, om.OptionVector(seq=i, t_ns=T0 + i, values=values)))
+            msgs.append((topic, m.OptionVector(seq=i, t_ns=T0 + i, values=values)))
     path, bridge = _record(tmp_path, msgs)
     rows, _ = rrd_rows(path)
     for topic in ("options/z_h", "options/z_r", "options/b_r"):

@@ -7,7 +7,6 @@ import io
 import pytest
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.launch.view import SessionView, session_view
 from services.model.params import NodConfig
 from services.model.schedule import OptionsSchedule
@@ -19,7 +18,7 @@ def _rows(text: str) -> dict[int, str]:
     return {int(line.split()[0]): line for line in text.splitlines() if line.split()[0].isdigit()}
 
 
-def _results(n_options: int) -> list[m.TrialResult | om.OptionsResult]:
+def _results(n_options: int) -> list[m.TrialResult | m.OptionsResult]:
     """A consensus trial on the last option, then an interrupted one on the first.
 
     Two options come as the paper's messages (options by colour), more as `options/*` (by
@@ -31,9 +30,9 @@ def _results(n_options: int) -> list[m.TrialResult | om.OptionsResult]:
                 m.TrialResult(seq=1, t_ns=2, trial=2, mode="consensus", option="red",
                               interrupted=True)]
     last = n_options - 1
-    return [om.OptionsResult(seq=0, t_ns=1, n_options=n_options, trial=1, mode="consensus",
+    return [m.OptionsResult(seq=0, t_ns=1, n_options=n_options, trial=1, mode="consensus",
                              option=last, robot=last, human=last, outcome="C", score=2),
-            om.OptionsResult(seq=1, t_ns=2, n_options=n_options, trial=2, mode="consensus",
+            m.OptionsResult(seq=1, t_ns=2, n_options=n_options, trial=2, mode="consensus",
                              option=0, interrupted=True)]
 
 
@@ -70,6 +69,6 @@ def test_the_view_of_a_run_is_of_its_option_set() -> None:
 
 
 def test_an_interrupted_result_survives_the_wire() -> None:
-    decoded = m.decode(om.OptionsResult, m.encode(om.OptionsResult(seq=2, t_ns=3, n_options=3,
+    decoded = m.decode(m.OptionsResult, m.encode(m.OptionsResult(seq=2, t_ns=3, n_options=3,
                                                                    interrupted=True)))
     assert decoded.interrupted

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from services.core import messages as m
-from services.core import options_messages as om
 from services.core.contract import check_publisher
 from services.model.gaze import GazeCommand
 from services.model.params import NodConfig
@@ -85,10 +84,10 @@ def _events(n: int, keys: PaperKeys | OptionKeys) -> dict[str, Callable[..., m.M
             "press": lambda: m.PressMsg(seq=0, t_ns=0, colour="red", trial=4),
         }
     return {
-        "trial": lambda phase: om.OptionsTrialEvent(seq=0, t_ns=0, n_options=n, phase=phase,
+        "trial": lambda phase: m.OptionsTrialEvent(seq=0, t_ns=0, n_options=n, phase=phase,
                                                     trial=4, mode="consensus", option=0),
-        "arm": lambda: om.OptionsArmState(seq=0, t_ns=0, n_options=n, moving=True, target=0),
-        "press": lambda: om.OptionsPress(seq=0, t_ns=0, n_options=n, option=0, trial=4),
+        "arm": lambda: m.OptionsArmState(seq=0, t_ns=0, n_options=n, moving=True, target=0),
+        "press": lambda: m.OptionsPress(seq=0, t_ns=0, n_options=n, option=0, trial=4),
     }
 
 
@@ -149,7 +148,7 @@ def test_one_service_drives_the_person_as_the_model_would(n: int) -> None:
     if n == 2:
         assert isinstance(layout, m.Layout) and layout.red == m.layout_fields(cfg.layout)["red"]
     else:
-        assert isinstance(layout, om.OptionsLayoutMsg)
+        assert isinstance(layout, m.OptionsLayoutMsg)
         assert layout.names == ("red", "blue", "green")
         assert layout.layout() == cfg.table(n)
 
@@ -158,6 +157,6 @@ def test_a_message_for_another_option_count_is_refused() -> None:
     node = _Node()
     keys = _keys(3)
     SimService(node, NodConfig(), keys, seed=SEED, rate_hz=30.0, cohort=False)  # type: ignore[arg-type]
-    four = om.OptionsTrialEvent(seq=0, t_ns=0, n_options=4, phase="setup", option=3)
+    four = m.OptionsTrialEvent(seq=0, t_ns=0, n_options=4, phase="setup", option=3)
     with pytest.raises(m.MessageError, match="for 4 options but this rig runs 3"):
         node.handlers["options/trial"](four)
