@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import re
 import tomllib
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -179,15 +180,26 @@ def load_rig(path: str | Path) -> Rig:
     def fail(key: str, why: str) -> RigFileError:
         return RigFileError(f"{where}: {key}: {why}")
 
+    def known_keys(table: dict[str, Any], at: str, known: Iterable[str]) -> None:
+        """A misspelt key fails by name, with the known ones, rather than being ignored."""
+        extra = set(table) - set(known)
+        if extra:
+            names = ", ".join(sorted(known))
+            raise fail(f"{at}.{sorted(extra)[0]}", f"unknown key; known: {names}")
+
+    def strings(value: Any, key: str, what: str) -> list[str]:
+        """`value` if it is a list of strings (service names, command-line arguments)."""
+        if not isinstance(value, list) or not all(isinstance(s, str) for s in value):
+            raise fail(key, f"must be a list of {what}")
+        return value
+
     unknown = set(doc) - {"rig", "hosts", *_SECTION_KEYS}
     if unknown:
         raise fail(sorted(unknown)[0], f"unknown table; known: rig, hosts, {', '.join(SERVICES)}")
     rig = doc.get("rig")
     if not isinstance(rig, dict):
         raise fail("[rig]", "missing")
-    extra = set(rig) - _RIG_KEYS
-    if extra:
-        raise fail(f"rig.{sorted(extra)[0]}", f"unknown key; known: {', '.join(sorted(_RIG_KEYS))}")
+    known_keys(rig, "rig", _RIG_KEYS)
     name = rig.get("name", "rig1")
     try:
         check_rig(name if isinstance(name, str) else "")
@@ -218,13 +230,8 @@ def load_rig(path: str | Path) -> Rig:
         key = f"hosts.{hname}"
         if not isinstance(h, dict):
             raise fail(key, "must be a table")
-        extra = set(h) - _HOST_KEYS
-        if extra:
-            known = ", ".join(sorted(_HOST_KEYS))
-            raise fail(f"{key}.{sorted(extra)[0]}", f"unknown key; known: {known}")
-        services = h.get("services", [])
-        if not isinstance(services, list) or not all(isinstance(s, str) for s in services):
-            raise fail(f"{key}.services", "must be a list of service names")
+        known_keys(h, key, _HOST_KEYS)
+        services = strings(h.get("services", []), f"{key}.services", "service names")
         for s in services:
             if s not in SERVICES:
                 known = ", ".join(SERVICES)
@@ -249,13 +256,8 @@ def load_rig(path: str | Path) -> Rig:
         sec = doc.get(service, {})
         if not isinstance(sec, dict):
             raise fail(f"[{service}]", "must be a table")
-        extra = set(sec) - allowed
-        if extra:
-            known = ", ".join(sorted(allowed))
-            raise fail(f"{service}.{sorted(extra)[0]}", f"unknown key; known: {known}")
-        args = sec.get("args", [])
-        if not isinstance(args, list) or not all(isinstance(a, str) for a in args):
-            raise fail(f"{service}.args", "must be a list of strings")
+        known_keys(sec, service, allowed)
+        strings(sec.get("args", []), f"{service}.args", "strings")
         sections[service] = dict(sec)
     for service, key, choices in (
         ("actuation", "driver", ARM_DRIVERS), ("eyes", "driver", EYES_DRIVERS),
