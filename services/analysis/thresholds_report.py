@@ -36,20 +36,21 @@ def thresholds_report(p: PairParams) -> dict[str, Any]:
     }
 
 
+def _num(v: float | None) -> str:
+    """A number of the plain-text tables: six significant digits, a dash where none exists."""
+    return "—" if v is None else f"{v:.6g}"
+
+
 def format_thresholds(report: dict[str, Any]) -> str:
     """A plain-text table of `thresholds_report`'s numbers."""
-
-    def num(v: float | None) -> str:
-        return "—" if v is None else f"{v:.6g}"
-
     lines = [
-        f"attention u                 {num(report['u'])}",
-        f"dissensus threshold u_d*    {num(report['u_d_star'])}  (u* at λ_min, Sec 4.3)",
+        f"attention u                 {_num(report['u'])}",
+        f"dissensus threshold u_d*    {_num(report['u_d_star'])}  (u* at λ_min, Sec 4.3)",
         "",
         "  λ (adjacency)    u* = d/(α+γλ)",
     ]
-    lines += [f"  {num(row['lambda']):>13}    {num(row['u_star'])}" for row in report["u_star"]]
-    eig = ", ".join(num(v) for v in report["origin_jacobian_eigenvalues"])
+    lines += [f"  {_num(row['lambda']):>13}    {_num(row['u_star'])}" for row in report["u_star"]]
+    eig = ", ".join(_num(v) for v in report["origin_jacobian_eigenvalues"])
     regime = "yes" if report["dissensus_regime"] else "no"
     lines += [
         "",
@@ -85,21 +86,17 @@ def options_thresholds_report(
 
 def format_options_thresholds(report: dict[str, Any]) -> str:
     """A plain-text table of `options_thresholds_report`'s numbers."""
-
-    def num(v: float | None) -> str:
-        return "—" if v is None else f"{v:.6g}"
-
     lines = [
         f"options N_o                    {report['n_options']}",
-        f"attention u                    {num(report['u'])}",
-        f"agreement point u_a*           {num(report['u_agreement'])}",
-        f"disagreement point u_d*        {num(report['u_disagreement'])}",
+        f"attention u                    {_num(report['u'])}",
+        f"agreement point u_a*           {_num(report['u_agreement'])}",
+        f"disagreement point u_d*        {_num(report['u_disagreement'])}",
         "",
         "  mode          κ (J = −d + uκ)   λ (adjacency)   ×   u* = d/κ   J eigenvalue at u",
     ]
     lines += [
-        f"  {m['pattern']:<12}  {num(m['kappa']):>15}   {num(m['adjacency_eigenvalue']):>13}"
-        f"   {m['multiplicity']}   {num(m['u_star']):>8}   {num(m['jacobian_eigenvalue']):>17}"
+        f"  {m['pattern']:<12}  {_num(m['kappa']):>15}   {_num(m['adjacency_eigenvalue']):>13}"
+        f"   {m['multiplicity']}   {_num(m['u_star']):>8}   {_num(m['jacobian_eigenvalue']):>17}"
         for m in report["modes"]
     ]
     regime = "yes" if report["dissensus_regime"] else "no"
