@@ -25,8 +25,7 @@ from services.core import messages as m
 from services.core.cli import Parser, fail
 from services.core.node import install_signal_handlers
 from services.core.session import add_zenoh_args
-from services.core.tap import Tap
-from services.tools.observe import CLOCK_WARN_MS, ToolError, connect, decode
+from services.tools.observe import CLOCK_WARN_MS, ToolError, Window, connect
 
 PROG = "nod lab status"
 CONDUCTOR = "experiment"
@@ -63,28 +62,17 @@ def observe(
             else:
                 services.discard(service)
 
-    tap = Tap(session, ["nod/*/rig/status", "nod/*/experiment/trial"])
-    watch = session.liveliness().declare_subscriber("nod/*/alive/*", on_alive, history=True)
-    deadline = time.monotonic() + duration
-    try:
-        while not stop.is_set() and time.monotonic() < deadline:
-            item = tap.next(deadline)
-            if item is None:
-                continue
-            arrival_wall = time.time_ns() - int((time.monotonic() - item.t) * 1e9)
-            try:
-                msg = decode(item.key, item.payload)
-            except (m.MessageError, ToolError):
+    keys = ["nod/*/rig/status", "nod/*/experiment/trial"]
+    with Window(session, keys, "nod/*/alive/*", on_alive) as window:
+        for item, msg in window.heard(time.monotonic() + duration, stop):
+            if msg is None:
                 obs.invalid += 1
                 continue
             rig = _rig_of(item.key)
             if isinstance(msg, m.NodeStatus):
-                obs.heartbeats[(rig, msg.service)] = (msg, arrival_wall)
+                obs.heartbeats[(rig, msg.service)] = (msg, item.wall_ns)
             elif isinstance(msg, m.TrialEvent):
                 obs.events[rig] = msg
-    finally:
-        tap.close()
-        watch.undeclare()
     with lock:
         obs.alive = {rig: set(s) for rig, s in obs.alive.items()}
     return obs

@@ -9,8 +9,10 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import threading
+import time
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,6 +23,7 @@ from services.core.contract import TOPICS
 from services.core.keys import check_rig, topic_of
 from services.core.node import clip
 from services.core.session import Fabric, open_session
+from services.core.tap import Arrival, Tap
 
 # A host clock this far (ms) from ours is flagged by `nod status` and `nod lab status`: the
 # safety bounds compare timestamps across hosts (docs/safety.md §1).
@@ -90,6 +93,51 @@ def decode(key: str, payload: bytes) -> m.Message:
     if topic is None:
         raise m.MessageError("not a key of the contract: no decoder")
     return m.decode(TOPICS[topic].message, payload)
+
+
+class Window:
+    """One listening window: the samples of some keys, decoded, and who is alive meanwhile.
+
+    The tools that only listen (`nod status`, `nod lab status`, `nod topic list`) open one;
+    the liveliness tokens under `alive` go to `on_alive` with their history (who was alive
+    before the window opened). Use it in a `with` block: leaving it undeclares both subscriptions.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        expr: str | Sequence[str],
+        alive: str,
+        on_alive: Callable[[zenoh.Sample], None],
+    ) -> None:
+        self.tap = Tap(session, expr)
+        try:
+            self._watch = session.liveliness().declare_subscriber(alive, on_alive, history=True)
+        except BaseException:
+            self.tap.close()
+            raise
+
+    def __enter__(self) -> Window:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.tap.close()
+        self._watch.undeclare()
+
+    def heard(
+        self, deadline: float, stop: threading.Event
+    ) -> Iterator[tuple[Arrival, m.Message | None]]:
+        """Each sample until `deadline` (monotonic) or `stop`, with its message (None: invalid)."""
+        while not stop.is_set() and time.monotonic() < deadline:
+            item = self.tap.next(deadline)
+            if item is None:
+                continue
+            msg: m.Message | None
+            try:
+                msg = decode(item.key, item.payload)
+            except m.MessageError:
+                msg = None
+            yield item, msg
 
 
 def clean(text: str) -> str:

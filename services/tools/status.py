@@ -30,8 +30,7 @@ from services.core.cli import Parser, fail
 from services.core.node import install_signal_handlers
 from services.core.rigfile import MONITOR, REQUIRED, RigFileError, identity, load_rig
 from services.core.session import add_zenoh_args
-from services.core.tap import Tap
-from services.tools.observe import CLOCK_WARN_MS, Rate, ToolError, connect, decode
+from services.tools.observe import CLOCK_WARN_MS, Rate, ToolError, Window, connect
 
 PROG = "nod status"
 # The sim participant stands in for the camera: it also holds vision's liveliness token.
@@ -77,33 +76,21 @@ def observe(
             else:
                 obs.alive.discard(name)
 
-    tap = Tap(session, f"nod/{rig}/**")
-    watch = session.liveliness().declare_subscriber(f"{prefix}*", on_alive, history=True)
-    deadline = time.monotonic() + duration
-    try:
-        while not stop.is_set() and time.monotonic() < deadline:
-            item = tap.next(deadline)
-            if item is None:
-                continue
-            arrival_wall = time.time_ns() - int((time.monotonic() - item.t) * 1e9)
+    with Window(session, f"nod/{rig}/**", f"{prefix}*", on_alive) as window:
+        for item, msg in window.heard(time.monotonic() + duration, stop):
             obs.keys.setdefault(item.key, Rate()).add(item.t)
-            obs.last_wall[item.key] = arrival_wall
-            try:
-                msg = decode(item.key, item.payload)
-            except (m.MessageError, ToolError):
+            obs.last_wall[item.key] = item.wall_ns
+            if msg is None:
                 obs.invalid += 1
                 continue
             if isinstance(msg, m.NodeStatus):
-                obs.heartbeat(msg, arrival_wall)
+                obs.heartbeat(msg, item.wall_ns)
             elif isinstance(msg, m.ArmStateMsg):
                 obs.devices["actuation"] = msg
             elif isinstance(msg, m.EyesStateMsg):
                 obs.devices["eyes"] = msg
             elif isinstance(msg, m.RigEvent):
                 obs.events.append(msg)
-    finally:
-        tap.close()
-        watch.undeclare()
     with lock:
         obs.alive = set(obs.alive)
     return obs

@@ -11,11 +11,9 @@ from typing import Any
 
 import zenoh
 
-from services.core import messages as m
 from services.core.contract import TOPICS
 from services.core.node import install_signal_handlers
-from services.core.tap import Tap
-from services.tools.observe import Rate, connect, decode, print_line
+from services.tools.observe import Rate, Window, connect, print_line
 
 
 @dataclass(slots=True)
@@ -43,32 +41,20 @@ def run_list(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     deadline = t0 + args.duration
     try:
-        tap = Tap(session, f"nod/{rig}/**")
-        watch = session.liveliness().declare_subscriber(
-            f"{alive_prefix}*", on_alive, history=True
-        )
-        try:
-            while not stop.is_set() and time.monotonic() < deadline:
-                item = tap.next(deadline)
-                if item is None:
-                    continue
+        with Window(session, f"nod/{rig}/**", f"{alive_prefix}*", on_alive) as window:
+            for item, msg in window.heard(deadline, stop):
                 entry = seen.get(item.key)
                 if entry is None:
                     entry = seen[item.key] = Seen(Rate())
                 entry.rate.add(item.t)
                 entry.size += len(item.payload)
-                try:
-                    decode(item.key, item.payload)
-                except m.MessageError:
+                if msg is None:
                     entry.invalid += 1
-        finally:
-            tap.close()
-            watch.undeclare()
     finally:
         session.close()
     elapsed = min(time.monotonic(), deadline) - t0
     report = list_report(rig, elapsed, seen, sorted(s for s, up in alive.items() if up))
-    report["dropped"] = tap.dropped
+    report["dropped"] = window.tap.dropped
     if args.json:
         print_line(json.dumps(report, ensure_ascii=False))
     else:
