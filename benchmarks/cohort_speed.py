@@ -36,6 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from services.cohort.person import load_cohort_params  # noqa: E402
+from services.core.lifeline import nod_command  # noqa: E402
 from services.model.closed_loop import run_offline_session  # noqa: E402
 
 QUIET_FLAG = Path("/tmp/nod-quiet")
@@ -89,19 +90,10 @@ def main() -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / "cohort.db"
-        cmd = [
-            sys.executable,
-            "-m",
-            "services.cli",
-            "cohort",
-            "--participants",
-            str(args.participants),
-            "--seed",
-            "1",
-            "--db",
-            str(db),
+        cmd = nod_command(
+            "cohort", "--participants", str(args.participants), "--seed", "1", "--db", str(db),
             "--quiet",
-        ]
+        )
         if args.workers:
             cmd += ["--workers", str(args.workers)]
         print(f"load at start: {load()}")

@@ -28,6 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from services.analysis.sweep import bias_grid, sweep, sweep_rk4  # noqa: E402
+from services.core.lifeline import nod_command  # noqa: E402
 from services.model.dynamics import PairParams  # noqa: E402
 
 
@@ -61,20 +62,10 @@ def main() -> int:
     walls = []
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "tmp.npz"
-        cmd = [
-            sys.executable,
-            "-m",
-            "services.cli",
-            "analyze",
-            "sweep",
-            "--grid",
-            str(args.grid),
-            "--range",
-            str(args.range),
-            "--out",
-            str(out),
-            "--no-progress",
-        ]
+        cmd = nod_command(
+            "analyze", "sweep", "--grid", str(args.grid), "--range", str(args.range),
+            "--out", str(out), "--no-progress",
+        )
         for _ in range(args.repeat):
             t0 = time.perf_counter()
             subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True)
