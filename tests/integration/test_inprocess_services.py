@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
 
 from services.core import messages as m
-from services.core.node import Node
+from services.core.node import Node, TopicPublisher
 from services.core.session import Fabric
 from services.decision.service import DecisionService
 from services.eyes.service import EyesService
@@ -24,6 +26,50 @@ from services.model.safety import SafetyParams
 from tests.integration.conftest import Collector, wait_for
 
 pytestmark = pytest.mark.integration
+
+
+@contextmanager
+def _running(node: Node, pump: Callable[[], None], every_s: float) -> Iterator[None]:
+    """The node's loop on a thread, and `pump()` every `every_s` on another (the inputs its
+    watchdog requires); both stopped and joined after, whatever the test did."""
+    stop = threading.Event()
+
+    def pumping() -> None:
+        while not stop.wait(every_s):
+            pump()
+
+    runner = threading.Thread(target=node.run, daemon=True)
+    pumper = threading.Thread(target=pumping, daemon=True)
+    runner.start()
+    pumper.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        pumper.join()
+        node.stop.set()
+        runner.join(5)
+
+
+def _assert_the_pace_holds_and_an_estop_shows(
+    state: Collector, estop: TopicPublisher, estop_id: str, key: str
+) -> None:
+    """With a device's fault on its state key: the key keeps its 50 Hz (the I/O is on the
+    driver's thread), the fault stays on it, and an e-stop shows on it within its 100 ms bound
+    (plus the test's own polling)."""
+    n = len(state.messages)
+    time.sleep(1.0)  # a rate's window, not a wait: the state keeps its pace meanwhile
+    assert len(state.messages) - n >= 35  # ≈ 50 Hz while the device is gone
+    assert any(s.fault for s in state.messages[-5:])
+    t0 = time.monotonic()
+    estop.put(engaged=True, reason="test", source="test", id=estop_id)
+    wait_for(
+        lambda: any(s.estop_id == estop_id and s.safe_stop for s in state.messages),
+        2.0,
+        f"the e-stop on {key}",
+    )
+    assert time.monotonic() - t0 < 0.1 + 0.05
+    assert any(s.fault for s in state.messages[-5:])
 
 
 def _stream(n: int, hz: float = 30.0) -> list[tuple[int, list[tuple[float, float]]]]:
@@ -148,45 +194,23 @@ def test_a_silent_arduino_never_holds_up_the_eyes_safety(router, endpoint, clien
         eyes = Node("eyes", fabric)
         safety = SafetyParams(stale_ms=250.0, require_alive=("experiment",))
         EyesService(eyes, driver, safety, None)
-        runner = threading.Thread(target=eyes.run, daemon=True)
-        runner.start()
         conductor = Node("experiment", fabric)
         gaze = conductor.publisher("eyes/cmd")
         conductor.ready()
         operator = Node("estop", fabric)
         estop = operator.publisher("safety/estop")
         state = Collector(client, eyes.keys.topic("eyes/state"), m.EyesStateMsg)
-        stop = threading.Event()
-
-        def keep_alive() -> None:
-            while not stop.wait(0.03):
-                gaze.put(yaw=0.5, pitch=0.0, level="low", trial=5)
-
-        pump = threading.Thread(target=keep_alive, daemon=True)
-        pump.start()
         try:
-            wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 5.0, "eyes up")
-            board.silent = True
-            board.unplug()  # gone: the driver reopens with a 3 s boot wait, on its own thread
-            wait_for(lambda: any(s.fault for s in state.messages[-3:]), 5.0, "the board's fault")
-            n = len(state.messages)
-            time.sleep(1.0)  # a rate's window, not a wait: the state keeps its pace meanwhile
-            assert len(state.messages) - n >= 35  # ≈ 50 Hz while the board is gone
-            t0 = time.monotonic()
-            estop.put(engaged=True, reason="test", source="test", id="e1")
-            wait_for(
-                lambda: any(s.estop_id == "e1" and s.safe_stop for s in state.messages),
-                2.0,
-                "the e-stop on eyes/state",
-            )
-            assert time.monotonic() - t0 < 0.1 + 0.05  # the bound, plus the test's own polling
-            assert any(s.fault for s in state.messages[-5:])
+            with _running(eyes, lambda: gaze.put(yaw=0.5, pitch=0.0, level="low", trial=5), 0.03):
+                wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 5.0, "eyes up")
+                board.silent = True
+                board.unplug()  # gone: the driver reopens with a 3 s boot wait, on its own thread
+                wait_for(lambda: any(s.fault for s in state.messages[-3:]), 5.0,
+                         "the board's fault")
+                _assert_the_pace_holds_and_an_estop_shows(state, estop, "e1", "eyes/state")
         finally:
-            stop.set()
-            pump.join()
-            eyes.stop.set()
-            runner.join(5)
             conductor.close()
+            driver.disconnect()
             operator.close()
             driver.disconnect()
 
@@ -210,8 +234,6 @@ def test_a_silent_arm_bus_never_holds_up_the_actuation_safety(router, endpoint, 
         node = Node("actuation", fabric)
         safety = SafetyParams(stale_ms=250.0, require_alive=("decision",))
         ActuationService(node, NodConfig(), arm, safety, None)
-        runner = threading.Thread(target=node.run, daemon=True)
-        runner.start()
         peer = Node("decision", fabric)
         z_r = peer.publisher("decision/z_r")
         peer.ready()
@@ -220,36 +242,19 @@ def test_a_silent_arm_bus_never_holds_up_the_actuation_safety(router, endpoint, 
         operator = Node("estop", fabric)
         estop = operator.publisher("safety/estop")
         state = Collector(client, node.keys.topic("actuation/state"), m.ArmStateMsg)
-        stop = threading.Event()
 
         def inputs() -> None:
-            while not stop.wait(0.02):
-                z_r.put(value=0.3, src_seq=0)
-                hands.put(detected=True, center=(0.5, 0.85), landmarks=((0.5, 0.85),))
+            z_r.put(value=0.3, src_seq=0)
+            hands.put(detected=True, center=(0.5, 0.85), landmarks=((0.5, 0.85),))
 
-        pump = threading.Thread(target=inputs, daemon=True)
-        pump.start()
         try:
-            wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 5.0, "arm up")
-            bus.silent = True  # every read now costs the link's timeouts
-            wait_for(lambda: any(s.fault for s in state.messages[-3:]), 5.0, "the bus's fault")
-            n = len(state.messages)
-            time.sleep(1.0)  # a rate's window, not a wait: the state keeps its pace meanwhile
-            assert len(state.messages) - n >= 35  # ≈ 50 Hz while the bus is silent
-            assert any(s.fault for s in state.messages[-5:])
-            t0 = time.monotonic()
-            estop.put(engaged=True, reason="test", source="test", id="a1")
-            wait_for(
-                lambda: any(s.estop_id == "a1" and s.safe_stop for s in state.messages),
-                2.0,
-                "the e-stop on actuation/state",
-            )
-            assert time.monotonic() - t0 < 0.15
+            with _running(node, inputs, 0.02):
+                wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 5.0, "arm up")
+                bus.silent = True  # every read now costs the link's timeouts
+                wait_for(lambda: any(s.fault for s in state.messages[-3:]), 5.0,
+                         "the bus's fault")
+                _assert_the_pace_holds_and_an_estop_shows(state, estop, "a1", "actuation/state")
         finally:
-            stop.set()
-            pump.join()
-            node.stop.set()
-            runner.join(5)
             for other in (peer, camera, operator):
                 other.close()
             arm.disconnect()
@@ -272,8 +277,6 @@ def test_an_arm_fault_is_a_safe_stop_whatever_the_number_of_options(
     arm.connect()
     safety = SafetyParams(stale_ms=500.0, require_alive=("decision",))
     ActuationService(node, cfg, arm, safety, None, n_options)
-    runner = threading.Thread(target=node.run, daemon=True)
-    runner.start()
     peer = Node("decision", fabric)
     z_r = peer.publisher("decision/z_r" if n_options == 2 else "options/z_r")
     peer.ready()
@@ -281,33 +284,26 @@ def test_an_arm_fault_is_a_safe_stop_whatever_the_number_of_options(
     hands = camera.publisher("vision/hand")
     state = Collector(client, node.keys.topic("actuation/state"), m.ArmStateMsg)
     z = {"value": 0.3} if n_options == 2 else {"values": (0.3, -0.1, -0.2)}
-    stop = threading.Event()
 
     def inputs() -> None:
-        while not stop.wait(0.02):
-            z_r.put(src_seq=0, **z)
-            hands.put(detected=True, center=(0.5, 0.85), landmarks=((0.5, 0.85),))
+        z_r.put(src_seq=0, **z)
+        hands.put(detected=True, center=(0.5, 0.85), landmarks=((0.5, 0.85),))
 
-    pump = threading.Thread(target=inputs, daemon=True)
-    pump.start()
     try:
-        wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 10.0, "arm up")
-        arm.inject_fault("bus silent")
-        wait_for(
-            lambda: any(
-                s.safe_stop and "device fault" in s.safety_reason and s.fault == "bus silent"
-                for s in state.messages[-3:]
-            ),
-            5.0,
-            "the device fault's safe stop",
-        )
-        arm.clear_fault()
-        wait_for(lambda: not state.messages[-1].safe_stop, 10.0, "clear once healthy")
+        with _running(node, inputs, 0.02):
+            wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 10.0, "arm up")
+            arm.inject_fault("bus silent")
+            wait_for(
+                lambda: any(
+                    s.safe_stop and "device fault" in s.safety_reason and s.fault == "bus silent"
+                    for s in state.messages[-3:]
+                ),
+                5.0,
+                "the device fault's safe stop",
+            )
+            arm.clear_fault()
+            wait_for(lambda: not state.messages[-1].safe_stop, 10.0, "clear once healthy")
     finally:
-        stop.set()
-        pump.join()
-        node.stop.set()
-        runner.join(5)
         for other in (peer, camera):
             other.close()
         arm.disconnect()

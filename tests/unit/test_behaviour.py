@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -56,15 +58,22 @@ def started(
     return b
 
 
-def test_params_validation() -> None:
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: DebounceParams(c_max=0),
+        lambda: BehaviourParams(pause_s=-0.1),
+        lambda: RobotBehaviour(LAYOUT).start(0.0, timeout_s=0),
+        lambda: RobotBehaviour(LAYOUT).start(0.0, timeout_s=float("nan")),
+    ],
+    ids=["c_max 0", "pause < 0", "timeout 0", "timeout nan"],
+)
+def test_params_validation(make: Callable[[], object]) -> None:
     with pytest.raises(ValueError):
-        DebounceParams(c_max=0)
-    with pytest.raises(ValueError):
-        BehaviourParams(pause_s=-0.1)
-    with pytest.raises(ValueError):
-        RobotBehaviour(LAYOUT).start(0.0, timeout_s=0)
-    with pytest.raises(ValueError):
-        RobotBehaviour(LAYOUT).start(0.0, timeout_s=float("nan"))
+        make()
+
+
+def test_the_default_pause_is_100_ms() -> None:
     assert BehaviourParams() == BehaviourParams(pause_s=0.1)
 
 

@@ -21,6 +21,7 @@ from services.sim import cohort as cohort_cli
 from services.store import Store
 from services.store.cohorts import cohorts, unfinished
 from services.store.study_stores import open_stores
+from tests.tables import sessions_table, trials_table
 
 
 class InProcess(Engine):
@@ -53,16 +54,6 @@ def engines(monkeypatch: pytest.MonkeyPatch) -> list[InProcess]:
 
     monkeypatch.setattr(cohort_cli, "engine_from_args", take)
     return queue
-
-
-def trials_table(db: Path) -> list[tuple]:
-    with sqlite3.connect(db) as con:
-        return con.execute("SELECT * FROM trials ORDER BY session, trial").fetchall()
-
-
-def sessions_table(db: Path) -> list[tuple]:
-    with sqlite3.connect(db) as con:
-        return con.execute("SELECT * FROM sessions ORDER BY session").fetchall()
 
 
 COHORT = ["--participants", "5", "--seed", "40", "--quiet", "--no-samples"]

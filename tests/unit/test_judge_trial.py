@@ -15,9 +15,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.analysis.study import load_study
+from services.model.closed_loop import OfflineTrial
 from services.model.debounce import DebounceParams
 from services.model.geometry import CommitLine, Point
 from services.model.outcome import OutcomeTracker, judge_trial
+from services.model.schedule import TrialSpec
+from services.sim.cohort import offline_record
 from services.store import Store, TrialRecord
 
 BEFORE: Point = (0.5, 0.8)  # the participant's side of the default commit line (y = 0.45)
@@ -130,25 +133,15 @@ def test_the_judgement_is_the_classification_and_the_score_formula(z_hats, human
 
 
 def _record(trial: int, human, robot, z_hats) -> TrialRecord:
+    """Trial `trial` of the paper's schedule (1-3 control, then consensus on red), judged as the
+    conductor judges it and stored as the cohort stores a simulated trial."""
     j = judge_trial(tracked(z_hats), human, robot, 10, 10)
-    return TrialRecord(
-        trial=trial,
-        mode="dissensus" if trial <= 3 else "consensus",
-        option=None if trial <= 3 else "red",
-        gaze_level="neutral",
-        yaw=0.0,
-        pitch=0.0,
-        t_go_ns=trial * 10**10,
-        t_end_ns=trial * 10**10 + 5 * 10**9,
-        human=j.human,
-        robot=j.robot,
-        outcome=j.outcome,
-        switches=j.switches,
-        violations=j.violations,
-        clicks=10,
-        score=j.score,
-        end_reason="human pressed" if human else "timeout",
+    spec = TrialSpec(trial, "dissensus") if trial <= 3 else TrialSpec(trial, "consensus", "red")
+    result = OfflineTrial(
+        trial, spec.mode, spec.option, j.human, j.robot, j.outcome, j.switches, j.violations,
+        j.score, duration_s=5.0,
     )
+    return offline_record(result, spec, trial * 10**10)
 
 
 def test_a_timeout_never_enters_the_study_statistics(tmp_path: Path):

@@ -109,6 +109,16 @@ def test_secure_rigs_writes_a_folder_per_rig_the_labs_own_and_the_router(
     assert "nod router --config" in capsys.readouterr().out
 
 
+def _refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], says: str
+) -> None:
+    """`nod lab secure ARGS…` exits 2 with one line saying `says`, and writes nothing."""
+    assert secure_main(["--out", str(tmp_path / "x"), *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and says in err, err
+    assert not (tmp_path / "x").exists()
+
+
 @pytest.mark.parametrize(
     ("args", "says"),
     [
@@ -123,10 +133,7 @@ def test_secure_rigs_writes_a_folder_per_rig_the_labs_own_and_the_router(
 def test_bad_rigs_are_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], says: str
 ) -> None:
-    assert secure_main(["--out", str(tmp_path / "x"), *args]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and says in err, err
-    assert not (tmp_path / "x").exists()
+    _refused_in_one_line(tmp_path, capsys, args, says)
 
 
 def test_the_control_station_runs_the_participants_speaker_and_screen_and_the_lsl_outlet() -> None:
@@ -316,10 +323,7 @@ def test_secure_router_per_rig_writes_each_rigs_router_linked_to_the_lab_router(
 def test_bad_router_per_rig_flags_are_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], says: str
 ) -> None:
-    assert secure_main(["--out", str(tmp_path / "x"), *args]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and says in err, err
-    assert not (tmp_path / "x").exists()
+    _refused_in_one_line(tmp_path, capsys, args, says)
 
 
 def test_a_rig_file_of_another_rig_or_the_lab_routers_rig_file_is_refused(

@@ -355,14 +355,14 @@ def test_opinions_over_three_options_are_bar_charts_and_the_layout_shows_bars(tm
     assert {str(v.origin) for v in _views(blueprint(bars=True))} - paper == set(bars)
 
 
-def _views(bp):
-    """Every view of a blueprint, depth first."""
+def _views(bp, having: str = "origin"):
+    """Every view of a blueprint that has the attribute `having`, depth first."""
     views = []
 
     def walk(node):
         for child in getattr(node, "contents", []) or []:
             walk(child)
-        if hasattr(node, "origin"):
+        if hasattr(node, having):
             views.append(node)
 
     walk(bp.root_container)
@@ -371,15 +371,7 @@ def _views(bp):
 
 def test_the_table_view_shows_only_the_live_arm_and_gaze():
     """The table keeps a 3 s trail of hand and end effector, but not of segments and arrows."""
-    views = []
-
-    def walk(node):
-        for child in getattr(node, "contents", []) or []:
-            walk(child)
-        if hasattr(node, "visualizer_overrides"):
-            views.append(node)
-
-    walk(blueprint().root_container)
+    views = _views(blueprint(), having="visualizer_overrides")
     table = next(v for v in views if str(v.origin) == "table")
     assert set(table.visualizer_overrides) == {ENTITIES["arm_link"], ENTITIES["gaze"]}
     camera = next(v for v in views if str(v.origin) == "camera")

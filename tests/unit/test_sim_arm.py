@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -37,15 +38,14 @@ def run(a: SimArm, until: float, dt: float = 0.01) -> list[tuple[float, tuple[fl
     return path
 
 
-def test_params_validation() -> None:
+@pytest.mark.parametrize(
+    "bad",
+    [{"max_speed": 0}, {"max_accel": -1}, {"press_duration_s": -0.1}, {"home": (math.nan, 0.0)}],
+    ids=str,
+)
+def test_params_validation(bad: dict[str, Any]) -> None:
     with pytest.raises(ValueError):
-        SimArmParams(max_speed=0)
-    with pytest.raises(ValueError):
-        SimArmParams(max_accel=-1)
-    with pytest.raises(ValueError):
-        SimArmParams(press_duration_s=-0.1)
-    with pytest.raises(ValueError):
-        SimArmParams(home=(float("nan"), 0.0))
+        SimArmParams(**bad)
 
 
 def test_not_connected_raises_and_context_manager_holds() -> None:
