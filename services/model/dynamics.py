@@ -20,7 +20,7 @@ the model of Bizyaeva, Franci & Leonard (IEEE TAC 2023) with tanh as both satura
 reduction to eq 1:** with N_o = 2, β = δ = 0 and x_i = z_i1 = −z_i2, F_i1 − (F_i1 + F_i2)/2 =
 −d_i x_i + u_i tanh(α_i x_i + γ_i a x_k) + (b_i1 − b_i2)/2 (tanh is odd): eq 1-2 with b_i =
 (b_i1 − b_i2)/2. So the two-option case is computed by eq 1 itself (`agent_rates`' kernel) and
-the general form is checked against it (tests/unit/test_options_dynamics.py, 1e-12). Option 0
+the general form is checked against it (tests/unit/test_dynamics.py, 1e-12). Option 0
 is red (z > 0 in the two-option convention), option 1 blue. β and δ (the weights of the other
 options' opinions; not eq 6's β) are 0 by default, which keeps the paper's thresholds for any
 N_o.
@@ -338,8 +338,7 @@ def agent_rates(
     The paper's two options (N_o = 2, β = δ = 0, z and s on the subspace) are computed by eq 1
     itself (`opinion_rate`, the two-option kernel) on x = z_0 with b = (b_0 − b_1)/2, and
     returned as (ẋ, −ẋ): the paper's arithmetic, chosen here for any caller. `general_rates` is
-    the form for any N_o; the two agree to rounding at N_o = 2 (tests/unit/test_options_dynamics
-    .py).
+    the form for any N_o; the two agree to rounding at N_o = 2 (tests/unit/test_dynamics.py).
     """
     z, social = np.asarray(z, dtype=float), np.asarray(social, dtype=float)
     if (z.shape[-1] == 2 and beta == 0.0 and delta == 0.0
