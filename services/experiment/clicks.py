@@ -36,10 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Set the clicks, print the trial's new points; 0 on success, 2 on a bad input."""
     args = build_parser().parse_args(argv)
-    if not args.db.is_file():
-        return fail("nod clicks", f"no session store at {args.db}")
     try:
-        store = Store(args.db)
+        store = Store.existing(args.db)
     except StoreError as exc:
         return fail("nod clicks", exc)
     count = None if args.not_entered else args.count

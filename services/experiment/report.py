@@ -23,10 +23,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Print one session's trials."""
     args = build_parser().parse_args(argv)
-    if not args.db.is_file():
-        return fail("nod report", f"no such database: {args.db}")
     try:
-        store = Store(args.db)  # a damaged store is refused here, untouched
+        store = Store.existing(args.db)  # a damaged store is refused here, untouched
     except StoreError as exc:
         return fail("nod report", exc)
     try:

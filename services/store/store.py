@@ -299,6 +299,17 @@ class Store:
             )
             self.db.execute(f"PRAGMA user_version = {STORE_VERSION}")
 
+    @classmethod
+    def existing(cls, path: str | Path) -> Store:
+        """Open a database that must already exist (the tools that read or amend a study's).
+
+        A missing file is a StoreError rather than a new, empty store: a mistyped --db should
+        not quietly create one.
+        """
+        if not Path(path).is_file():
+            raise StoreError(f"no such database: {path}")
+        return cls(path)
+
     def close(self) -> None:
         """Close the database (checkpointing the WAL)."""
         self.db.close()
