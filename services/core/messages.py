@@ -30,6 +30,13 @@ MAX_BLOB_BYTES = 256 * 1024  # a `bytes` field (the monitor's JPEG frame); large
 MAX_TEXT = 512
 
 
+def schema_version(cls: type[Any]) -> int:
+    """The schema version a message class is written in: its `v` tag (1, or 2 on `options/*`)."""
+    tag = cls.__struct_config__.tag
+    assert isinstance(tag, int)
+    return tag
+
+
 class MessageError(ValueError):
     """A payload failed to decode or validate; the text says which field and why."""
 

@@ -83,7 +83,7 @@ def channel_metadata(topic: str) -> dict[str, str]:
     return {
         "topic": topic,
         "message": spec.message.__name__,
-        "schema_version": str(m.SCHEMA_VERSION),
+        "schema_version": str(m.schema_version(spec.message)),  # a key's own: 1, or 2 for N
         "qos": spec.qos.describe(),
         "publishers": ",".join(spec.publishers),
     }

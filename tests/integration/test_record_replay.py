@@ -120,7 +120,10 @@ def test_the_session_is_recorded_one_channel_per_key_and_linked_in_the_store(rec
             assert (schema.name, schema.encoding) == (TOPICS[topic].message.__name__, "jsonschema")
             assert TOPICS[topic].message.__name__ in json.loads(schema.data)["$defs"]
             assert channel.message_encoding == "msgpack"
-            assert channel.metadata["schema_version"] == str(m.SCHEMA_VERSION)
+            # each channel says the schema its key's messages are written in (2: options/*)
+            want = m.schema_version(TOPICS[topic].message)
+            assert channel.metadata["schema_version"] == str(want)
+            assert (want == 2) == topic.startswith("options/")
             assert channel.metadata["topic"] == topic
         assert counts["nod/rig1/vision/hand"] > 100
         assert counts[f"nod/rig1/{z_r}"] > 100
