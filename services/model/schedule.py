@@ -169,7 +169,8 @@ def default_options_trials(n_options: int) -> tuple[OptionsTrial, ...]:
     (B R R B R over red, blue: the two-option kernel, so the paper's study is this schedule's
     two-option case). For more, the k-th consensus trial (k = 0…4) converges on option
     k mod N_o, so with up to 5 options every option is O at least once; the paper's order does
-    not generalise, and counterbalancing N_o options is left to the study design.
+    not generalise; a study counterbalances it (`services.model.counterbalance`: rotations
+    under the cyclic relabellings of the options).
     """
     trials = [OptionsTrial(i, "dissensus") for i in (1, 2, 3)]
     for k, level in enumerate(_CONSENSUS_LEVELS):

@@ -1,6 +1,6 @@
 """`nod study …`: a study's roster — make it, record consent, see who is next, run their session.
 
-    nod study init STUDY.toml --participants 40 [--seed S] [--params FILE]
+    nod study init STUDY.toml --participants 40 [--seed S] [--params FILE] [--options N]
     nod study consent STUDY.toml --db DB --participant P07 --yes [--age 25-34 --handedness right]
     nod study withdraw STUDY.toml --db DB --participant P07 [--reason TEXT] [--delete|--keep]
     nod study next STUDY.toml --db DB
@@ -8,7 +8,8 @@
     nod study status STUDY.toml --db DB [--json]
 
 `start` runs `nod experiment` (or, with --sim, `nod run --sim`) for the participant with their
-order (`--order`), the study's `--params`, and any FLAGS after `--` (the rig's `--connect`,
+order (`--order`), the study's `--params` (and `--options N` for a study of N options: its
+file's `options`), and any FLAGS after `--` (the rig's `--connect`,
 `--rig`, `--clicks` …); it refuses a participant without consent and one who already has a
 session (unless `--again` says why). `withdraw` (and `consent --no` for someone who had
 consented or has data) records a withdrawal: they are left out of every export, analysis and fit,
@@ -30,10 +31,12 @@ from datetime import datetime
 from pathlib import Path
 from types import FrameType
 
-from services.core.cli import SEED, Parser, fail, int_in
-from services.core.config import load_params
+from services.core.cli import SEED, Parser, add_options_arg, fail, int_in
+from services.core.config import load_with_options
 from services.core.lifeline import nod_command
+from services.model.counterbalance import PAPER, letters
 from services.model.protocol import TrialSpec
+from services.model.schedule import OptionsSchedule, OptionsTrial
 from services.store import Store
 from services.store.participants import consent_of, record_consent, reuse_problem
 from services.store.withdrawals import (
@@ -60,7 +63,8 @@ PROG = "nod study"
 AGES = ("18-24", "25-34", "35-44", "45-54", "55-64", "65+", "undisclosed")
 HANDS = ("right", "left", "ambidextrous", "undisclosed")
 # Flags `start` sets itself: given again after `--` they would contradict the study.
-RESERVED = ("--db", "--participant", "--participants", "--order", "--again", "--resume")
+RESERVED = ("--db", "--participant", "--participants", "--order", "--again", "--resume",
+            "--options")
 
 
 def build_parser() -> Parser:
@@ -85,6 +89,7 @@ def build_parser() -> Parser:
     c.add_argument("--name", default=None, help="the study's name (default: the file's stem)")
     c.add_argument("--params", type=Path, default=None,
                    help="the protocol's parameters file every session runs (default: SPEC)")
+    add_options_arg(c)  # the study's option set: the params file's list, or N default names
     c.add_argument("--prefix", default="P", help="participant ids <prefix>01, … (default P)")
     c.add_argument("--force", action="store_true", help="overwrite an existing study file")
 
@@ -172,12 +177,22 @@ def main(argv: list[str] | None = None) -> int:
     return _run(nod_command(*cmd))
 
 
-def _protocol(study: Study) -> tuple[TrialSpec, ...]:
-    """The study's schedule, checked against the conditions the file was made for."""
+def _protocol(study: Study) -> tuple[TrialSpec, ...] | tuple[OptionsTrial, ...]:
+    """The study's schedule, checked against the conditions and options the file was made for."""
     try:
-        trials = load_params(study.params).protocol.trials
+        # the params file's own option set (checked below), else the default names of N
+        n = None if study.paper or study.params is not None else len(study.options)
+        cfg, schedule = load_with_options(study.params, n)
     except (ValueError, OSError) as exc:
         raise StudyError(f"the study's params: {exc}") from None
+    names = PAPER if schedule is None else schedule.names
+    if names != study.options:
+        source = study.params or "the default names"
+        raise StudyError(
+            f"the study file's options {list(study.options)} are not those of {source} "
+            f"{list(names)}: give the study the params it was made for"
+        )
+    trials = cfg.protocol.trials if schedule is None else schedule.trials
     have = Conditions.of(trials)
     if have != study.conditions:
         source = study.params or "the SPEC defaults"
@@ -195,9 +210,11 @@ def _init(args: argparse.Namespace) -> int:
         return fail(prog, f"{path} exists: a roster in use is not overwritten (--force to do so)")
     seed = args.seed if args.seed is not None else secrets.randbelow(2**31)
     try:
-        trials = load_params(args.params).protocol.trials
+        cfg, schedule = load_with_options(args.params, args.options)
+        protocol: tuple[TrialSpec, ...] | OptionsSchedule = (
+            cfg.protocol.trials if schedule is None else schedule)
         params = None if args.params is None else args.params.resolve()
-        study = make_study(args.name or path.stem, trials, args.participants, seed, params,
+        study = make_study(args.name or path.stem, protocol, args.participants, seed, params,
                            args.prefix)
         write(study, path)
     except (StudyError, ValueError, OSError) as exc:
@@ -205,11 +222,14 @@ def _init(args: argparse.Namespace) -> int:
     cb, n = study.counterbalance, len(study.participants)
     first, last = study.participants[0].id, study.participants[-1].id
     print(f"{path}: {n} participants {first}–{last}, {study.conditions.describe()}")
-    print(f"O orders: a Latin square of {_letters(cb.base)} with colour reversal, in blocks of "
+    how = ("with colour reversal" if study.paper else
+           f"with the {len(cb.options)} cyclic relabellings of {', '.join(cb.options)}")
+    print(f"O orders: a Latin square of {_letters(study)} {how}, in blocks of "
           f"{cb.block} (seed {cb.seed}); the gaze looks toward O")
     if n % cb.block:
+        every = "every even count" if study.paper else f"every multiple of {len(cb.options)}"
         print(f"note: the last block has {n % cb.block} of {cb.block} participants; every "
-              f"position is balanced over full blocks (and every even count within one)")
+              f"position is balanced over full blocks (and {every} within one)")
     return 0
 
 
@@ -338,9 +358,11 @@ def _start_command(
         if flag.split("=", 1)[0] in reserved:
             return f"{flag.split('=', 1)[0]} after -- : the study sets it (give --db before --)"
     cmd = ["run", "--sim"] if args.sim else ["experiment"]
-    cmd += ["--db", str(args.db), "--participant", pid, "--order", who.entry.letters]
+    cmd += ["--db", str(args.db), "--participant", pid, "--order", study.order_arg(who.entry)]
     if study.params is not None:
         cmd += ["--params", str(study.params)]
+    if not study.paper:  # a table of N boxes (a params file's list must agree: it is checked)
+        cmd += ["--options", str(len(study.options))]
     if args.again is not None:
         cmd += ["--again", args.again]
     if args.sim and not any(f.split("=", 1)[0] == "--seed" for f in extra):
@@ -374,7 +396,7 @@ def _status(args: argparse.Namespace, r: Roster, n_trials: int) -> int:
         print(json.dumps(r.as_json(), indent=2))
         return 0
     study, cb = r.study, r.study.counterbalance
-    how = (f"Latin square of {_letters(cb.base)} in blocks of {cb.block} (seed {cb.seed})"
+    how = (f"Latin square of {_letters(study)} in blocks of {cb.block} (seed {cb.seed})"
            if cb.method == "latin-square" else "declared orders")
     print(f"study {study.name}: {len(study.participants)} participants, "
           f"{study.conditions.describe()}, {how}")
@@ -385,21 +407,25 @@ def _status(args: argparse.Namespace, r: Roster, n_trials: int) -> int:
         consent = "—" if s.consent is None else ("yes" if s.consent.consent else "no")
         trials = f"{last.trials}/{n_trials}" if last else ""
         print(f"{s.entry.slot:>4}  {s.entry.id:<8} {consent:<8} {s.status:<9} {trials:>6}  "
-              f"{last.session if last else '':<12}  {s.entry.letters}{_note(s)}")
+              f"{last.session if last else '':<12}  {study.order_arg(s.entry)}{_note(s, study)}")
     nxt = r.next()
     print(f"{_counts(r)}; next: {nxt.entry.id if nxt else 'nobody'}")
     done = r.balance()
-    if done:
+    if done and study.paper:
         reds = " ".join(f"{red}/{red + blue}" for red, blue in done)
         print(f"red O per consensus trial {list(study.conditions.consensus)} among the done: "
               f"{reds}")
+    elif done:
+        per = " ".join("/".join(map(str, counts)) for counts in done)
+        print(f"O = {'/'.join(study.options)} per consensus trial "
+              f"{list(study.conditions.consensus)} among the done: {per}")
     if r.strangers:
         who = ", ".join(f"{p} ({n})" for p, n in sorted(r.strangers.items()))
         print(f"sessions in {args.db} of participants not in the study: {who}")
     return 0
 
 
-def _note(s: Standing) -> str:
+def _note(s: Standing, study: Study) -> str:
     notes = []
     last = s.session
     if s.withdrawal is not None:
@@ -411,7 +437,7 @@ def _note(s: Standing) -> str:
     if len(s.sessions) > 1:
         notes.append(f"{len(s.sessions)} sessions")
     if s.order_mismatch and last is not None and last.options is not None:
-        notes.append(f"ran {''.join(o[0].upper() for o in last.options)}, not the roster's")
+        notes.append(f"ran {letters(last.options, study.options)}, not the roster's")
     return "  (" + "; ".join(notes) + ")" if notes else ""
 
 
@@ -432,8 +458,8 @@ def _not_in(study: Study, participant: str) -> str:
     return f"{participant!r} is not in study {study.name} (its ids: {span})"
 
 
-def _letters(order: tuple[str, ...]) -> str:
-    return "".join(o[0].upper() for o in order)
+def _letters(study: Study) -> str:
+    return letters(study.counterbalance.base, study.options)
 
 
 def _when(t_ns: int) -> str:

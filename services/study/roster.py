@@ -85,9 +85,13 @@ class Roster:
         """One participant's standing (None: not in the study)."""
         return next((s for s in self.standings if s.entry.id == participant), None)
 
-    def balance(self) -> list[tuple[int, int]]:
-        """(red, blue) at each consensus trial over the participants who are done."""
-        return position_counts([s.entry.order for s in self.standings if s.status == "done"])
+    def balance(self) -> list[tuple[int, ...]]:
+        """How often each option is O at each consensus trial, over those who are done.
+
+        Per option of the study's set, in its order: (red, blue) for the paper's.
+        """
+        done = [s.entry.order for s in self.standings if s.status == "done"]
+        return position_counts(done, self.study.options)
 
     def as_json(self) -> dict[str, Any]:
         """The roster as a JSON document (`nod study status --json`)."""
@@ -96,6 +100,7 @@ class Roster:
             "study": self.study.name,
             "method": self.study.counterbalance.method,
             "block": self.study.counterbalance.block,
+            "options": list(self.study.options),
             "consensus_trials": list(self.study.conditions.consensus),
             "counts": self.counts(),
             "next": None if nxt is None else nxt.entry.id,

@@ -3,6 +3,7 @@
     [study]
     name = "gaze-consensus"
     params = "params.toml"        # optional: the protocol every session runs (relative path)
+    options = ["red", "blue", "green"]  # optional: the option set (default the paper's red, blue)
     on_withdrawal = "keep"        # or "delete": what `nod study withdraw` does with their data
 
     [conditions]                  # the protocol's design, checked against `params` at start
@@ -13,13 +14,17 @@
     [counterbalance]
     method = "latin-square"       # or "declared": the orders below, as written
     base = ["blue", "red", "red", "blue", "red"]   # the protocol's own O order
-    block = 10                    # participants per balanced block (2 x consensus trials)
+    block = 10                    # participants per balanced block (options x consensus trials)
     seed = 7
 
     [[participants]]
     id = "P01"
     slot = 1                      # position in the roster: who is next, which order
     order = ["red", "blue", "blue", "red", "blue"] # O of each consensus trial, in order
+
+`options` names the boxes of the table, left to right, as the protocol's `[protocol] options`
+does (a study of three or more options runs each session with `--options N`, its order by
+name); without it the study is the paper's, red and blue, and its file is what it always was.
 
 `nod study init` writes it (`services.model.counterbalance` makes the orders); an operator may
 edit ids, and orders with `method = "declared"`. `load` refuses a file whose orders do not fit
@@ -41,9 +46,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, TypeAlias, cast
 
-from services.model.counterbalance import block_problem, block_size, roster_orders
+from services.model.counterbalance import (
+    PAPER,
+    Names,
+    block_problem,
+    block_size,
+    roster_orders,
+)
 from services.model.gaze import GAZE_LEVEL_NAMES
-from services.model.protocol import Order, TrialSpec, order_of
+from services.model.protocol import TrialSpec, order_of
+from services.model.schedule import MAX_OPTIONS, OptionsSchedule, OptionsTrial
 from services.store.participants import check_id
 
 Method: TypeAlias = Literal["latin-square", "declared"]
@@ -66,7 +78,7 @@ class Conditions:
     gaze_levels: tuple[str, ...]  # the gaze level of each consensus trial (fixed by position)
 
     @classmethod
-    def of(cls, trials: Sequence[TrialSpec]) -> Conditions:
+    def of(cls, trials: Sequence[TrialSpec] | Sequence[OptionsTrial]) -> Conditions:
         """The conditions of a schedule."""
         consensus = [t for t in trials if t.mode == "consensus"]
         return cls(
@@ -87,13 +99,14 @@ class Counterbalance:
     """How the orders were made."""
 
     method: Method
-    base: Order  # the protocol's O order the Latin square rotates and reverses
+    base: Names  # the protocol's O order the Latin square rotates and relabels
     seed: int | None  # the shuffle's seed (latin-square)
+    options: Names = PAPER  # the study's option set, whose relabellings balance the block
 
     @property
     def block(self) -> int:
         """Participants per balanced block."""
-        return block_size(len(self.base))
+        return block_size(len(self.base), len(self.options))
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,11 +115,11 @@ class Entry:
 
     id: str
     slot: int  # 1-based position in the roster
-    order: Order  # O of each consensus trial
+    order: Names  # O of each consensus trial, by option name
 
     @property
     def letters(self) -> str:
-        """The order as letters, `BRRBR`, as `--order` takes it."""
+        """The order as initials, `BRRBR` (as `--order` takes it when no two names share one)."""
         return "".join(o[0].upper() for o in self.order)
 
 
@@ -123,6 +136,24 @@ class Study:
 
     def __post_init__(self) -> None:
         check(self)
+
+    @property
+    def options(self) -> Names:
+        """The study's option set, in box order (red, blue unless the file names one)."""
+        return self.counterbalance.options
+
+    def order_arg(self, entry: Entry) -> str:
+        """The entry's order as its session's `--order`: `BRRBR` in the paper's study.
+
+        Over N options by names with commas (`red,green,blue`): never ambiguous, whatever the
+        names' initials.
+        """
+        return entry.letters if self.paper else ",".join(entry.order)
+
+    @property
+    def paper(self) -> bool:
+        """Whether the study is the paper's two options (its sessions take no `--options`)."""
+        return self.options == PAPER
 
     def entry(self, participant: str) -> Entry | None:
         """The participant's entry, or None if they are not in the study."""
@@ -154,10 +185,13 @@ def check(study: Study) -> None:
         )
     n = len(c.consensus)
     cb = study.counterbalance
+    names = cb.options
+    check_options(names)
+    one_of = "/".join(names)
     if cb.method not in METHODS:
         raise StudyError(f"[counterbalance] method must be one of {METHODS}, got {cb.method!r}")
-    if len(cb.base) != n or any(o not in ("red", "blue") for o in cb.base):
-        raise StudyError(f"[counterbalance] base needs red/blue for each of {n} consensus trials")
+    if len(cb.base) != n or any(o not in names for o in cb.base):
+        raise StudyError(f"[counterbalance] base needs {one_of} for each of {n} consensus trials")
     if not 1 <= len(study.participants) <= MAX_PARTICIPANTS:
         raise StudyError(f"a study has 1 to {MAX_PARTICIPANTS} participants")
     seen: set[str] = set()
@@ -172,13 +206,13 @@ def check(study: Study) -> None:
         seen.add(e.id)
         if e.slot != i:
             raise StudyError(f"slots must be 1..{len(study.participants)} once each; {where}")
-        if len(e.order) != n or any(o not in ("red", "blue") for o in e.order):
+        if len(e.order) != n or any(o not in names for o in e.order):
             raise StudyError(
-                f"{where}: order needs red/blue for each of the {n} consensus trials "
+                f"{where}: order needs {one_of} for each of the {n} consensus trials "
                 f"{list(c.consensus)}, got {list(e.order)}"
             )
     if cb.method == "latin-square":
-        problem = block_problem(cb.base, [e.order for e in study.participants])
+        problem = block_problem(cb.base, [e.order for e in study.participants], names)
         if problem:
             raise StudyError(
                 f"{problem}; if the orders were edited on purpose, set [counterbalance] method = "
@@ -186,32 +220,58 @@ def check(study: Study) -> None:
             )
 
 
+def check_options(names: Sequence[str]) -> None:
+    """StudyError unless `names` is an option set a study can run: the paper's, or 3 to 8."""
+    if len(set(names)) != len(names) or not 2 <= len(names) <= MAX_OPTIONS or not all(names):
+        raise StudyError(
+            f"[study] options must be 2 to {MAX_OPTIONS} distinct names, got {list(names)}"
+        )
+    if len(names) == 2 and tuple(names) != PAPER:
+        raise StudyError(
+            f"[study] options {list(names)}: two options are the paper's study, red and blue "
+            "(leave options out); name three or more for a table of N boxes"
+        )
+
+
 def make_study(
     name: str,
-    trials: Sequence[TrialSpec],
+    trials: Sequence[TrialSpec] | OptionsSchedule,
     participants: int,
     seed: int,
     params: Path | None = None,
     prefix: str = "P",
 ) -> Study:
-    """A new study: ids `<prefix>01…`, slots 1..N, orders from the Latin square of the schedule."""
+    """A new study: ids `<prefix>01…`, slots 1..N, orders from the Latin square of the schedule.
+
+    `trials`: the paper's trials (its option set red, blue) or a schedule of N options, whose
+    names become the study's option set.
+    """
     if not 1 <= participants <= MAX_PARTICIPANTS:
         raise StudyError(f"--participants must be in 1..{MAX_PARTICIPANTS}, got {participants}")
-    base = order_of(trials)
+    names, base = protocol_order(trials)
     if not base:
         raise StudyError("the protocol has no consensus trial: nothing to counterbalance")
     width = max(2, len(str(participants)))
-    orders = roster_orders(base, participants, seed)
+    orders = roster_orders(base, participants, seed, names)
     entries = tuple(
         Entry(f"{prefix}{k:0{width}d}", k, order) for k, order in enumerate(orders, start=1)
     )
     return Study(
         name,
         params,
-        Conditions.of(trials),
-        Counterbalance("latin-square", base, seed),
+        Conditions.of(trials.trials if isinstance(trials, OptionsSchedule) else trials),
+        Counterbalance("latin-square", base, seed, names),
         entries,
     )
+
+
+def protocol_order(trials: Sequence[TrialSpec] | OptionsSchedule) -> tuple[Names, Names]:
+    """The option set and the O order (by name) of a protocol: the paper's trials or N options'."""
+    if not isinstance(trials, OptionsSchedule):
+        return PAPER, order_of(trials)
+    names = trials.names
+    return names, tuple(names[t.option] for t in trials.trials
+                        if t.mode == "consensus" and t.option is not None)
 
 
 def load(path: Path) -> Study:
@@ -235,6 +295,9 @@ def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
     params = study.get("params")
     if params is not None and not isinstance(params, str):
         raise StudyError("[study] params must be a path (a string)")
+    names = PAPER if "options" not in study else tuple(
+        _strings(study["options"], "[study] options"))
+    check_options(names)  # before the orders are read as names of it
     seed = cb.get("seed")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
         raise StudyError("[counterbalance] seed must be an integer")
@@ -248,7 +311,7 @@ def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
             raise StudyError(
                 f"a [[participants]] entry needs id (a string) and slot (an integer): {row}"
             )
-        entries.append(Entry(ident, slot, _colours(row.get("order"), f"{ident}'s order")))
+        entries.append(Entry(ident, slot, _names(row.get("order"), f"{ident}'s order", names)))
     entries.sort(key=lambda e: e.slot)
     block = cb.get("block")
     out = Study(
@@ -261,8 +324,9 @@ def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
         ),
         counterbalance=Counterbalance(
             cast(Method, _string(cb, "method", "[counterbalance]")),
-            _colours(cb.get("base"), "[counterbalance] base"),
+            _names(cb.get("base"), "[counterbalance] base", names),
             seed,
+            names,
         ),
         participants=tuple(entries),
         on_withdrawal=cast(OnWithdrawal, study.get("on_withdrawal", "keep")),
@@ -271,6 +335,7 @@ def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
         raise StudyError(
             f"[counterbalance] block = {block}, but {len(out.counterbalance.base)} consensus "
             f"trials make blocks of {out.counterbalance.block}"
+            + ("" if names == PAPER else f" over {len(names)} options")
         )
     return out
 
@@ -288,6 +353,8 @@ def dump(study: Study, path: Path) -> str:
     if study.params is not None:
         rel = os.path.relpath(study.params.resolve(), path.resolve().parent)
         lines.append(f"params = {_q(Path(rel).as_posix())}")
+    if not study.paper:  # the paper's study file stays as it always was
+        lines.append(f"options = {_list(study.options)}  # the table's boxes, left to right")
     lines.append(f"on_withdrawal = {_q(study.on_withdrawal)}  # keep or delete a withdrawn "
                  "participant's data")
     lines += [
@@ -360,8 +427,9 @@ def _strings(value: object, where: str) -> list[str]:
     return list(value)
 
 
-def _colours(value: object, where: str) -> Order:
+def _names(value: object, where: str, names: Sequence[str]) -> Names:
     items = _strings(value, where)
-    if any(v not in ("red", "blue") for v in items):
-        raise StudyError(f"{where} must list red or blue, got {items}")
-    return cast(Order, tuple(items))
+    if any(v not in names for v in items):
+        listed = " or ".join(names) if len(names) == 2 else f"one of {list(names)} each time"
+        raise StudyError(f"{where} must list {listed}, got {items}")
+    return tuple(items)

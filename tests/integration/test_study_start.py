@@ -6,22 +6,34 @@ import sqlite3
 
 import pytest
 
+from services.model.gaze import gaze_toward
+from services.model.params import NodConfig
 from services.study.studyfile import load
 from tests.processes import run_nod
 
-from .conftest import SHORT, free_port
+from .conftest import SHORT, SHORT_THREE, free_port
 
 pytestmark = pytest.mark.integration
 
+# option count: (the protocol: 1 control trial, 2 consensus trials; its options; one full block
+# of the Latin square: the rotations of its O order under each cyclic relabelling of the options)
+STUDIES = {
+    2: (SHORT, ("red", "blue"), ["BR", "BR", "RB", "RB"]),
+    3: (SHORT_THREE, ("red", "blue", "green"), ["BG", "BR", "GB", "GR", "RB", "RG"]),
+}
 
-def test_study_start_runs_the_next_participant_with_their_order(tmp_path):
+
+@pytest.mark.parametrize("n", sorted(STUDIES), ids=lambda n: f"{n} options")
+def test_study_start_runs_the_next_participant_with_their_order(tmp_path, n):
+    protocol, names, block = STUDIES[n]
     params, study, db = tmp_path / "short.toml", tmp_path / "study.toml", tmp_path / "s.sqlite"
-    params.write_text(SHORT)  # 1 control trial, 2 consensus trials
-    init = run_nod("study", "init", str(study), "--participants", "4", "--seed", "5",
-                   "--params", str(params), timeout=60)
+    params.write_text(protocol)
+    init = run_nod("study", "init", str(study), "--participants", str(len(block)), "--seed",
+                   "5", "--params", str(params), timeout=60)
     assert init.returncode == 0, init.stderr
+    assert load(study).options == names  # the params' option set is the study's
     roster = load(study).participants
-    assert sorted(e.letters for e in roster) == ["BR", "BR", "RB", "RB"]  # one full block
+    assert sorted(e.letters for e in roster) == block  # one full block
     listen = f"tcp/127.0.0.1:{free_port()}"
     sim = ["--", "--speed", "8", "--stale-ms", "2000", "--listen", listen]
 
@@ -30,10 +42,12 @@ def test_study_start_runs_the_next_participant_with_their_order(tmp_path):
                           entry.id, "--yes", "--age", "25-34", timeout=60)
         assert consent.returncode == 0, consent.stderr
         nxt = run_nod("study", "next", str(study), "--db", str(db), timeout=60)
-        assert nxt.stdout.startswith(f"{entry.id} (slot {entry.slot} of 4)"), nxt.stdout
+        assert nxt.stdout.startswith(f"{entry.id} (slot {entry.slot} of {len(block)})"), nxt.stdout
         run = run_nod("study", "start", str(study), "--db", str(db), "--sim", *sim, timeout=400)
         assert run.returncode == 0, run.stdout + run.stderr
-        assert f"--participant {entry.id} --order {entry.letters}" in run.stdout
+        order = entry.letters if n == 2 else ",".join(entry.order)  # by names over N options
+        assert f"--participant {entry.id} --order {order}" in run.stdout
+        assert ("--options" in run.stdout) == (n > 2)  # the session's table of N boxes
         assert "3 trials of 1 participant(s) stored" in run.stdout
 
     con = sqlite3.connect(db)
@@ -51,14 +65,19 @@ def test_study_start_runs_the_next_participant_with_their_order(tmp_path):
         ).fetchall()
         assert [m for m, _, _ in trials] == ["dissensus", "consensus", "consensus"]
         assert tuple(o for _, o, _ in trials[1:]) == entry.order  # the roster's O, as run
-        assert all((yaw > 0) == (o == "red") for _, o, yaw in trials[1:])  # the gaze toward O
+        table = NodConfig().table(n)  # the gaze toward O, at each trial's level (low, significant)
+        assert [yaw for _, _, yaw in trials[1:]] == pytest.approx(
+            [gaze_toward(table, names.index(o), level).yaw
+             for o, level in zip(entry.order, ("low", "significant"), strict=True)], abs=1e-9)
         stored = json.loads(con.execute("SELECT config FROM sessions WHERE participant = ?",
                                         (entry.id,)).fetchone()[0])
-        assert [t["option"] for t in stored["protocol"]["trials"][1:]] == list(entry.order)
+        ran = ([t["option"] for t in stored["protocol"]["trials"][1:]] if n == 2 else
+               [names[t["option"]] for t in stored["option_schedule"][1:]])
+        assert ran == list(entry.order)
 
     status = run_nod("study", "status", str(study), "--db", str(db), "--json", timeout=60)
     doc = json.loads(status.stdout)
-    assert [p["status"] for p in doc["participants"]] == ["done", "done", "left", "left"]
+    assert [p["status"] for p in doc["participants"]] == ["done"] * 2 + ["left"] * (len(block) - 2)
     assert doc["next"] == roster[2].id
     assert doc["participants"][0]["demographics"] == {"age": "25-34"}
 

@@ -1,5 +1,6 @@
-"""The counterbalanced O orders: a cyclic Latin square of the protocol's O order with colour
-reversal, in seeded blocks of 2n (services/model/counterbalance.py, docs/study.md)."""
+"""The counterbalanced O orders: a cyclic Latin square of the protocol's O order with its cyclic
+relabellings of the options (colour reversal at two), in seeded blocks of n·N_o
+(services/model/counterbalance.py, docs/study.md)."""
 
 from __future__ import annotations
 
@@ -14,49 +15,68 @@ from services.model.counterbalance import (
     block_size,
     latin_block,
     position_counts,
+    relabelled,
     reversed_colours,
     roster_orders,
 )
 from services.model.protocol import default_schedule, order_of
 
-colours = st.sampled_from(["red", "blue"])
-bases = st.lists(colours, min_size=1, max_size=8).map(tuple)
+# The paper's option set (the defaults: every call as the paper's study makes it) and three
+OPTION_SETS = [("red", "blue"), ("red", "blue", "green")]
+
+
+def _bases(names):
+    return st.lists(st.sampled_from(names), min_size=1, max_size=8).map(tuple)
 
 
 def _transitions(orders, p):
     return Counter((o[p], o[p + 1]) for o in orders)
 
 
+def _named(names):
+    """The option set as the calls take it: nothing at two options (the paper's defaults)."""
+    return {} if names == ("red", "blue") else {"names": names}
+
+
+@pytest.mark.parametrize("names", OPTION_SETS)
 @settings(max_examples=150, deadline=None)
-@given(base=bases, blocks=st.integers(1, 4), seed=st.integers(0, 2**32))
-def test_every_full_block_balances_each_position_and_the_carry_over(base, blocks, seed):
-    n = len(base)
-    orders = roster_orders(base, blocks * block_size(n), seed)
-    assert len(orders) == blocks * 2 * n
-    for start in range(0, len(orders), 2 * n):
-        block = orders[start : start + 2 * n]
-        # each position: red and blue n times each over the block
-        assert position_counts(block) == [(n, n)] * n
-        # the block is exactly the Latin square's rows (the rotations and their reversals)
-        assert Counter(block) == Counter(latin_block(base))
-        # carry-over: at each consecutive pair, R→B as often as B→R, R→R as B→B
+@given(data=st.data(), blocks=st.integers(1, 4), seed=st.integers(0, 2**32))
+def test_every_full_block_balances_each_position_and_the_carry_over(names, data, blocks, seed):
+    base = data.draw(_bases(names))
+    n, k = len(base), len(names)
+    orders = roster_orders(base, blocks * block_size(n, k), seed, **_named(names))
+    assert len(orders) == blocks * k * n
+    for start in range(0, len(orders), k * n):
+        block = orders[start : start + k * n]
+        # each position: every option n times over the block (red and blue n times each)
+        assert position_counts(block, **_named(names)) == [(n,) * k] * n
+        # the block is exactly the Latin square's rows (the rotations and their relabellings)
+        assert Counter(block) == Counter(latin_block(base, **_named(names)))
+        # carry-over: at each consecutive pair, O → O + d as often from every O (at two: R→B
+        # as often as B→R, R→R as B→B)
         for p in range(n - 1):
             t = _transitions(block, p)
-            assert t[("red", "blue")] == t[("blue", "red")]
-            assert t[("red", "red")] == t[("blue", "blue")]
-    # every participant's order has the base's mix of colours (or its reversal's)
-    mixes = {Counter(base)["red"], Counter(base)["blue"]}
-    assert all(Counter(o)["red"] in mixes for o in orders)
-    assert block_problem(base, orders) is None
+            for d in range(k):
+                steps = {t[(o, relabelled((o,), names, d)[0])] for o in names}
+                assert len(steps) == 1, (d, t)
+    # every participant's order has the base's mix of options, relabelled
+    mixes = {tuple(sorted(Counter(relabelled(base, names, d)).items())) for d in range(k)}
+    assert all(tuple(sorted(Counter(o).items())) in mixes for o in orders)
+    assert block_problem(base, orders, **_named(names)) is None
 
 
+@pytest.mark.parametrize("names", OPTION_SETS)
 @settings(max_examples=100, deadline=None)
-@given(base=bases, participants=st.integers(1, 60), seed=st.integers(0, 2**32))
-def test_every_even_count_of_participants_is_balanced(base, participants, seed):
-    orders = roster_orders(base, participants, seed)
-    for k in range(2, participants + 1, 2):  # after 2, 4, 6 … participants
-        assert all(red == blue for red, blue in position_counts(orders[:k]))
-    assert block_problem(base, orders) is None  # a partial last block is part of a block
+@given(data=st.data(), participants=st.integers(1, 60), seed=st.integers(0, 2**32))
+def test_every_multiple_of_the_option_count_of_participants_is_balanced(
+    names, data, participants, seed
+):
+    base = data.draw(_bases(names))
+    k = len(names)
+    orders = roster_orders(base, participants, seed, **_named(names))
+    for m in range(k, participants + 1, k):  # after 2, 4, 6 … participants (3, 6 … at three)
+        assert all(len(set(c)) == 1 for c in position_counts(orders[:m], **_named(names)))
+    assert block_problem(base, orders, **_named(names)) is None  # a partial last block too
 
 
 def test_the_papers_protocol_in_a_40_person_study():
@@ -83,10 +103,11 @@ def test_an_edited_order_is_not_the_latin_square():
     assert block_problem(base, twice) is not None  # one order twice, another missing
 
 
-@pytest.mark.parametrize("bad", [(), ("green",)])
-def test_a_bad_base_is_refused(bad):
-    with pytest.raises(ValueError, match="red/blue"):
-        roster_orders(bad, 4, seed=1)
+@pytest.mark.parametrize("names", OPTION_SETS)
+@pytest.mark.parametrize("bad", [(), ("yellow",)])
+def test_a_bad_base_is_refused(bad, names):
+    with pytest.raises(ValueError, match="/".join(names)):
+        roster_orders(bad, 4, seed=1, **_named(names))
 
 
 def test_within_each_pair_either_row_comes_first_by_the_seeds_coin():

@@ -13,6 +13,7 @@ import pytest
 from services.core.config import load_params
 from services.model.counterbalance import position_counts
 from services.model.protocol import default_schedule
+from services.model.schedule import OptionsSchedule
 from services.study.studyfile import StudyError, dump, load, make_study, write
 
 SHORT = """
@@ -27,8 +28,17 @@ gaze_level = "low"
 """
 
 
-def test_round_trip_of_a_40_person_study(tmp_path):
-    study = make_study("gaze consensus \"2025\"", default_schedule(), 40, seed=11)
+# option count: (the protocol, its O order, participants in 4 full blocks)
+PROTOCOLS = {
+    2: (default_schedule(), ["blue", "red", "red", "blue", "red"], 40),
+    3: (OptionsSchedule.default(3), ["red", "blue", "green", "red", "blue"], 60),
+}
+
+
+@pytest.mark.parametrize("n", sorted(PROTOCOLS), ids=lambda n: f"{n} options")
+def test_round_trip_of_a_study_of_four_blocks(tmp_path, n):
+    protocol, base, people = PROTOCOLS[n]
+    study = make_study("gaze consensus \"2025\"", protocol, people, seed=11)
     path = tmp_path / "study.toml"
     write(study, path)
     assert load(path) == study
@@ -41,13 +51,18 @@ def test_round_trip_of_a_40_person_study(tmp_path):
     }
     assert data["counterbalance"] == {
         "method": "latin-square",
-        "base": ["blue", "red", "red", "blue", "red"],
-        "block": 10,
+        "base": base,
+        "block": 5 * n,
         "seed": 11,
     }
-    assert [p["id"] for p in data["participants"]] == [f"P{k:02d}" for k in range(1, 41)]
-    assert [p["slot"] for p in data["participants"]] == list(range(1, 41))
-    assert position_counts([e.order for e in study.participants]) == [(20, 20)] * 5
+    # The option set is named in the file only when it is not the paper's (whose file is as ever)
+    assert data["study"].get("options") == (None if n == 2 else ["red", "blue", "green"])
+    assert study.options == (("red", "blue") if n == 2 else ("red", "blue", "green"))
+    assert [p["id"] for p in data["participants"]] == [f"P{k:02d}" for k in range(1, people + 1)]
+    assert [p["slot"] for p in data["participants"]] == list(range(1, people + 1))
+    # every option O at every consensus trial equally often: 20 times each over 4 blocks
+    assert position_counts([e.order for e in study.participants], study.options) == [
+        (20,) * n] * 5
 
 
 def test_params_are_stored_relative_to_the_study_file(tmp_path):
@@ -103,6 +118,10 @@ def _edited(tmp_path: Path, old: str, new: str, count: int = 1) -> Path:
         (r"\[study\]", "[studies]", r"needs a \[study\] table"),
         (r"order = \[.*\]", 'order = "RBBRB"', "order must be a list of strings"),
         (r"seed = 2", 'seed = "two"', "seed must be an integer"),
+        (r'name = "s"', 'name = "s"\noptions = ["red", "green"]',
+         r"options \['red', 'green'\]: two options are the paper's study"),
+        (r'name = "s"', 'name = "s"\noptions = ["red", "blue", "red"]',
+         "options must be 2 to 8 distinct names"),
     ],
 )
 def test_a_broken_study_file_is_one_line_naming_the_entry(tmp_path, old, new, message):

@@ -40,11 +40,23 @@ def _session(store: Store, session: str, who: str, status: str | None, trials: i
         store.finish_session(session, t + 1, status)
 
 
+def _protocol(n: int):
+    """The default protocol of n options: the paper's trials at two, a schedule of N beyond."""
+    return default_schedule() if n == 2 else OptionsSchedule.default(n)
+
+
+# The tests that run a study over any option set take `study_db` with the option count
+OVER_N = pytest.mark.parametrize("study_db", [2, 3], indirect=True, ids=lambda n: f"{n} options")
+
+
 @pytest.fixture
-def study_db(tmp_path: Path) -> tuple[Path, Path]:
-    """A 6-person study: P01 done, P02 aborted after 4 trials, P03 running, P04-P06 left."""
+def study_db(tmp_path: Path, request) -> tuple[Path, Path]:
+    """A 6-person study: P01 done, P02 aborted after 4 trials, P03 running, P04-P06 left.
+
+    Of the paper's two options, or of as many as the test's parameter says (`OVER_N`).
+    """
     path, db = tmp_path / "study.toml", tmp_path / "s.sqlite"
-    study = make_study("pilot", default_schedule(), 6, seed=4)
+    study = make_study("pilot", _protocol(getattr(request, "param", 2)), 6, seed=4)
     write(study, path)
     store = Store(db)
     _session(store, "s1", "P01", "complete", 8, 10)
@@ -62,6 +74,7 @@ def _one_line_error(capsys) -> str:
     return err
 
 
+@OVER_N
 def test_each_participant_is_done_running_aborted_or_left(study_db):
     path, db = study_db
     study, store = load(path), Store(db)
@@ -78,6 +91,7 @@ def test_each_participant_is_done_running_aborted_or_left(study_db):
     store.close()
 
 
+@OVER_N
 def test_consent_is_stored_with_demographics_and_start_refuses_without_it(study_db, capsys):
     path, db = study_db
     assert cli.main(["start", str(path), "--db", str(db), "--dry-run"]) == 2
@@ -94,8 +108,12 @@ def test_consent_is_stored_with_demographics_and_start_refuses_without_it(study_
     assert cli.main(["start", str(path), "--db", str(db), "--dry-run", "--",
                      "--connect", "tcp/10.0.0.2:7447", "--clicks", "prompt"]) == 0
     out = capsys.readouterr().out
-    order = load(path).participants[3].letters
-    assert f"nod experiment --db {db} --participant P04 --order {order} --connect" in out
+    study = load(path)
+    entry = study.participants[3]  # by initials in the paper's study, by names over N options
+    order = entry.letters if study.paper else ",".join(entry.order)
+    options = "" if study.paper else f" --options {len(study.options)}"  # a table of N boxes
+    assert (f"nod experiment --db {db} --participant P04 --order {order}{options} --connect"
+            in out)
     assert cli.main(["consent", str(path), "--db", str(db), "--participant", "P04", "--no"]) == 0
     capsys.readouterr()
     assert cli.main(["start", str(path), "--db", str(db), "--participant", "P04"]) == 2
@@ -175,6 +193,7 @@ def test_the_order_a_session_runs_and_a_resume_keeps_it(tmp_path, n):
     store.close()
 
 
+@OVER_N
 def test_status_lists_everyone_with_json(study_db, capsys):
     path, db = study_db
     assert cli.main(["status", str(path), "--db", str(db)]) == 0
@@ -184,11 +203,26 @@ def test_status_lists_everyone_with_json(study_db, capsys):
     assert "participants not in the study: PILOT (1)" in out
     assert cli.main(["status", str(path), "--db", str(db), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert doc["next"] == "P04" and doc["block"] == 10
+    options = list(load(path).options)  # red, blue (, green)
+    assert doc["next"] == "P04" and doc["block"] == 5 * len(options)  # n consensus x N options
+    assert doc["options"] == options
     p1 = doc["participants"][0]
     assert p1["status"] == "done" and p1["sessions"][0]["order"] == p1["order"]
     assert cli.main(["next", str(path), "--db", str(db)]) == 0
     assert capsys.readouterr().out.startswith("P04 (slot 4 of 6): O of trials 4,5,6,7,8 = ")
+
+
+def test_a_study_of_n_options_runs_only_the_protocol_of_its_options(tmp_path, capsys):
+    path = tmp_path / "s.toml"
+    assert cli.main(["init", str(path), "--participants", "3", "--seed", "1", "--options",
+                     "3"]) == 0
+    assert "3 cyclic relabellings of red, blue, green" in capsys.readouterr().out
+    params = tmp_path / "four.toml"  # the same study file, pointed at a protocol of four boxes
+    params.write_text('[protocol]\noptions = ["red", "blue", "green", "yellow"]\n')
+    path.write_text(path.read_text().replace("[study]\n", '[study]\nparams = "four.toml"\n'))
+    assert cli.main(["status", str(path), "--db", str(tmp_path / "s.sqlite")]) == 2
+    err = _one_line_error(capsys)
+    assert "options ['red', 'blue', 'green'] are not those of" in err and "yellow" in err
 
 
 def test_init_refuses_to_overwrite_a_roster(tmp_path, capsys):
