@@ -23,9 +23,8 @@ import zenoh
 
 from services.core import messages as m
 from services.core.cli import Parser, fail
-from services.core.node import install_signal_handlers
 from services.core.session import add_zenoh_args
-from services.tools.observe import CLOCK_WARN_MS, ToolError, Window, connect
+from services.tools.observe import CLOCK_WARN_MS, ToolError, Window, listen
 
 PROG = "nod lab status"
 CONDUCTOR = "experiment"
@@ -157,11 +156,9 @@ def main(argv: list[str] | None = None) -> int:
     if not 0.5 <= args.duration <= 600:
         return fail(PROG, "--duration must be in [0.5, 600] s")
     try:
-        session = connect(args)
+        session, stop = listen(args)
     except ToolError as exc:
         return fail(PROG, exc)
-    stop = threading.Event()
-    install_signal_handlers(stop)
     doc: dict[str, Any] = {"rigs": []}
     try:
         events: dict[str, m.TrialEvent] = {}

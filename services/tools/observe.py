@@ -21,7 +21,7 @@ import zenoh
 from services.core import messages as m
 from services.core.contract import TOPICS
 from services.core.keys import check_rig, topic_of
-from services.core.node import clip
+from services.core.node import clip, install_signal_handlers
 from services.core.session import Fabric, open_session
 from services.core.tap import Arrival, Tap
 
@@ -248,6 +248,18 @@ def connect(args: argparse.Namespace) -> zenoh.Session:
         raise ToolError(f"bad zenoh session flags: {clean(str(exc))}") from None
     except (ConnectionError, OSError, ValueError) as exc:
         raise ToolError(clean(str(exc))) from None
+
+
+def listen(args: argparse.Namespace) -> tuple[zenoh.Session, threading.Event]:
+    """`connect`, and the event SIGINT or SIGTERM sets.
+
+    A tool that listens stops cleanly on either: its subscriptions undeclared, the session
+    closed, what it heard reported.
+    """
+    session = connect(args)
+    stop = threading.Event()
+    install_signal_handlers(stop)
+    return session, stop
 
 
 def print_line(line: str) -> None:

@@ -27,10 +27,9 @@ import zenoh
 
 from services.core import messages as m
 from services.core.cli import Parser, fail
-from services.core.node import install_signal_handlers
 from services.core.rigfile import MONITOR, REQUIRED, RigFileError, identity, load_rig
 from services.core.session import add_zenoh_args
-from services.tools.observe import CLOCK_WARN_MS, Rate, ToolError, Window, connect
+from services.tools.observe import CLOCK_WARN_MS, Rate, ToolError, Window, listen
 
 PROG = "nod status"
 # The sim participant stands in for the camera: it also holds vision's liveliness token.
@@ -240,11 +239,9 @@ def main(argv: list[str] | None = None) -> int:
         placed = {"vision" if s == "sim" else s for s in rig.services}
         required = tuple(sorted(placed - {"monitor"}))
     try:
-        session = connect(args)
+        session, stop = listen(args)
     except ToolError as exc:
         return fail(PROG, exc)
-    stop = threading.Event()
-    install_signal_handlers(stop)
     try:
         if not args.watch:
             doc = report(observe(session, args.rig, args.duration, stop), args.rig, required,

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import threading
 import time
 from typing import Any
 
@@ -29,10 +28,10 @@ import msgspec
 
 from services.core import messages as m
 from services.core.cli import Parser, fail, int_in, positive_float
-from services.core.node import clip, install_signal_handlers
+from services.core.node import clip
 from services.core.session import add_zenoh_args
 from services.core.tap import Tap
-from services.tools.observe import Rate, ToolError, connect, decode, print_line, resolve
+from services.tools.observe import Rate, ToolError, decode, listen, print_line, resolve
 from services.tools.topic_list import run_list
 
 PROG = "nod topic"
@@ -126,9 +125,7 @@ def main(argv: list[str] | None = None) -> int:
 def run_echo(args: argparse.Namespace) -> int:
     """`nod topic echo KEY`."""
     target = resolve(args.key, args.rig)
-    session = connect(args)
-    stop = threading.Event()
-    install_signal_handlers(stop)
+    session, stop = listen(args)
     shown = invalid = 0
     deadline = None if args.duration is None else time.monotonic() + args.duration
     try:
@@ -215,9 +212,7 @@ def run_hz(args: argparse.Namespace) -> int:
     target = resolve(args.key, args.rig)
     if target.is_pattern:
         raise ToolError(f"hz measures one key; {args.key!r} has wildcards")
-    session = connect(args)
-    stop = threading.Event()
-    install_signal_handlers(stop)
+    session, stop = listen(args)
     rate = Rate(args.window)
     invalid = 0
     t0 = time.monotonic()

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -12,8 +11,7 @@ from typing import Any
 import zenoh
 
 from services.core.contract import TOPICS
-from services.core.node import install_signal_handlers
-from services.tools.observe import Rate, Window, connect, print_line
+from services.tools.observe import Rate, Window, listen, print_line
 
 
 @dataclass(slots=True)
@@ -28,9 +26,7 @@ class Seen:
 def run_list(args: argparse.Namespace) -> int:
     """`nod topic list`."""
     rig = args.rig
-    session = connect(args)
-    stop = threading.Event()
-    install_signal_handlers(stop)
+    session, stop = listen(args)
     seen: dict[str, Seen] = {}
     alive: dict[str, bool] = {}
     alive_prefix = f"nod/{rig}/alive/"
