@@ -400,11 +400,10 @@ def _check_args(args: argparse.Namespace) -> str | None:
 def _options_problem(args: argparse.Namespace, n_options: int) -> str | None:
     """Why this run cannot go with N options yet (one line), or None.
 
-    The conductor is one for any option set (`--order` by option name, `--again`, `--record`
-    and `--resume` as in the paper's run); several rigs and a real arm are not there yet.
+    The conductor is one for any option set (`--order` by option name, `--again`, `--record`,
+    `--resume` and `--rigs` as in the paper's run); a real arm is not there yet.
     """
-    given = ["--rigs"] if args.rigs > 1 else []
-    given += ["--arm-driver"] if args.arm_driver != "sim" else []
+    given = ["--arm-driver"] if args.arm_driver != "sim" else []
     if not given:
         return None
     return (f"{', '.join(given)}: not yet with {n_options} options (docs/multi-option.md); "

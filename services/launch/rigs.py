@@ -12,6 +12,10 @@ printed. On the way, each stored trial of each rig is one line here (`rig2 P21 t
 from the rigs' experiment/result on this router), and so is a trial that waits for the
 operator (from the rig's own output). Ctrl-C (or SIGTERM) stops every rig; the exit code is
 the first rig's that failed.
+
+A table of N boxes (`--options N`, or a params file listing the options) is every rig's: each
+rig's `nod run` gets the same `--options` and `--params`, its conductor speaks the `options/*`
+keys, and its lines here name the options as its table does.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import time
 from pathlib import Path
 
 from services.core import messages as m
-from services.core.config import load_params
+from services.core.config import load_with_options
 from services.core.keys import Keys
 from services.core.lifeline import nod_command
 from services.core.session import make_config, open_session
@@ -34,7 +38,9 @@ from services.store import Store, StoreError
 from services.store.participants import first_free_ids, sessions_by_participant
 
 # What every rig takes from the run (argparse dests); the rest is its own: name, store, people.
-RIG_FLAGS = ("speed", "params", "clicks", "stale_ms", "record", "render", "verbose")
+RIG_FLAGS = ("speed", "params", "options", "clicks", "stale_ms", "record", "render", "verbose")
+# Each rig's stored trials, on whichever key space its conductor speaks (the paper's, or N's)
+RESULTS = (("experiment/result", m.TrialResult), ("options/result", m.OptionsResult))
 OWN = ("resume", "participant", "order", "again", "monitor")  # one session's, or one screen's
 
 
@@ -51,8 +57,8 @@ def check_rigs(args: argparse.Namespace) -> str | None:
     if args.participants < args.rigs:
         return (f"--rigs {args.rigs} needs at least one participant per rig: --participants "
                 f"{args.rigs} or more (got {args.participants})")
-    try:
-        load_params(args.params)
+    try:  # the params and the option count, as each rig will read them
+        load_with_options(args.params, args.options)
     except (ValueError, OSError) as exc:  # ConfigError is a ValueError
         return str(exc)
     return None
@@ -100,15 +106,18 @@ class RigProgress:
 
     A rig runs its block of ids one after another, so the k-th session a rig's results name is
     its k-th participant's (a restarted conductor resumes the same session: the same person).
+    `names`: the table's options, which an N-option result names by index.
     """
 
-    def __init__(self, people: dict[str, list[str]], n_trials: int) -> None:
+    def __init__(self, people: dict[str, list[str]], n_trials: int,
+                 names: tuple[str, ...] = ("red", "blue")) -> None:
         self.people = people
         self.n = n_trials
+        self.names = names
         self.sessions: dict[str, list[str]] = {rig: [] for rig in people}
         self.lock = threading.Lock()
 
-    def line(self, rig: str, r: m.TrialResult) -> str:
+    def line(self, rig: str, r: m.TrialResult | m.OptionsResult) -> str:
         """The line of one stored trial of `rig`."""
         with self.lock:
             seen = self.sessions[rig]
@@ -117,7 +126,9 @@ class RigProgress:
             k = seen.index(r.session)
         ids = self.people[rig]
         who = ids[k] if k < len(ids) else r.session
-        option = f" O={r.option}" if r.option else ""
+        o: str | None = r.option if isinstance(r, m.TrialResult) else (
+            None if r.option is None else self.names[r.option])  # a box index, named
+        option = f" O={o}" if o else ""
         what = "interrupted" if r.interrupted else f"{r.outcome or '-'} score {r.score}"
         return f"{rig} {who} trial {r.trial}/{self.n} [{r.mode}{option}]: {what}"
 
@@ -172,9 +183,13 @@ def run_rigs(args: argparse.Namespace, passthrough: list[str]) -> int:
     stopping = threading.Event()
     on_stop_signal(lambda _signum: stopping.set())  # never set() inside a handler
     children: dict[str, subprocess.Popen] = {}
-    progress = RigProgress(dict(zip(rigs, people, strict=True)),
-                           len(load_params(args.params).protocol.trials))
-    subs = [_follow(router, rig, progress) for rig in rigs]
+    cfg, schedule = load_with_options(args.params, args.options)  # checked by check_rigs
+    progress = RigProgress(
+        dict(zip(rigs, people, strict=True)),
+        len(cfg.protocol.trials if schedule is None else schedule.trials),
+        *([] if schedule is None else [schedule.names]),
+    )
+    subs = [sub for rig in rigs for sub in _follow(router, rig, progress)]
     try:
         for rig, ids, store in zip(rigs, people, stores, strict=True):
             cmd = nod_command(
@@ -202,17 +217,21 @@ def run_rigs(args: argparse.Namespace, passthrough: list[str]) -> int:
     return codes.get(failed[0], 1) or 1
 
 
-def _follow(router, rig: str, progress: RigProgress):
-    """Print a line per trial `rig` stores (a subscriber: undeclare it when done)."""
+def _follow(router, rig: str, progress: RigProgress) -> list:
+    """Print a line per trial `rig` stores (subscribers, one per key space: undeclare them)."""
 
-    def on_result(sample) -> None:
-        try:
-            result = m.decode(m.TrialResult, sample.payload.to_bytes())
-        except m.MessageError:
-            return  # the rig's own table names it; one bad message is no reason to stop
-        print(progress.line(rig, result), flush=True)
+    def printer(kind: type[m.TrialResult] | type[m.OptionsResult]):
+        def on_result(sample) -> None:
+            try:
+                result = m.decode(kind, sample.payload.to_bytes())
+            except m.MessageError:
+                return  # the rig's own table names it; one bad message is no reason to stop
+            print(progress.line(rig, result), flush=True)
 
-    return router.declare_subscriber(Keys(rig).topic("experiment/result"), on_result)
+        return on_result
+
+    return [router.declare_subscriber(Keys(rig).topic(key), printer(kind))
+            for key, kind in RESULTS]
 
 
 def _wait(children: dict[str, subprocess.Popen], stopping: threading.Event,
