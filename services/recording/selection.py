@@ -112,7 +112,7 @@ def scan(src: McapIn) -> Scan:
         out.topics.add(topic)
         if out.rig is None:
             out.rig = rig_of(e.key)
-        if topic == "experiment/trial":
+        if topic in ("experiment/trial", "options/trial"):  # a table of N boxes: its own key
             ev = decode_entry(topic, e)
             if ev is not None and ev.phase in ANCHOR_PHASES:
                 out.anchors.append(Anchor(e.index, ev.phase, ev.trial, ev.t_ns))

@@ -3,6 +3,8 @@
 The recorded vision/hand, vision/layout and experiment/trial messages go in order through
 `DecisionModel` (reset on setup/go with `DecisionModel.on_trial`, like the decision service);
 the output file is the recording without its decision/* channels plus the recomputed ones.
+A recording of a table of N options (its opinions on `options/*`) is refused in one line: the
+comparison here is of the paper's signed z_r and b_r, not yet of vectors.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from services.core import messages as m
-from services.core.config import from_mapping, load_toml
+from services.core.config import from_mapping, load_toml, split_options
 from services.core.keys import topic_of
 from services.model.decision import DecisionModel
 from services.model.params import NodConfig
@@ -87,7 +89,16 @@ def decision_config(meta: dict[str, str], params: Path | None) -> NodConfig:
     if meta.get("params_toml"):
         base = tomllib.loads(meta["params_toml"])
     over = load_toml(params) if params is not None else {}
-    return from_mapping(NodConfig, _merge(base, over))
+    rest, schedule = split_options(_merge(base, over))
+    if schedule is not None:
+        raise ValueError(two_options_only(f"its parameters list {schedule.n_options} options"))
+    return from_mapping(NodConfig, rest)
+
+
+def two_options_only(why: str) -> str:
+    """Why a recording of N options does not go through, in one line."""
+    return (f"the recording is of a table of N options ({why}): --through decision re-runs "
+            "the paper's two-option engine only (docs/multi-option.md)")
 
 
 @dataclass
@@ -117,9 +128,12 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
     trials: dict[int, TrialComparison] = {}
     current: TrialComparison | None = None
     poses = recomputed = left_out = 0
+    failed = True
     try:
         for e in src:
             topic = topic_of(e.key)
+            if topic is not None and topic.startswith("options/"):
+                raise ValueError(two_options_only(f"{src_path} has {topic}"))
             if topic in DECISION_TOPICS:
                 left_out += 1
                 if (
@@ -184,7 +198,10 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
                 out.metadata(name, dict(data))
         out.metadata(END_METADATA, {"messages": str(out.messages), "source_truncated":
                                     src.truncated or ""})
+        failed = False
     finally:
         out.finish()
+        if failed:  # no half-derived file left behind
+            Path(out_path).unlink(missing_ok=True)
     return ThroughResult(sorted(trials.values(), key=lambda t: t.trial), poses, recomputed,
                          left_out, out.messages)

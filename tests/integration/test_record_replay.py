@@ -191,6 +191,18 @@ def test_the_offline_loop_over_the_recorded_hand_gives_the_live_trials(recorded)
     assert offline == _trials(recorded.db)
 
 
+def test_through_decision_refuses_a_recording_of_three_options_in_one_line(recorded_any,
+                                                                           tmp_path):
+    n, rec = recorded_any
+    if n == 2:
+        pytest.skip("the paper's recording goes through: the tests below")
+    out = tmp_path / "through.mcap"
+    res = _nod("replay", str(rec.mcap), "--through", "decision", "--out", str(out), timeout=60)
+    assert res.returncode == 2 and not out.exists()
+    (line,) = res.stderr.strip().splitlines()
+    assert "the recording is of a table of N options" in line and "two-option engine only" in line
+
+
 def test_through_decision_with_another_b_star_changes_b_r_in_consensus_trials(recorded,
                                                                              tmp_path):
     margin0 = tmp_path / "margin0.toml"
