@@ -1,6 +1,8 @@
-"""`nod actuation calibrate`: record the arm's five poses by moving it by hand.
+"""`nod actuation calibrate`: record the arm's poses by moving it by hand.
 
-Torque goes off (the operator supports the arm), then for each pose the operator moves the arm
+The poses are home and, for each option by name, one above its buzzer and one pressing it
+(`--names`, default the paper's red,blue: five poses; `--names red,blue,green` seven). Torque
+goes off (the operator supports the arm), then for each pose the operator moves the arm
 and confirms; the present position of every servo is read and the poses are written, together
 with the rest of the arm configuration, to a TOML file that `nod actuation --driver feetech`
 loads. Prompting and output are injected (`prompt`, `say`), so the whole dialogue is testable.
@@ -31,7 +33,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from services.actuation.arm_path import POSE_NAMES, ArmPoses, Pose, pose_distance
+from services.actuation.arm_path import (
+    PAPER_NAMES,
+    ArmPoses,
+    Pose,
+    pose_distance,
+    pose_names,
+)
 from services.actuation.feetech import RESOLUTION, FeetechBus, Series
 from services.actuation.feetech_arm import FeetechArmConfig
 from services.core.cli import Parser, fail
@@ -41,13 +49,16 @@ from services.core.serial_link import LinkError, SerialLink
 Prompt = Callable[[str], str]
 Say = Callable[[str], None]
 
-POSE_HELP: dict[str, str] = {
-    "home": "the rest pose, clear of both buzzers",
-    "above_red": "hovering a few centimetres above the red buzzer",
-    "press_red": "pressing the red buzzer down (until it clicks)",
-    "above_blue": "hovering a few centimetres above the blue buzzer",
-    "press_blue": "pressing the blue buzzer down (until it clicks)",
-}
+
+
+def pose_help(pose: str) -> str:
+    """What the operator does for a pose (`home`, `above_<option>`, `press_<option>`)."""
+    if pose == "home":
+        return "the rest pose, clear of every buzzer"
+    kind, _, name = pose.partition("_")
+    if kind == "above":
+        return f"hovering a few centimetres above the {name} buzzer"
+    return f"pressing the {name} buzzer down (until it clicks)"
 
 
 # Two poses whose every joint is within this many steps are one pose recorded twice. A limp arm
@@ -61,20 +72,20 @@ DUPLICATE_STEPS: dict[Series, int] = {"sts": 10, "scs": 3}
 # shoulder lift), and a press pose pushes into the buzzer's spring; 40 steps (3.5°) accepts that
 # and still catches a servo that is blocked, overloaded or clamped by its angle limits.
 REACH_STEPS: dict[Series, int] = {"sts": 40, "scs": 10}
-# The path the verification drives, from the last recorded pose (press_blue): every pose visited,
-# sideways only when up, as the service moves the arm.
-VERIFY_ROUTE: tuple[str, ...] = (
-    "above_blue",
-    "home",
-    "above_red",
-    "press_red",
-    "above_red",
-    "home",
-    "above_blue",
-    "press_blue",
-    "above_blue",
-    "home",
-)
+
+
+def verify_route(names: tuple[str, ...]) -> tuple[str, ...]:
+    """The path `--verify` drives from the last recorded pose (the last option's press).
+
+    Every pose visited, sideways only when up and through home, as the service moves the arm.
+    """
+    route: tuple[str, ...] = (f"above_{names[-1]}", "home")
+    for name in names:
+        route += (f"above_{name}", f"press_{name}", f"above_{name}", "home")
+    return route
+
+
+VERIFY_ROUTE = verify_route(PAPER_NAMES)  # the paper's: above_blue, home, above_red, …, home
 UNLIMITED_SPEED = 3000  # steps/s assumed for travel time when goal_speed is 0 (STS3215 ~ 3400)
 
 
@@ -128,6 +139,14 @@ def check_pose(
             )
 
 
+def check_names(names: tuple[str, ...]) -> None:
+    """Refuse (ValueError, one line) option names that cannot name poses."""
+    if len(names) < 2 or len(set(names)) != len(names) or not all(names):
+        raise ValueError(f"--names needs two or more distinct option names, got {list(names)}")
+    if any(not name.replace("-", "").replace("_", "").isalnum() for name in names):
+        raise ValueError(f"--names: option names are letters and digits, got {list(names)}")
+
+
 def _ask(prompt: Prompt, message: str) -> None:
     if prompt(message).strip().lower() in ("q", "quit"):
         raise CalibrationAbortedError("calibration aborted by the operator; nothing written")
@@ -140,18 +159,20 @@ def record_poses(
     say: Say,
     limits: dict[int, tuple[int, int]] | None = None,
     tolerance: int = 0,
+    names: tuple[str, ...] = PAPER_NAMES,
 ) -> ArmPoses:
     """Torque off, then read the present positions once per pose, on the operator's word.
 
-    Each pose is checked as it is read (`check_pose`) against `limits` (default: no limits) and
-    the poses before it (`tolerance` steps).
+    The poses of options `names` (`pose_names`). Each pose is checked as it is read
+    (`check_pose`) against `limits` (default: no limits) and the poses before it (`tolerance`
+    steps).
     """
     limits = limits if limits is not None else {}
     _ask(prompt, "Torque will be switched OFF: support the arm with one hand. Enter (q quits) ")
     bus.set_torque(ids, False)
     poses: dict[str, tuple[int, ...]] = {}
-    for name in POSE_NAMES:
-        _ask(prompt, f"Move the arm to {name.upper()}: {POSE_HELP[name]}. Enter (q quits) ")
+    for name in pose_names(names):
+        _ask(prompt, f"Move the arm to {name.upper()}: {pose_help(name)}. Enter (q quits) ")
         pose = bus.read_positions(ids)
         say(f"  {name:<10} = {list(pose)}")
         check_pose(name, pose, poses, ids, limits, tolerance)
@@ -169,7 +190,7 @@ def verify_poses(
     clock: Callable[[], float] = time.monotonic,
     sleep: Callable[[float], None] = time.sleep,
 ) -> None:
-    """Torque on and drive `VERIFY_ROUTE`; `PoseRejectedError` for a pose a servo cannot reach.
+    """Torque on and drive `verify_route`; `PoseRejectedError` for a pose a servo cannot reach.
 
     Goals are first set to the present positions (no jump when torque comes on). On a refusal
     the arm holds where it stopped.
@@ -179,8 +200,9 @@ def verify_poses(
     present = bus.read_positions(ids)
     bus.write_goals(dict(zip(ids, present, strict=True)), cfg.goal_speed)
     bus.set_torque(ids, True)
-    for name in VERIFY_ROUTE:
-        goal: Pose = getattr(poses, name)
+    table = poses.table()
+    for name in verify_route(poses.names):
+        goal = table[name]
         bus.write_goals(dict(zip(ids, goal, strict=True)), cfg.goal_speed)
         allowed = pose_distance(goal, present) / speed + timeout_s
         deadline = clock() + allowed
@@ -217,19 +239,20 @@ def _toml_value(value: Any) -> str:
 def config_toml(config: Any, header: str = "") -> str:
     """A flat-or-nested frozen dataclass as TOML (scalars first, then one table per field)."""
     lines = [f"# {line}" if line else "#" for line in header.splitlines()]
-    tables: list[tuple[str, Any]] = []
+    tables: list[tuple[str, dict[str, Any]]] = []
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
-        if dataclasses.is_dataclass(value):
-            tables.append((f.name, value))
+        if hasattr(value, "table"):  # a table whose keys are data (`ArmPoses`: by option name)
+            tables.append((f.name, value.table()))
+        elif dataclasses.is_dataclass(value):
+            fields = dataclasses.fields(value)
+            tables.append((f.name, {g.name: getattr(value, g.name) for g in fields}))
         else:
             lines.append(f"{f.name} = {_toml_value(value)}")
     for name, table in tables:
         lines.append("")
         lines.append(f"[{name}]")
-        lines.extend(
-            f"{f.name} = {_toml_value(getattr(table, f.name))}" for f in dataclasses.fields(table)
-        )
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in table.items())
     return "\n".join(lines) + "\n"
 
 
@@ -243,14 +266,19 @@ def calibrate(
     link: SerialLink | None = None,
     verify: bool = False,
     verify_timeout_s: float = 2.0,
+    names: tuple[str, ...] | None = None,
 ) -> FeetechArmConfig:
     """Record the poses of the arm on `port` and write the arm file `out`; return its config.
 
     `base` supplies everything but the poses (ids, baud rate, motion timing); defaults if None.
+    `names`: the options whose poses are recorded (default: the base's, else red and blue).
     A duplicate or unreachable pose raises `PoseRejectedError` and nothing is written; `verify`
     also drives every pose on the bus (torque on) before writing.
     """
     cfg = base if base is not None else FeetechArmConfig()
+    if names is None:
+        names = cfg.poses.names if cfg.poses.calibrated else PAPER_NAMES
+    check_names(names)
     link = link if link is not None else SerialLink(port, cfg.baudrate, cfg.link)
     link.open()
     try:
@@ -259,7 +287,9 @@ def calibrate(
             bus.ping(servo_id)
         limits = read_limits(bus, cfg.ids, cfg.series)
         say(f"Found servos {list(cfg.ids)} on {port}; angle limits {limits}.")
-        poses = record_poses(bus, cfg.ids, prompt, say, limits, DUPLICATE_STEPS[cfg.series])
+        poses = record_poses(
+            bus, cfg.ids, prompt, say, limits, DUPLICATE_STEPS[cfg.series], names
+        )
         result = dataclasses.replace(cfg, poses=poses)  # validates the poses against the ids
         if verify:
             _ask(
@@ -286,7 +316,8 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod actuation calibrate`."""
     p = Parser(
         prog="nod actuation calibrate",
-        description="Record the arm's poses (home, above/press red, above/press blue) by hand.",
+        description="Record the arm's poses by hand: home, and above and pressing each "
+        "option's buzzer (default red, blue).",
     )
     p.add_argument("--port", required=True, help="serial port of the servo bus adapter")
     p.add_argument("--out", type=Path, required=True, help="arm file to write (TOML)")
@@ -300,6 +331,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--ids",
         default=None,
         help="comma-separated servo ids, base of the arm to wrist (default 1,2,3,4,5,6)",
+    )
+    p.add_argument(
+        "--names",
+        default=None,
+        help="comma-separated option names, one press pose each, e.g. red,blue,green "
+        "(default: the --base file's, else red,blue)",
     )
     p.add_argument(
         "--verify",
@@ -331,8 +368,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.ids is not None:
             ids = tuple(int(i) for i in args.ids.split(","))
             base = dataclasses.replace(base, ids=ids, poses=ArmPoses())
+        names = None if args.names is None else tuple(n.strip() for n in args.names.split(","))
         calibrate(
-            args.port, args.out, base, verify=args.verify, verify_timeout_s=args.verify_timeout
+            args.port, args.out, base, verify=args.verify, verify_timeout_s=args.verify_timeout,
+            names=names,
         )
     except EOFError:
         return fail("nod actuation calibrate", "the input ended; nothing written")

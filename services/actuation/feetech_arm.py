@@ -1,14 +1,22 @@
-"""A Feetech STS/SCS servo arm (SO-100/SO-101) moving along calibrated poses.
+"""A Feetech STS/SCS servo arm (SO-100/SO-101) moving along calibrated poses, over N boxes.
 
-Five joint poses from the calibration file (`nod actuation calibrate`) span the arm's path
-(drawn in `arm_path.py`). The arm's place is a path parameter `s` (0 at home, +1 above red, −1
-above blue) and a descent `d` (0 above the buzzer, 1 on it); joint goals interpolate linearly
-between the poses, so every goal lies between calibrated poses. "move" advances `s` toward ±1 at
-`1 / move_time_s` per second; "press" goes above the buzzer, descends in `press_time_s`, holds
-`press_hold_s`, reports the press and rises again; the arm only moves sideways with `d = 0`.
-Each `state(t)` advances the path to time t (s) and streams the new goals in one SYNC_WRITE, so
-"stop" can halt mid-path and the next "move" may reverse from there (Algorithm 2's
-stop–pause–reverse).
+The calibration file (`nod actuation calibrate`) holds a home pose and, for each option by name,
+a pose above its buzzer and one pressing it; they span the arm's path (drawn in `arm_path.py`):
+a spoke from home out to above each box, then a descent. The arm's place is a box, a progress
+`u` along its spoke (0 at home, 1 above the buzzer) and a descent `d` (0 above the buzzer, 1 on
+it); joint goals interpolate linearly between the poses, so every goal lies between calibrated
+poses. "move" goes back along the spoke it is on to home if it heads for another box, then out
+along the target's, at `1 / move_time_s` per second; "press" goes above the buzzer, descends in
+`press_time_s`, holds `press_hold_s`, reports the press and rises again; the arm only moves
+sideways with `d = 0`. Each `state(t)` advances the path to time t (s) and streams the new goals
+in one SYNC_WRITE, so "stop" can halt mid-path and the next "move" may reverse from there
+(Algorithm 2's stop–pause–reverse).
+
+One driver for any N. Given the paper's `TableLayout` it speaks the paper's words (`ArmCommand`,
+`ArmState`: red is box 0, blue box 1, and its path is the paper's s = ±u from red to blue through
+home); given an `OptionsLayout` and the option names, the N-option words (`OptionsCommand`,
+`OptionsArmState`, box j the poses of names[j]). The words are all that differs
+(`arm_words.py`).
 
 Safe stop holds the current position: it reads the present positions and writes them as goals.
 On any bus fault (port gone, silence, corrupt status, servo error bits) the arm freezes its path,
@@ -20,16 +28,19 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Generic, cast, overload
 
-from services.actuation.arm_path import POSE_NAMES, ArmPoses, Pose, locate, pose_at
+from services.actuation.arm_path import ArmPoses, Pose, locate_on, pose_on
+from services.actuation.arm_words import OPTION_WORDS, PAPER_WORDS, ArmWords, C, R, T
 from services.actuation.feetech import RESOLUTION, FeetechBus, Series
 from services.core.serial_link import LinkConfig, LinkedDevice, LinkError, SerialLink
-from services.model.arm import ArmDriver, ArmState
+from services.model.arm import ArmState, OptionsArmState
 from services.model.arm_kinematics import ArmNotConnectedError
-from services.model.behaviour import ArmCommand
+from services.model.behaviour import ArmCommand, OptionsCommand
 from services.model.checks import require_non_negative, require_positive
-from services.model.geometry import Colour, Point, TableLayout, colour_sign
+from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +70,8 @@ class FeetechArmConfig:
     # Interval between health reads of the present positions, and between reconnect attempts
     # of the servos after a fault (s); > 0.
     poll_interval_s: float = 0.2
-    poses: ArmPoses = field(default_factory=ArmPoses)  # calibrated joint poses
+    # Calibrated joint poses: home, and above/press for each option by name ([poses]).
+    poses: ArmPoses = field(default_factory=ArmPoses)
     link: LinkConfig = field(default_factory=LinkConfig)  # timeouts and reconnect backoff
 
     def __post_init__(self) -> None:
@@ -78,8 +90,7 @@ class FeetechArmConfig:
                 "FeetechArmConfig: goal_speed must be in [0, 32767], acceleration in [0, 254]"
             )
         top = RESOLUTION[self.series] - 1
-        for name in POSE_NAMES if self.poses.calibrated else ():
-            pose = getattr(self.poses, name)
+        for name, pose in self.poses.table().items() if self.poses.calibrated else ():
             if len(pose) != len(self.ids):
                 raise ValueError(
                     f"pose {name} has {len(pose)} joints but there are {len(self.ids)} ids"
@@ -89,43 +100,84 @@ class FeetechArmConfig:
 
 
 # -- driver -------------------------------------------------------------------------------------
-class FeetechArm(LinkedDevice, ArmDriver):
-    """The arm on a Feetech bus; `state(t)` drives the motion, time passed in (s)."""
+class FeetechArm(LinkedDevice, Generic[C, T, R]):
+    """The arm on a Feetech bus over N boxes; `state(t)` drives the motion, time passed in (s).
 
+    `FeetechArm(port, config, table_layout)` is the paper's arm (red and blue, `ArmCommand`);
+    `FeetechArm(port, config, options_layout, names=…)` the arm over N boxes (`OptionsCommand`).
+    """
+
+    @overload
     def __init__(
-        self,
+        self: FeetechArm[ArmCommand, Colour, ArmState],
         port: str,
         config: FeetechArmConfig,
         layout: TableLayout,
         home: Point = (0.5, 0.08),
         *,
         link: SerialLink | None = None,
+    ) -> None: ...
+
+    @overload
+    def __init__(
+        self: FeetechArm[OptionsCommand, int, OptionsArmState],
+        port: str,
+        config: FeetechArmConfig,
+        layout: OptionsLayout,
+        home: Point = (0.5, 0.08),
+        *,
+        names: Sequence[str],
+        link: SerialLink | None = None,
+    ) -> None: ...
+
+    def __init__(
+        self,
+        port: str,
+        config: FeetechArmConfig,
+        layout: TableLayout | OptionsLayout,
+        home: Point = (0.5, 0.08),
+        *,
+        names: Sequence[str] = ("red", "blue"),
+        link: SerialLink | None = None,
     ) -> None:
         """Describe the arm; nothing is opened until `connect()`.
 
-        `layout` and `home` (table coordinates of the home pose) only feed the end-effector
-        estimate of `state()`.
+        Box j is option `names[j]`, pressed at the file's `press_<name>` pose (the paper's
+        layout: red, blue). `layout` and `home` (table coordinates of the home pose) only feed
+        the end-effector estimate of `state()`. A file without a pose for every name is
+        refused in one line naming the missing options.
         """
         if not config.poses.calibrated:
             raise ValueError(
                 "the arm file has no [poses]; record them with `nod actuation calibrate`"
             )
+        paper = isinstance(layout, TableLayout)
+        table = OptionsLayout.from_table(layout) if isinstance(layout, TableLayout) else layout
+        if len(names) != table.n_options:
+            raise ValueError(f"{len(names)} option names for a table of {table.n_options} boxes")
+        # The overloads tie the words to the layout: the paper's for its table, else by index.
+        words = PAPER_WORDS if paper else OPTION_WORDS
+        self.words = cast(ArmWords[C, T, R], words)
+        self.names = tuple(names)
+        self.poses = config.poses.select(self.names)  # box j: the poses of option names[j]
         self.config = config
         self.layout = layout
+        self.centres = tuple(box.center for box in table.boxes)
         self.home_point = home
         self.link = link if link is not None else SerialLink(port, config.baudrate, config.link)
         self.bus = FeetechBus(self.link, config.series)
         self._connected = False
         self._generation = -1
         self._t: float | None = None
-        self._s = 0.0  # path parameter: 0 home, +1 above red, −1 above blue
+        self._box = 0  # the spoke the arm is on (any at home)
+        self._u = 0.0  # progress along it: 0 home, 1 above the buzzer
         self._d = 0.0  # descent: 0 above the buzzer, 1 pressing it
         self._mode: str = "hold"  # hold | move | home | press
-        self._goal_s = 0.0
-        self._target: Colour | None = None
-        self._press: Colour | None = None
+        self._goal: int | None = None  # the box heading for; None: home
+        self._target: T | None = None
+        self._press: T | None = None
         self._dwell = 0.0  # time the buzzer has been held down (s)
-        self._pressed: Colour | None = None
+        self._pressed: T | None = None
         self._moving = False
         self._fault: str | None = None
         self._next_try = -math.inf  # arm time of the next health read / re-initialisation
@@ -134,9 +186,14 @@ class FeetechArm(LinkedDevice, ArmDriver):
 
     # -- connection ----------------------------------------------------------------------------
     @property
+    def place(self) -> tuple[int, float, float]:
+        """(box, u, d): where the arm is on its calibrated path."""
+        return self._box, self._u, self._d
+
+    @property
     def path(self) -> tuple[float, float]:
-        """(s, d): where the arm is on its calibrated path."""
-        return self._s, self._d
+        """(s, d) on the paper's path: s = u toward box 0 (red), −u toward box 1 (blue)."""
+        return (self._u if self._box == 0 else -self._u), self._d
 
     def connect(self) -> None:
         """Open the port, find every servo, hold where the arm is, torque on."""
@@ -155,8 +212,13 @@ class FeetechArm(LinkedDevice, ArmDriver):
         self.link.close()
 
     # -- commands ------------------------------------------------------------------------------
-    def send(self, cmd: ArmCommand) -> ArmCommand:
-        """Apply a command at the arm's current time (call `state(t)` first)."""
+    def send(self, cmd: C) -> C:
+        """Apply a command at the arm's current time (call `state(t)` first).
+
+        Refused (the returned command says what happens instead): anything but idle/stop while
+        faulted (→ stop); a move, or a press of another box, once a press is committed (→ the
+        committed press). A stop always applies and cancels an unfinished press.
+        """
         self._require_connected()
         if cmd.action == "idle":
             return cmd
@@ -165,28 +227,39 @@ class FeetechArm(LinkedDevice, ArmDriver):
             return cmd
         if self._fault is not None:
             self._hold_here()
-            return ArmCommand.stop(f"refused {cmd.action}: fault {self._fault}")
-        if self._press is not None and cmd.target != self._press:
-            return ArmCommand.press(self._press, f"refused {cmd.action}: press already committed")
-        assert cmd.target is not None  # move and press always carry a target
+            return self.words.stop(f"refused {cmd.action}: fault {self._fault}")
+        target = self.words.target(cmd)
+        if self._press is not None and target != self._press:
+            return self.words.press(self._press, f"refused {cmd.action}: press already committed")
+        assert target is not None  # move and press always carry a target
+        box = self.words.box(target)
+        if not 0 <= box < len(self.names):
+            raise ValueError(f"box {box} is not on this table of {len(self.names)} boxes")
         if cmd.action == "press" and self._press is None:
-            self._press, self._dwell, self._pressed = cmd.target, 0.0, None
+            self._press, self._dwell, self._pressed = target, 0.0, None
         self._mode = "press" if self._press is not None else "move"
-        self._goal_s = float(colour_sign(cmd.target))
-        self._target = cmd.target
+        self._goal, self._target = box, target
         return cmd
 
-    def home(self) -> ArmCommand:
+    def home(self) -> C:
         """Go back to the home pose and forget the trial's press (refused while faulted)."""
         self._require_connected()
         if self._fault is not None:
             self._hold_here()
-            return ArmCommand.stop(f"refused home: fault {self._fault}")
+            return self.words.stop(f"refused home: fault {self._fault}")
         self._press = self._pressed = None
-        self._mode, self._goal_s, self._target = "home", 0.0, None
-        return ArmCommand.idle("going home")
+        self._mode, self._goal, self._target = "home", None, None
+        return self.words.idle("going home")
 
-    def state(self, t: float) -> ArmState:
+    def hold(self) -> C:
+        """Safe stop: freeze the path and hold the present position."""
+        return self.send(self.words.stop("hold"))
+
+    def make_safe(self) -> C:
+        """Hold the arm (before disconnecting)."""
+        return self.hold()
+
+    def state(self, t: float) -> R:
         """Advance the path to time t (s), stream the goals, keep the bus healthy; report."""
         self._require_connected()
         if not math.isfinite(t):
@@ -197,49 +270,48 @@ class FeetechArm(LinkedDevice, ArmDriver):
         self._t = t
         self._moving = False
         if self._service_bus(t):
-            before = (self._s, self._d)
+            before = self.place
             self._advance(dt)
-            if (self._s, self._d) != before:
-                if self._write(pose_at(self.config.poses, self._s, self._d)):
+            if self.place != before:
+                if self._write(pose_on(self.poses, self._box, self._u, self._d)):
                     self._moving = True
                 else:  # the servos never got this goal: the arm stands where it was
-                    self._s, self._d = before
-        return ArmState(
-            t=t,
-            ee=self.ee_estimate(),
-            moving=self._moving,
-            target=self._target,
-            pressed=self._pressed,
-            fault=self._fault,
+                    self._box, self._u, self._d = before
+        return self.words.report(
+            t, self.ee_estimate(), self._moving, self._target, self._pressed, self._fault
         )
 
     def ee_estimate(self) -> Point:
         """End effector in table coordinates, estimated from path progress (not kinematics).
 
-        Linear between `home` and the centre of the box on the side of s, by |s|; pressing
-        does not move it. Good enough for Algorithm 2's "nearest buzzer".
+        Linear between `home` and the centre of the box whose spoke the arm is on, by u;
+        pressing does not move it. Good enough for Algorithm 2's "nearest buzzer".
         """
-        box = self.layout.box("red" if self._s >= 0 else "blue").center
-        u = abs(self._s)
+        box = self.centres[self._box]
+        u = self._u
         return (
             self.home_point[0] + (box[0] - self.home_point[0]) * u,
             self.home_point[1] + (box[1] - self.home_point[1]) * u,
         )
 
     # -- motion (pure state updates) -----------------------------------------------------------
+    def _spoke_leg(self) -> tuple[str, float] | None:
+        """Along the spokes, up: back to home first if the goal is another box's, then out."""
+        if self._goal is None or (self._goal != self._box and self._u > 0):
+            return ("u", 0.0) if self._u > 0 else None
+        return ("u", 1.0) if (self._box, self._u) != (self._goal, 1.0) else None
+
     def _leg(self) -> tuple[str, float] | None:
-        """The next motion leg: ("s" | "d" | "dwell", goal), or None when at rest."""
+        """The next motion leg: ("u" | "d" | "dwell", goal), or None when at rest."""
         if self._mode == "hold":
             return None
         if self._mode in ("move", "home"):
-            if self._d > 0:
-                return "d", 0.0
-            return ("s", self._goal_s) if self._s != self._goal_s else None
+            return ("d", 0.0) if self._d > 0 else self._spoke_leg()
         # press
         if self._pressed is not None:
             return ("d", 0.0) if self._d > 0 else None
-        if self._s != self._goal_s:
-            return ("d", 0.0) if self._d > 0 else ("s", self._goal_s)
+        if (self._box, self._u) != (self._goal, 1.0):
+            return ("d", 0.0) if self._d > 0 else self._spoke_leg()
         if self._d < 1:
             return "d", 1.0
         return "dwell", self.config.press_hold_s
@@ -257,17 +329,19 @@ class FeetechArm(LinkedDevice, ArmDriver):
                 dt -= used
                 if self._dwell >= goal:
                     self._pressed = self._press
-                    log.info("pressed the %s buzzer", self._pressed)
+                    log.info("pressed the %s buzzer", self.names[self._box])
                 continue
-            rate = 1.0 / (c.move_time_s if kind == "s" else c.press_time_s)
-            now = self._s if kind == "s" else self._d
+            if kind == "u" and goal > 0 and self._goal is not None:
+                self._box = self._goal  # out along the goal's spoke (from home, or on it)
+            rate = 1.0 / (c.move_time_s if kind == "u" else c.press_time_s)
+            now = self._u if kind == "u" else self._d
             need = abs(goal - now) / rate
             if need <= dt:
                 new, dt = goal, dt - need
             else:
                 new, dt = now + math.copysign(dt * rate, goal - now), 0.0
-            if kind == "s":
-                self._s = new
+            if kind == "u":
+                self._u = new
             else:
                 self._d = new
 
@@ -305,7 +379,7 @@ class FeetechArm(LinkedDevice, ArmDriver):
             self.bus.write_register(servo_id, "acceleration", c.acceleration)
         self.bus.set_torque(c.ids, True)
         self.present = self.last_goal = present
-        self._s, self._d = locate(c.poses, present)
+        self._box, self._u, self._d = locate_on(self.poses, present)
         self._generation = self.link.opens
         self._fault = None
         self.link.ok()

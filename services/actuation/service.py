@@ -17,7 +17,8 @@ messages and how they convert to the model's values, and which reactor and arm t
   publishes each applied command on `actuation/cmd` and the press on `actuation/press`.
 - `OptionsArmKeys` (schema 2, N ≥ 3): z_r a vector on `options/z_r`, `options/layout`,
   `options/trial` (each checked against N), `OptionsRobotTrial` with the tie rule, the
-  `OptionsSimArm` (no real arm is calibrated for N poses yet); the arm's state by box on
+  `OptionsSimArm` or the Feetech arm pressing box j at its arm file's pose of option j (a file
+  without a pose for every option refused in one line); the arm's state by box on
   `options/arm_state`, the press on `options/press`.
 
 The safety gate, Algorithm 2's timers, press detection, device-fault reporting and the e-stop
@@ -41,7 +42,12 @@ from typing import Any, ClassVar, Generic, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
-from services.actuation.drivers import ARM_DRIVERS, make_arm_driver
+from services.actuation.drivers import (
+    ARM_DRIVERS,
+    check_arm_file,
+    make_arm_driver,
+    make_options_arm,
+)
 from services.core import messages as m
 from services.core.cli import Parser, add_options_arg, add_service_args, fail
 from services.core.config import load_with_options, params_hash
@@ -54,6 +60,7 @@ from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
 from services.model.params import NodConfig
 from services.model.robot import OptionsRobotTrial, RobotTrial, TrialReactor
 from services.model.safety import SafetyParams, Watchdog
+from services.model.schedule import OptionsSchedule
 from services.safety.latch_file import LatchFile, add_state_dir_arg, default_state_dir
 from services.safety.wiring import watch_safety_inputs
 
@@ -93,7 +100,7 @@ class ArmReport(Protocol[B_co]):
 
 
 class Arm(Protocol[C, B_co]):
-    """An arm as the service drives it: any `ArmDriver` (by colour) or the `OptionsSimArm`."""
+    """An arm as the service drives it: by colour (`SimArm`, Feetech) or by box index."""
 
     def connect(self) -> None:
         """Open the connection (idempotent)."""
@@ -146,8 +153,8 @@ class ArmKeys(ABC, Generic[L, C, B, Z]):
         """The robot's opinion (from decision), the table (vision, sim), the protocol's events."""
 
     @classmethod
-    def check_driver(cls, driver: str, n_options: int) -> None:
-        """Refuse (ValueError, one line) an arm driver this space cannot drive (default: none)."""
+    def check_driver(cls, driver: str, arm_config: Path | None, names: tuple[str, ...]) -> None:
+        """Refuse (ValueError, one line) an arm this space cannot drive (default: none)."""
 
     @classmethod
     @abstractmethod
@@ -159,8 +166,13 @@ class ArmKeys(ABC, Generic[L, C, B, Z]):
         cfg: NodConfig,
         n_options: int,
         t0: float,
+        names: tuple[str, ...] | None = None,
     ) -> Arm[C, B]:
-        """An unconnected arm for this space's table (`t0`: the sim arm's start time, s)."""
+        """An unconnected arm for this space's table of options `names`.
+
+        `names` defaults to the default names of `n_options`; `t0` is the sim arm's start
+        time (s).
+        """
 
     @abstractmethod
     def reactor(self, cfg: NodConfig) -> TrialReactor[L, C, B, Z]:
@@ -226,6 +238,7 @@ class PaperArmKeys(ArmKeys[TableLayout, ArmCommand, Colour, float]):
         cfg: NodConfig,
         n_options: int,
         t0: float,
+        names: tuple[str, ...] | None = None,
     ) -> Arm[ArmCommand, Colour]:
         """The `--driver` chosen: the sim arm, or a Feetech arm from its calibration file."""
         return make_arm_driver(driver, port, arm_config, cfg.layout, cfg.sim_arm, t0=t0)
@@ -266,7 +279,7 @@ class PaperArmKeys(ArmKeys[TableLayout, ArmCommand, Colour, float]):
 
 
 class OptionsArmKeys(ArmKeys[OptionsLayout, OptionsCommand, int, np.ndarray]):
-    """The `options/*` keys (schema 2): N boxes by index, z_r a vector, the sim arm only."""
+    """The `options/*` keys (schema 2): N boxes by index, z_r a vector, any arm driver."""
 
     schema = m.OPTIONS_SCHEMA_VERSION
 
@@ -283,13 +296,14 @@ class OptionsArmKeys(ArmKeys[OptionsLayout, OptionsCommand, int, np.ndarray]):
         node.subscribe("options/trial", on_trial)
 
     @classmethod
-    def check_driver(cls, driver: str, n_options: int) -> None:
-        """The simulated arm only."""
-        if driver != "sim":
-            raise ValueError(
-                f"--options {n_options} runs the simulated arm only (--driver sim): no real arm "
-                "is calibrated for more than two boxes yet"
-            )
+    def check_driver(cls, driver: str, arm_config: Path | None, names: tuple[str, ...]) -> None:
+        """A Feetech arm file needs a press pose for every option.
+
+        Checked before anything opens: a file calibrated for other boxes fails in one line
+        naming the options it lacks.
+        """
+        if driver == "feetech" and arm_config is not None:
+            check_arm_file(arm_config, names)
 
     @classmethod
     def make_arm(
@@ -300,10 +314,13 @@ class OptionsArmKeys(ArmKeys[OptionsLayout, OptionsCommand, int, np.ndarray]):
         cfg: NodConfig,
         n_options: int,
         t0: float,
+        names: tuple[str, ...] | None = None,
     ) -> Arm[OptionsCommand, int]:
-        """The simulated arm, one pose per box: no real arm is calibrated for N boxes yet."""
-        cls.check_driver(driver, n_options)
-        return OptionsSimArm(cfg.table(n_options), cfg.sim_arm, t0=t0)
+        """The simulated arm, or the Feetech arm pressing box j at the pose of option j."""
+        names = names if names is not None else OptionsSchedule.default(n_options).names
+        return make_options_arm(
+            driver, port, arm_config, cfg.table(n_options), names, cfg.sim_arm, t0=t0
+        )
 
     def reactor(self, cfg: NodConfig) -> OptionsRobotTrial:
         """The robot over N boxes, with the dissensus tie rule."""
@@ -539,8 +556,9 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose)
     try:
         cfg, schedule = load_with_options(args.params, args.options)
-        n_options = 2 if schedule is None else schedule.n_options
-        key_space(n_options).check_driver(args.driver, n_options)  # before anything opens
+        names = OptionsSchedule.default(2).names if schedule is None else schedule.names
+        n_options = len(names)
+        key_space(n_options).check_driver(args.driver, args.arm_config, names)  # before opening
         safety = cfg.safety
         if args.stale_ms is not None:
             safety = dataclasses.replace(safety, stale_ms=args.stale_ms)
@@ -555,7 +573,8 @@ def main(argv: list[str] | None = None) -> int:
     raise_priority("actuation")  # once its configuration is good: errors stay one line
     try:
         arm: Arm[Any, Any] = key_space(n_options).make_arm(
-            args.driver, args.port, args.arm_config, cfg, n_options, node.clock.now_ns() * NS
+            args.driver, args.port, args.arm_config, cfg, n_options, node.clock.now_ns() * NS,
+            names,
         )
         arm.connect()
     except (ValueError, OSError, ConnectionError) as exc:

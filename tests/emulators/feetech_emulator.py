@@ -32,6 +32,13 @@ POSES = ArmPoses(
     above_blue=(1648, 2148, 1948),
     press_blue=(1648, 2348, 1848),
 )
+# The same arm over a table of N boxes by option name: the paper's two, then a third spoke
+# straight ahead of home for green (distinct from every other pose, within the servos' limits).
+NAMES: dict[int, tuple[str, ...]] = {2: ("red", "blue"), 3: ("red", "blue", "green")}
+POSES_BY_N: dict[int, ArmPoses] = {
+    2: POSES,
+    3: ArmPoses(**POSES.table(), above_green=(2048, 2448, 1748), press_green=(2048, 2648, 1648)),
+}
 
 # name: (address, size, writable, initial value)
 REGISTER_MAP: dict[str, tuple[int, int, bool, int]] = {

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from services.actuation.arm_path import pose_names
 from services.actuation.calibrate import (
     DUPLICATE_STEPS,
     REACH_STEPS,
@@ -17,16 +18,17 @@ from services.actuation.calibrate import (
     check_pose,
     config_toml,
     read_limits,
+    verify_route,
 )
 from services.actuation.feetech import FeetechBus
 from services.actuation.feetech_arm import FeetechArmConfig
 from services.core.config import from_mapping, load_toml
 from services.core.serial_link import SerialLink
-from tests.emulators.feetech_emulator import IDS, POSES, FeetechBusEmulator
+from tests.emulators.feetech_emulator import IDS, NAMES, POSES, POSES_BY_N, FeetechBusEmulator
 from tests.emulators.links import LINK
 
 ROOT = Path(__file__).resolve().parents[2]
-ORDER = ("home", "above_red", "press_red", "above_blue", "press_blue")
+ORDER = pose_names(NAMES[3])  # every pose any test here records, the paper's five first
 BASE = FeetechArmConfig(ids=IDS, link=LINK)
 
 
@@ -62,7 +64,9 @@ def test_the_duplicate_tolerance_is_inclusive_and_per_series():
         turn = {"sts": 4096, "scs": 1024}[series]
         assert 0.7 <= steps * 360 / turn <= 1.1
     assert REACH_STEPS["sts"] > DUPLICATE_STEPS["sts"]
-    assert set(VERIFY_ROUTE) == set(ORDER)
+    assert set(VERIFY_ROUTE) == set(pose_names(NAMES[2]))
+    assert verify_route(NAMES[2]) == VERIFY_ROUTE
+    assert verify_route(NAMES[3])[-4:] == ("above_green", "press_green", "above_green", "home")
 
 
 def test_limits_are_read_from_the_servos(bus):
@@ -82,7 +86,7 @@ def test_limits_are_read_from_the_servos(bus):
 
 def test_a_duplicate_pose_is_refused_and_nothing_written(bus, tmp_path):
     out = tmp_path / "arm.toml"
-    poses = {n: getattr(POSES, n) for n in ORDER}
+    poses = POSES.table()
     poses["press_red"] = (2451, 2146, 1948)  # Enter pressed again above red: 3 steps of noise
     asked: list[str] = []
     with pytest.raises(PoseRejectedError) as exc:
@@ -98,7 +102,7 @@ def test_a_duplicate_pose_is_refused_and_nothing_written(bus, tmp_path):
 def test_a_pose_outside_a_servos_limits_is_refused_and_nothing_written(bus, tmp_path):
     out = tmp_path / "arm.toml"
     bus.set_limits(2, 1024, 2300)  # the elbow may not go past 2300: press_red (2348) is beyond
-    poses = {n: getattr(POSES, n) for n in ORDER}
+    poses = POSES.table()
     with pytest.raises(PoseRejectedError) as exc:
         calibrate(bus.port, out, BASE, prompt=by_hand(bus, poses, []), say=lambda _: None)
     assert str(exc.value).startswith(
@@ -107,27 +111,31 @@ def test_a_pose_outside_a_servos_limits_is_refused_and_nothing_written(bus, tmp_
     assert not out.exists()
 
 
-def test_verify_drives_every_pose_then_writes(bus, tmp_path):
+@pytest.mark.parametrize("n", [2, 3])
+def test_verify_drives_every_pose_then_writes(bus, tmp_path, n):
     out = tmp_path / "arm.toml"
-    poses = {n: getattr(POSES, n) for n in ORDER}
+    expected = POSES_BY_N[n]
+    poses = expected.table()
     asked: list[str] = []
     result = calibrate(
-        bus.port, out, BASE, prompt=by_hand(bus, poses, asked), say=lambda _: None, verify=True
+        bus.port, out, BASE, prompt=by_hand(bus, poses, asked), say=lambda _: None, verify=True,
+        names=NAMES[n],
     )
-    assert result.poses == POSES
+    assert result.poses == expected
     assert "Torque goes ON" in asked[-1]
     visited = [tuple(g[i] for i in IDS) for g in bus.goal_history]
-    route = [getattr(POSES, n) for n in VERIFY_ROUTE]
+    route = [poses[name] for name in verify_route(NAMES[n])]
     assert visited[-len(route) :] == route  # the whole route, in order, one goal per pose
-    assert visited[0] == POSES.press_blue  # first: hold where the operator left it, torque on
-    assert bus.positions() == dict(zip(IDS, POSES.home, strict=True))
+    last = poses[f"press_{NAMES[n][-1]}"]
+    assert visited[0] == last  # first: hold where the operator left it, torque on
+    assert bus.positions() == dict(zip(IDS, expected.home, strict=True))
     assert all(s.get("torque_enable") == 1 for s in bus.servos.values())
     assert from_mapping(FeetechArmConfig, load_toml(out)) == result
 
 
 def test_verify_refuses_a_pose_a_servo_does_not_reach(bus, tmp_path):
     out = tmp_path / "arm.toml"
-    poses = {n: getattr(POSES, n) for n in ORDER}
+    poses = POSES.table()
 
     def prompt(message: str) -> str:
         if "Torque goes ON" in message:
@@ -165,6 +173,26 @@ def test_the_cli_refuses_an_arm_that_was_never_moved(bus, tmp_path):
     assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
     assert "pose above_red is the same as home" in lines[0]
     assert not out.exists()
+
+
+def test_the_cli_records_the_poses_of_the_named_options(bus, tmp_path):
+    # --names red,blue,green: seven poses, prompted in order; a --base of three names keeps them
+    base = tmp_path / "base.toml"
+    base.write_text(config_toml(BASE))
+    out = tmp_path / "arm.toml"
+    res = subprocess.run(
+        [sys.executable, "-m", "services.cli", "actuation", "calibrate", "--port", bus.port]
+        + ["--out", str(out), "--base", str(base), "--names", "red,blue,green"],
+        cwd=ROOT, input="q\n", capture_output=True, text=True, timeout=30,
+    )
+    assert res.returncode == 2 and "aborted" in res.stderr and not out.exists()
+    res = subprocess.run(
+        [sys.executable, "-m", "services.cli", "actuation", "calibrate", "--port", bus.port]
+        + ["--out", str(out), "--names", "red,red"],
+        cwd=ROOT, capture_output=True, text=True, timeout=30,
+    )
+    assert res.returncode == 2 and "--names needs two or more distinct" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
 
 
 def test_the_cli_rejects_a_bad_verify_timeout(tmp_path):

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pytest
 
-from services.actuation.arm_path import ArmPoses, locate, pose_at
-from services.actuation.calibrate import CalibrationAbortedError, calibrate
+from services.actuation.arm_path import ArmPoses, locate, locate_on, pose_at, pose_names, pose_on
+from services.actuation.calibrate import CalibrationAbortedError, calibrate, config_toml
 from services.actuation.feetech import (
     FeetechChecksumError,
     decode_status,
@@ -21,9 +24,10 @@ from services.actuation.feetech import (
 )
 from services.actuation.feetech_arm import FeetechArm, FeetechArmConfig
 from services.core.config import ConfigError, from_mapping, load_toml
-from services.model.behaviour import ArmCommand
+from services.model.behaviour import ArmCommand, OptionsCommand
 from services.model.geometry import TableLayout
-from tests.emulators.feetech_emulator import IDS, POSES, FeetechBusEmulator
+from services.model.params import NodConfig
+from tests.emulators.feetech_emulator import IDS, NAMES, POSES, POSES_BY_N, FeetechBusEmulator
 from tests.emulators.links import FAST, LINK
 from tests.polling import eventually
 
@@ -100,8 +104,46 @@ def test_config_validation_and_example_file():
         FeetechArm("/dev/null", FeetechArmConfig(), LAYOUT)
     example = from_mapping(FeetechArmConfig, load_toml(ROOT / "deploy/hardware/arm.example.toml"))
     assert example.poses.calibrated and len(example.ids) == 6
+    assert tuple(example.poses.table()) == pose_names(("red", "blue"))  # the paper's five
     with pytest.raises(ConfigError, match="unknown key"):
         from_mapping(FeetechArmConfig, {"move_speed": 1.0})
+
+
+def test_poses_by_option_name_in_the_arm_file():
+    # The paper's five keys are the two-name case: positional, by keyword and from the file alike
+    assert POSES.names == ("red", "blue") and POSES.press_blue == (1648, 2348, 1848)
+    assert ArmPoses(*POSES.table().values()) == POSES
+    assert ArmPoses() == ArmPoses(**dict.fromkeys(pose_names(("red", "blue")), ()))
+    three = POSES_BY_N[3]
+    assert three.names == NAMES[3] and tuple(three.table()) == pose_names(NAMES[3])
+    assert three.select(("green", "red")).names == ("green", "red")
+    cfg = FeetechArmConfig(ids=IDS, poses=three, link=LINK)
+    assert from_mapping(FeetechArmConfig, tomllib.loads(config_toml(cfg))) == cfg
+    with pytest.raises(ConfigError, match=r"poses: unknown pose 'over_red'"):
+        from_mapping(FeetechArmConfig, {"poses": {**POSES.table(), "over_red": [1, 2, 3]}})
+    with pytest.raises(ConfigError, match="pose above_green has no press_green"):
+        from_mapping(FeetechArmConfig, {"poses": {**POSES.table(), "above_green": [1, 2, 3]}})
+    with pytest.raises(ConfigError, match="poses: press_red: expected an array of integers"):
+        from_mapping(FeetechArmConfig, {"poses": {**POSES.table(), "press_red": [1.5, 2, 3]}})
+    with pytest.raises(ValueError, match="two options or more"):
+        ArmPoses(home=(1, 2, 3), above_red=(4, 5, 6), press_red=(7, 8, 9))
+    with pytest.raises(ValueError) as exc:
+        POSES.select(NAMES[3])
+    assert str(exc.value) == (
+        "the arm file has no press pose for option(s) green (it has red, blue); record them "
+        "with `nod actuation calibrate --names red,blue,green`"
+    )
+
+
+def test_the_paper_path_is_the_two_box_star():
+    for s in (-1.0, -0.7, -0.25, 0.0, 0.3, 1.0):
+        for d in (0.0, 0.5, 1.0) if abs(s) == 1 else (0.0,):
+            box = 0 if s >= 0 else 1
+            assert pose_at(POSES, s, d) == pose_on(POSES, box, abs(s), d)
+    three = POSES_BY_N[3]
+    assert locate_on(three, pose_on(three, 2, 0.5, 0.0)) == pytest.approx((2, 0.5, 0.0))
+    assert locate_on(three, three.press_green) == pytest.approx((2, 1.0, 1.0))
+    assert locate_on(three, three.home)[1:] == (0.0, 0.0)
 
 
 # -- driver -------------------------------------------------------------------------------------
@@ -218,9 +260,146 @@ def test_servo_error_bits_are_reported(bus, arm):
     assert arm.state(0.4).fault is None
 
 
+# -- over N boxes -------------------------------------------------------------------------------
+def options_arm(port: str, n: int, poses: ArmPoses | None = None) -> FeetechArm:
+    """The arm over a table of n boxes, box j the poses of option NAMES[n][j]."""
+    cfg = dataclasses.replace(CFG, poses=POSES_BY_N[n] if poses is None else poses)
+    return FeetechArm(port, cfg, NodConfig().table(n), home=(0.5, 0.08), names=NAMES[n])
+
+
+def run_until(arm: FeetechArm, t: float, until: float, step: float = 0.05):
+    """Step the arm from t to `until` (s); its last state."""
+    st = arm.state(t)
+    while t < until - 1e-9:
+        t = round(t + step, 2)
+        st = arm.state(t)
+    return st
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_the_arm_presses_each_box_at_its_options_pose(bus, n):
+    arm = options_arm(bus.port, n)
+    arm.connect()
+    poses, t = POSES_BY_N[n], 0.0
+    try:
+        for box, name in enumerate(NAMES[n]):
+            arm.state(t)
+            assert arm.send(OptionsCommand("press", box)).target == box
+            refused = arm.send(OptionsCommand("move", (box + 1) % n))
+            assert (refused.action, refused.target) == ("press", box)  # press committed
+            st = run_until(arm, t, t + 3.5)  # 2 s out, 0.5 s down, 0.2 s held, 0.5 s up
+            assert st.pressed == box and st.target == box and not st.moving
+            assert goal_map(getattr(poses, f"press_{name}")) in bus.goal_history
+            assert goals_become(bus, getattr(poses, f"above_{name}"))  # rose again
+            assert st.ee == NodConfig().table(n).boxes[box].center
+            arm.home()
+            st = run_until(arm, t + 3.5, t + 6.0)
+            assert goals_become(bus, poses.home) and st.pressed is None
+            t += 6.0
+    finally:
+        arm.disconnect()
+
+
+def test_the_paper_arm_is_the_two_option_arm():
+    # The same moves by colour and by box index stream the same goals at the same times.
+    script = [(0.0, "move", 0), (1.0, "stop", None), (1.2, "move", 1), (3.0, "press", 1),
+              (6.5, "home", None), (7.0, "move", 0), (8.0, "press", 0)]
+    histories = []
+    for by_index in (False, True):
+        with FeetechBusEmulator({i: 2048 for i in IDS}) as emu:
+            arm = (options_arm(emu.port, 2) if by_index
+                   else FeetechArm(emu.port, CFG, LAYOUT, home=(0.5, 0.08)))
+            arm.connect()
+            steps, t, seen = list(script), 0.0, []
+            while t <= 12.0:
+                st = arm.state(t)
+                while steps and steps[0][0] <= t:
+                    _, action, box = steps.pop(0)
+                    if action == "home":
+                        arm.home()
+                    elif by_index:
+                        arm.send(OptionsCommand(action, box))
+                    elif action == "stop":
+                        arm.send(ArmCommand.stop())
+                    elif action == "move":
+                        arm.send(ArmCommand.move(1 - 2 * box))
+                    else:
+                        arm.send(ArmCommand.press(("red", "blue")[box]))
+                boxes = [b if by_index or b is None else ("red", "blue").index(b)
+                         for b in (st.target, st.pressed)]
+                seen.append((t, arm.last_goal, st.ee, st.moving, *boxes))
+                t = round(t + 0.05, 2)
+            arm.disconnect()
+            histories.append(seen)
+    assert histories[0] == histories[1]
+    assert any(row[5] == 1 for row in histories[0]) and histories[0][-1][5] == 0
+
+
+def test_a_move_to_another_box_goes_back_through_home(bus):
+    arm = options_arm(bus.port, 3)
+    arm.connect()
+    three = POSES_BY_N[3]
+    try:
+        arm.state(0.0)
+        arm.send(OptionsCommand("move", 0))
+        arm.state(1.0)  # halfway out to red
+        arm.send(OptionsCommand("move", 2))
+        arm.state(1.5)  # back a quarter on red's spoke
+        assert arm.place == pytest.approx((0, 0.25, 0.0))
+        arm.state(2.5)  # home after 0.5 s, then a quarter out on green's
+        assert arm.place == pytest.approx((2, 0.25, 0.0))
+        assert goals_become(bus, pose_on(three, 2, 0.25, 0.0))
+        assert goal_map(three.home) in bus.goal_history  # through home, never across
+        st = run_until(arm, 2.5, 4.5)
+        assert goals_become(bus, three.above_green) and st.target == 2 and not st.moving
+        with pytest.raises(ValueError, match="box 3 is not on this table of 3 boxes"):
+            arm.send(OptionsCommand("move", 3))
+    finally:
+        arm.disconnect()
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_a_bus_fault_freezes_the_arm_over_any_number_of_boxes(bus, n):
+    arm = options_arm(bus.port, n)
+    arm.connect()
+    try:
+        arm.state(0.0)
+        arm.send(OptionsCommand("move", n - 1))
+        arm.state(0.5)
+        bus.corrupt_replies = 1
+        st = arm.state(0.6)  # health read due
+        assert "checksum" in (st.fault or "") and not st.moving
+        refused = arm.send(OptionsCommand("press", n - 1))
+        assert refused.action == "stop" and "fault" in refused.reason
+        st = arm.state(0.75)  # the servos answer again: re-initialised, holding
+        assert st.fault is None and arm.place == pytest.approx((n - 1, 0.25, 0.0), abs=0.01)
+    finally:
+        arm.disconnect()
+
+
+def test_an_arm_file_without_a_pose_for_every_option_is_refused(tmp_path):
+    with pytest.raises(ValueError, match=r"option\(s\) green \(it has red, blue\)"):
+        options_arm("/dev/null", 3, poses=POSES)
+    arm_file = tmp_path / "arm.toml"
+    arm_file.write_text(config_toml(FeetechArmConfig(ids=IDS, poses=POSES, link=LINK)))
+    res = subprocess.run(
+        [sys.executable, "-m", "services.cli", "actuation", "--options", "3", "--driver",
+         "feetech", "--port", "/dev/null", "--arm-config", str(arm_file),
+         "--state-dir", str(tmp_path / "state")],
+        cwd=ROOT, capture_output=True, text=True, timeout=60,
+    )
+    assert res.returncode != 0
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    assert f"{arm_file}: the arm file has no press pose for option(s) green" in lines[0]
+    assert "--names red,blue,green" in lines[0]
+
+
 # -- calibration --------------------------------------------------------------------------------
-def test_calibrate_records_poses_by_hand(bus, tmp_path):
-    targets = [POSES.home, POSES.above_red, POSES.press_red, POSES.above_blue, POSES.press_blue]
+@pytest.mark.parametrize("n", [2, 3])
+def test_calibrate_records_poses_by_hand(bus, tmp_path, n):
+    poses = POSES_BY_N[n]
+    targets = list(poses.table().values())  # home, then above and press of each option
     asked: list[str] = []
 
     def prompt(message: str) -> str:
@@ -232,9 +411,11 @@ def test_calibrate_records_poses_by_hand(bus, tmp_path):
 
     out = tmp_path / "arm.toml"
     base = FeetechArmConfig(ids=IDS, link=LINK)
-    result = calibrate(bus.port, out, base, prompt=prompt, say=lambda _: None)
-    assert result.poses == POSES
-    assert "OFF" in asked[0] and "PRESS_BLUE" in asked[-1]
+    names = None if n == 2 else NAMES[n]  # the paper's red and blue by default
+    result = calibrate(bus.port, out, base, prompt=prompt, say=lambda _: None, names=names)
+    assert result.poses == poses
+    assert "OFF" in asked[0] and f"PRESS_{NAMES[n][-1].upper()}" in asked[-1]
+    assert len(asked) == 1 + len(targets)
     assert all(s.get("torque_enable") == 0 for s in bus.servos.values())
     assert from_mapping(FeetechArmConfig, load_toml(out)) == result
 
