@@ -113,6 +113,17 @@ def add_options_arg(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def service_parser(prog: str, description: str, epilog: str | None = None) -> Parser:
+    """The command line every long-running service starts from, its common flags on it.
+
+    Its name and what it does, then `add_service_args`: the fabric, the shared clock,
+    `--params` and `-v`; the service adds its own flags after.
+    """
+    parser = Parser(prog=prog, description=description, epilog=epilog)
+    add_service_args(parser)
+    return parser
+
+
 def add_service_args(parser: argparse.ArgumentParser) -> None:
     """Every service's common flags: zenoh session, shared clock, `--params`, `-v`."""
     from services.core.clock import add_clock_args

@@ -22,7 +22,7 @@ import sys
 import threading
 
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args, fail, host_port
+from services.core.cli import fail, host_port, service_parser
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.display.screen import DisplayState
@@ -67,12 +67,11 @@ class DisplayService:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod display`."""
-    p = Parser(
-        prog="nod display",
-        description="Serve the participant's screen (countdown, go, points) as a web page for "
+    p = service_parser(
+        "nod display",
+        "Serve the participant's screen (countdown, go, points) as a web page for "
         "a browser in kiosk mode, following the conductor's events.",
     )
-    add_service_args(p)
     p.add_argument("--http", default=DEFAULT_HTTP, metavar="HOST:PORT",
                    help=f"where the page is served (default {DEFAULT_HTTP}; port 0: any free "
                    "one, printed at start; 0.0.0.0 for a screen on another machine)")

@@ -20,7 +20,7 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
-from services.core.cli import SEED, Parser, add_options_arg, add_service_args, fail
+from services.core.cli import SEED, add_options_arg, fail, service_parser
 from services.core.config import load_with_options, params_hash
 from services.core.node import Node, setup_logging
 from services.core.rigfile import CONTROL, Host, RigFileError, load_rig, session_flags
@@ -73,11 +73,10 @@ def ask_clicks(
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod experiment`."""
-    p = Parser(
-        prog="nod experiment",
-        description="Conduct one participant's 8 trials and store them in a SQLite file.",
+    p = service_parser(
+        "nod experiment",
+        "Conduct one participant's 8 trials and store them in a SQLite file.",
     )
-    add_service_args(p)
     p.add_argument(
         "--rig-file",
         type=Path,

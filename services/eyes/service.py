@@ -16,7 +16,7 @@ import math
 import sys
 
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args, fail
+from services.core.cli import fail, service_parser
 from services.core.config import load_params, params_hash
 from services.core.node import Node, setup_logging
 from services.core.priority import raise_priority
@@ -116,14 +116,13 @@ class EyesService:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod eyes`."""
-    p = Parser(
-        prog="nod eyes",
-        description="Drive the two servo eyes from gaze commands (Section 5).",
+    p = service_parser(
+        "nod eyes",
+        "Drive the two servo eyes from gaze commands (Section 5).",
         epilog="Bench tools on the eyes' host (no Zenoh; stop the service first): "
         "`nod eyes point --yaw Y --pitch P …` looks at one gaze, "
         "`nod eyes calibrate --out eyes_trims.toml …` centres the servos (see their --help).",
     )
-    add_service_args(p)
     add_driver_args(p)
     p.add_argument("--stale-ms", type=float, default=None, help="gaze staleness bound (ms)")
     add_state_dir_arg(p)

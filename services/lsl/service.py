@@ -22,7 +22,7 @@ import sys
 from collections.abc import Callable
 
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args, fail
+from services.core.cli import fail, service_parser
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.lsl.clockmap import REFRESH_S, STEP_S, Anchor, read_anchor
@@ -113,13 +113,12 @@ class LslService:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod lsl`."""
-    p = Parser(
-        prog="nod lsl",
-        description="Publish the rig's signals (z_h, z_r, b_r, hand centre) and protocol markers "
+    p = service_parser(
+        "nod lsl",
+        "Publish the rig's signals (z_h, z_r, b_r, hand centre) and protocol markers "
         "as Lab Streaming Layer outlets, on LSL's clock (for LabRecorder). Needs the lsl extra; "
         "LSL's own settings come from lsl_api.cfg ($LSLAPICFG).",
     )
-    add_service_args(p)
     return p
 
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from services.cohort.person import fitted_traits
 from services.core import messages as m
-from services.core.cli import SEED, Parser, add_options_arg, add_service_args, fail
+from services.core.cli import SEED, add_options_arg, fail, service_parser
 from services.core.config import load_with_options
 from services.core.node import Node, TopicPublisher, setup_logging
 from services.core.session import Fabric
@@ -295,11 +295,10 @@ def publish_frame(
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod sim`."""
-    p = Parser(
-        prog="nod sim",
-        description="Publish a synthetic participant's hand on vision/hand (stands in for vision).",
+    p = service_parser(
+        "nod sim",
+        "Publish a synthetic participant's hand on vision/hand (stands in for vision).",
     )
-    add_service_args(p)
     p.add_argument("--seed", type=SEED, default=1, help="random seed of the participant")
     p.add_argument("--rate", type=float, default=30.0, help="camera rate in Hz (default 30)")
     p.add_argument(

@@ -20,7 +20,7 @@ import threading
 from pathlib import Path
 
 from services.core import messages as m
-from services.core.cli import Parser, add_service_args, fail
+from services.core.cli import fail, service_parser
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.speaker.drivers import DRIVERS, SpeakerDriver, make_speaker
@@ -78,12 +78,11 @@ class SpeakerService:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod speaker`."""
-    p = Parser(
-        prog="nod speaker",
-        description="Play the participant's countdown (a beep per word, a go tone) and publish "
+    p = service_parser(
+        "nod speaker",
+        "Play the participant's countdown (a beep per word, a go tone) and publish "
         "each cue's onset as played on speaker/played.",
     )
-    add_service_args(p)
     p.add_argument("--driver", choices=DRIVERS, default="sim",
                    help="sim (silent), wav (into --out) or sounddevice (the sound card: the "
                    "audio extra and PortAudio)")
