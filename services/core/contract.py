@@ -227,7 +227,7 @@ OPTIONS_PRESS = Topic(
 )
 OPTIONS_TRIAL = Topic(
     "options/trial", m.OptionsTrialEvent, ("experiment",),
-    ("decision", "actuation", "sim", "speaker", "display", "lsl", "run", "operator"),
+    ("decision", "actuation", "sim", "speaker", "display", "lsl", "run", "operator", "lab"),
     "per event",
     CONTROL, "`n_options`, `phase`, `trial`, `mode`, `option` (O, a box), `text`, `session`",
 )

@@ -3,11 +3,12 @@
 It listens to every rig at once (`nod/*/…`) for `--duration` seconds (default 2): the liveliness
 tokens say which services of each rig are alive; the heartbeats (rig/status, 1 Hz per service)
 where each runs and its host's clock offset from ours, and the conductor's its session,
-participant and trial; the conductor's events (experiment/trial) the trial's phase as it
-happens. A rig is on the network when anything of it was heard. On a secured lab it speaks
-with the lab's read-only identity (`--config <lab>/lab/monitor/zenoh.json5`): a rig's own
-identities see only their rig. `--json` prints one object, `--watch` refreshes until Ctrl-C
-(keeping each rig's last event between refreshes). Exit 1 when no rig answered, 2 on bad input.
+participant and trial; the conductor's events (experiment/trial, or options/trial on a table
+of N boxes) the trial's phase as it happens. A rig is on the network when anything of it was
+heard. On a secured lab it speaks with the lab's read-only identity (`--config
+<lab>/lab/monitor/zenoh.json5`): a rig's own identities see only their rig. `--json` prints one
+object, `--watch` refreshes until Ctrl-C (keeping each rig's last event between refreshes).
+Exit 1 when no rig answered, 2 on bad input.
 """
 
 from __future__ import annotations
@@ -36,7 +37,8 @@ class LabObservation:
 
     alive: dict[str, set[str]] = field(default_factory=dict)  # rig -> services
     heartbeats: dict[tuple[str, str], tuple[m.NodeStatus, int]] = field(default_factory=dict)
-    events: dict[str, m.TrialEvent] = field(default_factory=dict)  # rig -> its last event
+    # rig -> its last event (the paper's key, or a table of N boxes')
+    events: dict[str, m.TrialEvent | m.OptionsTrialEvent] = field(default_factory=dict)
     invalid: int = 0
 
 
@@ -46,7 +48,7 @@ def _rig_of(key: str) -> str:
 
 def observe(
     session: zenoh.Session, duration: float, stop: threading.Event,
-    events: dict[str, m.TrialEvent] | None = None,
+    events: dict[str, m.TrialEvent | m.OptionsTrialEvent] | None = None,
 ) -> LabObservation:
     """Listen to every rig for `duration` seconds (`events`: the last ones already known)."""
     obs = LabObservation(events=dict(events or {}))
@@ -61,7 +63,7 @@ def observe(
             else:
                 services.discard(service)
 
-    keys = ["nod/*/rig/status", "nod/*/experiment/trial"]
+    keys = ["nod/*/rig/status", "nod/*/experiment/trial", "nod/*/options/trial"]
     with Window(session, keys, "nod/*/alive/*", on_alive) as window:
         for item, msg in window.heard(time.monotonic() + duration, stop):
             if msg is None:
@@ -70,7 +72,7 @@ def observe(
             rig = _rig_of(item.key)
             if isinstance(msg, m.NodeStatus):
                 obs.heartbeats[(rig, msg.service)] = (msg, item.wall_ns)
-            elif isinstance(msg, m.TrialEvent):
+            elif isinstance(msg, (m.TrialEvent, m.OptionsTrialEvent)):
                 obs.events[rig] = msg
     with lock:
         obs.alive = {rig: set(s) for rig, s in obs.alive.items()}
@@ -161,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         return fail(PROG, exc)
     doc: dict[str, Any] = {"rigs": []}
     try:
-        events: dict[str, m.TrialEvent] = {}
+        events: dict[str, m.TrialEvent | m.OptionsTrialEvent] = {}
         while True:
             obs = observe(session, args.duration, stop, events)
             events = obs.events
