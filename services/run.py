@@ -397,17 +397,21 @@ def _check_args(args: argparse.Namespace) -> str | None:
     return None
 
 
-def _options_problem(args: argparse.Namespace, n_options: int) -> str | None:
-    """Why this run cannot go with N options yet (one line), or None.
+def _options_problem(args: argparse.Namespace, names: tuple[str, ...]) -> str | None:
+    """Why this run cannot go with these options (one line), or None.
 
-    The conductor is one for any option set (`--order` by option name, `--again`, `--record`,
-    `--resume` and `--rigs` as in the paper's run); a real arm is not there yet.
+    The whole rig runs any option set, the paper's run's flags with it; a Feetech arm needs a
+    press pose for every option in its file (actuation checks it too: here it fails first).
     """
-    given = ["--arm-driver"] if args.arm_driver != "sim" else []
-    if not given:
+    if args.arm_driver != "feetech" or args.arm_config is None:
         return None
-    return (f"{', '.join(given)}: not yet with {n_options} options (docs/multi-option.md); "
-            "the paper's two-option run has them")
+    from services.actuation.drivers import check_arm_file  # only a real arm's run pays for it
+
+    try:
+        check_arm_file(args.arm_config, names)
+    except ValueError as exc:  # ConfigError is a ValueError
+        return str(exc)
+    return None
 
 
 def _preflight(args: argparse.Namespace) -> str | None:
@@ -416,7 +420,7 @@ def _preflight(args: argparse.Namespace) -> str | None:
         _, schedule = load_with_options(args.params, args.options)
     except (ValueError, OSError) as exc:  # ConfigError is a ValueError
         return str(exc)
-    if schedule is not None and (problem := _options_problem(args, schedule.n_options)):
+    if schedule is not None and (problem := _options_problem(args, schedule.names)):
         return problem
     try:
         make_config(mode="router", listen=[args.listen])

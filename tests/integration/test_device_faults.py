@@ -4,7 +4,8 @@
 arm's Feetech bus, or the eyes' Maestro controller, played by an emulator. Each fault must
 safe-stop that device within 300 ms, interrupt the trial (stored with the fault in
 `interruptions` and `safety_events`) and have it repeated, never scored; the session completes
-once the device is healthy again.
+once the device is healthy again. The arm's faults are tested on the paper's table and on one of
+three boxes (its arm file a press pose per option), through the same driver.
 """
 
 from __future__ import annotations
@@ -20,12 +21,21 @@ from services.actuation.feetech_arm import FeetechArmConfig
 from services.core import messages as m
 from services.core.keys import Keys
 from services.store import Store
-from tests.emulators.feetech_emulator import IDS, POSES
+from tests.emulators.feetech_emulator import IDS, POSES_BY_N
 from tests.emulators.links import RIG
 from tests.emulators.own_process import DeviceProcess
 from tests.processes import stop_all
 
-from .conftest import RELAXED, ROOT, Collector, connect_when_listening, free_port, wait_for
+from .conftest import (
+    RELAXED,
+    ROOT,
+    SHORT,
+    SHORT_THREE,
+    Collector,
+    connect_when_listening,
+    free_port,
+    wait_for,
+)
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
@@ -45,15 +55,18 @@ def _fault_stop_after(states: Collector, t: float) -> float | None:
     )
 
 
-@pytest.mark.parametrize("device", ["actuation", "eyes"])
-def test_a_silent_and_an_unplugged_bus_interrupt_their_trials(tmp_path, device):
+@pytest.mark.parametrize(("device", "n_options"), [("actuation", 2), ("actuation", 3),
+                                                   ("eyes", 2)])
+def test_a_silent_and_an_unplugged_bus_interrupt_their_trials(tmp_path, device, n_options):
     params = tmp_path / "short.toml"
-    params.write_text(RELAXED)  # the fault's own detection is what is timed
+    # the fault's own detection is what is timed; three trials of the table's options
+    params.write_text(RELAXED if n_options == 2 else SHORT_THREE + RELAXED.removeprefix(SHORT))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     db = tmp_path / "s.sqlite"
     if device == "actuation":
         arm_file = tmp_path / "arm.toml"
-        arm_file.write_text(config_toml(FeetechArmConfig(ids=IDS, poses=POSES, link=RIG)))
+        poses = POSES_BY_N[n_options]
+        arm_file.write_text(config_toml(FeetechArmConfig(ids=IDS, poses=poses, link=RIG)))
         emulator = DeviceProcess("feetech", tmp_path)
         state_cls = m.ArmStateMsg
         flags = ["--arm-driver", "feetech", "--arm-port", "{port}", "--arm-config", str(arm_file)]
@@ -73,7 +86,9 @@ def test_a_silent_and_an_unplugged_bus_interrupt_their_trials(tmp_path, device):
         client = None
         try:
             client = connect_when_listening(endpoint)
-            events = Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
+            events = (Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
+                      if n_options == 2 else
+                      Collector(client, KEYS.topic("options/trial"), m.OptionsTrialEvent))
             arm = Collector(client, KEYS.topic(f"{device}/state"), state_cls)
             delays = {}
             for trial, fault in ((2, "silent"), (3, "unplugged")):

@@ -11,7 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from services.actuation.calibrate import config_toml
+from services.actuation.feetech_arm import FeetechArmConfig
 from services.store import Store
+from tests.emulators.feetech_emulator import IDS, POSES_BY_N
 from tests.processes import run_nod
 
 from .conftest import (
@@ -135,15 +138,21 @@ def test_three_rendered_boxes_found_by_vision(tmp_path: Path) -> None:
     assert sum(t.human in NAMES for t in trials) >= 2  # the hand is tracked to its press
 
 
-def test_flags_not_yet_there_for_options_are_refused_before_anything_starts(
+def test_an_arm_file_without_a_pose_for_every_option_is_refused_before_anything_starts(
     tmp_path: Path,
 ) -> None:
-    run = run_nod("run", "--sim", "--options", "3", "--arm-driver", "feetech", "--db",
+    # A real arm runs any table whose options all have press poses in its file (a Feetech bus
+    # at three boxes: test_device_faults.py); the paper's red and blue file has no green.
+    arm_file = tmp_path / "arm.toml"
+    arm_file.write_text(config_toml(FeetechArmConfig(ids=IDS, poses=POSES_BY_N[2])))
+    run = run_nod("run", "--sim", "--options", "3", "--arm-driver", "feetech", "--arm-port",
+                  "/dev/null", "--arm-config", str(arm_file), "--db",
                   str(tmp_path / "s.sqlite"), "--listen", f"tcp/127.0.0.1:{free_port()}",
                   timeout=60)
     assert run.returncode != 0
-    assert "--arm-driver: not yet with 3 options" in run.stderr
+    assert f"{arm_file}: the arm file has no press pose for option(s) green" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "s.sqlite").exists()
 
 
 def _estop_trial_2(tmp_path: Path, params: str) -> tuple[str, Path]:
