@@ -19,24 +19,9 @@ from services.core.session import make_config, open_session
 from services.store import Store
 from tests.polling import wait_for as wait_for  # the integration tests import it from here
 from tests.processes import MARK_ENV, free_port, processes_marked, stop_all
+from tests.protocols import SHORT as SHORT  # a three-trial protocol: whole sessions in seconds
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-# A three-trial protocol (one control trial, two consensus ones): whole sessions in seconds.
-SHORT = """
-[[protocol.trials]]
-index = 1
-mode = "dissensus"
-[[protocol.trials]]
-index = 2
-mode = "consensus"
-option = "red"
-gaze_level = "low"
-[[protocol.trials]]
-index = 3
-mode = "consensus"
-option = "blue"
-gaze_level = "significant"
-"""
 # SHORT on a table of three boxes: three trials, one control and two consensus, O by name (the
 # one conductor runs it on the `options/*` keys; the tests of N = 2 are parametrised with it).
 SHORT_THREE = """

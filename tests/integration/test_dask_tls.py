@@ -27,6 +27,7 @@ import pytest
 from services.lab.secure import main as secure_main
 from tests.polling import wait_for
 from tests.processes import ROOT, free_port, run_nod, stop_all
+from tests.tables import sessions_table, trials_table
 
 pytestmark = pytest.mark.integration
 
@@ -107,16 +108,6 @@ def cluster(tls: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Clu
         stop_all([c.worker, c.scheduler])
 
 
-def _trials(db: Path) -> list[tuple]:
-    with sqlite3.connect(db) as con:
-        return con.execute("SELECT * FROM trials ORDER BY session, trial").fetchall()
-
-
-def _sessions(db: Path) -> list[tuple]:
-    with sqlite3.connect(db) as con:
-        return con.execute("SELECT * FROM sessions ORDER BY session").fetchall()
-
-
 def test_nod_cohort_runs_over_mutual_tls_with_the_client_certificate(
     cluster: Cluster, tls: Path, tmp_path: Path
 ) -> None:
@@ -126,8 +117,8 @@ def test_nod_cohort_runs_over_mutual_tls_with_the_client_certificate(
                   env={**os.environ, "NOD_DASK_TLS": str(tls / "dask" / "client")}, timeout=300)
     assert res.returncode == 0, res.stderr
     assert f"on the cluster at {cluster.address}" in res.stdout
-    assert {row[0] for row in _trials(db)} == {"cohort-11", "cohort-12", "cohort-13"}
-    assert len(_trials(db)) == 3 * 8
+    assert {row[0] for row in trials_table(db)} == {"cohort-11", "cohort-12", "cohort-13"}
+    assert len(trials_table(db)) == 3 * 8
     # Without the client certificate: one line saying which flag, no traceback.
     res = run_nod("cohort", "--participants", "1", "--db", str(tmp_path / "no.sqlite"),
                   "--scheduler", cluster.address, timeout=120)
@@ -253,9 +244,9 @@ def test_a_scheduler_killed_mid_cohort_leaves_it_incomplete_and_resume_completes
         res = run_nod(*cohort, "--db", str(whole), "--scheduler", second.address,
                       "--tls-dir", client, timeout=300)
         assert res.returncode == 0, res.stderr
-        assert len(_trials(whole)) == 480
-        assert _trials(broken) == _trials(whole)
-        assert _sessions(broken) == _sessions(whole)
+        assert len(trials_table(whole)) == 480
+        assert trials_table(broken) == trials_table(whole)
+        assert sessions_table(broken) == sessions_table(whole)
         with sqlite3.connect(broken) as con:
             assert con.execute("SELECT status FROM cohorts").fetchall() == [("complete",)]
     finally:

@@ -14,30 +14,17 @@ import pytest
 from services.core import messages as m
 from services.core.keys import Keys
 
-from .conftest import Collector, FakeConductor, connect_when_listening, free_port, wait_for
-from .test_estop_restarts import Procs, estop, free_to_move, states_since
+from .conftest import Collector, connect_when_listening, free_port, wait_for
+from .test_estop_restarts import Procs, estop, free_to_move, rig_free_to_run, states_since
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
 
 
 def test_an_estop_on_a_full_disk_is_not_acknowledged_and_survives_kill9(tmp_path, small_disk):
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     state = ("--state-dir", str(small_disk.path / "state"))
-    rig = Procs(endpoint, tmp_path)
-    rig.start("router")
-    client = conductor = None
-    try:
-        client = connect_when_listening(endpoint)
-        rig.start("decision")
-        rig.start("sim")
-        rig.start("actuation", *state)
-        rig.start("eyes", *state)
-        conductor = FakeConductor(client)
-        arm = Collector(client, KEYS.topic("actuation/state"), m.ArmStateMsg)
-        eyes = Collector(client, KEYS.topic("eyes/state"), m.EyesStateMsg)
-        wait_for(lambda: arm.items and not arm.items[-1][1].safe_stop
-                 and eyes.items and not eyes.items[-1][1].safe_stop, 40, "a rig free to run")
+    with rig_free_to_run(tmp_path, *state) as (rig, arm, eyes):
+        endpoint = rig.endpoint
         small_disk.fill()
         t_engaged = time.monotonic()
         engaged = estop(endpoint, "--reason", "disk full test")
@@ -65,12 +52,6 @@ def test_an_estop_on_a_full_disk_is_not_acknowledged_and_survives_kill9(tmp_path
             moving = free_to_move(since[first:])
             assert not moving, f"{device} reported free to move after the engage: {moving[:3]}"
         assert not states_since(arm, t_kill + 0.5)  # nothing drives the arm now
-    finally:
-        if conductor is not None:
-            conductor.close()
-        if client is not None:
-            client.close()
-        rig.stop()
 
 
 def test_an_unsaved_estop_is_saved_once_the_disk_frees_and_then_survives_kill9(

@@ -15,6 +15,8 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -87,20 +89,37 @@ def free_to_move(states: list[m.Message]) -> list[m.Message]:
     return [s for s in states if not (s.estop and s.safe_stop)]
 
 
-def test_an_estop_survives_kill9_of_devices_and_router_until_released(tmp_path):
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    rig = Procs(endpoint, tmp_path)
+@contextmanager
+def rig_free_to_run(
+    tmp_path: Path, *device_args: str
+) -> Iterator[tuple[Procs, Collector, Collector]]:
+    """A router, decision, the sim, actuation and eyes (both with `device_args`) and a stand-in
+    conductor, each its own process: the rig and the arm's and the eyes' states, once both are
+    free to run. Everything is closed and stopped after."""
+    rig = Procs(f"tcp/127.0.0.1:{free_port()}", tmp_path)
     rig.start("router")
     client = conductor = None
     try:
-        client = connect_when_listening(endpoint)
+        client = connect_when_listening(rig.endpoint)
         for service in ("decision", "actuation", "eyes", "sim"):
-            rig.start(service)
+            rig.start(service, *(device_args if service in ("actuation", "eyes") else ()))
         conductor = FakeConductor(client)
         arm = Collector(client, KEYS.topic("actuation/state"), m.ArmStateMsg)
         eyes = Collector(client, KEYS.topic("eyes/state"), m.EyesStateMsg)
         wait_for(lambda: arm.items and not arm.items[-1][1].safe_stop
                  and eyes.items and not eyes.items[-1][1].safe_stop, 40, "a rig free to run")
+        yield rig, arm, eyes
+    finally:
+        if conductor is not None:
+            conductor.close()
+        if client is not None:
+            client.close()
+        rig.stop()
+
+
+def test_an_estop_survives_kill9_of_devices_and_router_until_released(tmp_path):
+    with rig_free_to_run(tmp_path) as (rig, arm, eyes):
+        endpoint = rig.endpoint
         engaged = estop(endpoint, "--reason", "fault test")
         assert engaged.returncode == 0, engaged.stdout + engaged.stderr
         t_engaged = time.monotonic()
@@ -131,12 +150,6 @@ def test_an_estop_survives_kill9_of_devices_and_router_until_released(tmp_path):
         wait_for(lambda: any(not s.safe_stop for s in states_since(eyes, t_release)), 10,
                  "the eyes free to run after the release")
         print(f"\nstates checked after each restart (victims, arm, eyes): {checked}")
-    finally:
-        if conductor is not None:
-            conductor.close()
-        if client is not None:
-            client.close()
-        rig.stop()
 
 
 def test_an_estop_survives_kill9_of_the_launcher(tmp_path):

@@ -15,35 +15,20 @@ import pytest
 
 from services.core import messages as m
 from services.core.keys import Keys
-from services.store import Store
 
-from .conftest import ROOT, connect_when_listening, free_port
+from .conftest import ROOT, SHORT, connect_when_listening, free_port, last_session_record
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
-SHORT = """
-[protocol]
-max_attempts = 1
-[[protocol.trials]]
-index = 1
-mode = "dissensus"
-gaze_level = "neutral"
-[[protocol.trials]]
-index = 2
-mode = "consensus"
-option = "red"
-gaze_level = "low"
-[[protocol.trials]]
-index = 3
-mode = "consensus"
-option = "blue"
-gaze_level = "significant"
-"""
+# SHORT with one attempt a trial: a trial the attack breaks is not repeated.
+SHORT_ONCE = "[protocol]\nmax_attempts = 1\n" + SHORT
 
 
-def _session_with(tmp_path, attack) -> tuple[subprocess.CompletedProcess, Store, str]:
+def _session_with(tmp_path, attack) -> tuple[list, list, list, str]:
+    """`nod run --sim` of SHORT_ONCE while `attack(endpoint, stop)` runs on a thread: the
+    session's trials, interruptions and safety events as stored, and the services' logs."""
     params = tmp_path / "short.toml"
-    params.write_text(SHORT)
+    params.write_text(SHORT_ONCE)
     db, logs = tmp_path / "s.sqlite", tmp_path / "logs"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     cmd = [sys.executable, "-m", "services.cli", "run", "--sim", "--speed", "4", "--seed", "4",
@@ -63,7 +48,9 @@ def _session_with(tmp_path, attack) -> tuple[subprocess.CompletedProcess, Store,
             run.kill()
     assert run.returncode == 0, out
     logs_text = "".join(p.read_text() for p in sorted(logs.glob("*.log")))
-    return run, Store(db), logs_text
+    trials, broken, events = last_session_record(
+        db, lambda store, session: [t for _, t in store.trials(session)])
+    return trials, broken, events, logs_text
 
 
 def test_forged_robot_presses_are_refused(tmp_path):
@@ -79,18 +66,13 @@ def test_forged_robot_presses_are_refused(tmp_path):
                     press.put(m.encode(msg))
         session.close()
 
-    _, store, logs = _session_with(tmp_path, attack)
-    try:
-        trials = [t for _, t in store.trials()]
-        session = store.sessions()[-1]["session"]
-        context = (store.interruptions(session), store.safety_events(session)[:10])
-    finally:
-        store.close()
+    trials, broken, events, logs = _session_with(tmp_path, attack)
+    context = (broken, events[:10])
     real = {int(n): c for n, c in re.findall(r"trial (\d+): robot pressed (red|blue)", logs)}
     assert [t.trial for t in trials] == [1, 2, 3]
     # What the arm did, not what was forged.
     assert {t.trial: t.robot for t in trials} == real, (trials, context)
-    assert "never confirmed by actuation/state" in logs and "refused" in logs
+    assert "never confirmed by the arm's state" in logs and "refused" in logs
 
 
 def test_a_second_hand_stream_voids_the_trials_instead_of_scoring_them(tmp_path):
@@ -107,13 +89,7 @@ def test_a_second_hand_stream_voids_the_trials_instead_of_scoring_them(tmp_path)
             hand.put(m.encode(pose))
         session.close()
 
-    _, store, _ = _session_with(tmp_path, attack)
-    try:
-        trials = [t for _, t in store.trials()]
-        session = store.sessions()[-1]["session"]
-        broken = store.interruptions(session)
-    finally:
-        store.close()
+    trials, broken, _, _ = _session_with(tmp_path, attack)
     assert [t.trial for t in trials] == [1, 2, 3]
     assert all(t.interrupted and t.outcome is None and t.score == 0 for t in trials), trials
     assert all("two publishers on vision/hand" in b.reason for b in broken), broken

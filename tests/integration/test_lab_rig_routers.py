@@ -149,6 +149,19 @@ def refused(
     return [k for k in keys if seen.has(k, b"forged") or target.has(k, b"forged")]
 
 
+def assert_refused(
+    sender: zenoh.Session,
+    keys: list[str],
+    marker: tuple[Seen, str],
+    down: tuple[zenoh.Session, Seen, str],
+    who: str,
+) -> None:
+    """`refused` is empty: every key is refused; a line says how many, of whose (seen with -s)."""
+    passed = refused(sender, keys, marker, down)
+    print(f"\n{who}: {len(keys) - len(passed)} of {len(keys)} keys refused")
+    assert not passed, passed
+
+
 def test_the_lab_monitor_sees_both_rigs_services_through_their_routers(lab: Lab) -> None:
     from services.core.node import Node
     from services.core.session import Fabric
@@ -254,17 +267,13 @@ def test_a_rig2_identity_cannot_reach_into_rig1_through_the_routers(lab: Lab) ->
         "nod/rig1/rig/status",
     ]
     token = camera2.liveliness().declare_token("nod/rig1/alive/vision")
-    passed = refused(
+    assert_refused(
         camera2,
         forged,
         (lab_view, "nod/rig2/vision/hand"),
         (estop, rig1, "nod/rig1/safety/release"),
+        "rig2's camera into rig1 through rig2's and the lab router",
     )
-    print(
-        f"\nrig2's camera into rig1 through rig2's and the lab router: "
-        f"{len(forged) - len(passed)} of {len(forged)} keys refused"
-    )
-    assert not passed, passed
     # Its rig's router enforces the rig's own ACL: a camera drives nothing of its rig either.
     rig2 = Seen(lab.session("rig2/arm"), "rig2")
     own = ["nod/rig2/decision/z_r", "nod/rig2/actuation/cmd", "nod/rig2/safety/release"]
@@ -298,14 +307,13 @@ def test_a_rig_routers_identity_cannot_put_into_another_rig_at_the_lab_router(la
         "nod/rig2/rig/event",
     ]
     token = rogue.liveliness().declare_token("nod/rig2/alive/actuation")
-    passed = refused(
-        rogue, forged, (lab_view, "nod/rig1/vision/hand"), (estop, arm2, "nod/rig2/safety/release")
+    assert_refused(
+        rogue,
+        forged,
+        (lab_view, "nod/rig1/vision/hand"),
+        (estop, arm2, "nod/rig2/safety/release"),
+        "rig1's router identity into rig2 at the lab router",
     )
-    print(
-        f"\nrig1's router identity into rig2 at the lab router: {len(forged) - len(passed)} of "
-        f"{len(forged)} keys refused"
-    )
-    assert not passed, passed
     # What the lab router forwards it: rig1's, and nothing of rig2's (rig1's comes after).
     put_until_seen(lab.session("rig2/camera"), lab_view, "nod/rig2/vision/hand", b"rig2's")
     put_until_seen(lab.session("rig1/camera"), spy1, "nod/rig1/vision/hand", b"rig1's camera")

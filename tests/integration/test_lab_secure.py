@@ -21,21 +21,12 @@ from services.core.session import make_config
 from services.lab.secure import main as secure_main
 from services.store import Store
 from tests.processes import stop_all
+from tests.protocols import TWO_TRIALS
 
 from .conftest import ROOT, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
-TWO_TRIALS = """
-[[protocol.trials]]
-index = 1
-mode = "dissensus"
-[[protocol.trials]]
-index = 2
-mode = "consensus"
-option = "red"
-gaze_level = "low"
-"""
 
 
 @pytest.fixture

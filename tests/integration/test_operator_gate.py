@@ -7,7 +7,9 @@ table of three (its trial events on `options/trial`)."""
 from __future__ import annotations
 
 import re
+import subprocess
 import time
+from pathlib import Path
 
 import pytest
 
@@ -56,6 +58,22 @@ def _setups(events: Collector) -> list[int]:
     return list(dict.fromkeys(e.trial for e in events.messages if e.phase == "setup"))
 
 
+def _session(
+    spawn, client, tmp_path: Path, n: int, gated: bool
+) -> tuple[subprocess.Popen, Collector, Path]:
+    """A rig and a 3-trial conductor of `n` options (gated or not), each its own process: the
+    conductor, its trial events and its store."""
+    params = tmp_path / "params.toml"
+    params.write_text(_params(n, gated))
+    epoch = str(time.time_ns())
+    _rig(spawn, str(params), epoch)
+    events = _events(client, n)
+    db = tmp_path / "s.sqlite"
+    conductor = spawn("experiment", *SPEED, "--epoch-ns", epoch, "--params", str(params),
+                      "--db", str(db), "--clicks", "10", "--console", "lines")
+    return conductor, events, db
+
+
 def _operator(endpoint: str, action: str) -> None:
     res = run_nod("experiment", action, "--connect", endpoint, "--timeout", "30", timeout=60)
     assert res.returncode == 0, res.stdout + res.stderr
@@ -65,14 +83,7 @@ def _operator(endpoint: str, action: str) -> None:
 def test_a_gated_session_starts_each_trial_only_when_the_operator_says(
     router, endpoint, client, spawn, tmp_path, n
 ):
-    params = tmp_path / "gated.toml"
-    params.write_text(_params(n, gated=True))
-    epoch = str(time.time_ns())
-    _rig(spawn, str(params), epoch)
-    events = _events(client, n)
-    db = tmp_path / "s.sqlite"
-    conductor = spawn("experiment", *SPEED, "--epoch-ns", epoch, "--params", str(params),
-                      "--db", str(db), "--clicks", "10", "--console", "lines")
+    conductor, events, db = _session(spawn, client, tmp_path, n, gated=True)
     for trial in (1, 2, 3):
         wait_for(lambda t=trial: f"trial {t} ready: waiting for the operator"
                  in conductor.log_path.read_text(), 60, f"trial {trial} waiting")
@@ -95,13 +106,7 @@ def test_a_gated_session_starts_each_trial_only_when_the_operator_says(
 def test_pause_holds_the_next_trial_of_an_ungated_session(
     router, endpoint, client, spawn, tmp_path, n
 ):
-    params = tmp_path / "short.toml"
-    params.write_text(_params(n, gated=False))
-    epoch = str(time.time_ns())
-    _rig(spawn, str(params), epoch)
-    events = _events(client, n)
-    conductor = spawn("experiment", *SPEED, "--epoch-ns", epoch, "--params", str(params),
-                      "--db", str(tmp_path / "s.sqlite"), "--clicks", "10", "--console", "lines")
+    conductor, events, _ = _session(spawn, client, tmp_path, n, gated=False)
     wait_for(lambda: 1 in _setups(events), 60, "trial 1 under way")
     _operator(endpoint, "pause")
     # The pause holds whichever trial comes next when it lands: trial 2, or trial 3 when a
@@ -119,7 +124,6 @@ def test_pause_holds_the_next_trial_of_an_ungated_session(
 
 def test_nod_run_says_when_a_trial_waits_for_the_operator(tmp_path):
     """`nod run` prints the conductor's "waiting for the operator" with the command to start it."""
-    import subprocess
     import sys
     import threading
 
@@ -128,8 +132,7 @@ def test_nod_run_says_when_a_trial_waits_for_the_operator(tmp_path):
     from .conftest import ROOT, free_port
 
     params = tmp_path / "gated.toml"
-    params.write_text(SHORT.replace("[[protocol.trials]]", "[protocol]\ngate = true\n\n"
-                                    "[[protocol.trials]]", 1))
+    params.write_text(_params(2, gated=True))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     rig = tmp_path / "rig.toml"
     rig.write_text(f'[rig]\nname = "rig1"\nrouter = "{endpoint}"\n[hosts.here]\nrouter = true\n'

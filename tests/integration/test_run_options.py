@@ -19,6 +19,7 @@ from tests.processes import run_nod
 
 from .conftest import (
     ROOT,
+    SHORT_THREE,
     assert_estop_broke_trial_2_and_every_break_was_repeated,
     free_port,
     last_session_record,
@@ -28,22 +29,12 @@ from .conftest import (
 pytestmark = pytest.mark.integration
 NAMES = ("red", "blue", "green")
 
-# Three trials on the table of three (one control, two consensus): what the camera path and the
-# e-stop are about happens in the first two, so whole sessions take seconds, not a minute.
-SHORT_OPTIONS = """
-[protocol]
-options = ["red", "blue", "green"]
-trials = [
-    { index = 1, mode = "dissensus" },
-    { index = 2, mode = "consensus", option = "green", gaze_level = "significant" },
-    { index = 3, mode = "consensus", option = "red", gaze_level = "extreme" },
-]
-"""
-
 
 def _short(tmp_path: Path) -> str:
+    """SHORT_THREE's params file: what the camera path and the e-stop are about happens in the
+    first two trials, so whole sessions take seconds, not a minute."""
     params = tmp_path / "short.toml"
-    params.write_text(SHORT_OPTIONS)
+    params.write_text(SHORT_THREE)
     return str(params)
 
 
@@ -212,7 +203,7 @@ def test_an_estop_mid_trial_interrupts_it_and_the_trial_is_repeated(tmp_path: Pa
 def test_a_trial_given_up_on_is_stored_interrupted_and_shown_in_the_table(tmp_path: Path) -> None:
     """Not repeated: the e-stopped trial 2 is stored interrupted, published and shown as such."""
     params = tmp_path / "once.toml"
-    once = SHORT_OPTIONS.replace("[protocol]\n", "[protocol]\nrepeat_interrupted = false\n")
+    once = SHORT_THREE.replace("[protocol]\n", "[protocol]\nrepeat_interrupted = false\n")
     params.write_text(once)
     out, db = _estop_trial_2(tmp_path, str(params))
     trials, broken, _ = last_session_record(
