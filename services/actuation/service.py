@@ -62,7 +62,7 @@ from services.model.robot import OptionsRobotTrial, RobotTrial, TrialReactor
 from services.model.safety import SafetyParams, Watchdog
 from services.model.schedule import OptionsSchedule
 from services.safety.latch_file import LatchFile, add_state_dir_arg, default_state_dir
-from services.safety.wiring import watch_safety_inputs
+from services.safety.wiring import run_device_service, watch_safety_inputs
 
 log = logging.getLogger("nod.actuation")
 NS = 1e-9
@@ -116,6 +116,9 @@ class Arm(Protocol[C, B_co]):
 
     def hold(self) -> C:
         """Safe stop: come to rest and hold."""
+
+    def make_safe(self) -> object:
+        """The arm's safe state (`hold`), for the service's end."""
 
     def state(self, t: float) -> ArmReport[B_co]:
         """The arm's state at time t (s)."""
@@ -581,12 +584,7 @@ def main(argv: list[str] | None = None) -> int:
         node.close()
         return fail("nod actuation", exc)
     ActuationService(node, cfg, arm, safety, latch_file, n_options)
-    node.on_forced_exit(arm.hold)  # if a signal's clean stop hangs: hold the arm, then exit
-    try:
-        node.run()
-    finally:
-        arm.hold()
-        arm.disconnect()
+    run_device_service(node, arm)  # the arm holds however the service ends
     return 0
 
 

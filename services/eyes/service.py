@@ -28,7 +28,7 @@ from services.model.params import NodConfig
 from services.model.safety import SafetyParams, Watchdog
 from services.model.servos import SERVO_NAMES, ServoTargets
 from services.safety.latch_file import LatchFile, add_state_dir_arg, default_state_dir
-from services.safety.wiring import watch_safety_inputs
+from services.safety.wiring import run_device_service, watch_safety_inputs
 
 log = logging.getLogger("nod.eyes")
 
@@ -176,12 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         trims = {s: c.trim_deg for s, c in zip(SERVO_NAMES, servos, strict=True)}
         log.info("servo trims from %s: %s", args.trims, json.dumps(trims))
     EyesService(node, driver, safety, latch_file)
-    node.on_forced_exit(driver.neutral)  # if a signal's clean stop hangs: eyes neutral, exit
-    try:
-        node.run()
-    finally:
-        driver.neutral()
-        driver.disconnect()
+    run_device_service(node, driver)  # the eyes look ahead however the service ends
     return 0
 
 

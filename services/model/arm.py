@@ -196,6 +196,10 @@ class OptionsSimArm(PointArm[int]):
         """Safe stop: come to rest (bounded deceleration) and hold that position."""
         return self.send(OptionsCommand("stop", reason="hold"))
 
+    def make_safe(self) -> OptionsCommand:
+        """Hold the arm (before disconnecting), as the paper's arms do."""
+        return self.hold()
+
     def state(self, t: float) -> OptionsArmState:
         """Advance to time t (s) and report."""
         self._require_connected()

@@ -8,6 +8,7 @@ from __future__ import annotations
 import functools
 import logging
 from collections.abc import Callable
+from typing import Protocol
 
 from services.core import messages as m
 from services.core.node import Node
@@ -122,3 +123,27 @@ def watch_safety_inputs(
                  "ENGAGED" if watchdog.latch.engaged else "released", len(peers))
     for service in dict.fromkeys((*watchdog.params.require_alive, *also_watch)):
         node.watch_liveliness(service, functools.partial(watchdog.set_alive, service))
+
+
+class SafeDevice(Protocol):
+    """A device a service drives: a safe state to go to, and a connection to close."""
+
+    def make_safe(self) -> object:
+        """Put the device in its safe state (the arm holds, the eyes look ahead)."""
+
+    def disconnect(self) -> None:
+        """Close the connection (idempotent)."""
+
+
+def run_device_service(node: Node, device: SafeDevice) -> None:
+    """Run a device's service until it is signalled to stop; the device left safe, then closed.
+
+    However the service ends — a clean stop, an error, or a clean stop that hangs and is forced
+    (`Node.on_forced_exit`) — the device is put in its safe state before anything else.
+    """
+    node.on_forced_exit(device.make_safe)
+    try:
+        node.run()
+    finally:
+        device.make_safe()
+        device.disconnect()

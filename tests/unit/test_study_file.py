@@ -15,17 +15,9 @@ from services.model.counterbalance import position_counts
 from services.model.protocol import default_schedule
 from services.model.schedule import OptionsSchedule
 from services.study.studyfile import StudyError, dump, load, make_study, write
+from tests.protocols import TWO_TRIALS
 
-SHORT = """
-[[protocol.trials]]
-index = 1
-mode = "dissensus"
-[[protocol.trials]]
-index = 2
-mode = "consensus"
-option = "red"
-gaze_level = "low"
-"""
+SHORT = TWO_TRIALS  # a control trial and a consensus one
 
 
 # option count: (the protocol, its O order, participants in 4 full blocks)
