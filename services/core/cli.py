@@ -113,6 +113,15 @@ def add_options_arg(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def fabric_parser(prog: str, description: str, epilog: str | None = None) -> Parser:
+    """The command line of a command that talks to a rig over Zenoh (`add_zenoh_args` on it)."""
+    from services.core.session import add_zenoh_args
+
+    parser = Parser(prog=prog, description=description, epilog=epilog)
+    add_zenoh_args(parser)
+    return parser
+
+
 def service_parser(prog: str, description: str, epilog: str | None = None) -> Parser:
     """The command line every long-running service starts from, its common flags on it.
 

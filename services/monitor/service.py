@@ -28,11 +28,11 @@ import rerun as rr
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import PORT, Parser, fail, int_in
+from services.core.cli import PORT, fabric_parser, fail, int_in
 from services.core.contract import TOPICS
 from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
-from services.core.session import Fabric, add_zenoh_args, open_session
+from services.core.session import Fabric, open_session
 from services.monitor.bridge import APPLICATION_ID, NOT_SHOWN, RerunBridge
 from services.monitor.inbox import Inbox, Item, lane_of
 from services.monitor.sinks import ViewerWatch, open_sinks
@@ -168,13 +168,12 @@ class Monitor:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod monitor`."""
-    p = Parser(
-        prog="nod monitor",
-        description="Watch every key of a rig in Rerun: opinions, table, arm, eyes, trial "
+    p = fabric_parser(
+        "nod monitor",
+        "Watch every key of a rig in Rerun: opinions, table, arm, eyes, trial "
         "events and safety, stamped with each message's own time. With no sink flag the "
         "native viewer is spawned.",
     )
-    add_zenoh_args(p)
     g = p.add_argument_group("rerun sinks (combine freely)")
     g.add_argument("--spawn", action="store_true", help="start the native Rerun viewer")
     g.add_argument(

@@ -33,12 +33,12 @@ from pathlib import Path
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser, add_params_arg, fail, one_line, positive_float
+from services.core.cli import add_params_arg, fabric_parser, fail, one_line, positive_float
 from services.core.config import load_params
 from services.core.contract import TOPICS
 from services.core.keys import Keys, topic_of
 from services.core.node import install_signal_handlers, package_version, setup_logging
-from services.core.session import Fabric, add_zenoh_args, open_session
+from services.core.session import Fabric, open_session
 from services.core.tap import QUEUE_MAX, Tap
 from services.recording.mcap_io import (
     END_METADATA,
@@ -170,13 +170,12 @@ def _meta_item(text: str) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod record`."""
-    p = Parser(
-        prog=PROG,
-        description="Record every key of a rig (or the --only keys) into an MCAP file: the "
+    p = fabric_parser(
+        PROG,
+        "Record every key of a rig (or the --only keys) into an MCAP file: the "
         "original payloads, one channel per key. Ctrl-C or SIGTERM finish the file; a killed "
         "recorder leaves it readable up to its last chunk (flushed every --flush-s).",
     )
-    add_zenoh_args(p)
     p.add_argument("--out", type=Path, required=True, metavar="FILE.mcap", help="the file")
     p.add_argument(
         "--only", action="append", default=None, metavar="KEY",

@@ -22,9 +22,9 @@ import sys
 import threading
 import time
 
-from services.core.cli import Parser, fail
+from services.core.cli import fabric_parser, fail
 from services.core.node import Node
-from services.core.session import Fabric, add_zenoh_args
+from services.core.session import Fabric
 from services.model.latch import new_command_id
 
 DEVICES = ("actuation", "eyes")
@@ -33,12 +33,11 @@ ASK_LATCHES_S = 0.5  # how long a release waits for the devices' latches (it end
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod estop`."""
-    p = Parser(
-        prog="nod estop",
-        description="Engage the e-stop of a rig (the arm holds, the eyes go neutral) until it is "
+    p = fabric_parser(
+        "nod estop",
+        "Engage the e-stop of a rig (the arm holds, the eyes go neutral) until it is "
         "released with --release; waits for every device to acknowledge.",
     )
-    add_zenoh_args(p)
     p.add_argument("--release", action="store_true", help="release a latched e-stop")
     p.add_argument("--reason", default="operator", help="reason shown on the state keys")
     p.add_argument(

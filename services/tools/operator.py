@@ -20,10 +20,10 @@ import time
 from pathlib import Path
 
 from services.core import messages as m
-from services.core.cli import Parser, fail, int_in, positive_float
+from services.core.cli import fabric_parser, fail, int_in, positive_float
 from services.core.node import Node
 from services.core.rigfile import CONTROL, Host, RigFileError, load_rig, session_flags
-from services.core.session import Fabric, add_zenoh_args
+from services.core.session import Fabric
 
 PROG = "nod experiment"
 
@@ -34,8 +34,7 @@ def build_parser(action: str) -> argparse.ArgumentParser:
         "next": "Start the trial that waits for the operator; waits until it is set up.",
         "pause": "Hold the next trial until `nod experiment next` (the current one goes on).",
     }[action]
-    p = Parser(prog=f"{PROG} {action}", description=what)
-    add_zenoh_args(p)
+    p = fabric_parser(f"{PROG} {action}", what)
     p.add_argument("--rig-file", type=Path, default=None, metavar="RIG.toml",
                    help="take the rig name and its router (or identity) from a rig file")
     if action == "next":

@@ -26,9 +26,8 @@ from typing import Any
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser, fail
+from services.core.cli import fabric_parser, fail
 from services.core.rigfile import MONITOR, REQUIRED, RigFileError, identity, load_rig
-from services.core.session import add_zenoh_args
 from services.tools.observe import CLOCK_WARN_MS, Rate, ToolError, Window, listen
 
 PROG = "nod status"
@@ -203,8 +202,7 @@ def render(doc: dict[str, Any]) -> Any:
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod status`."""
-    p = Parser(prog=PROG, description=__doc__.splitlines()[0])
-    add_zenoh_args(p)
+    p = fabric_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--rig-file", type=Path, default=None,
                    help="take the rig name, router and required services from a rig file")
     p.add_argument("--duration", type=float, default=2.0, metavar="S", help="listen S seconds (2)")

@@ -39,13 +39,13 @@ import cv2
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import Parser, add_options_arg, add_params_arg, fail, int_in
+from services.core.cli import add_options_arg, add_params_arg, fabric_parser, fail, int_in
 from services.core.clock import add_clock_args
 from services.core.config import ConfigError, load_with_options
 from services.core.contract import check_publisher
 from services.core.messages import layout_message_fields
 from services.core.node import Node, TopicPublisher, declare_publisher, setup_logging
-from services.core.session import Fabric, add_zenoh_args
+from services.core.session import Fabric
 from services.model.geometry import CommitLine, OptionsLayout, TableLayout
 from services.model.schedule import OptionsSchedule
 from services.vision.calibration import (
@@ -341,12 +341,11 @@ def load_layout(calibration: Path | None, params: Path | None) -> tuple[TableLay
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod vision`."""
-    p = Parser(
-        prog="nod vision",
-        description="Capture a camera, track the hand, publish vision/hand, vision/layout and "
+    p = fabric_parser(
+        "nod vision",
+        "Capture a camera, track the hand, publish vision/hand, vision/layout and "
         "vision/frame. `nod vision calibrate --help` writes the calibration file.",
     )
-    add_zenoh_args(p)
     add_clock_args(p)
     add_params_arg(p)
     g = p.add_argument_group("capture")

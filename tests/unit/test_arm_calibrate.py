@@ -155,19 +155,19 @@ def test_verify_refuses_a_pose_a_servo_does_not_reach(bus, tmp_path):
     assert bus.wait_until(lambda: bus.goals() == held)  # SYNC_WRITE has no reply: wait for it
 
 
+def _calibrate(port: str, *args: str, stdin: str = "") -> subprocess.CompletedProcess[str]:
+    """`nod actuation calibrate --port PORT ARGS…` as an operator runs it, typing `stdin`."""
+    return subprocess.run(
+        [sys.executable, "-m", "services.cli", "actuation", "calibrate", "--port", port, *args],
+        cwd=ROOT, input=stdin, capture_output=True, text=True, timeout=30,
+    )
+
+
 def test_the_cli_refuses_an_arm_that_was_never_moved(bus, tmp_path):
     base = tmp_path / "base.toml"
     base.write_text(config_toml(BASE))
     out = tmp_path / "arm.toml"
-    res = subprocess.run(
-        [sys.executable, "-m", "services.cli", "actuation", "calibrate", "--port", bus.port]
-        + ["--out", str(out), "--base", str(base)],
-        cwd=ROOT,
-        input="\n" * 6,
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
+    res = _calibrate(bus.port, "--out", str(out), "--base", str(base), stdin="\n" * 6)
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
@@ -180,17 +180,10 @@ def test_the_cli_records_the_poses_of_the_named_options(bus, tmp_path):
     base = tmp_path / "base.toml"
     base.write_text(config_toml(BASE))
     out = tmp_path / "arm.toml"
-    res = subprocess.run(
-        [sys.executable, "-m", "services.cli", "actuation", "calibrate", "--port", bus.port]
-        + ["--out", str(out), "--base", str(base), "--names", "red,blue,green"],
-        cwd=ROOT, input="q\n", capture_output=True, text=True, timeout=30,
-    )
+    res = _calibrate(bus.port, "--out", str(out), "--base", str(base), "--names",
+                     "red,blue,green", stdin="q\n")
     assert res.returncode == 2 and "aborted" in res.stderr and not out.exists()
-    res = subprocess.run(
-        [sys.executable, "-m", "services.cli", "actuation", "calibrate", "--port", bus.port]
-        + ["--out", str(out), "--names", "red,red"],
-        cwd=ROOT, capture_output=True, text=True, timeout=30,
-    )
+    res = _calibrate(bus.port, "--out", str(out), "--names", "red,red")
     assert res.returncode == 2 and "--names needs two or more distinct" in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1
 
