@@ -122,14 +122,19 @@ def fabric_parser(prog: str, description: str, epilog: str | None = None) -> Par
     return parser
 
 
-def service_parser(prog: str, description: str, epilog: str | None = None) -> Parser:
+def service_parser(
+    prog: str, description: str, epilog: str | None = None, options: bool = False
+) -> Parser:
     """The command line every long-running service starts from, its common flags on it.
 
     Its name and what it does, then `add_service_args`: the fabric, the shared clock,
-    `--params` and `-v`; the service adds its own flags after.
+    `--params` and `-v`, and `--options N` for a service that reads the table (`options`);
+    the service adds its own flags after.
     """
     parser = Parser(prog=prog, description=description, epilog=epilog)
     add_service_args(parser)
+    if options:
+        add_options_arg(parser)
     return parser
 
 

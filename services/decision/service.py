@@ -31,7 +31,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Generic, NamedTuple, TypeVar
 
 from services.core import messages as m
-from services.core.cli import add_options_arg, fail, service_parser
+from services.core.cli import fail, service_parser
 from services.core.config import load_with_options, params_hash
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
@@ -278,13 +278,12 @@ class DecisionService(Generic[E]):
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod decision`."""
-    p = service_parser(
+    return service_parser(
         "nod decision",
         "Observe the human opinion (eq 7), integrate the robot opinion (eq 1) and "
         "its bias (eq 6), publish ẑ_h, z_r and b_r on every hand pose.",
+        options=True,
     )
-    add_options_arg(p)
-    return p
 
 
 def main(argv: list[str] | None = None) -> int:

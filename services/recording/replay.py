@@ -44,11 +44,18 @@ import logging
 import threading
 from pathlib import Path
 
-from services.core.cli import Parser, add_params_arg, fail, int_in, one_line, positive_float
+from services.core.cli import (
+    add_params_arg,
+    fabric_parser,
+    fail,
+    int_in,
+    one_line,
+    positive_float,
+)
 from services.core.clock import Clock
 from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
-from services.core.session import Fabric, add_zenoh_args, open_session
+from services.core.session import Fabric, open_session
 from services.recording.mcap_io import (
     McapIn,
 )
@@ -66,13 +73,12 @@ log = logging.getLogger("nod.replay")
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of `nod replay`."""
-    p = Parser(
-        prog=PROG,
-        description="Play a recording (nod record) back onto a rig, or re-run the decision "
+    p = fabric_parser(
+        PROG,
+        "Play a recording (nod record) back onto a rig, or re-run the decision "
         "model on it offline (--through decision).",
     )
     p.add_argument("file", type=Path, metavar="FILE.mcap", help="the recording")
-    add_zenoh_args(p)
     p.set_defaults(rig=None)
     p.add_argument("--speed", type=positive_float, default=1.0, metavar="X",
                    help="play X times as fast as recorded (plain replays; default 1)")

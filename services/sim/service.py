@@ -32,7 +32,7 @@ import numpy as np
 
 from services.cohort.person import fitted_traits
 from services.core import messages as m
-from services.core.cli import SEED, add_options_arg, fail, service_parser
+from services.core.cli import SEED, fail, service_parser
 from services.core.config import load_with_options
 from services.core.node import Node, TopicPublisher, setup_logging
 from services.core.session import Fabric
@@ -298,6 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = service_parser(
         "nod sim",
         "Publish a synthetic participant's hand on vision/hand (stands in for vision).",
+        options=True,
     )
     p.add_argument("--seed", type=SEED, default=1, help="random seed of the participant")
     p.add_argument("--rate", type=float, default=30.0, help="camera rate in Hz (default 30)")
@@ -312,7 +313,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="publish rendered camera frames on sim/camera (for `nod vision --source "
         "zenoh:sim/camera`) instead of hand poses",
     )
-    add_options_arg(p)
     return p
 
 
