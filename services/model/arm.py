@@ -15,7 +15,7 @@ hold) with one press pose per box, its centre; they differ only in how a target 
 colours (`ArmCommand`, `ArmState`, the `ArmDriver` interface the Feetech driver shares): red
 and blue of a `TableLayout`. On the paper's table (`OptionsLayout.from_table`, option 0 red)
 the two apply the same commands and move bit for bit alike
-(tests/unit/test_options_rig.py, hypothesis).
+(tests/unit/test_sim_arm.py, hypothesis).
 """
 
 from __future__ import annotations

@@ -6,17 +6,20 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from services.model.behaviour import (
+    TIE_TOLERANCE,
     ArmCommand,
     BehaviourParams,
     OptionsBehaviour,
     OptionsCommand,
     RobotBehaviour,
+    leader_or_nearest_tie,
 )
 from services.model.debounce import DebounceParams
+from services.model.dynamics import leading_option
 from services.model.geometry import Colour, OptionsLayout, TableLayout
 
 LAYOUT = TableLayout()
@@ -387,3 +390,32 @@ def test_nearest_and_pressed_over_n_boxes() -> None:
     assert layout.nearest(mid) == 1  # a tie goes to the lower index, as red wins the paper's
     with pytest.raises(ValueError, match="needs a target box"):
         OptionsCommand("move")
+
+
+# --- the tie rule of a dissensus robot over N boxes
+
+def test_a_dissensus_tie_goes_to_the_nearest_tied_box() -> None:
+    layout = OptionsLayout.row(3)
+    # the human on box 1 (the middle): the robot ties boxes 0 and 2 up to rounding
+    z = np.array([0.3, -0.6, 0.3 + 1e-16])
+    assert leading_option(z) == 2  # the ulp alone would pick box 2
+    assert leader_or_nearest_tie(z, layout, layout.boxes[0].center) == 0
+    assert leader_or_nearest_tie(z, layout, layout.boxes[2].center) == 2
+    assert leader_or_nearest_tie(z, layout, (0.5, 0.08)) == 0  # midway: the lower index
+    assert leader_or_nearest_tie(np.zeros(3), layout, (0.5, 0.08)) is None
+    assert leader_or_nearest_tie(np.array([0.1, 0.3, -0.4]), layout, (0.9, 0.2)) == 1
+
+
+
+@example(x=TIE_TOLERANCE, ex=0.0)  # the two are 2e-9 apart: a leader (hypothesis found it)
+@example(x=TIE_TOLERANCE / 2, ex=0.0)  # exactly the tolerance apart: a tie
+@given(st.floats(-3, 3, allow_nan=False), st.floats(0.0, 1.0))
+def test_two_boxes_tie_rule_is_the_sign_outside_the_tolerance(x: float, ex: float) -> None:
+    layout = OptionsLayout.from_table(TableLayout())
+    z = np.array([x, -x])
+    got = leader_or_nearest_tie(z, layout, (ex, 0.2))
+    # A tie is two values within the tolerance of each other: here |x - (-x)| = 2|x|.
+    if 2 * abs(x) > TIE_TOLERANCE:
+        assert got == leading_option(z)
+    else:
+        assert got is None

@@ -294,3 +294,31 @@ def test_three_boxes_and_boxes_on_one_side_take_the_geometric_gaze() -> None:
             assert gaze_toward(layout, j, "moderate") == geometric_gaze(layout, j, "moderate")
             assert read_gaze(layout, gaze_toward(layout, j, "moderate")) == read_geometric_gaze(
                 layout, geometric_gaze(layout, j, "moderate"))
+
+
+# --- the gaze toward any box of a row
+
+@pytest.mark.parametrize("n", [2, 3, 4, 6])
+def test_the_gaze_toward_a_box_reads_back_as_that_box(n: int) -> None:
+    layout = OptionsLayout.row(n)
+    commands = set()
+    for level in GAZE_LEVEL_NAMES:
+        for j in range(n):
+            gaze = gaze_toward(layout, j, level)
+            option, strength = read_gaze(layout, gaze)
+            if level == "neutral":
+                assert (option, strength) == (None, 0.0)
+                continue
+            assert option == j
+            assert strength == pytest.approx(cue_strength(level), abs=1e-9)
+            commands.add((round(gaze.yaw, 9), round(gaze.pitch, 9)))
+    assert len(commands) == n * (len(GAZE_LEVEL_NAMES) - 1)  # every cue a distinct pose
+
+
+
+def test_the_middle_box_is_told_from_neutral_by_pitch() -> None:
+    layout = OptionsLayout.row(3)
+    middle = gaze_toward(layout, 1, "extreme")
+    assert abs(middle.yaw) < 1e-12 and middle.pitch < -0.3
+    right, left = gaze_toward(layout, 2, "low"), gaze_toward(layout, 0, "low")
+    assert right.yaw > 0 > left.yaw and right.yaw == pytest.approx(-left.yaw)  # +x: red's side

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.model.debounce import DebounceParams
+from services.model.dynamics import option_vector
 from services.model.geometry import CommitLine
 from services.model.outcome import (
+    OptionsOutcomeTracker,
     OutcomeTracker,
     classify,
     count_switches,
@@ -184,3 +189,36 @@ def test_violations_against_reference(z: list[float], c_max: int, cross: int) ->
     assert out.violations == expected
     assert out.violations <= out.switches
     assert out.outcome == ("D" if not onsets else "DH")
+
+
+# --- switches and violations over N boxes
+
+samples = st.lists(
+    st.tuples(st.sampled_from([-1.0, -0.3, -0.02, 0.0, 0.02, 0.4, 1.0]), st.floats(0.1, 0.9)),
+    min_size=1, max_size=60,
+)
+
+
+
+@settings(max_examples=150, deadline=None)
+@given(samples, st.integers(1, 5), st.sampled_from([0.0, 0.05]))
+def test_two_box_switches_and_violations_are_the_papers(
+    stream: list[tuple[float, float]], c_max: int, dead_band: float
+) -> None:
+    line = CommitLine()
+    paper = OutcomeTracker(DebounceParams(c_max), line, dead_band)
+    options = OptionsOutcomeTracker(DebounceParams(c_max), line, dead_band)
+    for z, y in stream:
+        paper.add(z, (0.5, y))
+        options.add(np.array([z, -z]), (0.5, y))
+        assert (options.switches, options.violations) == (paper.switches, paper.violations)
+
+
+
+def test_three_boxes_count_a_change_of_leading_option() -> None:
+    tracker = OptionsOutcomeTracker(DebounceParams(2), CommitLine(), 0.0)
+    to = [0.5 * option_vector(j, 3) for j in range(3)]
+    for z in [to[0], to[0], to[2], to[1], to[1], to[1], to[2], to[2]]:
+        tracker.add(z, (0.5, 0.8))
+    assert tracker.first == 0 and tracker.switches == 2 and tracker.violations == 1
+    assert math.isclose(float(to[1][1] - to[1][0]), 1.0)

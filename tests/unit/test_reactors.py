@@ -3,6 +3,7 @@ trial judge (the human's press, ẑ_h, the verdict), and the offline loop's inte
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -10,7 +11,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from services.model.arm import OptionsSimArm
+from services.model.behaviour import (
+    BehaviourParams,
+)
 from services.model.closed_loop import run_offline_session
+from services.model.debounce import DebounceParams
+from services.model.decision import rk4_robot
+from services.model.dynamics import OptionsParams, option_vector
 from services.model.geometry import OptionsLayout
 from services.model.judge import TrialJudge
 from services.model.params import NodConfig
@@ -212,3 +220,42 @@ def test_two_boxes_the_general_robot_is_the_papers(
             general.interrupted()
         assert general.machine.phase == paper.machine.phase
         assert (general.running, general.pressed) == (paper.running, INDEX[paper.pressed])
+
+
+# --- a dissensus robot over three boxes
+
+def dissensus_press(h: int, break_ties: bool) -> int | None:
+    """The box a dissensus robot presses with ẑ_h held on h, stepped as the decision engine."""
+    layout, p = OptionsLayout.row(3), OptionsParams(n_options=3)
+    z_hat = 0.8 * option_vector(h, 3)
+    arm = OptionsSimArm(layout)
+    arm.connect()
+    robot = OptionsRobotTrial(layout, BehaviourParams(), DebounceParams(), 3.0)
+    robot.machine.break_ties = break_ties
+    robot.go(0.0)
+    z_r, t = np.zeros(3), 0.0
+    while arm.state(t).pressed is None and t < 6.0:
+        t += 1 / 30
+        z_r, _ = rk4_robot(z_r, 0.0, z_hat, [0.001] * 33 + [1 / 30 - 0.033], p, None)
+        cmd = robot.step(t, z_r, arm.state(t).ee)
+        if cmd is not None:
+            arm.send(cmd)
+    return arm.state(t).pressed
+
+
+
+def test_a_dissensus_robot_held_against_a_human_takes_the_nearest_other_box() -> None:
+    """Controller off, ẑ_h held on h: z_r ties among the other two boxes (up to rounding).
+
+    With the tie rule the robot heads for the tied box nearest its home at once; without it,
+    the integrator's rounding picks one of them (here the farther one for h = 0).
+    """
+    layout, home = OptionsLayout.row(3), (0.5, 0.08)
+    ruled, unruled = [], []
+    for h in range(3):
+        others = sorted(set(range(3)) - {h},
+                        key=lambda j: (math.dist(home, layout.boxes[j].center), j))
+        ruled.append(dissensus_press(h, True))
+        unruled.append(dissensus_press(h, False))
+        assert ruled[-1] == others[0]
+    assert ruled == [1, 0, 1] and unruled != ruled

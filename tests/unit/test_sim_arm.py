@@ -9,10 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.model.arm import ArmDriver, SimArm
+from services.model.arm import ArmDriver, OptionsSimArm, SimArm
 from services.model.arm_kinematics import ArmNotConnectedError, SimArmParams
-from services.model.behaviour import ArmCommand, BehaviourParams, RobotBehaviour
-from services.model.geometry import TableLayout
+from services.model.behaviour import (
+    ArmCommand,
+    BehaviourParams,
+    OptionsCommand,
+    RobotBehaviour,
+)
+from services.model.geometry import OptionsLayout, TableLayout
 
 LAYOUT = TableLayout()
 P = SimArmParams()
@@ -295,3 +300,69 @@ def test_timeout_press_in_closed_loop() -> None:
     beh, a, _ = drive(lambda t: -1.0, human_press_at=None, until=15.0)
     assert beh.phase == "done" and beh.pressed_colour == "blue"
     assert a.state(a.t).pressed == "blue"
+
+
+# --- the arm over N boxes, the paper's SimArm its two-box kernel
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["move", "press", "stop", "idle", "home", "fault",
+                                           "clear"]),
+                          st.sampled_from(["red", "blue"]), st.floats(0.01, 0.4)),
+                min_size=1, max_size=16))
+def test_two_box_options_arm_moves_as_the_paper_arm(
+    cmds: list[tuple[str, str, float]]
+) -> None:
+    """The general arm on the paper's table is the paper's `SimArm` (its two-option kernel):
+    the same applied commands (action, box, reason) and the same states, bit for bit."""
+    table = TableLayout()
+    paper, options = SimArm(table), OptionsSimArm(OptionsLayout.from_table(table))
+    paper.connect()
+    options.connect()
+    index = {"red": 0, "blue": 1, None: None}
+    t = 0.0
+    for action, colour, dt in cmds:
+        sign = 1 if colour == "red" else -1
+        if action == "fault":
+            paper.inject_fault("bus")
+            options.inject_fault("bus")
+        elif action == "clear":
+            paper.clear_fault()
+            options.clear_fault()
+        else:
+            if action == "home":
+                applied_a, applied_b = paper.home(), options.home()
+            else:
+                if action == "move":
+                    a, b = ArmCommand.move(sign), OptionsCommand("move", index[colour])
+                elif action == "press":
+                    a = ArmCommand.press(colour)  # type: ignore[arg-type]
+                    b = OptionsCommand("press", index[colour])
+                elif action == "stop":
+                    a, b = ArmCommand.stop(), OptionsCommand("stop")
+                else:
+                    a, b = ArmCommand.idle(), OptionsCommand("idle")
+                applied_a, applied_b = paper.send(a), options.send(b)
+            assert (applied_b.action, applied_b.target, applied_b.reason) == (
+                applied_a.action, index[applied_a.target], applied_a.reason)
+        t += dt
+        sa, sb = paper.state(t), options.state(t)
+        assert (sb.t, sb.ee, sb.moving, sb.fault) == (sa.t, sa.ee, sa.moving, sa.fault)
+        assert (sb.target, sb.pressed) == (index[sa.target], index[sa.pressed])
+
+
+
+def test_the_options_arm_presses_any_box_and_refuses_after_a_press() -> None:
+    layout = OptionsLayout.row(4)
+    arm = OptionsSimArm(layout)
+    arm.connect()
+    arm.send(OptionsCommand("press", 2))
+    assert arm.send(OptionsCommand("move", 0)) == OptionsCommand(
+        "press", 2, "refused move: press already committed"
+    )
+    t = 0.0
+    while arm.state(t).pressed is None and t < 10:
+        t += 0.05
+    assert arm.state(t).pressed == 2 and arm.position == layout.boxes[2].center
+    arm.home()
+    with pytest.raises(ValueError, match="not on this table"):
+        arm.send(OptionsCommand("move", 7))
