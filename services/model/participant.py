@@ -33,7 +33,7 @@ x = z_0 = −z_1 (`dynamics`' reduction), so two boxes are stepped by the scalar
 class's two-option kernel (`_step`, the paper's arithmetic, hot in a cohort), and N_o ≥ 3 by the
 general form (`_step_general`); everything else (draws, traits, the arm seen, the hand, the
 press, the camera) is one code. Random numbers are drawn in the same order for any N_o, so two
-boxes draw what the paper's person drew, and tests/unit/test_participant_options.py holds the
+boxes draw what the paper's person drew, and tests/unit/test_participant.py holds the
 general form on two boxes to the kernel bit for bit (opinion, hand, presses, landmarks).
 
 Pure: time is an argument, randomness comes from a seeded numpy Generator.
