@@ -223,10 +223,23 @@ def bstar(args: argparse.Namespace) -> int:
 
 
 def power(args: argparse.Namespace) -> int:
-    """`nod analyze power`: the study size for the paper's effects (simulated cohorts)."""
+    """`nod analyze power`: the study size for the paper's effects (simulated cohorts).
+
+    K independent populations (`--populations`, `--population` people each) are simulated on
+    the engine; the power is pooled over them, with an interval that holds their spread, at the
+    chosen correction and uncorrected (the paper's), beside what the paper's own X² implies.
+    """
     import time
 
-    from services.analysis.power import TESTS, plot, population, power
+    from services.analysis.multiplicity import NAMES, Correction
+    from services.analysis.power import (
+        PAPER_N,
+        TESTS,
+        paper_implied,
+        plot,
+        populations,
+        power,
+    )
     from services.cohort.person import load_cohort_params
     from services.compute.engine import EngineError, engine_from_args
 
@@ -240,22 +253,38 @@ def power(args: argparse.Namespace) -> int:
         raise UsageError("--participants: sizes between 2 and 10000")
     if not (1 <= args.runs <= 100_000 and 10 <= args.population <= 1_000_000 and args.alpha < 1):
         raise UsageError("--runs 1-100000, --population 10-1000000, --alpha in (0, 1)")
+    if max(sizes) > args.population:
+        raise UsageError(
+            f"--participants {max(sizes)} > --population {args.population}: a study is drawn "
+            "from distinct people of one population; give a larger --population"
+        )
+    corrections: list[Correction] = [args.correction]
+    if args.correction != "none":
+        corrections.append("none")
     cfg = load_cohort_params(args.params)
     t0 = time.monotonic()
     try:
         with engine_from_args(args) as engine:
-            pop = population(engine, cfg, args.population, args.seed)
+            pops = populations(engine, cfg, args.populations, args.population, args.seed)
     except EngineError as exc:
         raise UsageError(str(exc)) from None
-    results = power(pop, sizes, args.runs, args.alpha, args.seed, args.correction)
+    simulated = time.monotonic() - t0
+    results = power(pops, sizes, args.runs, args.alpha, args.seed, corrections)
     doc = {
-        "method": "one simulated population, studies drawn with replacement",
+        "method": "K independent simulated populations (disjoint seeds), studies of N distinct "
+        "people drawn from each; power pooled over populations, 95% interval "
+        "mean ± t(K-1)·s/√K over the populations' shares, at least the Wilson interval of "
+        "all draws",
+        "populations": args.populations,
         "population": args.population,
+        "seeds": [args.seed, args.seed + args.populations * args.population - 1],
         "alpha": args.alpha,
-        "correction": args.correction,
+        "corrections": corrections,
         "params": args.params,
         "seconds": round(time.monotonic() - t0, 1),
+        "simulation_seconds": round(simulated, 1),
         "results": results,
+        "paper_implied": paper_implied(sizes),
     }
     if args.out:
         out = Path(args.out)
@@ -269,14 +298,25 @@ def power(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(doc, indent=2))
         return 0
-    print(f"power at α = {args.alpha}, {args.correction} correction ({args.runs} drawn studies "
-          f"per size from {args.population} simulated people, {doc['seconds']} s):")
-    print("  N   " + "  ".join(f"{t.replace('trial_', ''):>22}" for t in TESTS))
+    print(f"power at α = {args.alpha}, pooled over {args.populations} independent populations of "
+          f"{args.population} simulated people ({args.runs} studies of distinct people per size "
+          f"and population; {doc['seconds']} s); 95% intervals include the spread between "
+          "populations:")
+    names = [t.replace("trial_", "").replace("_vs_", "→") for t in TESTS]
+    print("  N    " + f"{'':<12}" + "".join(f"{t:>23}" for t in names))
     for r in results:
-        cells = [
-            f"{r['power'][t]:.2f} [{r['ci95'][t][0]:.2f}-{r['ci95'][t][1]:.2f}]" for t in TESTS
-        ]
-        print(f"  {r['participants']:<4}" + "  ".join(f"{c:>22}" for c in cells))
+        for c in corrections:
+            cells = [f"{r['power'][c][t]:.2f} [{r['ci95'][c][t][0]:.2f}-{r['ci95'][c][t][1]:.2f}]"
+                     for t in TESTS]
+            print(f"  {r['participants']:<5}{NAMES[c]:<12}" + "".join(f"{x:>23}" for x in cells))
+    implied = doc["paper_implied"]["tests"]
+    print(f"the paper's own statistics imply (noncentral χ², λ = X² − df scaled by N/{PAPER_N}; "
+          f"α = {args.alpha} uncorrected; in brackets λ = X², the optimistic plug-in):")
+    for t, name in zip(TESTS, names, strict=True):
+        first = implied[t][str(PAPER_N)]
+        at = "  ".join(f"N={n} {v['power']:.2f} [{v['power_plug_in']:.2f}]"
+                       for n, v in implied[t].items())
+        print(f"  {name:<23} X² {first['statistic']:g}, df {first['df']}: {at}")
     return 0
 
 

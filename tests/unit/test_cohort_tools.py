@@ -83,19 +83,21 @@ def test_power_grows_with_n_on_a_population_with_a_real_effect():
     # A population where the control phase is D and the experiment phase mostly C: the
     # control-vs-experiment shift is large, so power rises with N and the intervals hold it.
     pop = [["D", "D", "D", "C", "C", "C", "C", "C"]] * 70 + [["D"] * 8] * 30
-    doc = power(pop, [6, 30], runs=60, seed=2)
-    small, large = (r["power"]["control_vs_experiment"] for r in doc)
+    # (Power now takes a list of populations and reports each correction: Holm and none.)
+    doc = power([pop], [6, 30], runs=60, seed=2)
+    small, large = (r["power"]["holm"]["control_vs_experiment"] for r in doc)
     assert large >= small and large > 0.9
-    lo, hi = doc[1]["ci95"]["control_vs_experiment"]
+    lo, hi = doc[1]["ci95"]["holm"]["control_vs_experiment"]
     assert lo <= large <= hi
-    assert set(doc[0]["power"]) == set(TESTS)
+    assert set(doc[0]["power"]["holm"]) == set(TESTS)
 
 
 def test_no_effect_no_power():
     pop = [["D"] * 8] * 50
     p = p_values(pop[:20])
     assert all(math.isnan(v) for v in p.values())  # untestable: never "significant"
-    assert all(v == 0 for v in power(pop, [20], runs=10)[0]["power"].values())
+    result = power([pop], [20], runs=10)[0]["power"]
+    assert all(v == 0 for corr in ("holm", "none") for v in result[corr].values())
 
 
 def test_wilson_interval():

@@ -18,7 +18,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from matplotlib.figure import Figure
 
-from services.analysis.power import TESTS
+from services.analysis.power import TESTS, paper_implied
 from services.analysis.power import draw as draw_power
 from services.analysis.study import OUTCOMES, ParticipantOutcomes, analyze_study
 from services.analysis.study_figures import DRAW, _grid_layout, draw_grid, spread
@@ -140,6 +140,8 @@ def test_spread_keeps_labels_apart_and_near(ys: list[float], gap: float) -> None
 
 
 def _power_doc() -> dict[str, Any]:
+    # The power document as `nod analyze power` writes it: per correction (Holm, uncorrected),
+    # with the paper's implied power beside the uncorrected panel.
     sizes = [10, 20, 40, 60]
     power = {
         "control_vs_experiment": [1.0, 1.0, 1.0, 1.0],
@@ -148,17 +150,19 @@ def _power_doc() -> dict[str, Any]:
         "trial_6_vs_7": [0.0, 0.01, 0.05, 0.05],  # low at 60: where the old legend sat
         "trial_7_vs_8": [0.02, 0.08, 0.33, 0.55],
     }
+    scale = {"holm": 1.0, "none": 1.3}
     results = [
         {
             "participants": n,
             "runs": 100,
-            "power": {t: power[t][k] for t in TESTS},
-            "ci95": {t: [max(0.0, power[t][k] - 0.05), min(1.0, power[t][k] + 0.05)]
-                     for t in TESTS},
+            "power": {c: {t: min(1.0, power[t][k] * f) for t in TESTS} for c, f in scale.items()},
+            "ci95": {c: {t: [max(0.0, min(1.0, power[t][k] * f) - 0.08),
+                             min(1.0, power[t][k] * f + 0.08)] for t in TESTS}
+                     for c, f in scale.items()},
         }
         for k, n in enumerate(sizes)
     ]
-    return {"alpha": 0.05, "correction": "holm", "results": results}
+    return {"alpha": 0.05, "results": results, "paper_implied": paper_implied(sizes)}
 
 
 def test_power_legend_hides_no_point(close: list[Figure]) -> None:
@@ -167,13 +171,19 @@ def test_power_legend_hides_no_point(close: list[Figure]) -> None:
     assert_readable(fig)
     renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
     legend = fig.legends[0].get_window_extent(renderer)
-    ax = fig.axes[0]
-    points = [
-        ax.transData.transform(xy) for line in ax.lines for xy in line.get_xydata()  # type: ignore[union-attr]
-    ]
-    assert len(points) >= 5 * 4
-    assert not any(legend.contains(x, y) for x, y in points)
-    assert "Holm" in ax.get_ylabel()
+    holm, none = fig.axes
+    for ax in (holm, none):
+        points = [
+            ax.transData.transform(xy) for line in ax.lines  # type: ignore[union-attr]
+            for xy in line.get_xydata() if np.all(np.isfinite(xy))  # type: ignore[union-attr]
+        ]
+        assert len(points) >= 5 * 4
+        assert not any(legend.contains(x, y) for x, y in points)
+    assert "Holm" in holm.get_title() and "uncorrected" in none.get_title()
+    # the paper's implied power: a cross per test and N (51 among them) in the uncorrected panel
+    crosses = [line for line in none.lines if line.get_marker() == "x" and len(line.get_xdata())]
+    assert len(crosses) == 5 and all(51 in line.get_xdata() for line in crosses)  # type: ignore[operator]
+    assert not any(line.get_marker() == "x" and len(line.get_xdata()) for line in holm.lines)
 
 
 @pytest.fixture(scope="module")
