@@ -87,9 +87,11 @@ def fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def _rows(doc: dict[str, Any]) -> list[tuple[str, str, str, float, float, float]]:
+def _rows(doc: dict[str, Any]) -> list[tuple[str, str, str, float, float, float, float | None]]:
+    """participant, session, parameter, estimate, low, high, probability (None: not 0/1)."""
     return [
-        (r["participant"], r["session"], name, v["estimate"], v["low"], v["high"])
+        (r["participant"], r["session"], name, v["estimate"], v["low"], v["high"],
+         v.get("probability"))
         for r in doc["participants"] for name, v in r["parameters"].items()
     ]
 
@@ -98,16 +100,19 @@ def _store(db: Path, doc: dict[str, Any]) -> None:
     now = time.time_ns()
     store = Store(db)
     try:
-        write_fits(store, [FitRecord(*row, LEVEL, doc["method"], now) for row in _rows(doc)])
+        write_fits(store, [FitRecord(*row[:6], LEVEL, doc["method"], now, row[6])
+                           for row in _rows(doc)])
     finally:
         store.close()
 
 
 def _write_csv(path: Path, doc: dict[str, Any]) -> None:
+    """fit.csv, with fits.csv's columns; a parameter that is not 0/1 has probability NA."""
     with path.open("w", newline="", encoding="utf-8") as fh:
         writer = csv.writer(fh, lineterminator="\n")
-        writer.writerow(["participant", "session", "parameter", "estimate", "low", "high"])
-        writer.writerows(_rows(doc))
+        writer.writerow(["participant", "session", "parameter", "estimate", "low", "high",
+                         "probability"])
+        writer.writerows((*row[:6], "NA" if row[6] is None else row[6]) for row in _rows(doc))
 
 
 def recovery(args: argparse.Namespace) -> int:
@@ -121,7 +126,7 @@ def recovery(args: argparse.Namespace) -> int:
         theta = np.stack([p.theta for p in people])
         fit = prep.estimator.predict(np.stack([p.summaries for p in people]))
         logs = prep.estimator.log_scaled
-        checks = [recover(name, theta[:, j], fit.estimate[:, j], fit.low[:, j], fit.high[:, j],
+        checks = [recover(name, theta[:, j], fit.graded[:, j], fit.low[:, j], fit.high[:, j],
                           log=logs[j])
                   for j, name in enumerate(fit.names)]
         model = _model_recovery(args, cfg, prep, people, engine.map)

@@ -6,8 +6,10 @@ parameter given the summaries (missing summaries, NaN, are handled natively). Th
 the estimate; the 90 % interval is conformalised (Romano et al. 2019, CQR): the two outer
 quantile models are widened by the (1 − α)(1 + 1/n) quantile of their misses on a calibration
 split, so the interval's coverage over the prior holds however the boosting over- or
-under-fits. A third split checks each parameter as a recovery study does (correlation of true
-and estimated, bias, coverage): the verdict `identifiable` of `nod fit`.
+under-fits. A 0/1 parameter (a kind) is reported as its most likely value, its probability and
+its 90 % set; every estimate lies inside its own interval or set (`Estimates`). A third split
+checks each parameter as a recovery study does (correlation of true and estimated, bias,
+coverage): the verdict `identifiable` of `nod fit`.
 
 The model-recovery check (`GazeClassifier`) is a `HistGradientBoostingClassifier` on the same
 summaries: sessions with and without the gaze term.
@@ -34,12 +36,30 @@ BOOSTING: dict[str, Any] = dict(learning_rate=0.1, max_iter=120, max_leaf_nodes=
 
 @dataclass(frozen=True, slots=True)
 class Estimates:
-    """Per person (rows) and parameter (columns): estimate and the 90 % interval."""
+    """Per person (rows) and parameter (columns): estimate and the 90 % interval or set.
+
+    A 0/1 parameter's estimate is its most likely value (1 when its probability is at least
+    ½), `probability` its probability of 1, and low/high the least and largest value of its
+    90 % set ({0}, {1} or {0, 1}): so that every estimate lies inside its own interval or set,
+    and a reader of the estimate column never takes a probability for a value. `probability`
+    is NaN for the other parameters.
+    """
 
     names: tuple[str, ...]
     estimate: np.ndarray
     low: np.ndarray
     high: np.ndarray
+    probability: np.ndarray
+
+    @property
+    def graded(self) -> np.ndarray:
+        """The estimates with a 0/1 parameter's probability in place of its most likely value.
+
+        What the recovery check correlates and the posterior draws match on: the probability
+        grades people that the most likely value lumps into two, and the checks' verdicts stay
+        those of the estimator as it was trained.
+        """
+        return np.where(np.isnan(self.probability), self.estimate, self.probability)
 
 
 def _boosting(rows: int) -> dict[str, Any]:
@@ -85,8 +105,8 @@ def _kind(values: np.ndarray) -> str:
 class QuantileEstimator:
     """Trained once on a reference table; `predict` fits any number of people at once.
 
-    A 0/1 parameter's estimate is its probability, and its 90 % set is {0}, {1} or [0, 1]:
-    every value whose probability is at least 10 %.
+    A 0/1 parameter's estimate is its most likely value, beside its probability; its 90 % set
+    is {0}, {1} or {0, 1}: every value whose probability is at least 10 %.
     """
 
     def __init__(self, names: Sequence[str], seed: int = 0) -> None:
@@ -145,7 +165,7 @@ class QuantileEstimator:
             self._margin[p] = float(np.quantile(misses, q, method="higher"))
         fit = self._finish(self._raw(summaries[check]))
         self.check = [
-            recovery(n, theta[check, p], fit.estimate[:, p], fit.low[:, p], fit.high[:, p],
+            recovery(n, theta[check, p], fit.graded[:, p], fit.low[:, p], fit.high[:, p],
                      log=self.log_scaled[p])
             for p, n in enumerate(self.names)
         ]
@@ -171,16 +191,28 @@ class QuantileEstimator:
             else:
                 q[:, p, :] = np.sort(np.stack([m.predict(summaries) for m in models], axis=1),
                                      axis=1)
-        return Estimates(self.names, q[:, :, 1], q[:, :, 0], q[:, :, 2])
+        return Estimates(self.names, q[:, :, 1], q[:, :, 0], q[:, :, 2],
+                         np.full((n, len(self.names)), np.nan))
 
     def _finish(self, raw: Estimates) -> Estimates:
-        """Widen by the conformal margins, back on the parameters' own scale."""
+        """Widen by the conformal margins, back on the parameters' own scale.
+
+        A 0/1 parameter's probability (the raw estimate) becomes its own field and its estimate
+        the most likely value. The interval is stretched to hold the estimate: a conformal
+        margin below 0 (quantile models wider than their misses need) narrows the interval and
+        could leave the median outside; taking it in again only widens the interval, so the
+        coverage the calibration gives is kept.
+        """
         low, high = raw.low - self._margin, raw.high + self._margin
         est = raw.estimate.copy()
+        prob = np.full_like(est, np.nan)
         for p, kind in enumerate(self._kinds):
             if kind == "log":
                 est[:, p], low[:, p], high[:, p] = (np.exp(v[:, p]) for v in (est, low, high))
-        return Estimates(self.names, est, low, high)
+            elif kind in ("binary", "constant"):  # a constant is a 0/1 trait no one varies in
+                prob[:, p] = est[:, p]
+                est[:, p] = np.where(est[:, p] >= 0.5, 1.0, 0.0)
+        return Estimates(self.names, est, np.minimum(low, est), np.maximum(high, est), prob)
 
     def predict(self, summaries: np.ndarray) -> Estimates:
         """Estimates and conformalised 90 % intervals for people's summaries (n × F)."""

@@ -28,7 +28,7 @@ CHAR_EM = 0.55  # a character's mean width in DejaVu Sans, in ems (a little over
 
 
 def is_probability(est: Sequence[float], low: Sequence[float], high: Sequence[float]) -> bool:
-    """A 0/1 parameter: every set is {0}, {1} or [0, 1] and every estimate a probability."""
+    """A 0/1 parameter: every set is {0}, {1} or {0, 1} and every estimate within [0, 1]."""
     return all(v in (0.0, 1.0) for v in (*low, *high)) and all(0.0 <= e <= 1.0 for e in est)
 
 
@@ -70,7 +70,8 @@ def wrap(text: str, width_in: float, fontsize: float) -> str:
 def draw_intervals(doc: Mapping[str, Any]) -> Figure:
     """Every participant's estimate and 90 % interval, one panel per identifiable parameter.
 
-    A 0/1 parameter's panel spans the probabilities 0 to 1; a parameter the recovery check learnt
+    A 0/1 parameter's panel spans 0 to 1: its most likely value with its set as the bar, and its
+    probability as a hollow ring beside them; a parameter the recovery check learnt
     on its log (spanning a decade) is drawn on a log axis; any other axis spans at least
     MIN_SPAN_REL of its values, so near-constant estimates are drawn flat. Long meanings wrap.
     """
@@ -87,11 +88,17 @@ def draw_intervals(doc: Mapping[str, Any]) -> Figure:
         est = [r["parameters"][name]["estimate"] for r in rows]
         low = [r["parameters"][name]["low"] for r in rows]
         high = [r["parameters"][name]["high"] for r in rows]
-        # A 0/1 parameter's estimate is a probability and its set {0}, {1} or [0, 1]: the
-        # probability may lie outside a one-value set, so its bar is drawn from the point.
+        # Every estimate lies inside its interval or set (a 0/1 parameter's most likely value in
+        # its set); max(0, ·) only guards a rounding's last digit.
         ax.errorbar(xs, est, yerr=[[max(0.0, e - lo) for e, lo in zip(est, low, strict=True)],
                                    [max(0.0, h - e) for e, h in zip(est, high, strict=True)]],
                     fmt="o", ms=3, lw=1, color="#1565c0", ecolor="#90caf9")
+        prob = [(x, r["parameters"][name]["probability"]) for x, r in zip(xs, rows, strict=True)
+                if "probability" in r["parameters"][name]]
+        if prob:
+            ax.plot([x for x, _ in prob], [p for _, p in prob], "o", ms=5, mfc="none",
+                    mec="#c62828", mew=0.8, label="probability of 1")
+            ax.legend(fontsize=6, loc="center right", frameon=False)
         every = [*est, *low, *high]
         if is_probability(est, low, high):
             ax.set_ylim(-0.06, 1.06)

@@ -96,7 +96,7 @@ def _load(path: Path) -> QuantileEstimator | None:
 def posterior_draws(prep: Prepared, estimate: np.ndarray, n: int) -> np.ndarray:
     """The parameters of the n table people nearest to a person's estimates (n × P)."""
     theta = prep.table.theta[prep.estimator.held_out]  # estimates out of sample, as a person's
-    est = prep.table_estimates.estimate
+    est = prep.table_estimates.graded  # a kind by its probability, as the check reads it
     scale = np.std(theta, axis=0)
     scale[scale == 0] = 1.0
     d = np.sum(((est - estimate) / scale) ** 2, axis=1)
@@ -124,7 +124,7 @@ def predictive(cfg: NodConfig, prep: Prepared, estimates: Estimates, draws: int,
     if draws <= 0:
         return [[] for _ in range(len(estimates.estimate))]
     jobs: list[tuple[NodConfig, int]] = []
-    for i, est in enumerate(estimates.estimate):
+    for i, est in enumerate(estimates.graded):
         for j, theta in enumerate(posterior_draws(prep, est, draws)):
             jobs.append((person_config(cfg, prep.table.names, theta),
                          PREDICTIVE_SEED + i * draws + j))

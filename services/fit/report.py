@@ -3,8 +3,11 @@
 `nod fit --json`: {"participants": [{"participant", "session", "trials", "parameters": {NAME:
 {"estimate", "low", "high"}}, "predictive": {...}}], "not_identifiable": {NAME: {...}}, ...}:
 only parameters that passed the recovery check are under "parameters" — the others are named,
-with their check, and never given an estimate. `nod fit recovery --json`: {"parameters":
-[{"name", "correlation", "bias", "coverage", "identifiable", "n"}], "model_recovery": {...}}.
+with their check, and never given an estimate. A 0/1 parameter (a kind) is {"estimate": its
+most likely value, "probability", "set": [0] | [1] | [0, 1], "low", "high": the set's least
+and largest}: every estimate lies inside its own interval or set. `nod fit recovery --json`:
+{"parameters": [{"name", "correlation", "bias", "coverage", "identifiable", "n"}],
+"model_recovery": {...}}.
 """
 
 from __future__ import annotations
@@ -64,6 +67,16 @@ def _r(x: float) -> float:
     return round(float(x), 4)
 
 
+def parameter_cell(estimate: float, low: float, high: float, probability: float
+                   ) -> dict[str, Any]:
+    """One parameter of one person in the JSON: a 0/1 one (probability not NaN) with its set."""
+    cell: dict[str, Any] = {"estimate": _r(estimate), "low": _r(low), "high": _r(high)}
+    if math.isfinite(probability):
+        cell["probability"] = _r(probability)
+        cell["set"] = [v for v in (0, 1) if low <= v <= high]
+    return cell
+
+
 def fit_document(people: Sequence[Person], fit: Estimates, checks: Sequence[Recovery],
                  sims: Sequence[Sequence[Simulated]], observed_press: Sequence[list[float]],
                  meta: dict[str, Any]) -> dict[str, Any]:
@@ -72,8 +85,8 @@ def fit_document(people: Sequence[Person], fit: Estimates, checks: Sequence[Reco
     rows = []
     for i, person in enumerate(people):
         params = {
-            name: {"estimate": _r(fit.estimate[i, p]), "low": _r(fit.low[i, p]),
-                   "high": _r(fit.high[i, p])}
+            name: parameter_cell(fit.estimate[i, p], fit.low[i, p], fit.high[i, p],
+                                 fit.probability[i, p])
             for p, name in enumerate(fit.names) if name in ok
         }
         row: dict[str, Any] = {
@@ -101,18 +114,28 @@ def fit_document(people: Sequence[Person], fit: Estimates, checks: Sequence[Reco
     }
 
 
+def table_cell(v: dict[str, Any]) -> str:
+    """`estimate [low, high]`; a 0/1 parameter `value (p probability) {set}`."""
+    if "probability" in v:
+        members = ", ".join(str(m) for m in v["set"])
+        return f"{v['estimate']:>8.3g} (p {v['probability']:.2f}) {{{members}}}"
+    return f"{v['estimate']:>8.3g} [{v['low']:.3g}, {v['high']:.3g}]"
+
+
 def fit_table(doc: dict[str, Any]) -> str:
-    """The per-participant table: estimate [low, high] of each identifiable parameter."""
+    """The per-participant table: estimate [low, high] of each identifiable parameter.
+
+    A 0/1 parameter shows its most likely value, its probability and its set, so the value
+    read in the estimate column is a value the person can have.
+    """
     names = doc["identifiable"]
     lines = [f"{'participant':<12} {'trials':>6}  " + "  ".join(f"{n:>22}" for n in names)]
     for row in doc["participants"]:
-        cells = []
-        for n in names:
-            v = row["parameters"][n]
-            cells.append(f"{v['estimate']:>8.3g} [{v['low']:.3g}, {v['high']:.3g}]".rjust(22))
+        cells = [table_cell(row["parameters"][n]).rjust(22) for n in names]
         lines.append(f"{row['participant']:<12} {row['trials']:>6}  " + "  ".join(cells))
-    lines.append(f"(estimate [{int(LEVEL * 100)} % interval]; {', '.join(names) or 'none'} "
-                 "recovered on held-out simulated people)")
+    lines.append(f"(estimate [{int(LEVEL * 100)} % interval]; a kind: most likely value "
+                 f"(p its probability) {{{int(LEVEL * 100)} % set}}; "
+                 f"{', '.join(names) or 'none'} recovered on held-out simulated people)")
     for name, c in doc["not_identifiable"].items():
         lines.append(
             f"not identifiable from these trials, no estimate given: {name} "

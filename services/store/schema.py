@@ -160,6 +160,7 @@ CREATE TABLE IF NOT EXISTS fits (
     level       REAL NOT NULL,
     method      TEXT NOT NULL,
     fitted_ns   INTEGER NOT NULL,
+    probability REAL,  -- a 0/1 parameter's probability of 1 (its estimate: the likelier value)
     PRIMARY KEY (participant, parameter)
 );
 """

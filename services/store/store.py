@@ -234,6 +234,7 @@ class Store:
             ("samples", "theta", "REAL"),
             ("samples", "distance", "REAL"),
             ("samples", "landmarks", "BLOB"),
+            ("fits", "probability", "REAL"),
         ):
             have = {row[1] for row in self.db.execute(f"PRAGMA table_info({table})")}
             if column not in have:

@@ -103,6 +103,8 @@ def test_fit_a_small_study_stores_and_exports_it(tmp_path, capsys):
         assert set(r["parameters"]) == set(doc["identifiable"])  # never a non-identifiable one
         for v in r["parameters"].values():
             assert v["low"] <= v["estimate"] <= v["high"]
+            if "probability" in v:  # a kind: its likelier value, its probability, its set
+                assert v["estimate"] in v["set"] and 0 <= v["probability"] <= 1
         pred = r["predictive"]
         assert pred["sessions"] == 2 and sum(pred["simulated"].values()) == pytest.approx(1)
         assert len(pred["observed_press_s"]) >= 1
@@ -116,8 +118,13 @@ def test_fit_a_small_study_stores_and_exports_it(tmp_path, capsys):
     expected = {(r["participant"], n) for r in rows for n in r["parameters"]}
     assert {(f.participant, f.parameter) for f in stored} == expected
     assert export_main(["--db", str(db), "--out", str(tmp_path / "csv")]) == 0
+    probability = {(r["participant"], n): v.get("probability") for r in rows
+                   for n, v in r["parameters"].items()}
+    assert {(f.participant, f.parameter): f.probability for f in stored} == probability
     exported = list(csv.DictReader((tmp_path / "csv" / "fits.csv").open()))
     assert len(exported) == len(expected)
+    written = list(csv.DictReader((out / "fit.csv").open()))
+    assert [r["probability"] for r in written] == [r["probability"] for r in exported]
     # A second fit (from the cached table) replaces the rows, never doubles them.
     assert main(args[:-1] + ["--participant", "P002"]) == 0
     assert "P002" in capsys.readouterr().out
@@ -126,3 +133,39 @@ def test_fit_a_small_study_stores_and_exports_it(tmp_path, capsys):
         assert len(read_fits(store)) == len(expected)
     finally:
         store.close()
+
+
+def test_a_small_real_fit_puts_every_estimate_inside_its_interval_or_set(tmp_path):
+    """A real table (40 people of the shipped cohort) and four real people: every parameter,
+    reported or not, has its estimate inside its own interval, and each kind its likelier
+    value inside its set, its probability beside it — as the JSON and the table print them."""
+    import numpy as np
+
+    from services.cohort.person import load_cohort_params
+    from services.fit.pipeline import prepare
+    from services.fit.report import fit_table, parameter_cell
+    from services.fit.simulate import simulate
+
+    def run(fn, jobs):  # the engine, in this process
+        return [fn(job) for job in jobs]
+
+    cfg = load_cohort_params(None)
+    prep = prepare(cfg, 40, run, tmp_path)
+    people = run(simulate, [(cfg, 7 + i) for i in range(4)])
+    fit = prep.estimator.predict(np.stack([p.summaries for p in people]))
+    kinds = [j for j, n in enumerate(fit.names) if n in ("late_switcher", "contrarian")]
+    assert len(kinds) == 2 and np.isfinite(fit.probability[:, kinds]).all()
+    rows = []
+    for i, person in enumerate(people):
+        cells = {n: parameter_cell(fit.estimate[i, j], fit.low[i, j], fit.high[i, j],
+                                   fit.probability[i, j]) for j, n in enumerate(fit.names)}
+        for cell in cells.values():
+            assert cell["low"] <= cell["estimate"] <= cell["high"]
+            if "probability" in cell:
+                assert cell["estimate"] in cell["set"]
+                assert cell["estimate"] == (1 if cell["probability"] >= 0.5 else 0)
+        rows.append({"participant": f"P{person.seed}", "trials": 8, "parameters": cells})
+    table = fit_table({"identifiable": list(fit.names), "participants": rows,
+                       "not_identifiable": {}})
+    first = rows[0]["parameters"]["contrarian"]
+    assert f"(p {first['probability']:.2f}) {{{', '.join(map(str, first['set']))}}}" in table

@@ -9,7 +9,8 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from services.fit.estimator import GazeClassifier, QuantileEstimator
+from services.fit.estimator import Estimates, GazeClassifier, QuantileEstimator
+from services.fit.report import parameter_cell
 from services.model.recovery import Recovery, recovery
 
 
@@ -127,8 +128,47 @@ def test_a_0_1_parameter_gets_a_probability_and_a_set():
     check = est.check[0]
     assert check.identifiable and check.correlation > 0.9 and check.exact > 0.8
     fit = est.predict(summaries[:50])
-    assert np.all((fit.estimate[:, 0] >= 0) & (fit.estimate[:, 0] <= 1))  # a probability
+    prob = fit.probability[:, 0]
+    assert np.all((prob >= 0) & (prob <= 1))  # its probability, beside the estimate
+    assert np.array_equal(fit.estimate[:, 0], (prob >= 0.5).astype(float))  # the likelier value
     assert set(np.unique(fit.low[:, 0])) <= {0.0, 1.0} and np.all(fit.low <= fit.high)
+    assert np.isnan(fit.probability[:, 1]).all()  # a continuous parameter has none
+    assert np.array_equal(fit.graded[:, 0], prob) and np.array_equal(fit.graded[:, 1],
+                                                                       fit.estimate[:, 1])
+
+
+def _inside(fit: Estimates) -> None:
+    """Every estimate inside its own interval or set; a 0/1 one a value of its set."""
+    assert np.all(fit.low <= fit.estimate) and np.all(fit.estimate <= fit.high)
+    kinds = np.isfinite(fit.probability)
+    assert set(np.unique(fit.estimate[kinds])) <= {0.0, 1.0}
+    assert set(np.unique(fit.low[kinds])) | set(np.unique(fit.high[kinds])) <= {0.0, 1.0}
+    for i, p in zip(*np.nonzero(kinds), strict=True):
+        cell = parameter_cell(fit.estimate[i, p], fit.low[i, p], fit.high[i, p],
+                              fit.probability[i, p])
+        assert cell["estimate"] in cell["set"] and 0 <= cell["probability"] <= 1
+        assert cell["low"] == min(cell["set"]) and cell["high"] == max(cell["set"])
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(40, 160), share=st.floats(0.0, 1.0),
+       signal=st.floats(0.0, 3.0), shift=st.floats(-2.0, 0.5))
+def test_every_estimate_lies_inside_its_own_interval_or_set(seed, n, share, signal, shift):
+    """Over random tables and people: a continuous, a log-normal and a 0/1 parameter, their
+    summaries anything from informative to noise; and with the conformal margins pushed below
+    0 (`shift`), where the interval would narrow past the median if nothing took it in again."""
+    rng = np.random.default_rng(seed)
+    theta = np.column_stack([rng.normal(0, 1, n), np.exp(rng.normal(1, 1.2, n)),
+                             (rng.random(n) < share).astype(float)])
+    summaries = np.column_stack([signal * theta[:, 0] + rng.normal(0, 1, n),
+                                 signal * np.log(theta[:, 1]) + rng.normal(0, 1, n),
+                                 signal * theta[:, 2] + rng.normal(0, 1, n)])
+    summaries[rng.random(summaries.shape) < 0.1] = np.nan
+    est = QuantileEstimator(("linear", "gain", "kind"), seed=seed % 1000).train(theta, summaries)
+    people = rng.normal(0, 2, (30, 3))
+    _inside(est.predict(people))
+    est._margin = est._margin + shift * np.array([1.0, 1.0, 0.0])  # a 0/1 set has no margin
+    _inside(est.predict(people))
 
 
 def test_the_recovery_table_keeps_its_columns_for_a_long_name():

@@ -19,7 +19,7 @@ NAMES = ("gaze_gain", "reaction_s", "late_switcher", "firm_contrarian", "persist
 
 def fit_doc(n: int) -> dict[str, Any]:
     """A `nod fit` document of n people: gaze_gain spans decades (a log scale), reaction_s is
-    near-constant (0.9997-1.0), late_switcher is 1 for all, persistent_contrarian ~0.0002."""
+    near-constant (0.9997-1.0), late_switcher is 1 for all, persistent_contrarian 0 (p ~0.0002)."""
     rows = []
     for i in range(n):
         g = 1.5 + 3.0 * (i % 7)
@@ -29,10 +29,13 @@ def fit_doc(n: int) -> dict[str, Any]:
                 "gaze_gain": {"estimate": g, "low": g / 2, "high": g * 4},
                 "reaction_s": {"estimate": 0.9997 + 0.00003 * (i % 10), "low": 0.9997,
                                "high": 1.0},
-                "late_switcher": {"estimate": 1.0 - 0.0003 * (i % 2), "low": 1.0, "high": 1.0},
-                "firm_contrarian": {"estimate": 0.002 * (i % 3), "low": 0.0,
-                                    "high": 1.0 if i % 5 == 0 else 0.0},
-                "persistent_contrarian": {"estimate": 0.0001 * (i % 3), "low": 0.0, "high": 0.0},
+                "late_switcher": {"estimate": 1.0, "probability": 1.0 - 0.0003 * (i % 2),
+                                  "set": [1], "low": 1.0, "high": 1.0},
+                "firm_contrarian": {"estimate": 0.0, "probability": 0.002 * (i % 3) + (
+                    0.3 if i % 5 == 0 else 0.0), "set": [0, 1] if i % 5 == 0 else [0],
+                    "low": 0.0, "high": 1.0 if i % 5 == 0 else 0.0},
+                "persistent_contrarian": {"estimate": 0.0, "probability": 0.0001 * (i % 3),
+                                          "set": [0], "low": 0.0, "high": 0.0},
             },
             "predictive": {
                 "observed": dict(zip(OUTCOME_KEYS, (0.5, 0.25, 0.25, 0.0, 0.0), strict=True)),
