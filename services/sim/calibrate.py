@@ -10,6 +10,12 @@ person on `--holdout` other people (≥ 400 by default, seeds disjoint from the 
 per trial and per flow next to the paper. `--out` writes the traits as a `--params` file that
 says how it was made; `--evaluate` fits nothing and only checks.
 
+Beside each distance stands what a study of the paper's size (`--study-size`, 51) drawn from the
+model would show: `--studies` bootstrap studies of the held-out people give the 51-person noise
+floor (the 95th percentile of a study's TVD to the model) and the probability that such a study
+is at least as far from the model as the paper is. A distance below that floor is not evidence
+of a better model: the paper itself could not tell it apart.
+
 A cohort fitted to a table is a model of that table, not a replication of the study.
 """
 
@@ -20,10 +26,14 @@ import math
 import shlex
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from datetime import UTC, datetime
 from importlib.abc import Traversable
 from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
 
 from services.cohort.outcomes import (
     CATEGORIES,
@@ -48,6 +58,7 @@ from services.compute.engine import (
 from services.core.cli import SEED, Parser, fail, int_in, positive_float
 from services.model.outcome import OUTCOMES
 from services.model.params import NodConfig, ParticipantParams
+from services.model.phases import CONTROL_TRIALS, EXPERIMENT_TRIALS, phase_category
 from services.sim.fit import (
     FLOW_WEIGHT,
     SIGMA0,
@@ -63,6 +74,8 @@ from services.sim.fit import (
 )
 
 HOLDOUT_OFFSET = 10**6  # default held-out seeds: seed + 10⁶ on, never a fit seed
+PAPER_N = 51  # the paper's participants (Fig 8b's counts add up to 51)
+STUDIES = 2000  # bootstrap studies: the 95th percentile and a p of ≈ 0.05 to ± 0.005
 
 
 @dataclass(frozen=True)
@@ -88,17 +101,83 @@ def check(cohort: list[Outcomes], seed: int, target: Shares, target_flows: Flows
                  {k: tvd(got[k], want) for k, want in target.items()}, tvd(moved, target_flows))
 
 
-def trial_table(target: Shares, c: Check) -> str:
-    """Per trial: the paper's and the model's shares (%), and their TVD."""
-    rows = ["trial  paper C/CH/D/DH     model C/CH/D/DH/none    TVD"]
+@dataclass(frozen=True)
+class Noise:
+    """How far studies of the paper's size drawn from the model land from the model.
+
+    A TVD is never 0 for a finite study, so the paper's distance is read against these: the
+    floor is the 95th percentile of a study's TVD to the model, p the share of studies at least
+    as far from the model as the paper is (a parametric bootstrap: a small p says the paper is
+    unlikely to be a study of this model; a distance below the floor is not evidence).
+    """
+
+    size: int
+    studies: int
+    seed: int
+    trial_floor: dict[int, float]
+    trial_p: dict[int, float]
+    flow_floor: float
+    flow_p: float
+
+
+def _codes(cohort: Sequence[Outcomes]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """Each person's category per trial, and their (control, experiment) flow, as indices."""
+    index = {c: i for i, c in enumerate(CATEGORIES)}
+    trials = np.array([[index[o or "none"] for o in person] for person in cohort], dtype=np.int64)
+    pairs = np.array([index[phase_category([person[t - 1] for t in CONTROL_TRIALS]) or "none"]
+                      * len(CATEGORIES)
+                      + index[phase_category([person[t - 1] for t in EXPERIMENT_TRIALS]) or "none"]
+                      for person in cohort], dtype=np.int64)
+    return trials, pairs
+
+
+def _study_tvd(codes: npt.NDArray[np.int64], draws: npt.NDArray[np.int64],
+               bins: int) -> npt.NDArray[np.float64]:
+    """Each drawn study's TVD to the whole cohort, over one categorical variable."""
+    model = np.bincount(codes, minlength=bins) / len(codes)
+    studies, size = draws.shape
+    rows = np.arange(studies)[:, None] * bins + codes[draws]
+    got = np.bincount(rows.ravel(), minlength=studies * bins).reshape(studies, bins) / size
+    return np.asarray(0.5 * np.abs(got - model).sum(axis=1), dtype=np.float64)
+
+
+def study_noise(cohort: Sequence[Outcomes], c: Check, size: int = PAPER_N,
+                studies: int = STUDIES, seed: int = 1) -> Noise:
+    """The paper's distances (in c, of this cohort) against studies of `size` from the cohort.
+
+    The cohort is the model: each study resamples `size` of its people with replacement (seeded,
+    so a report is reproducible) and is measured as the paper was, per trial and for the flows.
+    """
+    trials, pairs = _codes(cohort)
+    draws = np.random.default_rng(seed).integers(0, len(cohort), (studies, size))
+    bins = len(CATEGORIES)
+
+    def floor_p(d: npt.NDArray[np.float64], paper: float) -> tuple[float, float]:
+        # ≥ with a rounding slack: shares of 51 are multiples of 1/51, so ties are real
+        return float(np.quantile(d, 0.95)), float(np.mean(d >= paper - 1e-9))
+
+    per_trial = {k: floor_p(_study_tvd(trials[:, k - 1], draws, bins), c.trial_tvd[k])
+                 for k in sorted(c.trial_tvd) if k <= trials.shape[1]}
+    flow_floor, flow_p = floor_p(_study_tvd(pairs, draws, bins * bins), c.flow_tvd)
+    return Noise(size, studies, seed, {k: v[0] for k, v in per_trial.items()},
+                 {k: v[1] for k, v in per_trial.items()}, flow_floor, flow_p)
+
+
+def trial_table(target: Shares, c: Check, noise: Noise | None = None) -> str:
+    """Per trial: the paper's and the model's shares (%), their TVD, and the study noise."""
+    head = "trial  paper C/CH/D/DH     model C/CH/D/DH/none    TVD"
+    rows = [head + (f"    floor({noise.size})  p({noise.size})" if noise else "")]
     for k, want in sorted(target.items()):
         paper = "/".join(f"{want[o] * 100:.0f}" for o in OUTCOMES)
         model = "/".join(f"{c.shares[k][o] * 100:.0f}" for o in CATEGORIES)
-        rows.append(f"{k:>5}  {paper:<19} {model:<23} {c.trial_tvd[k]:.3f}")
+        row = f"{k:>5}  {paper:<19} {model:<23} {c.trial_tvd[k]:.3f}"
+        if noise is not None and k in noise.trial_p:
+            row += f"    {noise.trial_floor[k]:9.3f}  {noise.trial_p[k]:5.3f}"
+        rows.append(row)
     return "\n".join(rows)
 
 
-def flow_table(target_flows: Flows, c: Check) -> str:
+def flow_table(target_flows: Flows, c: Check, noise: Noise | None = None) -> str:
     """Fig 8b: each control → experiment flow of the paper or the model (% of participants)."""
     rows = ["control → experiment   paper %   model %"]
     for (a, b) in sorted(set(target_flows) | set(c.flows),
@@ -106,14 +185,25 @@ def flow_table(target_flows: Flows, c: Check) -> str:
         paper, model = target_flows.get((a, b), 0.0), c.flows.get((a, b), 0.0)
         if paper or model:
             rows.append(f"{a:>7} → {b:<12} {paper * 100:8.1f}  {model * 100:8.1f}")
-    rows.append(f"TVD of the flows: {c.flow_tvd:.3f}")
+    rows.append(f"TVD of the flows: {c.flow_tvd:.3f}" + (
+        "" if noise is None else
+        f" (floor({noise.size}) {noise.flow_floor:.3f}, p({noise.size}) {noise.flow_p:.3f})"))
     return "\n".join(rows)
 
 
-def report(target: Shares, target_flows: Flows, c: Check) -> str:
-    """Both tables for one cohort, with their heading."""
+def noise_note(noise: Noise) -> str:
+    """What the floor and p columns are, and what a distance below the floor does not show."""
+    return (f"floor({noise.size}): 95th percentile of the TVD to the model of {noise.studies} "
+            f"studies of {noise.size} people drawn from the held-out people (seed {noise.seed}); "
+            f"p({noise.size}): the share of them at least as far from the model as the paper "
+            f"is. A distance below the floor is not evidence of a better model.")
+
+
+def report(target: Shares, target_flows: Flows, c: Check, noise: Noise | None = None) -> str:
+    """Both tables for one cohort, with their heading (and the study noise, if given)."""
     return (f"{c.n} participants (seeds {c.seed}..{c.seed + c.n - 1}) next to the paper:\n"
-            f"{trial_table(target, c)}\n{flow_table(target_flows, c)}")
+            f"{trial_table(target, c, noise)}\n{flow_table(target_flows, c, noise)}"
+            + ("" if noise is None else "\n" + noise_note(noise)))
 
 
 def write_params(path: Path, cfg: NodConfig, how: list[str]) -> None:
@@ -144,7 +234,8 @@ def against_start(fitted: Check, start: Check, flow_weight: float) -> list[str]:
     return lines
 
 
-def provenance(args: argparse.Namespace, where: str, best: float, c: Check) -> list[str]:
+def provenance(args: argparse.Namespace, where: str, best: float, c: Check,
+               noise: Noise | None = None) -> list[str]:
     """How a fit was made, for the head of its file."""
     popsize = args.popsize or default_popsize(len(args.traits))
     held = " ".join(f"{c.trial_tvd[k]:.3f}" for k in sorted(c.trial_tvd))
@@ -161,7 +252,15 @@ def provenance(args: argparse.Namespace, where: str, best: float, c: Check) -> l
         f"best score on them {best:.3f} (Σ trial TVD + {args.flow_weight:g} × flow TVD)",
         f"held out: {c.n} participants, seeds {c.seed}..{c.seed + c.n - 1}: TVD per trial "
         f"1-{len(c.trial_tvd)} = {held}; flows (Fig 8b) {c.flow_tvd:.3f}",
-    ]
+    ] + ([] if noise is None else [
+        f"{noise.size}-person studies of them ({noise.studies} drawn, seed {noise.seed}): "
+        "noise floor (95th percentile of a study's TVD to the model) per trial = "
+        + " ".join(f"{noise.trial_floor[k]:.3f}" for k in sorted(noise.trial_floor))
+        + f"; flows {noise.flow_floor:.3f}",
+        "p (a study at least as far from the model as the paper) per trial = "
+        + " ".join(f"{noise.trial_p[k]:.3f}" for k in sorted(noise.trial_p))
+        + f"; flows {noise.flow_p:.3f}",
+    ])
 
 
 def trait_list(text: str) -> tuple[Trait, ...]:
@@ -213,6 +312,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--evaluate", action="store_true",
                    help="fit nothing: check the --params (or shipped) person on the held-out "
                    "people")
+    p.add_argument("--studies", type=int_in(1, 10**6), default=STUDIES,
+                   help=f"bootstrap studies of the held-out people for the noise floor and p "
+                   f"({STUDIES}; seeded by --seed)")
+    p.add_argument("--study-size", type=int_in(1, 10**5), default=PAPER_N,
+                   help=f"people per bootstrap study: the paper's ({PAPER_N})")
     add_engine_args(p)
     return p
 
@@ -269,7 +373,8 @@ def main(argv: list[str] | None = None) -> int:
     except EngineError as exc:
         return fail("nod calibrate-cohort", exc)
     c = check(held, holdout_seed, target, target_flows)
-    print(report(target, target_flows, c))
+    noise = study_noise(held, c, args.study_size, args.studies, args.seed)
+    print(report(target, target_flows, c, noise))
     print(f"held out: Σ trial TVD {sum(c.trial_tvd.values()):.3f}, flows {c.flow_tvd:.3f}"
           + ("" if args.evaluate else f" (on the fit's own seeds: {best:.3f} in all)"))
     compared: list[str] = []
@@ -278,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
                                  args.flow_weight)
         print("\n".join(compared))
     if args.out is not None and not args.evaluate:
-        write_params(args.out, cfg, provenance(args, where, best, c) + compared)
+        write_params(args.out, cfg, provenance(args, where, best, c, noise) + compared)
         print(f"wrote {args.out}")
     return 0
 
