@@ -22,6 +22,7 @@ from services.fit.pipeline import Prepared, predictive, prepare
 from services.fit.report import fit_document, fit_table, press_times, recovery_table
 from services.fit.simulate import TABLE_SEED, default_cache, reference_table, simulate, without_gaze
 from services.model.params import NodConfig
+from services.model.recovery import BOOTSTRAP_DRAWS, CI_LEVEL, recovery_intervals
 from services.model.recovery import recovery as recover
 from services.model.summaries import summarise
 from services.store import Store
@@ -132,9 +133,16 @@ def recovery(args: argparse.Namespace) -> int:
         model = _model_recovery(args, cfg, prep, people, engine.map)
         _say(f"{n} planted people simulated and fitted, model check done "
              f"({time.monotonic() - t0:.0f} s)")
-    doc = {"parameters": [c.as_dict() for c in checks], "model_recovery": model,
-           "participants": n, "seed": args.seed, "method": method(cfg, args.table)}
-    print(json.dumps(doc, indent=2) if args.json else recovery_table(checks, model))
+    # The bootstrap's rng is the run's seed: a reviewer's rerun gives the same intervals.
+    spread = [recovery_intervals(c, theta[:, j], fit.graded[:, j], fit.low[:, j],
+                                 fit.high[:, j], args.seed) for j, c in enumerate(checks)]
+    doc = {"parameters": [c.as_dict() | u for c, u in zip(checks, spread, strict=True)],
+           "model_recovery": model, "participants": n, "seed": args.seed,
+           "intervals": {"level": CI_LEVEL, "correlation": "percentile bootstrap, people "
+                         f"resampled, {BOOTSTRAP_DRAWS} draws, rng seed {args.seed}",
+                         "coverage": "Wilson score"},
+           "method": method(cfg, args.table)}
+    print(json.dumps(doc, indent=2) if args.json else recovery_table(checks, model, spread))
     return 0
 
 

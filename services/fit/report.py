@@ -6,8 +6,9 @@ only parameters that passed the recovery check are under "parameters" — the ot
 with their check, and never given an estimate. A 0/1 parameter (a kind) is {"estimate": its
 most likely value, "probability", "set": [0] | [1] | [0, 1], "low", "high": the set's least
 and largest}: every estimate lies inside its own interval or set. `nod fit recovery --json`:
-{"parameters": [{"name", "correlation", "bias", "coverage", "identifiable", "n"}],
-"model_recovery": {...}}.
+{"parameters": [{"name", "correlation", "correlation_ci95", "bias", "coverage",
+"coverage_ci95", "identifiable", "edge", "n", ...}], "model_recovery": {...}, "intervals": {how
+they were found}}: r's interval a percentile bootstrap over the people, the coverage's Wilson's.
 """
 
 from __future__ import annotations
@@ -149,16 +150,39 @@ def _fmt(x: float | None) -> str:
     return "n/a" if x is None else f"{x:.2f}"
 
 
-def recovery_table(checks: Sequence[Recovery], model: dict[str, Any] | None) -> str:
-    """The recovery study as text: one line per parameter, then the model-recovery check."""
+def _ci(pair: Sequence[float | None]) -> str:
+    return f"[{_fmt(pair[0])}, {_fmt(pair[1])}]"
+
+
+def recovery_table(checks: Sequence[Recovery], model: dict[str, Any] | None,
+                   intervals: Sequence[dict[str, Any]] | None = None) -> str:
+    """The recovery study as text: one line per parameter, then the model-recovery check.
+
+    With `intervals` (`recovery_intervals`, one per check): r and coverage each with its 95 %
+    interval, and a verdict that another draw of people could turn marked "(at the edge)".
+    """
     w = max([len("parameter"), *(len(c.name) for c in checks)])  # a long name keeps the columns
-    lines = [f"{'parameter':<{w}} {'r':>6} {'bias':>8} {'coverage':>9}  identifiable"]
-    for c in checks:
+    cis = intervals is not None
+    head = f"{'parameter':<{w}} {'r':>6} "
+    head += f"{'r 95 % CI':>14} " if cis else ""
+    head += f"{'bias':>8} {'coverage':>9} "
+    head += f"{'coverage 95 % CI':>16} " if cis else ""
+    lines = [head + " identifiable"]
+    for j, c in enumerate(checks):
         d = c.as_dict()
-        lines.append(f"{c.name:<{w}} {_fmt(d['correlation']):>6} {_fmt(d['bias']):>8} "  # type: ignore[arg-type]
-                     f"{_fmt(d['coverage']):>9}  {'yes' if c.identifiable else 'NO'}")  # type: ignore[arg-type]
+        u = intervals[j] if intervals is not None else {}
+        line = f"{c.name:<{w}} {_fmt(d['correlation']):>6} "  # type: ignore[arg-type]
+        line += f"{_ci(u['correlation_ci95']):>14} " if cis else ""
+        line += f"{_fmt(d['bias']):>8} {_fmt(d['coverage']):>9} "  # type: ignore[arg-type]
+        line += f"{_ci(u['coverage_ci95']):>16} " if cis else ""
+        verdict = "yes" if c.identifiable else "NO"
+        lines.append(line + f" {verdict}" + (" (at the edge)" if u.get("edge") else ""))
     lines.append(f"(standard: r ≥ 0.7 and {int(LEVEL * 100)} % coverage within 0.80-0.98; "
                  f"n = {checks[0].n if checks else 0})")
+    if cis:
+        lines.append("(95 % intervals: r's a percentile bootstrap over the people, from the "
+                     "run's seed; coverage's Wilson's. At the edge: either reaches across its "
+                     "threshold, so another draw of people could turn the verdict)")
     logged = [c.name for c in checks if c.scale == "log"]
     if logged:
         lines.append(f"(r of {', '.join(logged)}: of the logs, a trait spread log-normally "

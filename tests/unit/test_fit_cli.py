@@ -169,3 +169,32 @@ def test_a_small_real_fit_puts_every_estimate_inside_its_interval_or_set(tmp_pat
                        "not_identifiable": {}})
     first = rows[0]["parameters"]["contrarian"]
     assert f"(p {first['probability']:.2f}) {{{', '.join(map(str, first['set']))}}}" in table
+
+
+def test_a_small_real_recovery_gives_each_row_its_intervals_and_repeats(tmp_path, capsys):
+    """`nod fit recovery --participants N --seed S --json` on a small table: each parameter's r
+    with its bootstrap interval, its coverage with its Wilson interval; a rerun, the same.
+    (100 table people: the fewest whose boosting is not a constant, so r exists.)"""
+    from services.model.recovery import wilson
+
+    n = 10
+    args = ["recovery", "--participants", str(n), "--seed", "3", "--table", "100",
+            "--workers", "1", "--cache", str(tmp_path / "cache"), "--json"]
+    assert main(args) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["seed"] == 3 and doc["intervals"]["level"] == 0.95
+    for row in doc["parameters"]:
+        lo, hi = row["coverage_ci95"]
+        assert (lo, hi) == pytest.approx(wilson(round(row["coverage"] * n), n), abs=1e-4)
+        assert lo <= row["coverage"] <= hi
+        r, (r_lo, r_hi) = row["correlation"], row["correlation_ci95"]
+        if r is not None and r_lo is not None:
+            assert -1 <= r_lo <= r <= r_hi <= 1
+        assert isinstance(row["edge"], bool)
+    speed = next(row for row in doc["parameters"] if row["name"] == "speed")
+    assert speed["correlation"] > 0.9 and speed["correlation_ci95"][0] > 0.7  # real people
+    assert main(args) == 0  # the tables now cached: a reviewer's rerun
+    assert json.loads(capsys.readouterr().out)["parameters"] == doc["parameters"]
+    assert main(args[:-1]) == 0
+    table = capsys.readouterr().out
+    assert "r 95 % CI" in table and "coverage 95 % CI" in table and "Wilson" in table

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -11,7 +12,14 @@ from hypothesis import strategies as st
 
 from services.fit.estimator import Estimates, GazeClassifier, QuantileEstimator
 from services.fit.report import parameter_cell
-from services.model.recovery import Recovery, recovery
+from services.model.recovery import (
+    Recovery,
+    bootstrap_correlation,
+    correlation,
+    recovery,
+    recovery_intervals,
+    wilson,
+)
 
 
 def _synthetic(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -177,10 +185,14 @@ def test_the_recovery_table_keeps_its_columns_for_a_long_name():
     true = np.linspace(0, 1, 20)
     checks = [recovery(n, true, true, true - 0.1, true + 0.1)
               for n in ("speed", "persistent_contrarian")]
-    rows = recovery_table(checks, None).splitlines()[:3]
-    ends = {rows[0].index("identifiable")} | {len(r) - len(r.split()[-1]) for r in rows[1:]}
-    assert len(ends) == 1, rows  # "identifiable" and each row's yes/NO start in one column
-    assert rows[2].startswith("persistent_contrarian ")
+    spread = [recovery_intervals(c, true, true, true - 0.1, true + 0.1, seed=1) for c in checks]
+    for table in (recovery_table(checks, None), recovery_table(checks, None, spread)):
+        rows = table.splitlines()[:3]
+        verdict = r" (yes|NO)( \(at the edge\))?$"
+        ends = {rows[0].index("identifiable")} | {re.search(verdict, r).start(1) for r in rows[1:]}
+        assert len(ends) == 1, rows  # "identifiable" and each row's yes/NO start in one column
+        assert rows[2].startswith("persistent_contrarian ")
+    assert "[1.00, 1.00]" in table and "[0.84, 1.00]" in table  # r; Wilson of 20 of 20
 
 
 def test_a_log_normal_parameter_is_correlated_on_its_log():
@@ -196,3 +208,51 @@ def test_a_log_normal_parameter_is_correlated_on_its_log():
     assert (logged.coverage, logged.bias) == (raw.coverage, raw.bias)  # units unchanged
     zero = recovery("z", true - true.min(), estimate, estimate, estimate, log=True)
     assert zero.scale == "linear"  # a value of 0 has no log: r of the values as they are
+
+
+def test_the_bootstrap_interval_of_r_holds_r_narrows_with_people_and_repeats():
+    rng = np.random.default_rng(5)
+    true = rng.normal(0, 1, 1000)
+    estimate = true + rng.normal(0, 1, 1000)  # r ≈ 0.71: at the standard's edge
+    widths = []
+    for n in (40, 400):
+        r = correlation(true[:n], estimate[:n])
+        lo, hi = bootstrap_correlation(true[:n], estimate[:n], seed=3)
+        assert lo < r < hi
+        assert bootstrap_correlation(true[:n], estimate[:n], seed=3) == (lo, hi)  # a rerun
+        widths.append(hi - lo)
+    assert widths[1] < widths[0] / 2  # ten times the people: about a third as wide
+    assert math.isnan(bootstrap_correlation(np.ones(5), np.arange(5.0), seed=1)[0])
+
+
+@pytest.mark.parametrize(("k", "n"), [(0, 10), (54, 60), (60, 60), (27, 30), (1, 1)])
+def test_wilson_is_scipys_wilson(k, n):
+    from scipy.stats import binomtest
+
+    expected = binomtest(k, n).proportion_ci(confidence_level=0.95, method="wilson")
+    assert wilson(k, n) == pytest.approx((expected.low, expected.high), abs=1e-9)
+
+
+def test_wilson_of_a_known_case():
+    # 54 of 60 (coverage 0.90): 0.7985-0.9534 (Wilson 1927's score interval, z = 1.95996).
+    lo, hi = wilson(54, 60)
+    assert lo == pytest.approx(0.79846, abs=1e-4) and hi == pytest.approx(0.95336, abs=1e-4)
+
+
+def test_a_verdict_whose_intervals_reach_across_a_threshold_is_at_the_edge():
+    rng = np.random.default_rng(6)
+    true = rng.normal(0, 1, 400)
+    sharp = true + rng.normal(0, 0.1, 400)  # r ≈ 0.99, far from 0.7
+    band = (sharp - 0.165, sharp + 0.165)  # a 90 % interval
+    firm = recovery("a", true, sharp, *band)
+    u = recovery_intervals(firm, true, sharp, *band, seed=1)
+    assert firm.identifiable and 0.85 < firm.coverage < 0.95 and not u["edge"]
+    # The same on 60 people: a coverage near 0.90 cannot rule out 0.80 (Wilson ±0.08).
+    few = recovery("a", true[:60], sharp[:60], band[0][:60], band[1][:60])
+    w = recovery_intervals(few, true[:60], sharp[:60], band[0][:60], band[1][:60], seed=1)
+    assert w["coverage_ci95"][0] < 0.80 and w["edge"]
+    near = true[:60] + rng.normal(0, 1.0, 60)  # r ≈ 0.7
+    wide = np.full(60, 10.0)
+    loose = recovery("b", true[:60], near, near - wide, near + wide)
+    v = recovery_intervals(loose, true[:60], near, near - wide, near + wide, seed=1)
+    assert v["correlation_ci95"][0] < 0.7 < v["correlation_ci95"][1] and v["edge"]
