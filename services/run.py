@@ -54,10 +54,10 @@ from services.launch.rigs import RIG_FLAGS, check_rigs, next_seed, run_rigs
 from services.launch.run_logs import LogWatch, run_folder
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
 from services.launch.view import SessionView, session_view
+from services.model.geometry import COLOURS
 from services.safety.latch_file import STATE_DIR_ENV
 from services.store import Store, StoreError
 from services.store.participants import next_free_ids, reuse_problem
-from services.store.store import PAPER_OPTIONS
 
 log = logging.getLogger("nod.run")
 # And the conductor, "experiment". The speaker (`--driver sim`: silent) is not required by a
@@ -432,7 +432,7 @@ def _preflight(args: argparse.Namespace) -> str | None:
         return str(exc)
     try:  # who runs: the ids given, or the first free ones; a done participant needs --again
         if args.resume is not None:  # the stored session's own participant and seed
-            names = PAPER_OPTIONS if schedule is None else schedule.names
+            names = COLOURS if schedule is None else schedule.names
             if problem := resume_problem(store, args.resume, args.rig, names):
                 return problem  # not there, another rig's, complete, another option set
             known = {s["session"]: s for s in store.sessions()}

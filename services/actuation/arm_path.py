@@ -21,8 +21,9 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from services.model.geometry import COLOURS
+
 Pose = tuple[int, ...]
-PAPER_NAMES: tuple[str, ...] = ("red", "blue")  # the paper's options, box 0 red as z > 0 is
 KINDS: tuple[str, ...] = ("above", "press")  # the two poses of a box, in the order recorded
 
 
@@ -31,7 +32,7 @@ def pose_names(names: Iterable[str]) -> tuple[str, ...]:
     return ("home", *(f"{kind}_{name}" for name in names for kind in KINDS))
 
 
-POSE_NAMES: tuple[str, ...] = pose_names(PAPER_NAMES)  # the paper's five
+POSE_NAMES: tuple[str, ...] = pose_names(COLOURS)  # the paper's five
 
 
 @dataclass(frozen=True, slots=True, init=False)
@@ -186,7 +187,7 @@ def locate_on(poses: ArmPoses, present: Pose) -> tuple[int, float, float]:
 
 
 def _paper(poses: ArmPoses) -> ArmPoses:
-    return poses.select(PAPER_NAMES)
+    return poses.select(COLOURS)
 
 
 def pose_at(poses: ArmPoses, s: float, d: float) -> Pose:

@@ -33,18 +33,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from services.actuation.arm_path import (
-    PAPER_NAMES,
-    ArmPoses,
-    Pose,
-    pose_distance,
-    pose_names,
-)
+from services.actuation.arm_path import ArmPoses, Pose, pose_distance, pose_names
 from services.actuation.feetech import RESOLUTION, FeetechBus, Series
 from services.actuation.feetech_arm import FeetechArmConfig
 from services.core.cli import Parser, fail
 from services.core.config import ConfigError, from_mapping, load_toml
 from services.core.serial_link import LinkError, SerialLink
+from services.model.geometry import COLOURS
 
 Prompt = Callable[[str], str]
 Say = Callable[[str], None]
@@ -85,7 +80,7 @@ def verify_route(names: tuple[str, ...]) -> tuple[str, ...]:
     return route
 
 
-VERIFY_ROUTE = verify_route(PAPER_NAMES)  # the paper's: above_blue, home, above_red, …, home
+VERIFY_ROUTE = verify_route(COLOURS)  # the paper's: above_blue, home, above_red, …, home
 UNLIMITED_SPEED = 3000  # steps/s assumed for travel time when goal_speed is 0 (STS3215 ~ 3400)
 
 
@@ -159,7 +154,7 @@ def record_poses(
     say: Say,
     limits: dict[int, tuple[int, int]] | None = None,
     tolerance: int = 0,
-    names: tuple[str, ...] = PAPER_NAMES,
+    names: tuple[str, ...] = COLOURS,
 ) -> ArmPoses:
     """Torque off, then read the present positions once per pose, on the operator's word.
 
@@ -277,7 +272,7 @@ def calibrate(
     """
     cfg = base if base is not None else FeetechArmConfig()
     if names is None:
-        names = cfg.poses.names if cfg.poses.calibrated else PAPER_NAMES
+        names = cfg.poses.names if cfg.poses.calibrated else COLOURS
     check_names(names)
     link = link if link is not None else SerialLink(port, cfg.baudrate, cfg.link)
     link.open()

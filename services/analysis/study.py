@@ -57,6 +57,7 @@ from services.analysis.sessions import (
     select_sessions,
 )
 from services.analysis.stuart_maxwell import stuart_maxwell
+from services.model.geometry import COLOURS
 from services.model.phases import CONTROL_TRIALS, EXPERIMENT_TRIALS, phase_category
 from services.store import QuestionnaireRecord
 from services.store.study_stores import open_stores
@@ -299,9 +300,6 @@ def analyze_study(
     }
 
 
-PAPER_OPTIONS: tuple[str, ...] = ("red", "blue")
-
-
 def one_option_set(
     parts: Sequence[ParticipantOutcomes], options: Sequence[str] | None = None
 ) -> tuple[tuple[str, ...], list[ParticipantOutcomes], list[ExcludedSession]]:
@@ -316,9 +314,9 @@ def one_option_set(
     if options is not None:
         chosen = tuple(options)
     elif len(sets) <= 1:
-        chosen = sets[0] if sets else PAPER_OPTIONS
-    elif PAPER_OPTIONS in sets:
-        chosen = PAPER_OPTIONS
+        chosen = sets[0] if sets else COLOURS
+    elif COLOURS in sets:
+        chosen = COLOURS
     else:
         listed = "; ".join(",".join(s) for s in sets)
         raise ValueError(f"the sessions ran {len(sets)} option sets ({listed}): --options "

@@ -41,12 +41,11 @@ from services.core import messages as m
 from services.core.messages import check_count, same_count, values_for
 from services.core.node import Node, TopicPublisher
 from services.experiment.presses import Box as Wire  # an option on the wire: colour or index
-from services.model.geometry import Colour, OptionsLayout, TableLayout
+from services.model.geometry import COLOURS, Colour, OptionsLayout, TableLayout
 from services.model.judge import Judge, OptionsTrialJudge, TrialJudge
 from services.model.params import NodConfig
 from services.model.protocol import Mode, TrialSpec, order_of, parse_order, with_order
 from services.model.schedule import OptionsSchedule
-from services.store.store import PAPER_OPTIONS
 
 Order = tuple[str, ...]  # O of each consensus trial, by name, in trial order
 
@@ -178,7 +177,7 @@ class KeySpace(ABC):
 class PaperKeys(KeySpace):
     """The paper's study: red and blue on the schema-1 keys, byte for byte as before the fold."""
 
-    names = PAPER_OPTIONS
+    names = COLOURS
 
     def __init__(self, cfg: NodConfig) -> None:
         self.cfg = cfg

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from services.analysis.sessions import InclusionRule, select_sessions
 from services.core.config import from_mapping
-from services.model.geometry import Colour, TableLayout
+from services.model.geometry import COLOURS, Colour, TableLayout
 from services.model.summaries import TrialPath, complete_trials
 from services.store import Sample, Store, TrialRecord, unpack_landmarks
 from services.store.cohorts import refuse_unfinished
@@ -105,9 +105,6 @@ def _left_out_line(left: dict[str, str], rule: InclusionRule) -> str | None:
     return f"left out (inclusion rule: {rule.label()}): {who}{more}"
 
 
-PAPER = ("red", "blue")
-
-
 def two_options_only(participant: str, options: tuple[str, ...]) -> str:
     """Why a session of another option set is not fitted, in one line."""
     return (
@@ -141,7 +138,7 @@ def read_study(
         keep = withdrawn_filter(store, include_withdrawn)
         chosen = select_sessions(store, rule, keep)
         left = chosen.left_out()
-        other = {p.participant: p.options for p in chosen.participants if p.options != PAPER}
+        other = {p.participant: p.options for p in chosen.participants if p.options != COLOURS}
         if other:  # defined for two options only: say so in one line, fit the rest
             chosen = replace(chosen, participants=[
                 p for p in chosen.participants if p.participant not in other])

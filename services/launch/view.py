@@ -21,9 +21,9 @@ from services.core import messages as m
 from services.core.contract import TOPICS
 from services.core.keys import Keys
 from services.core.node import clip
+from services.model.geometry import COLOURS
 from services.model.params import NodConfig
 from services.model.schedule import OptionsSchedule
-from services.store.store import PAPER_OPTIONS
 
 log = logging.getLogger("nod.launch")
 # The conductor's events and results, on whichever key space the rig's conductor speaks
@@ -40,7 +40,7 @@ class SessionView:
         n_trials: int,
         stream=sys.stdout,
         compact: bool = False,
-        names: tuple[str, ...] = PAPER_OPTIONS,
+        names: tuple[str, ...] = COLOURS,
     ) -> None:
         self.n = n_trials
         self.compact = compact

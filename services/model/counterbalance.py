@@ -31,10 +31,9 @@ import random
 from collections import Counter
 from collections.abc import Sequence
 
-from services.model.geometry import Colour
+from services.model.geometry import COLOURS, Colour
 from services.model.protocol import Order
 
-PAPER: tuple[Colour, Colour] = ("red", "blue")  # the paper's option set, in box order
 FLIP: dict[Colour, Colour] = {"red": "blue", "blue": "red"}
 Names = tuple[str, ...]  # one order of option names (at two options, an `Order` of colours)
 
@@ -55,7 +54,7 @@ def block_size(n: int, n_options: int = 2) -> int:
     return n_options * n
 
 
-def latin_groups(base: Sequence[str], names: Sequence[str] = PAPER) -> list[list[Names]]:
+def latin_groups(base: Sequence[str], names: Sequence[str] = COLOURS) -> list[list[Names]]:
     """The block's n groups: rotation k of `base` and its N_o relabellings, at index k."""
     _check(base, names)
     n = len(base)
@@ -63,13 +62,13 @@ def latin_groups(base: Sequence[str], names: Sequence[str] = PAPER) -> list[list
     return [[relabelled(r, names, j) for j in range(len(names))] for r in rotations]
 
 
-def latin_block(base: Sequence[str], names: Sequence[str] = PAPER) -> list[Names]:
+def latin_block(base: Sequence[str], names: Sequence[str] = COLOURS) -> list[Names]:
     """One block's n·N_o orders, unshuffled: rotation 0 and its relabellings, then the next."""
     return [row for group in latin_groups(base, names) for row in group]
 
 
 def roster_orders(
-    base: Sequence[str], participants: int, seed: int, names: Sequence[str] = PAPER
+    base: Sequence[str], participants: int, seed: int, names: Sequence[str] = COLOURS
 ) -> list[Names]:
     """The orders of slots 1..participants: blocks of n·N_o, each block's groups in seeded order.
 
@@ -94,7 +93,7 @@ def roster_orders(
 
 
 def position_counts(
-    orders: Sequence[Sequence[str]], names: Sequence[str] = PAPER
+    orders: Sequence[Sequence[str]], names: Sequence[str] = COLOURS
 ) -> list[tuple[int, ...]]:
     """How often each option (in `names` order) is O at each position of equally long orders."""
     if not orders:
@@ -104,7 +103,7 @@ def position_counts(
 
 
 def block_problem(
-    base: Sequence[str], orders: Sequence[Sequence[str]], names: Sequence[str] = PAPER
+    base: Sequence[str], orders: Sequence[Sequence[str]], names: Sequence[str] = COLOURS
 ) -> str | None:
     """Why `orders` (slots 1..N in order) are not the Latin-square blocks of `base`, or None.
 
@@ -127,7 +126,7 @@ def block_problem(
     return None
 
 
-def letters(order: Sequence[str], names: Sequence[str] = PAPER) -> str:
+def letters(order: Sequence[str], names: Sequence[str] = COLOURS) -> str:
     """An order as `--order` takes it: initials (`BRRBR`), or names with commas.
 
     Names when two of the option set's names share an initial (blue, black): initials would

@@ -34,6 +34,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
+from services.model.geometry import COLOURS
 from services.model.scoring import trial_points
 from services.store.records import (
     CueRecord,
@@ -48,7 +49,6 @@ from services.store.schema import FITS_SCHEMA, SCHEMA
 
 log = logging.getLogger("nod.store")
 
-PAPER_OPTIONS: tuple[str, str] = ("red", "blue")  # the paper's buzzers: its option set
 # PRAGMA user_version of this schema: 2 is one `trials` table for every option set (a store of
 # version 0 or 1 kept three or more options' trials in `option_trials`, by box index).
 STORE_VERSION = 2
@@ -296,7 +296,7 @@ class Store:
             self.db.execute(
                 "INSERT INTO option_sets SELECT session, 2, ? FROM sessions "
                 "WHERE session NOT IN (SELECT session FROM option_sets)",
-                (json.dumps(list(PAPER_OPTIONS)),),
+                (json.dumps(list(COLOURS)),),
             )
             self.db.execute(f"PRAGMA user_version = {STORE_VERSION}")
 
@@ -381,7 +381,7 @@ class Store:
         seed: int | None,
         started_ns: int,
         config: dict[str, Any],
-        options: Sequence[str] = PAPER_OPTIONS,
+        options: Sequence[str] = COLOURS,
     ) -> None:
         """Record a new session as running, with its option set (default: the paper's)."""
         names = tuple(options)
@@ -403,7 +403,7 @@ class Store:
         row = self.db.execute(
             "SELECT names FROM option_sets WHERE session = ?", (session,)
         ).fetchone()
-        return PAPER_OPTIONS if row is None else tuple(json.loads(row[0]))
+        return COLOURS if row is None else tuple(json.loads(row[0]))
 
     def resume_session(self, session: str) -> tuple[str, int | None, int]:
         """Mark a stored session running again; (participant, seed, trials stored so far).

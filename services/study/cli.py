@@ -34,7 +34,8 @@ from types import FrameType
 from services.core.cli import SEED, Parser, add_options_arg, fail, int_in
 from services.core.config import load_with_options
 from services.core.lifeline import nod_command
-from services.model.counterbalance import PAPER, letters
+from services.model.counterbalance import letters
+from services.model.geometry import COLOURS
 from services.model.protocol import TrialSpec
 from services.model.schedule import OptionsSchedule, OptionsTrial
 from services.store import Store
@@ -185,7 +186,7 @@ def _protocol(study: Study) -> tuple[TrialSpec, ...] | tuple[OptionsTrial, ...]:
         cfg, schedule = load_with_options(study.params, n)
     except (ValueError, OSError) as exc:
         raise StudyError(f"the study's params: {exc}") from None
-    names = PAPER if schedule is None else schedule.names
+    names = COLOURS if schedule is None else schedule.names
     if names != study.options:
         source = study.params or "the default names"
         raise StudyError(

@@ -46,14 +46,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, TypeAlias, cast
 
-from services.model.counterbalance import (
-    PAPER,
-    Names,
-    block_problem,
-    block_size,
-    roster_orders,
-)
+from services.model.counterbalance import Names, block_problem, block_size, roster_orders
 from services.model.gaze import GAZE_LEVEL_NAMES
+from services.model.geometry import COLOURS
 from services.model.protocol import TrialSpec, order_of
 from services.model.schedule import MAX_OPTIONS, OptionsSchedule, OptionsTrial
 from services.store.participants import check_id
@@ -101,7 +96,7 @@ class Counterbalance:
     method: Method
     base: Names  # the protocol's O order the Latin square rotates and relabels
     seed: int | None  # the shuffle's seed (latin-square)
-    options: Names = PAPER  # the study's option set, whose relabellings balance the block
+    options: Names = COLOURS  # the study's option set, whose relabellings balance the block
 
     @property
     def block(self) -> int:
@@ -153,7 +148,7 @@ class Study:
     @property
     def paper(self) -> bool:
         """Whether the study is the paper's two options (its sessions take no `--options`)."""
-        return self.options == PAPER
+        return self.options == COLOURS
 
     def entry(self, participant: str) -> Entry | None:
         """The participant's entry, or None if they are not in the study."""
@@ -226,7 +221,7 @@ def check_options(names: Sequence[str]) -> None:
         raise StudyError(
             f"[study] options must be 2 to {MAX_OPTIONS} distinct names, got {list(names)}"
         )
-    if len(names) == 2 and tuple(names) != PAPER:
+    if len(names) == 2 and tuple(names) != COLOURS:
         raise StudyError(
             f"[study] options {list(names)}: two options are the paper's study, red and blue "
             "(leave options out); name three or more for a table of N boxes"
@@ -268,7 +263,7 @@ def make_study(
 def protocol_order(trials: Sequence[TrialSpec] | OptionsSchedule) -> tuple[Names, Names]:
     """The option set and the O order (by name) of a protocol: the paper's trials or N options'."""
     if not isinstance(trials, OptionsSchedule):
-        return PAPER, order_of(trials)
+        return COLOURS, order_of(trials)
     names = trials.names
     return names, tuple(names[t.option] for t in trials.trials
                         if t.mode == "consensus" and t.option is not None)
@@ -295,7 +290,7 @@ def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
     params = study.get("params")
     if params is not None and not isinstance(params, str):
         raise StudyError("[study] params must be a path (a string)")
-    names = PAPER if "options" not in study else tuple(
+    names = COLOURS if "options" not in study else tuple(
         _strings(study["options"], "[study] options"))
     check_options(names)  # before the orders are read as names of it
     seed = cb.get("seed")
@@ -335,7 +330,7 @@ def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
         raise StudyError(
             f"[counterbalance] block = {block}, but {len(out.counterbalance.base)} consensus "
             f"trials make blocks of {out.counterbalance.block}"
-            + ("" if names == PAPER else f" over {len(names)} options")
+            + ("" if names == COLOURS else f" over {len(names)} options")
         )
     return out
 

@@ -7,10 +7,10 @@ from pathlib import Path
 
 from services.experiment.resume import resume_argv, resume_line, resume_problem
 from services.experiment.service import build_parser
+from services.model.geometry import COLOURS
 from services.run import RESUME_FLAGS
 from services.run import build_parser as run_parser
 from services.store import Store
-from services.store.store import PAPER_OPTIONS
 
 
 def test_nod_experiment_resumes_with_the_flags_that_reach_the_rig_and_store() -> None:
@@ -59,8 +59,8 @@ def test_a_session_is_resumed_only_with_its_own_option_set(tmp_path: Path) -> No
         store.begin_session("s3", "P01", "rig1", 1, 0, {}, ("red", "blue", "green"))
         store.begin_session("s2", "P02", "rig1", 2, 1, {})
         assert resume_problem(store, "s3", "rig1", ("red", "blue", "green")) is None
-        assert resume_problem(store, "s2", "rig1", PAPER_OPTIONS) is None
-        problem = resume_problem(store, "s3", "rig1", PAPER_OPTIONS)
+        assert resume_problem(store, "s2", "rig1", COLOURS) is None
+        problem = resume_problem(store, "s3", "rig1", COLOURS)
         assert problem is not None and "--options 3" in problem and "\n" not in problem
         problem = resume_problem(store, "s2", "rig1", ("red", "blue", "green"))
         assert problem is not None and "['red', 'blue']" in problem
