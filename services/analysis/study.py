@@ -302,8 +302,8 @@ def analyze_study(
 
 def one_option_set(
     parts: Sequence[ParticipantOutcomes], options: Sequence[str] | None = None
-) -> tuple[tuple[str, ...], list[ParticipantOutcomes], list[ExcludedSession]]:
-    """The option set analysed, its sessions, and the sessions of any other set, left out.
+) -> tuple[list[ParticipantOutcomes], list[ExcludedSession]]:
+    """The sessions of the option set analysed, and the sessions of any other set, left out.
 
     The statistics compare outcomes (C, CH, D, DH), which mean the same for any number of
     options, but a study is one table: sessions run with other buzzers are another study.
@@ -331,7 +331,7 @@ def one_option_set(
         for p in parts
         if p.options != chosen
     ]
-    return chosen, kept, other
+    return kept, other
 
 
 def option_shares(
@@ -380,7 +380,7 @@ def load_study(
         answers = [q for _, store in stores for q in store.questionnaires()
                    if keep.keeps(q.participant)]
     parts = sorted((p for c in chosen for p in c.participants), key=lambda p: p.participant)
-    option_set, parts, other = one_option_set(parts, options)
+    parts, other = one_option_set(parts, options)
     doc = analyze_study(
         parts, sorted(answers, key=lambda q: q.participant),
         [n for c in chosen for n in c.notes], [e for c in chosen for e in c.excluded] + other,
@@ -388,4 +388,4 @@ def load_study(
     )
     withdrawn = {"left_out": keep.left_out, "included": sorted(keep.withdrawn) if
                  include_withdrawn else [], "note": keep.note()}
-    return {**doc, "stores": names, "withdrawn": withdrawn, "options": list(option_set)}
+    return {**doc, "stores": names, "withdrawn": withdrawn}
