@@ -408,18 +408,17 @@ def decode(cls: type[M], payload: bytes) -> M:
     decoder = _DECODERS.get(cls)
     if decoder is None:
         decoder = _DECODERS[cls] = msgspec.msgpack.Decoder(cls | _NoVersion)
-    version = cls.__struct_config__.tag  # SCHEMA_VERSION; the N_o-option messages' own
     try:
         msg = decoder.decode(payload)
     except msgspec.ValidationError as exc:
         text = str(exc)
         if "`$.v`" in text or "field `v`" in text:
-            text = f"schema version is not {version} ({text})"
+            text = f"schema version is not {schema_version(cls)} ({text})"
         raise MessageError(f"{name}: {text}") from None
     except msgspec.DecodeError as exc:
         raise MessageError(f"{name}: not valid msgpack ({exc})") from None
     if type(msg) is not cls:
-        raise MessageError(f"{name}: schema version is not {version}")
+        raise MessageError(f"{name}: schema version is not {schema_version(cls)}")
     return msg
 
 
