@@ -20,6 +20,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from services.model.phases import CONTROL_TRIALS
 from services.store import Store
 from services.store.withdrawals import WithdrawnFilter, withdrawn_filter
 
@@ -138,7 +139,7 @@ def scheduled_trials(config: str | None) -> int:
     return len(trials) if isinstance(trials, list) and trials else len(TRIALS)
 
 
-PAPER_MODES = [(t, "dissensus" if t <= 3 else "consensus") for t in TRIALS]
+PAPER_MODES = [(t, "dissensus" if t in CONTROL_TRIALS else "consensus") for t in TRIALS]
 
 
 def check_schedule(session: str, config: str | None) -> None:
