@@ -40,7 +40,7 @@ from services.model.arm import ArmState, OptionsArmState
 from services.model.arm_kinematics import ArmNotConnectedError
 from services.model.behaviour import ArmCommand, OptionsCommand
 from services.model.checks import require_non_negative, require_positive
-from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
+from services.model.geometry import COLOURS, Colour, OptionsLayout, Point, TableLayout
 
 log = logging.getLogger(__name__)
 
@@ -137,7 +137,7 @@ class FeetechArm(LinkedDevice, Generic[C, T, R]):
         layout: TableLayout | OptionsLayout,
         home: Point = (0.5, 0.08),
         *,
-        names: Sequence[str] = ("red", "blue"),
+        names: Sequence[str] = COLOURS,
         link: SerialLink | None = None,
     ) -> None:
         """Describe the arm; nothing is opened until `connect()`.

@@ -20,6 +20,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from services.model.geometry import COLOURS
 from services.model.phases import CONTROL_TRIALS
 from services.store import Store
 from services.store.withdrawals import WithdrawnFilter, withdrawn_filter
@@ -39,7 +40,7 @@ class ParticipantOutcomes:
     interrupted: frozenset[int] = frozenset()  # stored as interrupted (their outcome is None)
     control_labels: str = "agreement"  # the rule that labelled its control trials (SPEC §6)
     rig: str = ""  # the rig its conductor ran it on
-    options: tuple[str, ...] = ("red", "blue")  # the session's option set (the paper's)
+    options: tuple[str, ...] = COLOURS  # the session's option set (the paper's)
     # per stored trial, (O, the human's press, the robot's press) by option name (None: none)
     choices: Mapping[int, tuple[str | None, str | None, str | None]] = field(
         default_factory=dict

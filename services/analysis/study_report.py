@@ -14,6 +14,7 @@ from typing import Any
 from services.analysis.multiplicity import NAMES, Correction
 from services.analysis.study import LIKERT_KEYS, OUTCOMES
 from services.analysis.study_figures import TITLES
+from services.model.geometry import COLOURS
 
 
 def _num(x: float | None, digits: int = 4) -> str:
@@ -224,8 +225,8 @@ def summary(doc: Mapping[str, Any]) -> str:
         lines.append(f"  from {sources(doc)}")
     lines += [f"  excluded {e['participant']} ({e['session']}): {e['reason']}"
               for e in doc["excluded"]]
-    names = doc.get("options", ["red", "blue"])
-    more = names != ["red", "blue"]  # another table than the paper's: its presses per trial
+    names = doc.get("options", list(COLOURS))
+    more = names != list(COLOURS)  # another table than the paper's: its presses per trial
     if more:
         lines.append(f"  options {', '.join(names)}: per trial the human's presses, and both "
                      "on O (consensus trials) or the robot elsewhere (control trials)")

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from services.analysis.figures import pyplot
-from services.model.geometry import Box, OptionsLayout, TableLayout
+from services.model.geometry import COLOURS, Box, OptionsLayout, TableLayout
 from services.scene.option_colours import hex_of
 from services.store import Sample, TrialRecord
 
@@ -55,7 +55,7 @@ def figure(
     title: str,
     out: Path,
     formats: Sequence[str] = ("png",),
-    names: Sequence[str] = ("red", "blue"),
+    names: Sequence[str] = COLOURS,
 ) -> list[Path]:
     """Draw the four panels (`draw`); write one file per format; return their paths."""
     plt = pyplot()
@@ -74,7 +74,7 @@ def figure(
 
 def draw(
     samples: Sequence[Sample], trial: TrialRecord, layout: TableLayout | OptionsLayout,
-    title: str, names: Sequence[str] = ("red", "blue"),
+    title: str, names: Sequence[str] = COLOURS,
 ) -> Figure:
     """The four panels of one trial as a matplotlib Figure (`names`: an OptionsLayout's)."""
     from matplotlib.patches import Rectangle

@@ -34,6 +34,7 @@ from services.core.lifeline import nod_command
 from services.core.session import make_config, open_session
 from services.core.signals import on_stop_signal
 from services.launch.run_logs import LogWatch, run_folder
+from services.model.geometry import COLOURS
 from services.store import Store, StoreError
 from services.store.participants import first_free_ids, sessions_by_participant
 
@@ -110,7 +111,7 @@ class RigProgress:
     """
 
     def __init__(self, people: dict[str, list[str]], n_trials: int,
-                 names: tuple[str, ...] = ("red", "blue")) -> None:
+                 names: tuple[str, ...] = COLOURS) -> None:
         self.people = people
         self.n = n_trials
         self.names = names

@@ -43,7 +43,7 @@ import numpy as np
 
 from services.core.cli import Parser, fail, int_in
 from services.core.config import ConfigError, from_mapping, load_toml
-from services.model.geometry import Box, CommitLine, OptionsLayout, TableLayout
+from services.model.geometry import COLOURS, Box, CommitLine, OptionsLayout, TableLayout
 from services.scene.option_colours import colour_of
 
 log = logging.getLogger("nod.vision.calibrate")
@@ -126,7 +126,7 @@ def load_table(path: str | Path) -> TableLayout | OptionsLayout:
 
 
 def dump_calibration(
-    layout: TableLayout | OptionsLayout, note: str = "", names: tuple[str, ...] = ("red", "blue")
+    layout: TableLayout | OptionsLayout, note: str = "", names: tuple[str, ...] = COLOURS
 ) -> str:
     """The TOML text of a calibration (4 decimals: 0.1 px on a 1000 px image).
 
@@ -393,7 +393,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.save_frame is not None:
                 cv2.imwrite(str(args.save_frame), frame)
         layout: TableLayout | OptionsLayout
-        names: tuple[str, ...] = ("red", "blue")
+        names: tuple[str, ...] = COLOURS
         if args.names is not None:
             names, layout = _table_of_names(args, frame)
             how = "every box by colour"

@@ -46,7 +46,7 @@ from services.core.contract import check_publisher
 from services.core.messages import layout_message_fields
 from services.core.node import Node, TopicPublisher, declare_publisher, setup_logging
 from services.core.session import Fabric
-from services.model.geometry import CommitLine, OptionsLayout, TableLayout
+from services.model.geometry import COLOURS, CommitLine, OptionsLayout, TableLayout
 from services.model.schedule import OptionsSchedule
 from services.vision.calibration import (
     CalibrationError,
@@ -114,7 +114,7 @@ class PaperTable:
     """The paper's two options (schema 1): red and blue on `vision/layout`, known at start."""
 
     key = "vision/layout"
-    names: tuple[str, ...] = ("red", "blue")
+    names: tuple[str, ...] = COLOURS
 
     def __init__(self, layout: TableLayout) -> None:
         self.layout: TableLayout | OptionsLayout | None = layout
