@@ -261,10 +261,23 @@ class _Loop(ABC, Generic[Opt]):
             )
         )
 
+    def _idle(self) -> bool:
+        """Whether nothing reads the decision engine this frame (`frame` then skips it).
+
+        Between a trial's "setup" and its "go" (and before the first setup) the robot idles
+        (its `step` gives None, so z_r goes nowhere), there is no judge and no sample, and "go"
+        resets the engine (its state, clock and observer): feeding it these poses changes no
+        value anything reads. tests/unit/test_loop_speed.py holds the two bit for bit.
+        """
+        return self.judge is None and not self.robot.running
+
     def frame(self, t: float) -> None:
         """One camera frame: the person moves, decision reads the pose, actuation steps."""
         self.person.advance(t)
-        pts = self.person.landmarks()
+        pts = self.person.landmarks()  # drawn in every frame: the person's random stream
+        if self._idle():  # the arm homes and the person watches it; nothing else runs
+            self.person.see_robot(t, self._heading(self.arm.state(t)))
+            return
         landmarks: list[Point] = list(map(tuple, pts.tolist()))  # the same floats, 10× quicker
         out = self.model.on_hand(int(round(t * 1e9)), landmarks)
         judge = self.judge

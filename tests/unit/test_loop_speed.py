@@ -16,12 +16,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from services.cohort.person import load_cohort_params
 from services.model import closed_loop
 from services.model.arm import SimArm
 from services.model.behaviour import ArmCommand
 from services.model.bias import bias_active, bias_rate
 from services.model.closed_loop import centre, run_offline_session
-from services.model.decision import DecisionModel, DecisionParams
+from services.model.decision import DecisionModel, DecisionParams, OptionsDecision
 from services.model.dynamics import opinion_rate, rk4_step
 from services.model.geometry import TableLayout
 from services.model.params import NodConfig
@@ -220,3 +221,34 @@ def test_the_press_pre_test_changes_no_session(monkeypatch, seed, n_options):
     monkeypatch.setattr(closed_loop, "box_bounds", lambda boxes: [everywhere] * len(boxes))
     plain = run_offline_session(cfg, seed, cohort=True, record=True, schedule=schedule)
     assert len(fast) == 8 and repr(fast) == repr(plain)
+
+
+@pytest.mark.parametrize("n_options", [2, 3])
+@pytest.mark.parametrize(
+    ("seed", "breaks"), [(1, None), (4, None), (9, {(2, 1): 2.5, (5, 1): 0.2, (6, 1): 5.0})]
+)
+def test_the_decision_engine_unread_before_go_changes_no_session(
+    monkeypatch, seed, breaks, n_options
+):
+    """Poses between a trial's setup and its "go" are not fed to the decision engine (nothing
+    reads it then and "go" resets it): fed every pose, the fitted person's session (trials,
+    presses, times, every recorded sample) is the same, interruptions and repeats included."""
+    cfg = load_cohort_params(None)
+    schedule = None if n_options == 2 else OptionsSchedule.default(n_options)
+    fed: list[int] = []
+    engine = DecisionModel if n_options == 2 else OptionsDecision
+    on_hand = engine.on_hand
+
+    def counted(self, t_ns, landmarks):
+        fed.append(t_ns)
+        return on_hand(self, t_ns, landmarks)
+
+    monkeypatch.setattr(engine, "on_hand", counted)
+    fast = run_offline_session(cfg, seed, cohort=True, record=True, breaks=breaks,
+                               schedule=schedule)
+    skipping = len(fed)
+    monkeypatch.setattr(closed_loop._Loop, "_idle", lambda self: False)
+    plain = run_offline_session(cfg, seed, cohort=True, record=True, breaks=breaks,
+                                schedule=schedule)
+    assert len(fast) == 8 and repr(fast) == repr(plain)
+    assert skipping < 0.8 * (len(fed) - skipping)  # the countdowns' poses were skipped
