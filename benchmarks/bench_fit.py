@@ -30,7 +30,8 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from services.cohort.person import load_cohort_params  # noqa: E402
-from services.fit.simulate import parameter_names, true_person, truth  # noqa: E402
+from services.fit.prior import load_prior  # noqa: E402
+from services.fit.simulate import Population, true_person, truth  # noqa: E402
 from services.model.recovery import recovery  # noqa: E402
 
 NOD = [sys.executable, "-m", "services.cli"]
@@ -79,7 +80,8 @@ def main() -> int:
               f"{c:>9.2f}  {'yes' if p['identifiable'] else 'NO'}")
     print(f"model recovery (gaze or not): accuracy {rec['model_recovery']['accuracy']:.2f}")
     cfg = load_cohort_params(None)
-    names = parameter_names(cfg.participant)
+    pop = Population(cfg, load_prior(None))  # the fit's prior; the study's people: the cohort's
+    names = pop.names
     true = np.stack([truth(*true_person(cfg, args.seed + i), names)
                      for i in range(args.participants)])
     print(f"\nthe benchmark's own {args.participants} people, estimates vs their true traits:")
@@ -97,7 +99,7 @@ def main() -> int:
 
     t_cpu = time.process_time()
     for i in range(10):
-        simulate((cfg, TABLE_SEED + i))
+        simulate((pop, TABLE_SEED + i))
     per_session = (time.process_time() - t_cpu) / 10
     import os
 

@@ -34,9 +34,13 @@ def fitted_traits() -> dict[str, Any]:
 
 def load_cohort_params(path: str | Path | None) -> NodConfig:
     """SPEC defaults ← the fitted person's traits ← the `--params` file at `path` (if any)."""
-    data = load_toml(path) if path is not None else {}
+    return cohort_params(load_toml(path) if path is not None else {}, str(path))
+
+
+def cohort_params(data: dict[str, Any], where: str) -> NodConfig:
+    """SPEC defaults ← the fitted person's traits ← a `--params` file's tables (from `where`)."""
     own = data.get("participant", {})
     if not isinstance(own, dict):
-        raise ConfigError(f"{path}: participant: expected a table, got {type(own).__name__}")
+        raise ConfigError(f"{where}: participant: expected a table, got {type(own).__name__}")
     person = {**fitted_traits(), **own}
     return from_mapping(NodConfig, {**data, "participant": person})

@@ -1,11 +1,12 @@
 """`nod fit`: each participant's model parameters with 90 % intervals; `nod fit recovery`.
 
     nod fit --db STUDY.sqlite [--participant P] [--min-trials N] [--include-withdrawn]
-            [--out DIR] [--json]
-    nod fit recovery --participants N --seed S [--json]
+            [--out DIR] [--json] [--prior FILE.toml|cohort]
+    nod fit recovery --participants N --seed S [--population FILE.toml] [--json]
 
-Both train the same estimator on the same reference table (K simulated people of the fitted
-cohort, cached on disk) and run their simulations on the compute engine (an embedded local
+Both train the same estimator on the same reference table (K simulated people of the prior —
+the stated ranges of services/fit/prior.toml over the fitted cohort's person, or `--prior` —
+cached on disk) and run their simulations on the compute engine (an embedded local
 cluster, or `--scheduler tcp://…`). docs/fit.md has the method, the recovery table and how to
 read the output. Bad input is one line on stderr and exit code 2.
 """
@@ -28,6 +29,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params", type=Path, default=None, metavar="FILE.toml",
                    help="cohort traits overriding the fitted ones (the prior; default: the "
                    "cohort fitted to the paper)")
+    p.add_argument("--prior", default=None, metavar="FILE.toml|cohort",
+                   help="what people may differ in: ranges of traits and odds of kinds "
+                   "(default: the shipped services/fit/prior.toml; \"cohort\": the calibrated "
+                   "cohort itself, the prior before it)")
     p.add_argument("--table", type=int_in(20, 10**6), default=K_DEFAULT, metavar="K",
                    help=f"simulated people the estimator learns from ({K_DEFAULT})")
     p.add_argument("--cache", type=Path, default=None, metavar="DIR",
@@ -65,13 +70,19 @@ def fit_parser() -> Parser:
 def recovery_parser() -> Parser:
     """The command line of `nod fit recovery`."""
     p = Parser(prog=f"{PROG} recovery", description="Parameter recovery: simulate N people "
-               "of the fitted cohort with known parameters, fit them as `nod fit` does, and "
+               "of the prior (or of --population) with known parameters, fit them as `nod fit` "
+               "does, and "
                "report per parameter the correlation of true and estimated (with a 95 % "
                "bootstrap interval over the people, seeded by --seed), the bias and the "
-               "coverage of the 90 % intervals (with its 95 % Wilson interval); and whether "
+               "coverage of the 90 % intervals (with its 95 % Wilson interval); how many the "
+               "out-of-prior check flags; and whether "
                "sessions with and without the gaze term are told apart.")
     p.add_argument("--participants", type=int_in(2, 10**5), required=True, metavar="N")
     p.add_argument("--seed", type=SEED, default=1, help="person i has seed S + i (as nod cohort)")
+    p.add_argument("--population", type=Path, default=None, metavar="FILE.toml",
+                   help="plant people of another population: a --params file (people drawn "
+                   "around its traits, as nod cohort) or one that also states [traits.NAME] "
+                   "ranges and [kinds] (drawn from them); default: the fit's prior")
     _common(p)
     return p
 

@@ -19,9 +19,23 @@ from services.core.config import params_hash
 from services.fit.data import read_study
 from services.fit.estimator import LEVEL, GazeClassifier
 from services.fit.pipeline import Prepared, predictive, prepare
-from services.fit.report import fit_document, fit_table, press_times, recovery_table
-from services.fit.simulate import TABLE_SEED, default_cache, reference_table, simulate, without_gaze
-from services.model.params import NodConfig
+from services.fit.prior import load_prior
+from services.fit.report import (
+    fit_document,
+    fit_table,
+    flag_rate,
+    press_times,
+    recovery_table,
+)
+from services.fit.simulate import (
+    TABLE_SEED,
+    Population,
+    default_cache,
+    load_population,
+    reference_table,
+    simulate,
+    truth,
+)
 from services.model.recovery import BOOTSTRAP_DRAWS, CI_LEVEL, recovery_intervals
 from services.model.recovery import recovery as recover
 from services.model.summaries import summarise
@@ -37,9 +51,14 @@ def _cache(args: argparse.Namespace) -> Path | None:
     return None if args.no_cache else (args.cache or default_cache())
 
 
-def _prepared(args: argparse.Namespace, cfg: NodConfig, run: Any, where: str) -> Prepared:
+def _population(args: argparse.Namespace) -> Population:
+    """The fit's prior: `--prior` (the shipped stated prior, or "cohort") over `--params`."""
+    return Population(load_cohort_params(args.params), load_prior(args.prior))
+
+
+def _prepared(args: argparse.Namespace, pop: Population, run: Any, where: str) -> Prepared:
     t0 = time.monotonic()
-    prep = prepare(cfg, args.table, run, _cache(args))
+    prep = prepare(pop, args.table, run, _cache(args))
     how = "from the cache" if prep.cached else f"simulated on {where}"
     trained = "trained" if prep.trained else "from the cache"
     _say(f"reference table: {args.table} simulated people {how}; estimator {trained} "
@@ -47,14 +66,17 @@ def _prepared(args: argparse.Namespace, cfg: NodConfig, run: Any, where: str) ->
     return prep
 
 
-def method(cfg: NodConfig, k: int) -> str:
+def method(pop: Population, k: int) -> str:
     """The fit's method, as stored with each estimate."""
-    return f"sbi quantile-boosting CQR, table K={k}, prior params {params_hash(cfg)}"
+    prior = "the calibrated cohort" if pop.prior.is_cohort else (
+        f"{pop.prior.source} ({pop.prior.digest()})")
+    return (f"sbi quantile-boosting CQR, table K={k}, prior {prior} over params "
+            f"{params_hash(pop.cfg)}")
 
 
 def fit(args: argparse.Namespace) -> int:
     """`nod fit`: every participant (or one), table / JSON, figures, stored in the database."""
-    cfg = load_cohort_params(args.params)
+    pop = _population(args)
     study = read_study(args.db, args.participant, InclusionRule(args.min_trials),
                        args.include_withdrawn)
     people, skipped = study.people, study.skipped
@@ -66,15 +88,15 @@ def fit(args: argparse.Namespace) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     with engine_from_args(args) as engine:
-        prep = _prepared(args, cfg, engine.map, engine.where)
+        prep = _prepared(args, pop, engine.map, engine.where)
         summaries = np.stack([summarise(p.paths, p.layout) for p in people])
         estimates = prep.estimator.predict(summaries)
-        sims = predictive(cfg, prep, estimates, args.predictive, engine.map)
+        sims = predictive(pop, prep, estimates, args.predictive, engine.map)
     observed = [press_times(s) for s in summaries]
     doc = fit_document(people, estimates, prep.estimator.check, sims, observed, {
-        "method": method(cfg, args.table), "seconds": round(time.monotonic() - t0, 1),
+        "method": method(pop, args.table), "seconds": round(time.monotonic() - t0, 1),
         "skipped": skipped, "left_out": study.notes,
-    })
+    }, prior_p=prep.prior_check.p_value(summaries).tolist())
     if not args.no_store:
         _store(args.db, doc)
     if args.out is not None:
@@ -118,42 +140,53 @@ def _write_csv(path: Path, doc: dict[str, Any]) -> None:
 
 def recovery(args: argparse.Namespace) -> int:
     """`nod fit recovery`: planted people fitted as `nod fit` fits, and the gaze-model check."""
-    cfg = load_cohort_params(args.params)
+    pop = _population(args)
+    planted = load_population(args.population) if args.population is not None else pop
     n = args.participants
     with engine_from_args(args) as engine:
-        prep = _prepared(args, cfg, engine.map, engine.where)
+        prep = _prepared(args, pop, engine.map, engine.where)
         t0 = time.monotonic()
-        people = engine.map(simulate, [(cfg, args.seed + i) for i in range(n)])
-        theta = np.stack([p.theta for p in people])
-        fit = prep.estimator.predict(np.stack([p.summaries for p in people]))
+        # Another population's people carry the fit's parameters: truth in the fit's names.
+        people = engine.map(simulate, [(planted, args.seed + i) for i in range(n)])
+        theta = np.stack([truth(*planted.person(args.seed + i), prep.table.names)
+                          for i in range(n)])
+        summaries = np.stack([p.summaries for p in people])
+        fit = prep.estimator.predict(summaries)
+        flagged = int(np.sum(prep.prior_check.outside(summaries)))
         logs = prep.estimator.log_scaled
         checks = [recover(name, theta[:, j], fit.graded[:, j], fit.low[:, j], fit.high[:, j],
                           log=logs[j])
                   for j, name in enumerate(fit.names)]
-        model = _model_recovery(args, cfg, prep, people, engine.map)
+        model = _model_recovery(args, pop, prep, planted, people, engine.map)
         _say(f"{n} planted people simulated and fitted, model check done "
              f"({time.monotonic() - t0:.0f} s)")
     # The bootstrap's rng is the run's seed: a reviewer's rerun gives the same intervals.
     spread = [recovery_intervals(c, theta[:, j], fit.graded[:, j], fit.low[:, j],
                                  fit.high[:, j], args.seed) for j, c in enumerate(checks)]
     doc = {"parameters": [c.as_dict() | u for c, u in zip(checks, spread, strict=True)],
-           "model_recovery": model, "participants": n, "seed": args.seed,
+           "model_recovery": model, "prior_check": flag_rate(flagged, n),
+           "participants": n, "seed": args.seed,
+           "population": "the fit's prior" if args.population is None else str(args.population),
            "intervals": {"level": CI_LEVEL, "correlation": "percentile bootstrap, people "
                          f"resampled, {BOOTSTRAP_DRAWS} draws, rng seed {args.seed}",
                          "coverage": "Wilson score"},
-           "method": method(cfg, args.table)}
-    print(json.dumps(doc, indent=2) if args.json else recovery_table(checks, model, spread))
+           "method": method(pop, args.table)}
+    print(json.dumps(doc, indent=2) if args.json else recovery_table(checks, model, spread,
+                                                                     doc["prior_check"]))
     return 0
 
 
-def _model_recovery(args: argparse.Namespace, cfg: NodConfig, prep: Prepared,
-                    people: list[Any], run: Any) -> dict[str, Any]:
-    """Train on table sessions with and without the gaze term; test on held-out people."""
+def _model_recovery(args: argparse.Namespace, pop: Population, prep: Prepared,
+                    planted: Population, people: list[Any], run: Any) -> dict[str, Any]:
+    """Train on table sessions with and without the gaze term; test on held-out people.
+
+    Held out: the planted people (with) and the same people without the gaze term.
+    """
     k = max(100, args.table // 4)
-    no_gaze_cfg = without_gaze(cfg)
-    no_gaze, _ = reference_table(no_gaze_cfg, k, run, _cache(args))
+    no_gaze, _ = reference_table(pop.without_gaze(), k, run, _cache(args))
     clf = GazeClassifier().train(prep.table.summaries[:k], no_gaze.summaries)
-    held_out = run(simulate, [(no_gaze_cfg, args.seed + i) for i in range(len(people))])
+    held_out = run(simulate, [(planted.without_gaze(), args.seed + i)
+                              for i in range(len(people))])
     accuracy = clf.accuracy(np.stack([p.summaries for p in people]),
                             np.stack([p.summaries for p in held_out]))
     return {"accuracy": round(accuracy, 4), "sessions": 2 * len(people), "trained_on": 2 * k,

@@ -1,6 +1,8 @@
 """The fit's steps, shared by `nod fit` and `nod fit recovery` so both fit people the same way.
 
-`prepare`: the reference table (cached) and the estimator trained on it. `posterior_draws`: a
+`prepare`: the reference table (cached), the estimator trained on it and the out-of-prior check
+calibrated on it (`prior_check`: the table people the estimator learnt from are its reference,
+the others its calibration). `posterior_draws`: a
 person's posterior sample, by semi-automatic ABC (Fearnhead & Prangle 2012): the table people
 (of those the estimator did not learn from) whose estimated parameters lie nearest to the
 person's (the regression's estimates are the summary statistics) — their true parameters,
@@ -16,20 +18,19 @@ import pickle
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from services.fit.estimator import Estimates, QuantileEstimator
+from services.fit.prior import DERIVED, SHARE_OF, person_params
+from services.fit.prior_check import PriorCheck
 from services.fit.simulate import (
-    DERIVED,
-    KINDS,
     Mapper,
+    Population,
     Simulated,
     Table,
     reference_table,
     simulate_given,
-    table_key,
 )
 from services.model.params import NodConfig
 
@@ -45,6 +46,7 @@ class Prepared:
     cached: bool  # the table came from the cache
     trained: bool  # the estimator was trained now (False: read from the cache)
     table_estimates: Estimates  # the estimator on the table people it never learnt from
+    prior_check: PriorCheck  # is a person's summaries like the table's people?
 
     @property
     def identifiable(self) -> dict[str, bool]:
@@ -52,10 +54,11 @@ class Prepared:
         return {r.name: r.identifiable for r in self.estimator.check}
 
 
-def prepare(cfg: NodConfig, k: int, run: Mapper, cache: Path | None, seed: int = 0) -> Prepared:
+def prepare(pop: Population, k: int, run: Mapper, cache: Path | None, seed: int = 0
+            ) -> Prepared:
     """The reference table of K people and the estimator trained on it, each cached on disk."""
-    table, cached = reference_table(cfg, k, run, cache)
-    path = (cache / f"estimator-{table_key(cfg)}-{k}-{estimator_digest()}-{seed}.pickle"
+    table, cached = reference_table(pop, k, run, cache)
+    path = (cache / f"estimator-{pop.key()}-{k}-{estimator_digest()}-{seed}.pickle"
             if cache is not None else None)
     estimator = _load(path) if cached and path is not None else None
     trained = estimator is None
@@ -66,7 +69,10 @@ def prepare(cfg: NodConfig, k: int, run: Mapper, cache: Path | None, seed: int =
             tmp.write_bytes(pickle.dumps(estimator))
             tmp.replace(path)
     held = estimator.held_out
-    return Prepared(table, estimator, cached, trained, estimator.predict(table.summaries[held]))
+    learnt = np.setdiff1d(np.arange(len(table.summaries)), held)
+    check = PriorCheck.train(table.summaries[learnt], table.summaries[held])
+    return Prepared(table, estimator, cached, trained, estimator.predict(table.summaries[held]),
+                    check)
 
 
 def estimator_digest() -> str:
@@ -103,21 +109,24 @@ def posterior_draws(prep: Prepared, estimate: np.ndarray, n: int) -> np.ndarray:
     return theta[np.argsort(d)[:n]]
 
 
-SHARE_OF = dict(KINDS)  # a kind → the cohort trait whose share makes it
+def person_config(pop: Population, names: Sequence[str], theta: np.ndarray) -> NodConfig:
+    """The population's configuration with one person's traits (derived parameters ignored).
 
-
-def person_config(cfg: NodConfig, names: Sequence[str], theta: np.ndarray) -> NodConfig:
-    """The cohort's configuration with one person's traits (derived parameters ignored)."""
-    traits: dict[str, Any] = {}
+    A kind the prior states but the fit does not estimate (probability 0 or 1) is everyone's
+    or no one's; one it does not state keeps the cohort's share.
+    """
+    traits: dict[str, float] = {}
+    kinds = {kind: p >= 1 for kind, p in pop.prior.kinds}
     for name, value in zip(names, theta, strict=True):
         if name in SHARE_OF:  # someone of that kind for sure, or not at all
-            traits[SHARE_OF[name]] = float(value >= 0.5)
+            kinds[name] = bool(value >= 0.5)
         elif name not in DERIVED:
             traits[name] = float(value)
-    return dataclasses.replace(cfg, participant=dataclasses.replace(cfg.participant, **traits))
+    cfg = pop.cfg
+    return dataclasses.replace(cfg, participant=person_params(cfg.participant, traits, kinds))
 
 
-def predictive(cfg: NodConfig, prep: Prepared, estimates: Estimates, draws: int,
+def predictive(pop: Population, prep: Prepared, estimates: Estimates, draws: int,
                run: Mapper) -> list[list[Simulated]]:
     """Per person, `draws` new sessions of their posterior draws (empty lists for 0 draws)."""
     draws = min(draws, len(prep.estimator.held_out))
@@ -126,7 +135,7 @@ def predictive(cfg: NodConfig, prep: Prepared, estimates: Estimates, draws: int,
     jobs: list[tuple[NodConfig, int]] = []
     for i, est in enumerate(estimates.graded):
         for j, theta in enumerate(posterior_draws(prep, est, draws)):
-            jobs.append((person_config(cfg, prep.table.names, theta),
+            jobs.append((person_config(pop, prep.table.names, theta),
                          PREDICTIVE_SEED + i * draws + j))
     sims = run(simulate_given, jobs)
     return [sims[i * draws:(i + 1) * draws] for i in range(len(estimates.estimate))]

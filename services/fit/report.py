@@ -1,14 +1,16 @@
 """`nod fit`'s and `nod fit recovery`'s results as JSON documents and as text tables.
 
 `nod fit --json`: {"participants": [{"participant", "session", "trials", "parameters": {NAME:
-{"estimate", "low", "high"}}, "predictive": {...}}], "not_identifiable": {NAME: {...}}, ...}:
+{"estimate", "low", "high"}}, "prior_check": {"p", "outside"}, "predictive": {...}}],
+"not_identifiable": {NAME: {...}}, "prior_check": {how it is made}, ...}:
 only parameters that passed the recovery check are under "parameters" — the others are named,
 with their check, and never given an estimate. A 0/1 parameter (a kind) is {"estimate": its
 most likely value, "probability", "set": [0] | [1] | [0, 1], "low", "high": the set's least
 and largest}: every estimate lies inside its own interval or set. `nod fit recovery --json`:
 {"parameters": [{"name", "correlation", "correlation_ci95", "bias", "coverage",
-"coverage_ci95", "identifiable", "edge", "n", ...}], "model_recovery": {...}, "intervals": {how
-they were found}}: r's interval a percentile bootstrap over the people, the coverage's Wilson's.
+"coverage_ci95", "identifiable", "edge", "n", ...}], "model_recovery": {...}, "prior_check":
+{"flagged", "n", "rate", "rate_ci95", ...}, "population", "intervals": {how they were found}}:
+r's interval a percentile bootstrap over the people, the coverage's and the flag rate's Wilson's.
 """
 
 from __future__ import annotations
@@ -22,11 +24,18 @@ import numpy as np
 
 from services.fit.data import Person
 from services.fit.estimator import LEVEL, Estimates
+from services.fit.prior_check import ALPHA, K_NEAREST
 from services.fit.simulate import Simulated
-from services.model.recovery import Recovery
+from services.model.recovery import Recovery, wilson
 from services.model.summaries import summary_names
 
 OUTCOME_KEYS = ("C", "CH", "D", "DH", "none")
+PRIOR_CHECK = {
+    "alpha": ALPHA,
+    "method": f"mean distance to the {K_NEAREST} nearest reference-table people in "
+    "standardised summaries; conformal p-value among held-out table people (a person of the "
+    f"prior is flagged with probability at most {ALPHA:g})",
+}
 UNITS = {"speed": "image widths/s", "reaction_s": "s", "perception_delay_s": "s"}
 MEANING = {
     "preference_mean": "strength of the person's own preference (|b_h| of eq 2)",
@@ -78,10 +87,16 @@ def parameter_cell(estimate: float, low: float, high: float, probability: float
     return cell
 
 
+def prior_cell(p: float) -> dict[str, Any]:
+    """One person's out-of-prior check in the JSON: its p-value, and whether it is flagged."""
+    return {"p": _r(p), "outside": bool(p < ALPHA)}
+
+
 def fit_document(people: Sequence[Person], fit: Estimates, checks: Sequence[Recovery],
                  sims: Sequence[Sequence[Simulated]], observed_press: Sequence[list[float]],
-                 meta: dict[str, Any]) -> dict[str, Any]:
-    """The JSON document of `nod fit`."""
+                 meta: dict[str, Any], prior_p: Sequence[float] | None = None
+                 ) -> dict[str, Any]:
+    """The JSON document of `nod fit`; `prior_p`: each person's out-of-prior p-value."""
     ok = {c.name for c in checks if c.identifiable}
     rows = []
     for i, person in enumerate(people):
@@ -95,6 +110,8 @@ def fit_document(people: Sequence[Person], fit: Estimates, checks: Sequence[Reco
             "trials": sum(1 for t in person.paths if not t.interrupted),
             "parameters": params,
         }
+        if prior_p is not None:
+            row["prior_check"] = prior_cell(prior_p[i])
         if sims[i]:
             simulated = [o for s in sims[i] for o in s.outcomes]
             row["predictive"] = {
@@ -110,6 +127,7 @@ def fit_document(people: Sequence[Person], fit: Estimates, checks: Sequence[Reco
         "not_identifiable": {c.name: c.as_dict() for c in checks if not c.identifiable},
         "check": [c.as_dict() for c in checks],
         "level": LEVEL,
+        "prior_check": PRIOR_CHECK,
         "meaning": {n: MEANING.get(n, n) for n in fit.names},
         **meta,
     }
@@ -123,20 +141,36 @@ def table_cell(v: dict[str, Any]) -> str:
     return f"{v['estimate']:>8.3g} [{v['low']:.3g}, {v['high']:.3g}]"
 
 
+def prior_text(cell: dict[str, Any] | None) -> str:
+    """`ok (p 0.43)` or `OUTSIDE (p 0.01)`; blank when the person was not checked."""
+    if cell is None:
+        return ""
+    return f"{'OUTSIDE' if cell['outside'] else 'ok'} (p {cell['p']:.2f})"
+
+
 def fit_table(doc: dict[str, Any]) -> str:
     """The per-participant table: estimate [low, high] of each identifiable parameter.
 
     A 0/1 parameter shows its most likely value, its probability and its set, so the value
-    read in the estimate column is a value the person can have.
+    read in the estimate column is a value the person can have. Beside the estimates, the
+    out-of-prior check: a person flagged OUTSIDE is one the prior does not reproduce, whose
+    intervals are not calibrated for them.
     """
     names = doc["identifiable"]
-    lines = [f"{'participant':<12} {'trials':>6}  " + "  ".join(f"{n:>22}" for n in names)]
+    lines = [f"{'participant':<12} {'trials':>6} {'prior':>16}  "
+             + "  ".join(f"{n:>22}" for n in names)]
     for row in doc["participants"]:
         cells = [table_cell(row["parameters"][n]).rjust(22) for n in names]
-        lines.append(f"{row['participant']:<12} {row['trials']:>6}  " + "  ".join(cells))
+        lines.append(f"{row['participant']:<12} {row['trials']:>6} "
+                     f"{prior_text(row.get('prior_check')):>16}  " + "  ".join(cells))
     lines.append(f"(estimate [{int(LEVEL * 100)} % interval]; a kind: most likely value "
                  f"(p its probability) {{{int(LEVEL * 100)} % set}}; "
                  f"{', '.join(names) or 'none'} recovered on held-out simulated people)")
+    flagged = [r["participant"] for r in doc["participants"]
+               if r.get("prior_check", {}).get("outside")]
+    lines.append(f"(prior: the out-of-prior check, p below {ALPHA:g} OUTSIDE — the prior does not "
+                 f"reproduce the person's summaries and their intervals are not calibrated for "
+                 f"them; flagged: {', '.join(flagged) or 'none'})")
     for name, c in doc["not_identifiable"].items():
         lines.append(
             f"not identifiable from these trials, no estimate given: {name} "
@@ -154,8 +188,15 @@ def _ci(pair: Sequence[float | None]) -> str:
     return f"[{_fmt(pair[0])}, {_fmt(pair[1])}]"
 
 
+def flag_rate(flagged: int, n: int) -> dict[str, Any]:
+    """How many planted people the out-of-prior check flagged, with a 95 % Wilson interval."""
+    return {"flagged": flagged, "n": n, "rate": _r(flagged / n) if n else None,
+            "rate_ci95": [_r(v) for v in wilson(flagged, n)], **PRIOR_CHECK}
+
+
 def recovery_table(checks: Sequence[Recovery], model: dict[str, Any] | None,
-                   intervals: Sequence[dict[str, Any]] | None = None) -> str:
+                   intervals: Sequence[dict[str, Any]] | None = None,
+                   prior_check: dict[str, Any] | None = None) -> str:
     """The recovery study as text: one line per parameter, then the model-recovery check.
 
     With `intervals` (`recovery_intervals`, one per check): r and coverage each with its 95 %
@@ -187,6 +228,12 @@ def recovery_table(checks: Sequence[Recovery], model: dict[str, Any] | None,
     if logged:
         lines.append(f"(r of {', '.join(logged)}: of the logs, a trait spread log-normally "
                      "across people)")
+    if prior_check:
+        lo, hi = prior_check["rate_ci95"]
+        lines.append(f"out-of-prior check: {prior_check['flagged']} of {prior_check['n']} "
+                     f"planted people flagged outside the prior ({prior_check['rate']:.2f}, "
+                     f"95 % CI {lo:.2f}-{hi:.2f}; at most {ALPHA:g} expected of the prior's "
+                     "own people)")
     if model:
         lines.append(f"model recovery (gaze term or not): accuracy {model['accuracy']:.2f} on "
                      f"{model['sessions']} held-out sessions")

@@ -144,14 +144,14 @@ def test_a_small_real_fit_puts_every_estimate_inside_its_interval_or_set(tmp_pat
     from services.cohort.person import load_cohort_params
     from services.fit.pipeline import prepare
     from services.fit.report import fit_table, parameter_cell
-    from services.fit.simulate import simulate
+    from services.fit.simulate import Population, simulate
 
     def run(fn, jobs):  # the engine, in this process
         return [fn(job) for job in jobs]
 
-    cfg = load_cohort_params(None)
-    prep = prepare(cfg, 40, run, tmp_path)
-    people = run(simulate, [(cfg, 7 + i) for i in range(4)])
+    pop = Population(load_cohort_params(None))
+    prep = prepare(pop, 40, run, tmp_path)
+    people = run(simulate, [(pop, 7 + i) for i in range(4)])
     fit = prep.estimator.predict(np.stack([p.summaries for p in people]))
     kinds = [j for j, n in enumerate(fit.names) if n in ("late_switcher", "contrarian")]
     assert len(kinds) == 2 and np.isfinite(fit.probability[:, kinds]).all()
@@ -173,7 +173,8 @@ def test_a_small_real_fit_puts_every_estimate_inside_its_interval_or_set(tmp_pat
 
 def test_a_small_real_recovery_gives_each_row_its_intervals_and_repeats(tmp_path, capsys):
     """`nod fit recovery --participants N --seed S --json` on a small table: each parameter's r
-    with its bootstrap interval, its coverage with its Wilson interval; a rerun, the same.
+    with its bootstrap interval, its coverage with its Wilson interval, the out-of-prior
+    check's share flagged; a rerun, the same; `--population FILE` plants other people.
     (100 table people: the fewest whose boosting is not a constant, so r exists.)"""
     from services.model.recovery import wilson
 
@@ -191,10 +192,24 @@ def test_a_small_real_recovery_gives_each_row_its_intervals_and_repeats(tmp_path
         if r is not None and r_lo is not None:
             assert -1 <= r_lo <= r <= r_hi <= 1
         assert isinstance(row["edge"], bool)
-    speed = next(row for row in doc["parameters"] if row["name"] == "speed")
-    assert speed["correlation"] > 0.9 and speed["correlation_ci95"][0] > 0.7  # real people
+    reaction = next(row for row in doc["parameters"] if row["name"] == "reaction_s")
+    assert reaction["correlation"] > 0.9 and reaction["correlation_ci95"][0] > 0.7  # real
+    check = doc["prior_check"]
+    assert check["n"] == n and 0 <= check["flagged"] <= n and doc["population"] == "the fit's prior"
+    assert (check["rate_ci95"][0], check["rate_ci95"][1]) == pytest.approx(
+        wilson(check["flagged"], n), abs=1e-4)
     assert main(args) == 0  # the tables now cached: a reviewer's rerun
     assert json.loads(capsys.readouterr().out)["parameters"] == doc["parameters"]
     assert main(args[:-1]) == 0
     table = capsys.readouterr().out
     assert "r 95 % CI" in table and "coverage 95 % CI" in table and "Wilson" in table
+    assert "out-of-prior check:" in table
+    # People of another population (the cohort's, hand speeds far outside the prior's), fitted
+    # by the same estimator: their truth in the fit's parameters, the check flags them.
+    other = tmp_path / "fast.toml"
+    other.write_text("[participant]\nspeed = 0.9\n")
+    assert main(args + ["--population", str(other)]) == 0
+    planted = json.loads(capsys.readouterr().out)
+    assert planted["population"] == str(other)
+    assert {r["name"] for r in planted["parameters"]} == {r["name"] for r in doc["parameters"]}
+    assert planted["prior_check"]["flagged"] >= 0.8 * n

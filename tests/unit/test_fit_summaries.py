@@ -123,7 +123,7 @@ def test_an_interrupted_or_empty_trial_reads_nothing():
 
 def test_reference_tables_are_cached_and_extended_never_resimulated(tmp_path):
     """Person i of every table is the same: a larger table extends a cached smaller one."""
-    from services.fit.simulate import TABLE_SEED, Simulated, reference_table
+    from services.fit.simulate import TABLE_SEED, Population, Simulated, reference_table
 
     cfg = load_cohort_params(None)
     p = len(parameter_names(cfg.participant))
@@ -134,13 +134,13 @@ def test_reference_tables_are_cached_and_extended_never_resimulated(tmp_path):
         return [Simulated(seed, np.full(p, float(seed)), np.full(3, float(seed)), (), ())
                 for _, seed in jobs]
 
-    small, cached = reference_table(cfg, 5, run, tmp_path)
+    small, cached = reference_table(Population(cfg), 5, run, tmp_path)
     assert not cached and asked == [TABLE_SEED + i for i in range(5)]
-    big, cached = reference_table(cfg, 8, run, tmp_path)
+    big, cached = reference_table(Population(cfg), 8, run, tmp_path)
     assert not cached and asked[5:] == [TABLE_SEED + i for i in range(5, 8)]
     assert np.array_equal(big.theta[:5], small.theta)
-    again, cached = reference_table(cfg, 6, run, tmp_path)
+    again, cached = reference_table(Population(cfg), 6, run, tmp_path)
     assert cached and len(asked) == 8 and np.array_equal(again.theta, big.theta[:6])
     other = dataclasses.replace(cfg, participant=dataclasses.replace(cfg.participant, speed=0.4))
-    reference_table(other, 2, run, tmp_path)  # other traits: another table, simulated
+    reference_table(Population(other), 2, run, tmp_path)  # other traits: another table
     assert len(asked) == 10
