@@ -110,11 +110,17 @@ def fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def _rows(doc: dict[str, Any]) -> list[tuple[str, str, str, float, float, float, float | None]]:
-    """participant, session, parameter, estimate, low, high, probability (None: not 0/1)."""
+Row = tuple[str, str, str, float, float, float, float | None, float | None]
+
+
+def _rows(doc: dict[str, Any]) -> list[Row]:
+    """Each stored row: participant, session, parameter, estimate, low, high, probability, prior_p.
+
+    probability None: not a 0/1 parameter; prior_p: the person's out-of-prior p-value.
+    """
     return [
         (r["participant"], r["session"], name, v["estimate"], v["low"], v["high"],
-         v.get("probability"))
+         v.get("probability"), r.get("prior_check", {}).get("p"))
         for r in doc["participants"] for name, v in r["parameters"].items()
     ]
 
@@ -123,7 +129,7 @@ def _store(db: Path, doc: dict[str, Any]) -> None:
     now = time.time_ns()
     store = Store(db)
     try:
-        write_fits(store, [FitRecord(*row[:6], LEVEL, doc["method"], now, row[6])
+        write_fits(store, [FitRecord(*row[:6], LEVEL, doc["method"], now, row[6], row[7])
                            for row in _rows(doc)])
     finally:
         store.close()
@@ -134,8 +140,9 @@ def _write_csv(path: Path, doc: dict[str, Any]) -> None:
     with path.open("w", newline="", encoding="utf-8") as fh:
         writer = csv.writer(fh, lineterminator="\n")
         writer.writerow(["participant", "session", "parameter", "estimate", "low", "high",
-                         "probability"])
-        writer.writerows((*row[:6], "NA" if row[6] is None else row[6]) for row in _rows(doc))
+                         "probability", "prior_p"])
+        writer.writerows((*row[:6], *("NA" if v is None else v for v in row[6:]))
+                         for row in _rows(doc))
 
 
 def recovery(args: argparse.Namespace) -> int:

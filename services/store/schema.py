@@ -161,6 +161,7 @@ CREATE TABLE IF NOT EXISTS fits (
     method      TEXT NOT NULL,
     fitted_ns   INTEGER NOT NULL,
     probability REAL,  -- a 0/1 parameter's probability of 1 (its estimate: the likelier value)
+    prior_p     REAL,  -- the person's out-of-prior check: p < 0.05 flags them (NULL: unchecked)
     PRIMARY KEY (participant, parameter)
 );
 """

@@ -235,6 +235,7 @@ class Store:
             ("samples", "distance", "REAL"),
             ("samples", "landmarks", "BLOB"),
             ("fits", "probability", "REAL"),
+            ("fits", "prior_p", "REAL"),
         ):
             have = {row[1] for row in self.db.execute(f"PRAGMA table_info({table})")}
             if column not in have:

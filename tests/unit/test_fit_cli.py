@@ -121,10 +121,15 @@ def test_fit_a_small_study_stores_and_exports_it(tmp_path, capsys):
     probability = {(r["participant"], n): v.get("probability") for r in rows
                    for n, v in r["parameters"].items()}
     assert {(f.participant, f.parameter): f.probability for f in stored} == probability
+    for r in rows:  # the out-of-prior check: its p beside every estimate, in the store too
+        assert 0 < r["prior_check"]["p"] <= 1 and isinstance(r["prior_check"]["outside"], bool)
+        assert {f.prior_p for f in stored if f.participant == r["participant"]} == (
+            {r["prior_check"]["p"]} if r["parameters"] else set())
     exported = list(csv.DictReader((tmp_path / "csv" / "fits.csv").open()))
     assert len(exported) == len(expected)
     written = list(csv.DictReader((out / "fit.csv").open()))
     assert [r["probability"] for r in written] == [r["probability"] for r in exported]
+    assert [r["prior_p"] for r in written] == [r["prior_p"] for r in exported]
     # A second fit (from the cached table) replaces the rows, never doubles them.
     assert main(args[:-1] + ["--participant", "P002"]) == 0
     assert "P002" in capsys.readouterr().out

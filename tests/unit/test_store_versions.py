@@ -117,24 +117,26 @@ def test_a_migration_that_cannot_finish_leaves_the_old_store_whole(tmp_path: Pat
 
 
 def test_a_store_whose_fits_have_no_probability_opens_and_keeps_its_fits(tmp_path: Path) -> None:
-    """The fits table before a 0/1 parameter's probability had a column: opened, it gains the
-    column (NULL for the rows it had), and a new fit stores the probability beside them."""
+    """The fits table before a 0/1 parameter's probability and the out-of-prior check had
+    columns: opened, it gains them (NULL for the rows it had), and a new fit stores both."""
     from services.store.fits import FitRecord, read_fits, write_fits
 
     path = tmp_path / "fits.sqlite"
     shutil.copy(golden.HERE / "store-2026-12.sqlite", path)
     with sqlite3.connect(path) as db:
-        assert "probability" not in {r[1] for r in db.execute("PRAGMA table_info(fits)")}
+        assert {"probability", "prior_p"}.isdisjoint(
+            r[1] for r in db.execute("PRAGMA table_info(fits)"))
         db.execute("INSERT INTO fits VALUES ('P01', 's1', 'speed', 0.4, 0.3, 0.5, 0.9, 'old', 1)")
     with Store(path) as store:
         (old,) = read_fits(store)
         assert (old.parameter, old.estimate, old.probability) == ("speed", 0.4, None)
         write_fits(store, [FitRecord("P02", "s2", "contrarian", 1.0, 0.0, 1.0, 0.9, "new", 2,
-                                     0.62)])
-        assert [f.probability for f in read_fits(store)] == [None, 0.62]
+                                     0.62, 0.031)])
+        assert [(f.probability, f.prior_p) for f in read_fits(store)] == [(None, None),
+                                                                          (0.62, 0.031)]
     out = tmp_path / "csv"
     assert export_main(["--db", str(path), "--out", str(out)]) == 0
     with (out / "fits.csv").open() as fh:
         rows = list(csv.DictReader(fh))
-    assert [(r["parameter"], r["estimate"], r["probability"]) for r in rows] == [
-        ("speed", "0.4", "NA"), ("contrarian", "1.0", "0.62")]
+    assert [(r["parameter"], r["estimate"], r["probability"], r["prior_p"]) for r in rows] == [
+        ("speed", "0.4", "NA", "NA"), ("contrarian", "1.0", "0.62", "0.031")]
