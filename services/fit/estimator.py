@@ -7,7 +7,7 @@ the estimate; the 90 % interval is conformalised (Romano et al. 2019, CQR): the 
 quantile models are widened by the (1 − α)(1 + 1/n) quantile of their misses on a calibration
 split, so the interval's coverage over the prior holds however the boosting over- or
 under-fits. A 0/1 parameter (a kind) is reported as its most likely value, its probability and
-its 90 % set; every estimate lies inside its own interval or set (`Estimates`). A third split
+its 90 % set, conformalised on the same split (`_raw`); every estimate lies inside its own interval or set (`Estimates`). A third split
 checks each parameter as a recovery study does (correlation of true and estimated, bias,
 coverage): the verdict `identifiable` of `nod fit`.
 
@@ -27,7 +27,7 @@ import numpy as np
 from services.model.recovery import Recovery, recovery
 
 LEVEL = 0.90  # the intervals' nominal coverage
-ALPHA_SET = 1 - LEVEL  # a 0/1 parameter's 90 % set: the values at least this likely
+ALPHA_SET = 1 - LEVEL  # before calibration, a 0/1 parameter's set: the values at least this likely
 SPLITS = (0.70, 0.15)  # train, calibrate; the rest checks
 # 120 rounds at rate 0.1: as good on the checks as 250 at 0.06, in half the time.
 BOOSTING: dict[str, Any] = dict(learning_rate=0.1, max_iter=120, max_leaf_nodes=15,
@@ -116,6 +116,8 @@ class QuantileEstimator:
         self._models: list[tuple[Any, ...]] = []
         self._kinds: list[str] = []
         self._margin = np.zeros(len(self.names))
+        # A 0/1 parameter's set holds each value v with 1 − P(v) at most this (conformal).
+        self._threshold = np.full(len(self.names), 1 - ALPHA_SET)
         self._columns = np.zeros(0, dtype=int)
         self.held_out = np.zeros(0, dtype=int)
         self.check: list[Recovery] = []
@@ -155,13 +157,19 @@ class QuantileEstimator:
             self._models.append(models)
             self._kinds.append(kind)
         self._margin = np.zeros(len(self.names))
+        self._threshold = np.full(len(self.names), 1 - ALPHA_SET)
         raw = self._raw(summaries[calib])
         for p, kind in enumerate(self._kinds):
-            if kind in ("binary", "constant"):
+            if kind == "constant":
+                continue
+            q = min(1.0, LEVEL * (1 + 1 / len(calib)))
+            if kind == "binary":  # the set's nonconformity: 1 − the probability of the truth
+                prob = raw.estimate[:, p]
+                scores = np.where(theta[calib, p] >= 0.5, 1.0 - prob, prob)
+                self._threshold[p] = float(np.quantile(scores, q, method="higher"))
                 continue
             y = np.log(theta[calib, p]) if kind == "log" else theta[calib, p]
             misses = np.maximum(raw.low[:, p] - y, y - raw.high[:, p])
-            q = min(1.0, LEVEL * (1 + 1 / len(y)))
             self._margin[p] = float(np.quantile(misses, q, method="higher"))
         fit = self._finish(self._raw(summaries[check]))
         self.check = [
@@ -177,7 +185,13 @@ class QuantileEstimator:
         return tuple(kind == "log" for kind in self._kinds)
 
     def _raw(self, summaries: np.ndarray) -> Estimates:
-        """Per parameter (learning scale): the three quantiles, or p and its 90 % set."""
+        """Per parameter (learning scale): the three quantiles, or p and its 90 % set.
+
+        A 0/1 parameter's set is conformal (adaptive prediction sets, Romano, Sesia & Candès
+        2020, for two classes): each value whose probability's shortfall from 1 is within the
+        calibration people's 90 % quantile of it, so the sets hold the truth for 90 % of the
+        prior's people however well or badly the classifier's probabilities are calibrated.
+        """
         n = len(summaries)
         q = np.zeros((n, len(self.names), 3))
         for p, (kind, models) in enumerate(zip(self._kinds, self._models, strict=True)):
@@ -185,9 +199,10 @@ class QuantileEstimator:
                 q[:, p, :] = models[0]
             elif kind == "binary":
                 prob = models[0].predict_proba(summaries)[:, 1]
-                q[:, p, 0] = np.where(prob > 1 - ALPHA_SET, 1.0, 0.0)
+                t = self._threshold[p]  # an empty set is given its likelier value (`_finish`)
+                q[:, p, 0] = np.where(prob <= t, 0.0, 1.0)
                 q[:, p, 1] = prob
-                q[:, p, 2] = np.where(prob >= ALPHA_SET, 1.0, 0.0)
+                q[:, p, 2] = np.where(1.0 - prob <= t, 1.0, 0.0)
             else:
                 q[:, p, :] = np.sort(np.stack([m.predict(summaries) for m in models], axis=1),
                                      axis=1)
