@@ -274,10 +274,11 @@ class _Loop(ABC, Generic[Opt]):
     def frame(self, t: float) -> None:
         """One camera frame: the person moves, decision reads the pose, actuation steps."""
         self.person.advance(t)
-        pts = self.person.landmarks()  # drawn in every frame: the person's random stream
         if self._idle():  # the arm homes and the person watches it; nothing else runs
+            self.person.unseen()  # the camera's noise is drawn all the same (the random stream)
             self.person.see_robot(t, self._heading(self.arm.state(t)))
             return
+        pts = self.person.landmarks()
         landmarks: list[Point] = list(map(tuple, pts.tolist()))  # the same floats, 10× quicker
         out = self.model.on_hand(int(round(t * 1e9)), landmarks)
         judge = self.judge

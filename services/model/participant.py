@@ -620,6 +620,15 @@ class Participant(Generic[Opt]):
             pts += rng.normal(0.0, self.p.landmark_noise, pts.shape)
         return pts.clip(0.0, 1.0, out=pts)
 
+    def unseen(self) -> None:
+        """A camera frame whose landmarks nobody reads: only its noise is drawn.
+
+        The random stream goes on exactly as `landmarks` takes it (the same standard normals,
+        one per coordinate, in the same order: `normal(0, s)` is 0 + s × a standard normal),
+        so later draws are unchanged; the landmarks themselves are not made.
+        """
+        self.rng.standard_normal(2 + self._hand.size)
+
 
 def late_switch_chance(first: float, learn: float, opposed_trials: int) -> float:
     """A strategist's chance of playing the late switch in a control trial.

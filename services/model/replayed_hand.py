@@ -59,6 +59,9 @@ class ReplayedHand:
         i = max(0, bisect.bisect_right(self._times, rel) - 1)
         return np.asarray(self._poses[i][1], dtype=float)
 
+    def unseen(self) -> None:
+        """A frame whose pose nobody reads: nothing to do (`Participant.unseen`)."""
+
     # What a participant perceives: a recording perceives nothing.
     def see_gaze(self, gaze: object) -> None:
         """Ignored: the recording already contains whatever the gaze did."""

@@ -252,3 +252,18 @@ def test_the_decision_engine_unread_before_go_changes_no_session(
                                 schedule=schedule)
     assert len(fast) == 8 and repr(fast) == repr(plain)
     assert skipping < 0.8 * (len(fed) - skipping)  # the countdowns' poses were skipped
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), common=st.sampled_from([0.0, 0.003, 0.01]),
+       each=st.sampled_from([0.0, 0.001]), frames=st.integers(1, 5))
+def test_an_unseen_frame_draws_what_landmarks_draw(seed, common, each, frames):
+    """An idle frame's `unseen` takes the random stream where `landmarks` would: after it, every
+    later draw (the next frame's landmarks, a trial's preference) is the same."""
+    params = ParticipantParams(common_noise=common, landmark_noise=each)
+    seen, unseen = (Participant(params, LAYOUT, seed=seed) for _ in range(2))
+    for _ in range(frames):
+        seen.landmarks()
+        unseen.unseen()
+    assert seen.rng.bit_generator.state == unseen.rng.bit_generator.state
+    assert bits(*seen.landmarks().ravel()) == bits(*unseen.landmarks().ravel())
