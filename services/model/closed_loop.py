@@ -157,6 +157,7 @@ class _Loop(ABC, Generic[Opt]):
         self.arm.connect()
         self.protocol = SessionProtocol(protocol)
         self.judge: Judge[Any, Opt, Any] | None = None  # from "go" to the trial's verdict
+        self.ended = False  # the trial's "end" has come (its verdict and samples are kept)
         self.t_go = 0.0
         self.record = record
         self.samples: list[LoopSample] = []
@@ -208,6 +209,7 @@ class _Loop(ABC, Generic[Opt]):
                 self.person.new_trial(option)
                 self.judge = None
                 self.samples = []
+                self.ended = False
             elif cue.kind == "go":
                 mode, _, decided = self._trial(spec)
                 self.model.reset(mode, decided)
@@ -215,8 +217,10 @@ class _Loop(ABC, Generic[Opt]):
                 self.person.go(t)
                 self.judge = self._new_judge(mode)
                 self.t_go = t
+                self.ended = False
             elif cue.kind == "end":
                 self._judge(t, spec)
+                self.ended = True
                 cues.extend(self.protocol.judged(t))
             elif cue.kind == "interrupted":
                 self._interrupted(t, spec)
@@ -262,21 +266,24 @@ class _Loop(ABC, Generic[Opt]):
         )
 
     def _idle(self) -> bool:
-        """Whether nothing reads the decision engine this frame (`frame` then skips it).
+        """Whether nothing reads this frame's pose or the decision engine (`frame` skips both).
 
-        Between a trial's "setup" and its "go" (and before the first setup) the robot idles
-        (its `step` gives None, so z_r goes nowhere), there is no judge and no sample, and "go"
-        resets the engine (its state, clock and observer): feeding it these poses changes no
-        value anything reads. tests/unit/test_loop_speed.py holds the two bit for bit.
+        Before a trial's "go" (and before the first setup) the robot idles (its `step` gives
+        None), there is no judge and no sample, and "go" resets the engine. After the trial's
+        "end", once the human has pressed and the robot's choice is final (`decided`: its steps
+        repeat the press whatever z_r), the verdict and the samples are taken and the next
+        setup starts anew. tests/unit/test_loop_speed.py holds the skip bit for bit.
         """
-        return self.judge is None and not self.robot.running
+        if not self.robot.running:
+            return self.judge is None
+        return self.ended and self.human is not None and self.robot.decided
 
     def frame(self, t: float) -> None:
         """One camera frame: the person moves, decision reads the pose, actuation steps."""
         self.person.advance(t)
-        if self._idle():  # the arm homes and the person watches it; nothing else runs
+        if self._idle():  # the arm moves and the person watches it; nothing else runs
             self.person.unseen()  # the camera's noise is drawn all the same (the random stream)
-            self.person.see_robot(t, self._heading(self.arm.state(t)))
+            self._actuate(t, None)
             return
         pts = self.person.landmarks()
         landmarks: list[Point] = list(map(tuple, pts.tolist()))  # the same floats, 10× quicker
@@ -299,21 +306,28 @@ class _Loop(ABC, Generic[Opt]):
                 judge.see_hand(landmarks, t)
         if reach:
             self.robot.see_hand(landmarks)
+        ee_x, ee_y = self._actuate(t, out.z_r)
+        if self.record and judge is not None:
+            cx, cy = center or centre(pts)
+            z_h, z_r, b_r, theta, distance = self._opinions(out)
+            self.samples.append(
+                LoopSample(round(t * 1e9), cx, cy, z_h, z_r, b_r, ee_x, ee_y, theta, distance)
+            )
+
+    def _actuate(self, t: float, z_r: Any) -> Point:
+        """Algorithm 2 steps on z_r (None: no new sample), the arm moves, the person sees it.
+
+        Returns where the end effector is after the step.
+        """
         state = self.arm.state(t)
-        cmd = self.robot.step(t, out.z_r, state.ee)
+        cmd = self.robot.step(t, z_r, state.ee)
         if cmd is not None:
             self.arm.send(cmd)
             state = self.arm.state(t)
         self.person.see_robot(t, self._heading(state))
-        if self.record and judge is not None:
-            cx, cy = center or centre(pts)
-            z_h, z_r, b_r, theta, distance = self._opinions(out)
-            ee_x, ee_y = state.ee
-            self.samples.append(
-                LoopSample(round(t * 1e9), cx, cy, z_h, z_r, b_r, ee_x, ee_y, theta, distance)
-            )
         if state.pressed is not None:
             self.robot.arm_pressed(state.pressed)
+        return state.ee
 
 
 class _PaperLoop(_Loop[Colour]):

@@ -60,6 +60,10 @@ class Machine(Protocol[Command_co, Box_contra, Z_contra]):
     def phase(self) -> str:
         """Idle until `start`, never again after it."""
 
+    @property
+    def ended(self) -> bool:
+        """True once the choice is final: each step repeats the press, whatever z_r."""
+
     def start(self, t: float, timeout_s: float) -> Command_co:
         """The countdown said "go" at time t (s)."""
 
@@ -104,6 +108,11 @@ class TrialReactor(ABC, Generic[Layout, Command, Box, Z]):
     def running(self) -> bool:
         """Whether Algorithm 2 runs (from "go" until the trial is set up anew or voided)."""
         return self.machine.phase != "idle"
+
+    @property
+    def decided(self) -> bool:
+        """Whether this trial's choice is final (pressing or pressed: z_r no longer counts)."""
+        return self.machine.ended
 
     def setup(self, trial: int, layout: Layout | None = None) -> None:
         """A new trial (`layout`: the geometry to use from now on)."""
