@@ -269,14 +269,16 @@ class _Loop(ABC, Generic[Opt]):
         """Whether nothing reads this frame's pose or the decision engine (`frame` skips both).
 
         Before a trial's "go" (and before the first setup) the robot idles (its `step` gives
-        None), there is no judge and no sample, and "go" resets the engine. After the trial's
-        "end", once the human has pressed and the robot's choice is final (`decided`: its steps
-        repeat the press whatever z_r), the verdict and the samples are taken and the next
-        setup starts anew. tests/unit/test_loop_speed.py holds the skip bit for bit.
+        None), there is no judge and no sample, and "go" resets the engine. Once the human has
+        pressed and the robot's choice is final (`decided`: its steps repeat the press whatever
+        z_r), the judge reads no more poses and Algorithm 2 no more z_r: only the samples are
+        left, so from then on a loop that records none is idle, and one that does is idle after
+        the trial's "end" (its samples are kept; the next setup starts anew).
+        tests/unit/test_loop_speed.py holds the skip bit for bit.
         """
         if not self.robot.running:
             return self.judge is None
-        return self.ended and self.human is not None and self.robot.decided
+        return (self.ended or not self.record) and self.human is not None and self.robot.decided
 
     def frame(self, t: float) -> None:
         """One camera frame: the person moves, decision reads the pose, actuation steps."""

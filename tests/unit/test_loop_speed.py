@@ -223,15 +223,17 @@ def test_the_press_pre_test_changes_no_session(monkeypatch, seed, n_options):
     assert len(fast) == 8 and repr(fast) == repr(plain)
 
 
+@pytest.mark.parametrize("record", [True, False])
 @pytest.mark.parametrize("n_options", [2, 3])
 @pytest.mark.parametrize(
     ("seed", "breaks"), [(1, None), (4, None), (9, {(2, 1): 2.5, (5, 1): 0.2, (6, 1): 5.0})]
 )
-def test_frames_nobody_reads_change_no_session(monkeypatch, seed, breaks, n_options):
-    """Poses between a trial's setup and its "go", and after its "end" once both have pressed,
-    are neither made nor fed to the decision engine (`_Loop._idle`: nothing reads them): fed
-    every pose, the fitted person's session (trials, presses, times, every recorded sample) is
-    the same, on two and three boxes, interruptions and repeats included."""
+def test_frames_nobody_reads_change_no_session(monkeypatch, seed, breaks, n_options, record):
+    """Poses between a trial's setup and its "go", and once both have pressed (after the
+    "end" when samples are recorded), are neither made nor fed to the decision engine
+    (`_Loop._idle`: nothing reads them): fed every pose, the fitted person's session (trials,
+    presses, times, every recorded sample) is the same, on two and three boxes, interruptions
+    and repeats included."""
     cfg = load_cohort_params(None)
     schedule = None if n_options == 2 else OptionsSchedule.default(n_options)
     fed: list[int] = []
@@ -243,11 +245,11 @@ def test_frames_nobody_reads_change_no_session(monkeypatch, seed, breaks, n_opti
         return on_hand(self, t_ns, landmarks)
 
     monkeypatch.setattr(engine, "on_hand", counted)
-    fast = run_offline_session(cfg, seed, cohort=True, record=True, breaks=breaks,
+    fast = run_offline_session(cfg, seed, cohort=True, record=record, breaks=breaks,
                                schedule=schedule)
     skipping = len(fed)
     monkeypatch.setattr(closed_loop._Loop, "_idle", lambda self: False)
-    plain = run_offline_session(cfg, seed, cohort=True, record=True, breaks=breaks,
+    plain = run_offline_session(cfg, seed, cohort=True, record=record, breaks=breaks,
                                 schedule=schedule)
     assert len(fast) == 8 and repr(fast) == repr(plain)
     assert skipping < 0.7 * (len(fed) - skipping)  # countdowns and rests were skipped
