@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from services.core.cli import Parser, fail
+from services.experiment.bids import Written, export_bids
 from services.store import StoreError
 from services.store.records import unpack_landmarks
 from services.store.study_stores import open_stores, union_of
@@ -176,12 +177,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = Parser(
         prog=PROG,
         description="Write a session database as CSV: sessions.csv, trials.csv, samples.csv, "
-        "questionnaires.csv (headers; NA = missing; pandas.read_csv / R read.csv).",
+        "questionnaires.csv (headers; NA = missing; pandas.read_csv / R read.csv), and/or as "
+        "a BIDS dataset (--bids).",
     )
     p.add_argument("--db", type=Path, required=True, action="append",
                    help="session database written by nod run; repeat it for one study of several "
                    "rigs' stores (their rows as one; a participant in two is refused)")
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="directory for CSVs")
+    p.add_argument("--out", type=Path, default=None, metavar="DIR", help="directory for CSVs")
+    p.add_argument("--bids", type=Path, default=None, metavar="DIR",
+                   help="write a BIDS dataset (beh and motion) into DIR (docs/data.md)")
     p.add_argument("--include-withdrawn", action="store_true",
                    help="export participants who withdrew too (default: left out, and named "
                    "in one line)")
@@ -191,18 +195,32 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run `nod export`; returns the exit code (2 for bad input)."""
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    if args.out is None and args.bids is None:
+        return fail(PROG, "error: say where: --out DIR (CSV files), --bids DIR (a BIDS dataset) "
+                    "or both")
+    counts: dict[str, int] = {}
+    written: Written | None = None
+    where = args.out
     try:
         with open_stores(args.db) as stores, union_of(stores) as db:
             keep = withdrawn_filter(db, args.include_withdrawn)
-            counts = export(db, args.out, keep)
+            if args.out is not None:
+                counts = export(db, args.out, keep)
+            where = args.bids
+            if args.bids is not None:
+                written = export_bids(db, args.bids, keep, [str(p) for p in args.db])
     except ValueError as exc:
         return fail(PROG, f"error: {exc}")
     except (sqlite3.Error, StoreError) as exc:
         return fail(PROG, f"error: cannot open {', '.join(map(str, args.db))}: {exc}")
     except OSError as exc:
-        return fail(PROG, f"error: cannot write to {args.out}: {exc}")
+        return fail(PROG, f"error: cannot write to {where}: {exc}")
     for name, n in counts.items():
         print(f"{args.out / (name + '.csv')}: {n} rows")
+    if written is not None:
+        print(f"{args.bids}: BIDS dataset of {written.participants} participant(s), "
+              f"{written.sessions} session(s) ({written.simulated} simulated), "
+              f"{written.files} files")
     if note := keep.note():
         print(f"{PROG}: {note}")
     return 0
