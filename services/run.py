@@ -146,6 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the counter clicks of every trial: N (default 10: the simulated person "
                    "counts right), 'prompt' (asked after each trial is stored) or 'none'")
     p.add_argument("--params", type=Path, default=None, help="TOML overriding SPEC defaults")
+    p.add_argument("--study", type=Path, default=None, metavar="STUDY.toml",
+                   help="the study file of the session (`nod experiment --study`: provenance)")
     p.add_argument("--stale-ms", type=float, default=None, help="safety staleness bound (ms)")
     p.add_argument(
         "--logs",
@@ -212,6 +214,8 @@ def sim_rig(args: argparse.Namespace) -> Rig:
         conductor += ["--session", args.session]
     if getattr(args, "record", None) is not None:
         conductor += ["--record", str(args.record)]
+    if getattr(args, "study", None) is not None:
+        conductor += ["--study", str(args.study.resolve())]
     sections["experiment"] = {"args": conductor}
     if getattr(args, "options", None) is not None:  # a table of N boxes: every reader of it
         for service in TABLE_READERS:

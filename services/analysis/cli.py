@@ -253,6 +253,11 @@ def _build_parser() -> Parser:
         "--include-withdrawn", action="store_true",
         help="analyse participants who withdrew too (default: left out, and named in one line)",
     )
+    p.add_argument(
+        "--mixed-params", action="store_true",
+        help="pool sessions whose provenance says they ran different parameters (default: "
+        "refused, the sessions of each params hash named in one line)",
+    )
     p.add_argument("--json", action="store_true", help="print every number as JSON")
     p.add_argument(
         "--out", metavar="DIR",

@@ -172,10 +172,12 @@ def study(args: argparse.Namespace) -> int:
     rule = InclusionRule(args.min_trials)
     options = args.options.split(",") if args.options else None
     doc = finite_json(
-        load_study(args.db, rule, args.correction, args.include_withdrawn, options)
+        load_study(args.db, rule, args.correction, args.include_withdrawn, options,
+                   args.mixed_params)
     )
-    if doc["withdrawn"]["note"]:  # one line, on stderr: stdout stays the summary or the JSON
-        print(f"nod analyze study: {doc['withdrawn']['note']}", file=sys.stderr)
+    for note in (doc["withdrawn"]["note"], doc["params"]["note"]):
+        if note:  # one line, on stderr: stdout stays the summary or the JSON
+            print(f"nod analyze study: {note}", file=sys.stderr)
     if args.out:
         out = Path(args.out)
         try:

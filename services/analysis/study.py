@@ -34,6 +34,10 @@ Units and rules:
   (`approximation_ok`: ≥ 10 discordant pairs per df, expected counts ≥ 5, n ≥ 5) and, where it
   does not, gives an exact p (`p_exact`: conditional Stuart-Maxwell, multinomial, sign-flip)
   and a `caveat` the report prints beside the p. The correction still adjusts the χ² p's.
+- **One parameter set**: the analysed sessions must have run the same parameters (the params
+  hash of each conductor run's provenance, `services.core.provenance`). Sessions that differ
+  are refused in one line naming them, unless `mixed_params` pools them anyway (the line is
+  then a note); sessions stored without provenance are listed as `unknown`, never refused.
 """
 
 from __future__ import annotations
@@ -57,9 +61,11 @@ from services.analysis.sessions import (
     select_sessions,
 )
 from services.analysis.stuart_maxwell import stuart_maxwell
+from services.core.provenance import mixed_params
 from services.model.geometry import COLOURS
 from services.model.phases import CONTROL_TRIALS, EXPERIMENT_TRIALS, phase_category
 from services.store import QuestionnaireRecord
+from services.store.provenance import read_provenance
 from services.store.study_stores import open_stores
 from services.store.withdrawals import withdrawn_filter
 
@@ -365,13 +371,15 @@ def option_shares(
 def load_study(
     paths: str | Sequence[str], rule: InclusionRule | None = None,
     correction: Correction = "holm", include_withdrawn: bool = False,
-    options: Sequence[str] | None = None,
+    options: Sequence[str] | None = None, pool_mixed_params: bool = False,
 ) -> dict[str, Any]:
     """Open the study's stores (one per rig, or one), select their sessions, analyse them as one.
 
     A participant id in two stores or on two rigs is a ValueError (`open_stores`), not a merge.
     Withdrawn participants are left out (sessions and answers) unless `include_withdrawn`.
     The sessions of one option set are analysed (`one_option_set`; `options` picks it).
+    Sessions that ran different parameters are a ValueError naming them, unless
+    `pool_mixed_params` (module doc).
     """
     names = [paths] if isinstance(paths, str) else list(paths)
     with open_stores(names) as stores:
@@ -379,8 +387,11 @@ def load_study(
         chosen = [select_sessions(store, rule, keep) for _, store in stores]
         answers = [q for _, store in stores for q in store.questionnaires()
                    if keep.keeps(q.participant)]
-    parts = sorted((p for c in chosen for p in c.participants), key=lambda p: p.participant)
-    parts, other = one_option_set(parts, options)
+        parts = sorted((p for c in chosen for p in c.participants), key=lambda p: p.participant)
+        parts, other = one_option_set(parts, options)
+        runs = [(r.session, r.provenance.params_hash) for _, store in stores
+                for r in read_provenance(store, [p.session for p in parts])]
+    params = params_sets(runs, [p.session for p in parts], pool_mixed_params)
     doc = analyze_study(
         parts, sorted(answers, key=lambda q: q.participant),
         [n for c in chosen for n in c.notes], [e for c in chosen for e in c.excluded] + other,
@@ -388,4 +399,24 @@ def load_study(
     )
     withdrawn = {"left_out": keep.left_out, "included": sorted(keep.withdrawn) if
                  include_withdrawn else [], "note": keep.note()}
-    return {**doc, "stores": names, "withdrawn": withdrawn}
+    return {**doc, "stores": names, "withdrawn": withdrawn, "params": params}
+
+
+def params_sets(
+    runs: Sequence[tuple[str, str]], sessions: Sequence[str], pool: bool
+) -> dict[str, Any]:
+    """The analysed sessions by params hash, those of unknown provenance, and a note.
+
+    The note is the one line saying they differ (None when they do not); ValueError with that
+    line if they differ and not `pool`.
+    """
+    line = mixed_params(runs)
+    if line is not None and not pool:
+        raise ValueError(f"{line}: not pooled (--mixed-params pools them anyway)")
+    by_hash: dict[str, list[str]] = {}
+    for session, digest in runs:
+        by_hash.setdefault(digest, []).append(session)
+    known = {s for s, _ in runs}
+    return {"by_hash": {h: sorted(set(s)) for h, s in sorted(by_hash.items())},
+            "unknown": sorted(set(sessions) - known),
+            "note": None if line is None else f"{line}: pooled (--mixed-params)"}

@@ -3,7 +3,11 @@
 Writes sessions.csv, trials.csv, samples.csv, questionnaires.csv, safety_events.csv,
 rig_events.csv, interruptions.csv, cues.csv (the countdown words and go as `nod speaker`
 played them: planned and played onset, rig-clock ns), fits.csv (`nod fit`'s per-participant
-estimates and 90 % intervals, identifiable parameters only) and participants.csv (each
+estimates and 90 % intervals, identifiable parameters only), provenance.csv (one row per
+conductor run of a session: code version and sources digest, params hash and the files'
+SHA-256, study, consent version, allocation seed, pre-registration, hosts as JSON, the
+recording and its SHA-256; `services.core.provenance`), withdrawn_aggregates.csv (the anonymous
+per-trial outcome counts of participants withdrawn with `aggregate`) and participants.csv (each
 participant's consent record — every column of `participants`,
 demographics as JSON — and their withdrawal, if any: `withdrawn_ns`, `withdrawal_reason`,
 `withdrawal_deleted`, `deleted_ns`) into one directory, each with a header
@@ -40,6 +44,7 @@ from typing import Any
 from services.core.cli import Parser, fail
 from services.experiment.bids import Written, export_bids
 from services.store import StoreError
+from services.store.provenance import FIELDS as PROVENANCE_FIELDS
 from services.store.records import unpack_landmarks
 from services.store.study_stores import open_stores, union_of
 from services.store.withdrawals import WithdrawnFilter, withdrawn_filter
@@ -90,6 +95,15 @@ QUERIES: dict[str, str] = {
         "ORDER BY s.started_ns, c.session, c.trial, c.attempt, c.planned_ns"
     ),
     "fits": "SELECT * FROM fits ORDER BY participant, parameter",
+    "provenance": (
+        "SELECT p.session, s.participant, p.started_ns, p.finished_ns, "
+        + ", ".join(f"p.{f}" for f in PROVENANCE_FIELDS) + " FROM provenance p "
+        "LEFT JOIN sessions s ON s.session = p.session "
+        "ORDER BY s.started_ns, p.session, p.started_ns"
+    ),
+    "withdrawn_aggregates": (
+        "SELECT * FROM withdrawn_aggregates ORDER BY options, trial, mode, outcome"
+    ),
 }
 
 
@@ -162,8 +176,11 @@ def _kept(
     header: Sequence[str], rows: Iterable[Sequence[Any]], keep: WithdrawnFilter,
     owner: dict[str, str],
 ) -> Iterable[Sequence[Any]]:
-    """The rows of the participants `keep` keeps (by `participant`, else by `session`)."""
-    if keep.include or not keep.withdrawn:
+    """The rows of the participants `keep` keeps (by `participant`, else by `session`).
+
+    A table with neither (the anonymous aggregates) is nobody's: kept whole.
+    """
+    if keep.include or not keep.withdrawn or not {"participant", "session"} & set(header):
         return rows
     if "participant" in header:
         at = header.index("participant")

@@ -12,12 +12,14 @@ the session (`recordings` table).
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import signal
 import subprocess
 import threading
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 from services.core.lifeline import nod_command
@@ -36,8 +38,14 @@ def recording_path(folder: Path, session: str) -> Path:
     return path
 
 
-def recorder_command(args: argparse.Namespace, path: Path, session: str) -> list[str]:
-    """The recorder's command line: the conductor's session flags, the session in metadata."""
+def recorder_command(
+    args: argparse.Namespace, path: Path, session: str,
+    provenance: Mapping[str, str] | None = None,
+) -> list[str]:
+    """The recorder's command line: the conductor's session flags, the session in metadata.
+
+    And the session's provenance as it starts: the file's `provenance` metadata record.
+    """
     cmd = nod_command("record", "--out", str(path), "--rig", args.rig, "--mode", args.mode)
     for endpoint in args.connect or ():
         cmd += ["--connect", endpoint]
@@ -49,6 +57,8 @@ def recorder_command(args: argparse.Namespace, path: Path, session: str) -> list
             "--meta", f"clock_speed={args.speed!r}"]
     if args.epoch_ns is not None:
         cmd += ["--meta", f"epoch_ns={args.epoch_ns}"]
+    if provenance:
+        cmd += ["--provenance", json.dumps(dict(provenance), sort_keys=True)]
     return cmd
 
 

@@ -14,6 +14,7 @@ import functools
 import json
 import logging
 import math
+import socket
 import sys
 import time
 import uuid
@@ -22,7 +23,8 @@ from pathlib import Path
 
 from services.core.cli import SEED, add_options_arg, fail, service_parser
 from services.core.config import load_with_options, params_hash
-from services.core.node import Node, setup_logging
+from services.core.node import Node, package_version, setup_logging
+from services.core.provenance import HostsSeen, Provenance, make_provenance, metadata
 from services.core.rigfile import CONTROL, Host, RigFileError, load_rig, session_flags
 from services.core.session import Fabric
 from services.experiment.conductor import Conductor
@@ -41,6 +43,7 @@ from services.experiment.rig_claim import claim_the_rig, watch_rivals
 from services.experiment.waiting import hear_the_devices
 from services.store import Store, back_up
 from services.store.participants import next_free_ids, record_order
+from services.store.provenance import finish_provenance, write_provenance
 
 log = logging.getLogger("nod.experiment")
 RECORDER_READY_S = 30.0  # wall seconds for `nod record` to start and subscribe
@@ -146,6 +149,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="record the session's keys to DIR/<session>.mcap (a `nod record` child, stopped "
         "at the session's end; linked to the session in the store)",
     )
+    p.add_argument(
+        "--study",
+        type=Path,
+        default=None,
+        metavar="STUDY.toml",
+        help="the study file this session belongs to (`nod study start` gives it): its name, "
+        "consent version, allocation seed and pre-registration go into the session's provenance",
+    )
     add_options_arg(p)
     return p
 
@@ -176,6 +187,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg, schedule = load_with_options(args.params, args.options)
         own_hash = params_hash(cfg)  # the rig's parameters, before this session's --order
+        prov = make_provenance(package_version(), own_hash, args.params, args.rig_file,
+                               study=args.study)
         console = make_console(args.console)
         clicks = clicks_source(args.clicks, console.read_line, cfg.protocol.target_clicks)
         store = Store(args.db)
@@ -226,6 +239,9 @@ def main(argv: list[str] | None = None) -> int:
         store.close()
         return 2
     params_check = ParamsCheck(node)
+    hosts = HostsSeen()  # every service's host, from its heartbeats (the session's provenance)
+    hosts.add("experiment", socket.gethostname())
+    node.subscribe("rig/status", lambda status: hosts.add(status.service, status.host))
     conductor = Conductor(node, keys.cfg, store, clicks, console, resume_at=resume_at, keys=keys)
     watch_rivals(claim, node, conductor.rig, console.note)
     # The devices' states first, then this conductor's liveliness: a safe stop they hold
@@ -236,13 +252,14 @@ def main(argv: list[str] | None = None) -> int:
     session = args.resume or args.session or uuid.uuid4().hex[:12]
     recorder = None
     if args.record is not None:
-        recorder = _start_recorder(args, session)
+        recorder = _start_recorder(args, session, prov)
         if recorder is None:
             node.close()
             store.close()
             return 2
         conductor.recording = (recorder.path, node.clock.now_ns())
     complete = False
+    run_ns: int | None = None  # wall clock: this run's provenance row, once written
     try:
         conductor.wait_for_services(args.wait_services)
         mismatch = params_check.problem(own_hash, args.params)
@@ -257,6 +274,8 @@ def main(argv: list[str] | None = None) -> int:
             "session %s (%s): all services alive; %d options %s, trials %d-%d",
             session, participant, keys.n_options, list(keys.names), first, len(keys.trials),
         )
+        run_ns = time.time_ns()
+        write_provenance(store, session, run_ns, prov)
         conductor.run_session(
             session, participant, seed, first, resume=args.resume is not None, lost=lost
         )
@@ -274,6 +293,10 @@ def main(argv: list[str] | None = None) -> int:
             code = recorder.stop()
             log.info("recording %s (recorder exit %s)", recorder.path, code)
         node.close()
+        if run_ns is not None and (problem := finish_provenance(
+                store, session, run_ns, time.time_ns(), hosts.hosts(),
+                None if recorder is None else recorder.path)):
+            log.warning("%s", problem)
         back_up(store)  # the session ended (complete, stopped or aborted): a copy of the store
         if not complete:  # interrupted, aborted, or never started: how to go on with it
             say_how_to_resume(store, build_parser(), args, session)
@@ -297,7 +320,9 @@ def rig_file_flags(path: Path, explicit_connect: bool = False) -> list[str]:
     return flags + (["--params", str(rig.params)] if rig.params is not None else [])
 
 
-def _start_recorder(args: argparse.Namespace, session: str) -> RecorderProcess | None:
+def _start_recorder(
+    args: argparse.Namespace, session: str, prov: Provenance
+) -> RecorderProcess | None:
     """Start `nod record` for the session and wait until it listens; None (said why) if not."""
     try:
         args.record.mkdir(parents=True, exist_ok=True)
@@ -305,7 +330,8 @@ def _start_recorder(args: argparse.Namespace, session: str) -> RecorderProcess |
         print(f"nod experiment: cannot record to {args.record}: {exc}", file=sys.stderr)
         return None
     path = recording_path(args.record, session)
-    recorder = RecorderProcess(recorder_command(args, path, session), path)
+    recorder = RecorderProcess(recorder_command(args, path, session, metadata(prov, session)),
+                               path)
     if not recorder.wait_ready(RECORDER_READY_S):
         recorder.stop(tail_s=0.0)
         print(f"nod experiment: the recorder did not start (writing {path}); see the log above",

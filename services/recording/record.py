@@ -38,6 +38,7 @@ from services.core.config import load_params
 from services.core.contract import TOPICS
 from services.core.keys import Keys, topic_of
 from services.core.node import install_signal_handlers, package_version, setup_logging
+from services.core.provenance import PROVENANCE_METADATA, metadata_arg
 from services.core.session import Fabric, open_session
 from services.core.tap import QUEUE_MAX, Tap
 from services.recording.mcap_io import (
@@ -192,6 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--meta", action="append", default=None, metavar="KEY=VALUE", type=_meta_item,
         help="an extra entry of the file's `nod` metadata (e.g. session=...); repeatable",
     )
+    p.add_argument("--provenance", type=metadata_arg, default=None, metavar="JSON",
+                   help="the session's provenance (a JSON object): a `provenance` metadata record")
     p.add_argument("--flush-s", type=positive_float, default=1.0, metavar="S",
                    help="close a chunk and flush it to the OS at least this often (1 s)")
     p.add_argument("--chunk-kb", type=positive_float, default=1024, metavar="KB",
@@ -249,6 +252,8 @@ def _record(args: argparse.Namespace, session: zenoh.Session, out: McapOut, expr
     recorder = Recorder(out, images=args.images)
     excluded = Excluder(key_exprs(args.exclude, args.rig) if args.exclude else [])
     out.metadata(FILE_METADATA, meta)
+    if args.provenance:
+        out.metadata(PROVENANCE_METADATA, args.provenance)
     out.flush()
     t0 = time.monotonic()
     deadline = None if args.duration is None else t0 + args.duration

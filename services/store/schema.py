@@ -4,8 +4,10 @@ Tables added later are migrated by `Store._migrate`. Every session's option set 
 its buzzers, box j is `names[j]`; the paper's is red, blue) is in `option_sets`, and its trials,
 for any number of options, in `trials`, whose option, human and robot are names of that set
 (checked by `Store.write_trial`: SQL cannot check against another table's JSON). `fits`
-(`FITS_SCHEMA`) and `withdrawals` are read and written by `fits.py` and `withdrawals.py`, their
-schemas are here, so every store, an older one too, has them once opened.
+(`FITS_SCHEMA`), `withdrawals` with `withdrawn_aggregates`, and `provenance` (one row per
+conductor run of a session: `services.core.provenance`) are read and written by `fits.py`,
+`withdrawals.py` and `provenance.py`; their schemas are here, so every store, an older one too,
+has them once opened (the columns added to `withdrawals` later by `Store._migrate`).
 """
 
 SCHEMA = """
@@ -144,7 +146,41 @@ CREATE TABLE IF NOT EXISTS withdrawals (
     reason       TEXT NOT NULL DEFAULT '',
     deleted      INTEGER NOT NULL DEFAULT 0 CHECK (deleted IN (0, 1)),
     deleted_ns   INTEGER,
-    counts       TEXT NOT NULL DEFAULT '{}'
+    counts       TEXT NOT NULL DEFAULT '{}',
+    withdrawn_by TEXT NOT NULL DEFAULT '',
+    aggregated   INTEGER NOT NULL DEFAULT 0 CHECK (aggregated IN (0, 1))
+);
+CREATE TABLE IF NOT EXISTS withdrawn_aggregates (
+    options TEXT NOT NULL,
+    trial   INTEGER NOT NULL,
+    mode    TEXT NOT NULL,
+    outcome TEXT NOT NULL,
+    n       INTEGER NOT NULL,
+    PRIMARY KEY (options, trial, mode, outcome)
+);
+CREATE TABLE IF NOT EXISTS provenance (
+    session          TEXT NOT NULL,
+    started_ns       INTEGER NOT NULL,
+    version          TEXT NOT NULL,
+    sources_sha256   TEXT NOT NULL,
+    params_hash      TEXT NOT NULL,
+    params_file      TEXT,
+    params_sha256    TEXT,
+    rig_file         TEXT,
+    rig_sha256       TEXT,
+    policy_file      TEXT,
+    policy_sha256    TEXT,
+    study_file       TEXT,
+    study_sha256     TEXT,
+    study_name       TEXT,
+    consent_version  TEXT,
+    allocation_seed  INTEGER,
+    preregistration  TEXT,
+    hosts            TEXT NOT NULL DEFAULT '{}',
+    recording_file   TEXT,
+    recording_sha256 TEXT,
+    finished_ns      INTEGER,
+    PRIMARY KEY (session, started_ns)
 );
 """
 

@@ -236,6 +236,8 @@ class Store:
             ("samples", "landmarks", "BLOB"),
             ("fits", "probability", "REAL"),
             ("fits", "prior_p", "REAL"),
+            ("withdrawals", "withdrawn_by", "TEXT NOT NULL DEFAULT ''"),
+            ("withdrawals", "aggregated", "INTEGER NOT NULL DEFAULT 0"),
         ):
             have = {row[1] for row in self.db.execute(f"PRAGMA table_info({table})")}
             if column not in have:

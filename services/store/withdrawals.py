@@ -24,21 +24,32 @@ demographics, fits, the N-option tables, and any table added later with a `parti
 `session` column — with SQLite's `secure_delete` on (freed pages are zeroed), then their
 recordings' MCAP files (a file another participant's session also points at is kept), then
 refreshes the store's `<db>.backup` if it has one. The withdrawal row stays, with `deleted = 1`,
-when, and the rows deleted per table (`counts`, JSON); its reason is cleared: nothing personal
-is left but the pseudonymous id, which keeps the id from being reused.
+when, by whom (`withdrawn_by`: the operator's user@host), and the rows deleted per table
+(`counts`, JSON); its reason is cleared: nothing personal is left but the pseudonymous id, which
+keeps the id from being reused.
+
+**An anonymous aggregate** (`aggregate = True`: `--aggregate`, or the study's `on_withdrawal =
+"aggregate"`): before their rows go, in the same transaction, each of their stored trials adds
+one to `withdrawn_aggregates` (option set, trial, mode, outcome — 'none' for a timeout or an
+interrupted trial — and a count n), the study's counts over every participant withdrawn this
+way: no id, no session, no time. The withdrawal row says `aggregated = 1` and counts the trials
+(`aggregate_trials`). `nod export` writes the table as withdrawn_aggregates.csv.
 """
 
 from __future__ import annotations
 
 import contextlib
+import getpass
 import json
 import logging
+import socket
 import sqlite3
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+from services.model.geometry import COLOURS
 from services.store.store import Store, StoreError, backup_path
 
 log = logging.getLogger("nod.store")
@@ -57,6 +68,17 @@ class Withdrawal:
     deleted: bool  # their data was deleted (the counts say what)
     deleted_ns: int | None
     counts: dict[str, int] = field(default_factory=dict)  # rows deleted per table; files
+    by: str = ""  # who recorded it (user@host; '' before this was kept)
+    aggregated: bool = False  # their trials' outcomes were added to `withdrawn_aggregates`
+
+
+def operator_id() -> str:
+    """Who is withdrawing someone: user@host of this process ('unknown' for an unknown user)."""
+    try:
+        user = getpass.getuser()
+    except (OSError, KeyError):  # no login name and no passwd entry (a bare container)
+        user = "unknown"
+    return f"{user}@{socket.gethostname()}"
 
 
 def _db(where: Store | sqlite3.Connection) -> sqlite3.Connection:
@@ -77,13 +99,13 @@ def withdrawals(where: Store | sqlite3.Connection) -> dict[str, Withdrawal]:
     if not _has_table(db, "withdrawals"):  # a bare connection on a file no Store opened
         return {}
     rows = db.execute(
-        "SELECT participant, withdrawn_ns, reason, deleted, deleted_ns, counts FROM withdrawals "
-        "ORDER BY participant"
+        "SELECT participant, withdrawn_ns, reason, deleted, deleted_ns, counts, withdrawn_by, "
+        "aggregated FROM withdrawals ORDER BY participant"
     )
     return {
         str(p): Withdrawal(str(p), int(t), str(r), bool(d), None if dt is None else int(dt),
-                           json.loads(c or "{}"))
-        for p, t, r, d, dt, c in rows
+                           json.loads(c or "{}"), str(by or ""), bool(agg))
+        for p, t, r, d, dt, c, by, agg in rows
     }
 
 
@@ -148,14 +170,16 @@ def withdrawal_problem(store: Store, participant: str) -> str | None:
             "runs again; a new person gets a new id")
 
 
-def record_withdrawal(store: Store, participant: str, t_ns: int, reason: str = "") -> Withdrawal:
-    """Record a withdrawal (a second one keeps the first's time and reason); the stored row."""
+def record_withdrawal(
+    store: Store, participant: str, t_ns: int, reason: str = "", by: str = ""
+) -> Withdrawal:
+    """Record a withdrawal (a second one keeps the first's time, reason and operator); the row."""
     with store.db:
         store.db.execute("BEGIN")
         store.db.execute(
-            "INSERT OR IGNORE INTO withdrawals (participant, withdrawn_ns, reason) "
-            "VALUES (?, ?, ?)",
-            (participant, t_ns, reason.strip()),
+            "INSERT OR IGNORE INTO withdrawals (participant, withdrawn_ns, reason, withdrawn_by) "
+            "VALUES (?, ?, ?, ?)",
+            (participant, t_ns, reason.strip(), by),
         )
     log.info("participant %s withdrawn", participant)
     return withdrawals(store)[participant]
@@ -222,11 +246,29 @@ class Deletion:
     backup_error: str | None = None
 
 
-def delete_participant(store: Store, participant: str, t_ns: int) -> Deletion:
+def _aggregate(db: sqlite3.Connection, sessions: list[str]) -> int:
+    """Add the sessions' trials to `withdrawn_aggregates` (module doc); how many trials."""
+    marks = ", ".join("?" * len(sessions))
+    rows = db.execute(
+        "SELECT COALESCE(o.names, ?), t.trial, t.mode, COALESCE(t.outcome, 'none'), COUNT(*) "
+        f"FROM trials t LEFT JOIN option_sets o ON o.session = t.session "
+        f"WHERE t.session IN ({marks}) GROUP BY 1, 2, 3, 4",
+        (json.dumps(list(COLOURS)), *sessions),
+    ).fetchall()
+    db.executemany(
+        "INSERT INTO withdrawn_aggregates VALUES (?, ?, ?, ?, ?) ON CONFLICT "
+        "(options, trial, mode, outcome) DO UPDATE SET n = n + excluded.n", rows)
+    return sum(int(r[4]) for r in rows)
+
+
+def delete_participant(
+    store: Store, participant: str, t_ns: int, by: str = "", aggregate: bool = False
+) -> Deletion:
     """Withdraw a participant and delete every row and recording file of theirs (module doc).
 
-    The rows go in one transaction (the withdrawal row with its counts in the same one); the
-    files after it commits; a file that cannot be removed is reported, not raised.
+    The rows go in one transaction (the withdrawal row with its counts in the same one, and
+    with `aggregate` their trials' outcomes added to the anonymous counts first); the files
+    after it commits; a file that cannot be removed is reported, not raised.
     """
     db = store.db
     files, kept = recording_files(store, participant)
@@ -237,6 +279,8 @@ def delete_participant(store: Store, participant: str, t_ns: int) -> Deletion:
             db.execute("BEGIN IMMEDIATE")
             db.execute("PRAGMA defer_foreign_keys = ON")  # children and parents, any order
             counts: dict[str, int] = {}
+            if aggregate:
+                counts["aggregate_trials"] = _aggregate(db, sessions)
             for table, cols in _tables(db):
                 n = 0
                 if "participant" in cols:
@@ -250,10 +294,13 @@ def delete_participant(store: Store, participant: str, t_ns: int) -> Deletion:
             counts["recording_files"] = len(files)
             db.execute(
                 "INSERT INTO withdrawals (participant, withdrawn_ns, reason, deleted, deleted_ns, "
-                "counts) VALUES (?, ?, '', 1, ?, ?) ON CONFLICT (participant) DO UPDATE SET "
-                "reason = '', deleted = 1, deleted_ns = excluded.deleted_ns, "
-                "counts = excluded.counts",
-                (participant, t_ns, t_ns, json.dumps(counts, sort_keys=True)),
+                "counts, withdrawn_by, aggregated) VALUES (?, ?, '', 1, ?, ?, ?, ?) "
+                "ON CONFLICT (participant) DO UPDATE SET reason = '', deleted = 1, "
+                "deleted_ns = excluded.deleted_ns, counts = excluded.counts, "
+                "aggregated = excluded.aggregated, withdrawn_by = CASE WHEN withdrawn_by = '' "
+                "THEN excluded.withdrawn_by ELSE withdrawn_by END",
+                (participant, t_ns, t_ns, json.dumps(counts, sort_keys=True), by,
+                 int(aggregate)),
             )
     finally:
         db.execute("PRAGMA secure_delete = OFF")

@@ -2,7 +2,8 @@
 
     nod study init STUDY.toml --participants 40 [--seed S] [--params FILE] [--options N]
     nod study consent STUDY.toml --db DB --participant P07 --yes [--age 25-34 --handedness right]
-    nod study withdraw STUDY.toml --db DB --participant P07 [--reason TEXT] [--delete|--keep]
+    nod study withdraw STUDY.toml --db DB --participant P07 [--reason TEXT]
+                       [--delete|--aggregate|--keep]
     nod study next STUDY.toml --db DB
     nod study start STUDY.toml --db DB [--participant P07] [--again WHY] [--sim] [-- FLAGS…]
     nod study status STUDY.toml --db DB [--json]
@@ -12,9 +13,11 @@ order (`--order`), the study's `--params` (and `--options N` for a study of N op
 file's `options`), and any FLAGS after `--` (the rig's `--connect`,
 `--rig`, `--clicks` …); it refuses a participant without consent and one who already has a
 session (unless `--again` says why). `withdraw` (and `consent --no` for someone who had
-consented or has data) records a withdrawal: they are left out of every export, analysis and fit,
-and with `--delete` (or the study's `on_withdrawal = "delete"`) their data is deleted
-(`services.store.withdrawals`). Every refusal is one line on stderr with exit code 2.
+consented or has data) records a withdrawal, by whom (user@host): they are left out of every
+export, analysis and fit, and with `--delete` (or the study's `on_withdrawal = "delete"`) their
+data is deleted, with `--aggregate` (`on_withdrawal = "aggregate"`) deleted after their trials'
+outcomes are added to the study's anonymous counts (`services.store.withdrawals`). Every refusal
+is one line on stderr with exit code 2.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from services.store.participants import consent_of, record_consent, reuse_proble
 from services.store.withdrawals import (
     Deletion,
     delete_participant,
+    operator_id,
     personal_rows,
     record_withdrawal,
     recording_files,
@@ -65,7 +69,7 @@ AGES = ("18-24", "25-34", "35-44", "45-54", "55-64", "65+", "undisclosed")
 HANDS = ("right", "left", "ambidextrous", "undisclosed")
 # Flags `start` sets itself: given again after `--` they would contradict the study.
 RESERVED = ("--db", "--participant", "--participants", "--order", "--again", "--resume",
-            "--options")
+            "--options", "--study")
 
 
 def build_parser() -> Parser:
@@ -132,7 +136,9 @@ def _policy(c: argparse.ArgumentParser, when: str) -> None:
     how = c.add_mutually_exclusive_group()
     how.add_argument("--delete", action="store_true", help=f"{when}delete their sessions, "
                      "trials, samples, answers, fits, recordings … (default: the study file's "
-                     "on_withdrawal, keep unless it says delete)")
+                     "on_withdrawal, keep unless it says delete or aggregate)")
+    how.add_argument("--aggregate", action="store_true", help=f"{when}as --delete, keeping "
+                     "only their trials' outcomes in the study's anonymous per-trial counts")
     how.add_argument("--keep", action="store_true",
                      help=f"{when}keep their data, left out of exports, analyses and fits")
 
@@ -238,8 +244,8 @@ def _consent(args: argparse.Namespace, study: Study, store: Store) -> int:
     prog, pid = f"{PROG} consent", args.participant
     if study.entry(pid) is None:
         return fail(prog, _not_in(study, pid))
-    if args.yes and (args.delete or args.keep):
-        return fail(prog, "--delete and --keep go with --no (a withdrawal)")
+    if args.yes and (args.delete or args.keep or args.aggregate):
+        return fail(prog, "--delete, --aggregate and --keep go with --no (a withdrawal)")
     if args.yes and (problem := withdrawal_problem(store, pid)):
         return fail(prog, problem)
     before = consent_of(store, pid)
@@ -269,13 +275,17 @@ def _withdraw_now(
     args: argparse.Namespace, study: Study, store: Store, pid: str, reason: str
 ) -> int:
     """Record the withdrawal and, by the study's policy or the flags, delete their data."""
-    delete = args.delete or (study.on_withdrawal == "delete" and not args.keep)
+    policy = ("keep" if args.keep else "delete" if args.delete else
+              "aggregate" if args.aggregate else study.on_withdrawal)
+    delete, aggregate = policy != "keep", policy == "aggregate"
     before = withdrawals(store).get(pid)
     if getattr(args, "dry_run", False):
         rows = personal_rows(store, pid)
         files, shared = recording_files(store, pid)
         what = ", ".join(f"{n} {t}" for t, n in sorted(rows.items())) or "no rows"
-        act = "would delete" if delete else "would keep (left out of exports, analyses, fits)"
+        act = ("would keep (left out of exports, analyses, fits)" if not delete else
+               "would add their trials to the anonymous counts and delete" if aggregate else
+               "would delete")
         print(f"{pid}: {act}: {what}; recording files: "
               f"{', '.join(map(str, files)) or 'none'}"
               + (f" (kept, shared: {', '.join(map(str, shared))})" if shared else ""))
@@ -285,14 +295,15 @@ def _withdraw_now(
         print(f"{pid}: withdrawn ({_when(before.withdrawn_ns)}), data deleted "
               f"({_when(before.deleted_ns or before.withdrawn_ns)}): nothing left to do")
         return 0
-    w = record_withdrawal(store, pid, now, reason)
+    by = operator_id()
+    w = record_withdrawal(store, pid, now, reason, by)
     when = f"withdrawn ({_when(w.withdrawn_ns)})" + (f", reason: {w.reason}" if w.reason else "")
     if not delete:
         again = " already" if before is not None else ""
         print(f"{pid}:{again} {when}; data kept, left out of nod export, nod analyze study and "
               "nod fit (--include-withdrawn keeps them); never started or resumed again")
         return 0
-    gone = delete_participant(store, pid, now)
+    gone = delete_participant(store, pid, now, by, aggregate)
     print(_deleted_line(pid, gone))
     if gone.failed:
         print(f"{PROG}: could not delete {len(gone.failed)} recording file(s) of {pid}; "
@@ -303,8 +314,12 @@ def _withdraw_now(
 
 
 def _deleted_line(pid: str, d: Deletion) -> str:
-    rows = {k: v for k, v in d.withdrawal.counts.items() if k != "recording_files"}
+    rows = {k: v for k, v in d.withdrawal.counts.items()
+            if k not in ("recording_files", "aggregate_trials")}
     what = ", ".join(f"{n} {t}" for t, n in sorted(rows.items())) or "no rows"
+    if d.withdrawal.aggregated:
+        what = (f"{d.withdrawal.counts.get('aggregate_trials', 0)} trial outcome(s) added to the "
+                f"anonymous counts (withdrawn_aggregates), then {what}")
     files = f"{len(d.removed)} recording file(s) deleted"
     if d.missing:
         files += f", {len(d.missing)} already gone"
@@ -313,8 +328,8 @@ def _deleted_line(pid: str, d: Deletion) -> str:
     backup = ("" if d.backup is None else f"; backup {d.backup} rewritten without them"
               if d.backup_error is None else f"; backup NOT rewritten ({d.backup_error})")
     return (f"{pid}: withdrawn, data deleted in one transaction: {what}; {files}{backup}; the "
-            "withdrawal stays recorded (id, times, counts); copies made elsewhere are yours to "
-            "delete")
+            f"withdrawal stays recorded (id, times, counts, by {d.withdrawal.by or 'unknown'}); "
+            "copies made elsewhere are yours to delete")
 
 
 def _next(args: argparse.Namespace, study: Study, r: Roster) -> int:
@@ -359,7 +374,8 @@ def _start_command(
         if flag.split("=", 1)[0] in reserved:
             return f"{flag.split('=', 1)[0]} after -- : the study sets it (give --db before --)"
     cmd = ["run", "--sim"] if args.sim else ["experiment"]
-    cmd += ["--db", str(args.db), "--participant", pid, "--order", study.order_arg(who.entry)]
+    cmd += ["--db", str(args.db), "--participant", pid, "--order", study.order_arg(who.entry),
+            "--study", str(args.study)]
     if study.params is not None:
         cmd += ["--params", str(study.params)]
     if not study.paper:  # a table of N boxes (a params file's list must agree: it is checked)

@@ -4,7 +4,9 @@
     name = "gaze-consensus"
     params = "params.toml"        # optional: the protocol every session runs (relative path)
     options = ["red", "blue", "green"]  # optional: the option set (default the paper's red, blue)
-    on_withdrawal = "keep"        # or "delete": what `nod study withdraw` does with their data
+    on_withdrawal = "keep"        # or "delete" or "aggregate": what `nod study withdraw` does
+    consent_version = "v2 2026-03-01"  # optional: the consent form participants sign
+    preregistration = "osf.io/abcd3"    # optional: the study's pre-registration id
 
     [conditions]                  # the protocol's design, checked against `params` at start
     control = [1, 2, 3]           # dissensus trials: neutral gaze, b_r = 0
@@ -32,8 +34,14 @@ its conditions or, for a Latin square, are not its blocks, in one line naming th
 
 `on_withdrawal` is what the study's consent form promised a participant who withdraws: "keep"
 (the default) keeps their data, left out of every export, analysis and fit; "delete" deletes
-it (`services.store.withdrawals.delete_participant`). `nod study withdraw --keep/--delete`
-overrides it for one person.
+it (`services.store.withdrawals.delete_participant`); "aggregate" deletes it too but first adds
+their trials' outcomes to the study's anonymous per-trial counts (`withdrawn_aggregates`: no
+id, no session, no time). `nod study withdraw --keep/--delete/--aggregate` overrides it for
+one person.
+
+`consent_version` and `preregistration` (optional text) go, with the file's SHA-256, its name
+and the counterbalance seed, into each session's provenance (`nod study start` gives the
+conductor `--study`; `services.core.provenance`).
 """
 
 from __future__ import annotations
@@ -46,6 +54,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, TypeAlias, cast
 
+from services.core.provenance import STUDY_TEXT_FIELDS, study_text
 from services.model.counterbalance import Names, block_problem, block_size, roster_orders
 from services.model.gaze import GAZE_LEVEL_NAMES
 from services.model.geometry import COLOURS
@@ -55,8 +64,8 @@ from services.store.participants import check_id
 
 Method: TypeAlias = Literal["latin-square", "declared"]
 METHODS: tuple[Method, Method] = ("latin-square", "declared")
-OnWithdrawal: TypeAlias = Literal["keep", "delete"]
-ON_WITHDRAWAL: tuple[OnWithdrawal, OnWithdrawal] = ("keep", "delete")
+OnWithdrawal: TypeAlias = Literal["keep", "delete", "aggregate"]
+ON_WITHDRAWAL: tuple[OnWithdrawal, ...] = ("keep", "delete", "aggregate")
 MAX_PARTICIPANTS = 10_000
 
 
@@ -128,6 +137,8 @@ class Study:
     counterbalance: Counterbalance
     participants: tuple[Entry, ...]
     on_withdrawal: OnWithdrawal = "keep"  # what a withdrawal does with their data
+    consent_version: str | None = None  # the consent form's version (provenance)
+    preregistration: str | None = None  # the pre-registration's id (provenance)
 
     def __post_init__(self) -> None:
         check(self)
@@ -325,6 +336,8 @@ def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
         ),
         participants=tuple(entries),
         on_withdrawal=cast(OnWithdrawal, study.get("on_withdrawal", "keep")),
+        consent_version=_text(study, "consent_version"),
+        preregistration=_text(study, "preregistration"),
     )
     if block is not None and block != out.counterbalance.block:
         raise StudyError(
@@ -350,8 +363,11 @@ def dump(study: Study, path: Path) -> str:
         lines.append(f"params = {_q(Path(rel).as_posix())}")
     if not study.paper:  # the paper's study file stays as it always was
         lines.append(f"options = {_list(study.options)}  # the table's boxes, left to right")
-    lines.append(f"on_withdrawal = {_q(study.on_withdrawal)}  # keep or delete a withdrawn "
-                 "participant's data")
+    lines.append(f"on_withdrawal = {_q(study.on_withdrawal)}  # keep, delete or aggregate a "
+                 "withdrawn participant's data")
+    for key in STUDY_TEXT_FIELDS:
+        if (value := getattr(study, key)) is not None:
+            lines.append(f"{key} = {_q(value)}")
     lines += [
         "",
         "[conditions]",
@@ -400,6 +416,14 @@ def _table(data: dict[str, Any], name: str) -> dict[str, Any]:
     if not isinstance(table, dict):
         raise StudyError(f"the file needs a [{name}] table")
     return table
+
+
+def _text(table: dict[str, Any], key: str) -> str | None:
+    """An optional [study] text (consent_version, preregistration): StudyError if malformed."""
+    try:
+        return study_text(table, key)
+    except ValueError as exc:
+        raise StudyError(str(exc)) from None
 
 
 def _string(table: dict[str, Any], key: str, where: str) -> str:

@@ -65,7 +65,11 @@ def test_full_session_on_the_simulator(tmp_path):
 
     report = _nod("report", "--db", str(db), "--json")
     assert report.returncode == 0, report.stderr
-    trials = json.loads(report.stdout)
+    doc = json.loads(report.stdout)
+    trials = doc["trials"]
+    (prov,) = doc["provenance"]  # one conductor run: its code, parameters and hosts
+    assert prov["session"] == doc["session"] and len(prov["sources_sha256"]) == 64
+    assert {"decision", "actuation", "experiment"} <= set(prov["hosts"])
     schedule = default_schedule()
     assert [t["trial"] for t in trials] == [s.index for s in schedule]
     for t, spec in zip(trials, schedule, strict=True):

@@ -140,3 +140,42 @@ def test_a_store_whose_fits_have_no_probability_opens_and_keeps_its_fits(tmp_pat
         rows = list(csv.DictReader(fh))
     assert [(r["parameter"], r["estimate"], r["probability"], r["prior_p"]) for r in rows] == [
         ("speed", "0.4", "NA", "NA"), ("contrarian", "1.0", "0.62", "0.031")]
+
+
+def test_a_store_before_provenance_and_the_withdrawal_log_opens_and_keeps_its_rows(
+    tmp_path: Path,
+) -> None:
+    """The golden's store has no `provenance` or `withdrawn_aggregates` table and a
+    `withdrawals` table without who withdrew someone: opened, it gains them (an old withdrawal
+    keeps its values, by whom '' and not aggregated), its version stays 2, its sessions have no
+    provenance, and a new run's provenance is stored and exported."""
+    from services.core.provenance import make_provenance
+    from services.store.provenance import read_provenance, write_provenance
+    from services.store.withdrawals import withdrawals
+
+    path = tmp_path / "old.sqlite"
+    shutil.copy(golden.HERE / "store-2026-12.sqlite", path)
+    tables = "SELECT name FROM sqlite_master WHERE type = 'table'"
+    with sqlite3.connect(path) as db:
+        assert {"provenance", "withdrawn_aggregates"}.isdisjoint(r[0] for r in db.execute(tables))
+        assert {"withdrawn_by", "aggregated"}.isdisjoint(
+            r[1] for r in db.execute("PRAGMA table_info(withdrawals)"))
+        db.execute("INSERT INTO withdrawals VALUES ('P77', 5, 'moved', 1, 6, '{\"trials\": 8}')")
+    before = _rows(path, "SELECT * FROM trials ORDER BY session, trial")
+    with Store(path) as store:
+        (session,) = [s["session"] for s in store.sessions()]
+        assert read_provenance(store) == []
+        old = withdrawals(store)["P77"]
+        assert (old.reason, old.deleted, old.counts, old.by, old.aggregated) == (
+            "moved", True, {"trials": 8}, "", False)
+        write_provenance(store, session, 9, make_provenance("2.0", "0123456789ab"))
+    assert _rows(path, "PRAGMA user_version") == [(2,)]
+    assert _rows(path, "SELECT * FROM trials ORDER BY session, trial") == before
+    with Store(path) as store:  # opened again: nothing more to migrate, the row is there
+        (run,) = read_provenance(store)
+        assert (run.session, run.provenance.version, run.provenance.hosts) == (session, "2.0", {})
+    out = tmp_path / "csv"
+    assert export_main(["--db", str(path), "--out", str(out)]) == 0
+    with (out / "provenance.csv").open() as fh:
+        assert [(r["session"], r["params_hash"]) for r in csv.DictReader(fh)] == [
+            (session, "0123456789ab")]

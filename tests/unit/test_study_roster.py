@@ -112,8 +112,8 @@ def test_consent_is_stored_with_demographics_and_start_refuses_without_it(study_
     entry = study.participants[3]  # by initials in the paper's study, by names over N options
     order = entry.letters if study.paper else ",".join(entry.order)
     options = "" if study.paper else f" --options {len(study.options)}"  # a table of N boxes
-    assert (f"nod experiment --db {db} --participant P04 --order {order}{options} --connect"
-            in out)
+    assert (f"nod experiment --db {db} --participant P04 --order {order} --study {path}"
+            f"{options} --connect" in out)
     assert cli.main(["consent", str(path), "--db", str(db), "--participant", "P04", "--no"]) == 0
     capsys.readouterr()
     assert cli.main(["start", str(path), "--db", str(db), "--participant", "P04"]) == 2

@@ -33,6 +33,7 @@ from services.store.fits import FitRecord, write_fits
 from services.store.participants import next_free_ids, record_consent, record_order
 from services.store.withdrawals import (
     delete_participant,
+    operator_id,
     record_withdrawal,
     withdrawals,
     withdrawn,
@@ -106,6 +107,8 @@ def _csv_participants(out: Path) -> dict[str, set[str]]:
     for f in sorted(out.glob("*.csv")):
         with f.open() as fh:
             rows = list(csv.DictReader(fh))
+        if rows and not {"participant", "session"} & set(rows[0]):
+            continue  # the anonymous aggregates: nobody's
         found[f.stem] = {r["participant"] if "participant" in r else owner.get(r["session"], "?")
                          for r in rows}
     return found
@@ -327,7 +330,7 @@ def test_consent_no_after_consent_follows_the_studys_policy(study, tmp_path, cap
     store.close()
     path.write_text(text.replace('on_withdrawal = "keep"', 'on_withdrawal = "maybe"'))
     assert study_cli.main(["status", str(path), "--db", str(db)]) == 2
-    assert "on_withdrawal must be one of ('keep', 'delete')" in capsys.readouterr().err
+    assert "on_withdrawal must be one of ('keep', 'delete', 'aggregate')" in capsys.readouterr().err
 
 
 def test_an_older_store_without_the_table_opens_and_has_nobody_withdrawn(tmp_path):
@@ -368,3 +371,91 @@ def test_deleting_any_participants_leaves_everyone_elses_rows(trials: list[int],
         for pid in ids:
             assert after[pid] == ({} if pid in gone else before[pid])
             assert (folder / f"{pid}.mcap").exists() == (pid not in gone)
+
+
+def _aggregates(db: Path) -> list[tuple]:
+    con = sqlite3.connect(db)
+    try:
+        return list(con.execute("SELECT options, trial, mode, outcome, n FROM withdrawn_aggregates "
+                                "ORDER BY options, trial, outcome"))
+    finally:
+        con.close()
+
+
+def test_aggregate_keeps_only_anonymous_outcome_counts_and_logs_who(study, tmp_path, capsys):
+    """--aggregate (or on_withdrawal = "aggregate"): their trials' outcomes are added to the
+    study's per-trial counts, then every row and file of theirs goes as with --delete."""
+    path, db = study
+    owned = _sessions(db)
+    assert _withdraw(path, db, "P04", "--keep") == 0  # kept first: logged with who did it
+    with Store(db) as store:
+        assert withdrawals(store)["P04"].by == operator_id() and "@" in operator_id()
+    path.write_text(path.read_text().replace('on_withdrawal = "keep"',
+                                             'on_withdrawal = "aggregate"'))
+    assert load(path).on_withdrawal == "aggregate"
+    assert _withdraw(path, db, "P01", "--dry-run") == 0
+    assert "would add their trials to the anonymous counts and delete" in capsys.readouterr().out
+    assert _withdraw(path, db, "P01", "--reason", "moved away") == 0
+    line = _line(capsys.readouterr().out, "P01: withdrawn, data deleted in one transaction")
+    assert "8 trial outcome(s) added to the anonymous counts" in line
+    assert f"by {operator_id()}" in line
+    assert _rows_of(db, "P01", owned["P01"]) == {} and not (tmp_path / "P01.mcap").exists()
+    # P01's outcomes, shift 1: trial i has OUTCOMES[(i + 1) % 8], one each, with no id
+    first = _aggregates(db)
+    assert [(t, o, n) for _, t, _, o, n in first] == [
+        (i, OUTCOMES[(i + 1) % 8], 1) for i in range(1, 9)]
+    assert {opts for opts, *_ in first} == {'["red", "blue"]'}
+    assert _withdraw(path, db, "P03", "--aggregate") == 0  # a second one adds to the counts
+    capsys.readouterr()
+    both = _aggregates(db)
+    assert sum(n for *_, n in both) == 16 and sum(n for _, t, _, _, n in both if t == 5) == 2
+    with Store(db) as store:
+        w = withdrawals(store)
+    assert w["P01"].aggregated and w["P01"].deleted and w["P01"].counts["aggregate_trials"] == 8
+    assert w["P01"].reason == "" and w["P01"].by == operator_id()
+    assert not w["P04"].aggregated and not w["P04"].deleted
+    out = tmp_path / "csv"
+    assert export_main(["--db", str(db), "--out", str(out)]) == 0
+    seen = _csv_participants(out)
+    assert all({"P01", "P03", "P04"}.isdisjoint(who) for who in seen.values()), seen
+    with (out / "withdrawn_aggregates.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0]) == ["options", "trial", "mode", "outcome", "n"]
+    assert sum(int(r["n"]) for r in rows) == 16
+
+
+def test_delete_takes_their_real_recording_and_its_provenance_with_them(study, tmp_path, capsys):
+    from mcap.reader import make_reader
+
+    from services.core.provenance import PROVENANCE_METADATA, make_provenance, metadata
+    from services.recording.mcap_io import FILE_METADATA, McapOut
+    from services.store.provenance import finish_provenance, read_provenance, write_provenance
+
+    path, db = study
+    rec_dir = tmp_path / "recordings"
+    rec_dir.mkdir()
+    prov = make_provenance("1", "0123456789ab")
+    with Store(db) as store:
+        for pid in ("P02", "P04"):
+            sid = f"s-{pid}"
+            mcap = rec_dir / f"{sid}.mcap"
+            out = McapOut(mcap)
+            out.metadata(FILE_METADATA, {"rig": "rig1", "session": sid})
+            out.metadata(PROVENANCE_METADATA, metadata(prov, sid))
+            out.finish()
+            store.add_recording(sid, mcap, 5)
+            write_provenance(store, sid, 5, prov)
+            finish_provenance(store, sid, 5, 6, {"decision": ("pc",)}, mcap)
+    with (rec_dir / "s-P04.mcap").open("rb") as fh:  # a real MCAP file, read by mcap's reader
+        assert {m.name for m in make_reader(fh).iter_metadata()} == {"nod", PROVENANCE_METADATA}
+    assert _withdraw(path, db, "P02", "--delete") == 0
+    line = _line(capsys.readouterr().out, "P02: withdrawn, data deleted")
+    assert "1 provenance" in line and "2 recording file(s) deleted" in line
+    assert not (rec_dir / "s-P02.mcap").exists() and (rec_dir / "s-P04.mcap").exists()
+    with Store(db) as store:
+        assert [r.session for r in read_provenance(store)] == ["s-P04"]
+        assert withdrawals(store)["P02"].counts["provenance"] == 1
+    out = tmp_path / "csv"
+    assert export_main(["--db", str(db), "--out", str(out)]) == 0
+    with (out / "provenance.csv").open() as fh:
+        assert [r["participant"] for r in csv.DictReader(fh)] == ["P04"]
