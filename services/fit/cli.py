@@ -79,6 +79,10 @@ def recovery_parser() -> Parser:
                "sessions with and without the gaze term are told apart.")
     p.add_argument("--participants", type=int_in(2, 10**5), required=True, metavar="N")
     p.add_argument("--seed", type=SEED, default=1, help="person i has seed S + i (as nod cohort)")
+    p.add_argument("--versus", type=Path, default=None, metavar="FILE.toml",
+                   help="model recovery against another description of people (a population "
+                   "file as --population's): how often a session's description, the prior's "
+                   "or this one, is told right")
     p.add_argument("--population", type=Path, default=None, metavar="FILE.toml",
                    help="plant people of another population: a --params file (people drawn "
                    "around its traits, as nod cohort) or one that also states [traits.NAME] "

@@ -17,7 +17,7 @@ from services.cohort.person import load_cohort_params
 from services.compute.engine import engine_from_args
 from services.core.config import params_hash
 from services.fit.data import read_study
-from services.fit.estimator import LEVEL, GazeClassifier
+from services.fit.estimator import LEVEL, ModelClassifier
 from services.fit.pipeline import Prepared, predictive, prepare
 from services.fit.prior import load_prior
 from services.fit.report import (
@@ -164,7 +164,13 @@ def recovery(args: argparse.Namespace) -> int:
         checks = [recover(name, theta[:, j], fit.graded[:, j], fit.low[:, j], fit.high[:, j],
                           log=logs[j])
                   for j, name in enumerate(fit.names)]
-        model = _model_recovery(args, pop, prep, planted, people, engine.map)
+        model = _model_recovery(args, prep, pop.without_gaze(), people,
+                                planted.without_gaze(), engine.map)
+        versus = None
+        if args.versus is not None:  # which description made a person: the prior's or this?
+            other = load_population(args.versus)
+            versus = _model_recovery(args, prep, other, people, other, engine.map)
+            versus["versus"] = str(args.versus)
         _say(f"{n} planted people simulated and fitted, model check done "
              f"({time.monotonic() - t0:.0f} s)")
     # The bootstrap's rng is the run's seed: a reviewer's rerun gives the same intervals.
@@ -172,6 +178,7 @@ def recovery(args: argparse.Namespace) -> int:
                                  fit.high[:, j], args.seed) for j, c in enumerate(checks)]
     doc = {"parameters": [c.as_dict() | u for c, u in zip(checks, spread, strict=True)],
            "model_recovery": model, "prior_check": flag_rate(flagged, n),
+           **({"versus": versus} if versus is not None else {}),
            "participants": n, "seed": args.seed,
            "population": "the fit's prior" if args.population is None else str(args.population),
            "intervals": {"level": CI_LEVEL, "correlation": "percentile bootstrap, people "
@@ -179,22 +186,25 @@ def recovery(args: argparse.Namespace) -> int:
                          "coverage": "Wilson score"},
            "method": method(pop, args.table)}
     print(json.dumps(doc, indent=2) if args.json else recovery_table(checks, model, spread,
-                                                                     doc["prior_check"]))
+                                                                     doc["prior_check"], versus))
     return 0
 
 
-def _model_recovery(args: argparse.Namespace, pop: Population, prep: Prepared,
-                    planted: Population, people: list[Any], run: Any) -> dict[str, Any]:
-    """Train on table sessions with and without the gaze term; test on held-out people.
+def _model_recovery(args: argparse.Namespace, prep: Prepared, trained: Population,
+                    people: list[Any], tested: Population, run: Any) -> dict[str, Any]:
+    """Model recovery: which description made a session, the prior's or `trained`'s.
 
-    Held out: the planted people (with) and the same people without the gaze term.
+    Trained on K/4 table sessions of each; tested on the planted people and as many of
+    `tested` (the same seeds): the gaze check's other description is the same people without
+    the gaze term. `first`/`second`: the share of each description's sessions told right.
     """
     k = max(100, args.table // 4)
-    no_gaze, _ = reference_table(pop.without_gaze(), k, run, _cache(args))
-    clf = GazeClassifier().train(prep.table.summaries[:k], no_gaze.summaries)
-    held_out = run(simulate, [(planted.without_gaze(), args.seed + i)
-                              for i in range(len(people))])
-    accuracy = clf.accuracy(np.stack([p.summaries for p in people]),
-                            np.stack([p.summaries for p in held_out]))
-    return {"accuracy": round(accuracy, 4), "sessions": 2 * len(people), "trained_on": 2 * k,
-            "table_seed": TABLE_SEED}
+    table, _ = reference_table(trained, k, run, _cache(args))
+    clf = ModelClassifier().train(prep.table.summaries[:k], table.summaries)
+    held_out = run(simulate, [(tested, args.seed + i) for i in range(len(people))])
+    mine = np.stack([p.summaries for p in people])
+    other = np.stack([p.summaries for p in held_out])
+    return {"accuracy": round(clf.accuracy(mine, other), 4),
+            "first": round(clf.accuracy(mine, other[:0]), 4),
+            "second": round(clf.accuracy(mine[:0], other), 4),
+            "sessions": 2 * len(people), "trained_on": 2 * k, "table_seed": TABLE_SEED}

@@ -7,12 +7,13 @@ the estimate; the 90 % interval is conformalised (Romano et al. 2019, CQR): the 
 quantile models are widened by the (1 − α)(1 + 1/n) quantile of their misses on a calibration
 split, so the interval's coverage over the prior holds however the boosting over- or
 under-fits. A 0/1 parameter (a kind) is reported as its most likely value, its probability and
-its 90 % set, conformalised on the same split (`_raw`); every estimate lies inside its own interval or set (`Estimates`). A third split
-checks each parameter as a recovery study does (correlation of true and estimated, bias,
-coverage): the verdict `identifiable` of `nod fit`.
+its 90 % set, conformalised on the same split (`_raw`); every estimate lies inside its own
+interval or set (`Estimates`). A third split checks each parameter as a recovery study does
+(correlation of true and estimated, bias, coverage): the verdict `identifiable` of `nod fit`.
 
-The model-recovery check (`GazeClassifier`) is a `HistGradientBoostingClassifier` on the same
-summaries: sessions with and without the gaze term.
+The model-recovery check (`ModelClassifier`) is a `HistGradientBoostingClassifier` on the same
+summaries: which of two descriptions made a session (with the gaze term or without; the fit's
+prior or another population, `nod fit recovery --versus`).
 """
 
 from __future__ import annotations
@@ -235,30 +236,30 @@ class QuantileEstimator:
             return self._finish(self._raw(np.atleast_2d(summaries)[:, self._columns]))
 
 
-class GazeClassifier:
-    """Does a session show the gaze term? Trained on sessions simulated with and without it."""
+class ModelClassifier:
+    """Which of two descriptions made a session? Trained on sessions simulated by each."""
 
     def __init__(self, seed: int = 0) -> None:
         """An untrained classifier."""
         self.seed = seed
         self._model: object | None = None
 
-    def train(self, with_gaze: np.ndarray, without: np.ndarray) -> GazeClassifier:
-        """Learn from summaries of sessions with (label 1) and without (label 0) the gaze."""
+    def train(self, first: np.ndarray, second: np.ndarray) -> ModelClassifier:
+        """Learn from summaries of sessions of the first (label 1) and second (0) description."""
         from sklearn.ensemble import HistGradientBoostingClassifier
 
-        x = np.concatenate([with_gaze, without])
-        y = np.concatenate([np.ones(len(with_gaze)), np.zeros(len(without))])
+        x = np.concatenate([first, second])
+        y = np.concatenate([np.ones(len(first)), np.zeros(len(second))])
         with one_thread():
             self._model = HistGradientBoostingClassifier(
                 random_state=self.seed, **_boosting(len(y))
             ).fit(x, y)
         return self
 
-    def accuracy(self, with_gaze: np.ndarray, without: np.ndarray) -> float:
+    def accuracy(self, first: np.ndarray, second: np.ndarray) -> float:
         """The share of held-out sessions classified right."""
         assert self._model is not None, "train first"
-        x = np.concatenate([with_gaze, without])
-        y = np.concatenate([np.ones(len(with_gaze)), np.zeros(len(without))])
+        x = np.concatenate([first, second])
+        y = np.concatenate([np.ones(len(first)), np.zeros(len(second))])
         with one_thread():
             return float(np.mean(self._model.predict(x) == y))  # type: ignore[attr-defined]

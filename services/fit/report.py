@@ -196,7 +196,8 @@ def flag_rate(flagged: int, n: int) -> dict[str, Any]:
 
 def recovery_table(checks: Sequence[Recovery], model: dict[str, Any] | None,
                    intervals: Sequence[dict[str, Any]] | None = None,
-                   prior_check: dict[str, Any] | None = None) -> str:
+                   prior_check: dict[str, Any] | None = None,
+                   versus: dict[str, Any] | None = None) -> str:
     """The recovery study as text: one line per parameter, then the model-recovery check.
 
     With `intervals` (`recovery_intervals`, one per check): r and coverage each with its 95 %
@@ -237,4 +238,9 @@ def recovery_table(checks: Sequence[Recovery], model: dict[str, Any] | None,
     if model:
         lines.append(f"model recovery (gaze term or not): accuracy {model['accuracy']:.2f} on "
                      f"{model['sessions']} held-out sessions")
+    if versus:
+        lines.append(f"model recovery (the prior or {versus['versus']}): accuracy "
+                     f"{versus['accuracy']:.2f} on {versus['sessions']} held-out sessions (the "
+                     f"prior's told right {versus['first']:.2f}, the other's "
+                     f"{versus['second']:.2f})")
     return "\n".join(lines)

@@ -218,3 +218,11 @@ def test_a_small_real_recovery_gives_each_row_its_intervals_and_repeats(tmp_path
     assert planted["population"] == str(other)
     assert {r["name"] for r in planted["parameters"]} == {r["name"] for r in doc["parameters"]}
     assert planted["prior_check"]["flagged"] >= 0.8 * n
+    # Model recovery against that description: its sessions and the prior's told apart.
+    assert main(args + ["--versus", str(other)]) == 0
+    versus = json.loads(capsys.readouterr().out)["versus"]
+    assert versus["versus"] == str(other) and versus["sessions"] == 2 * n
+    assert versus["accuracy"] == pytest.approx((versus["first"] + versus["second"]) / 2)
+    assert versus["accuracy"] >= 0.8
+    assert main(args[:-1] + ["--versus", str(other)]) == 0
+    assert f"model recovery (the prior or {other})" in capsys.readouterr().out

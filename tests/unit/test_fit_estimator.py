@@ -10,7 +10,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from services.fit.estimator import Estimates, GazeClassifier, QuantileEstimator
+from services.fit.estimator import Estimates, ModelClassifier, QuantileEstimator
 from services.fit.report import parameter_cell
 from services.model.recovery import (
     Recovery,
@@ -59,10 +59,10 @@ def test_the_gaze_classifier_tells_two_models_apart_only_when_they_differ():
     rng = np.random.default_rng(3)
     with_gaze = rng.normal(1.0, 1.0, (400, 2))
     without = rng.normal(0.0, 1.0, (400, 2))
-    clf = GazeClassifier().train(with_gaze[:300], without[:300])
+    clf = ModelClassifier().train(with_gaze[:300], without[:300])
     assert clf.accuracy(with_gaze[300:], without[300:]) > 0.7  # Bayes rate ≈ 0.76
     # Two labels of one model: nothing to learn, held-out accuracy near a coin's.
-    same = GazeClassifier().train(without[:150], without[150:300])
+    same = ModelClassifier().train(without[:150], without[150:300])
     assert same.accuracy(with_gaze[300:] - 1.0, without[300:]) < 0.62
 
 
