@@ -34,7 +34,8 @@ def payload(name: str, seq: int) -> bytes:
     """One valid message of the key `name`, stamped now (fresh by every device's rule)."""
     t = time.time_ns()
     if name == "z_r":
-        return m.encode(m.Scalar(seq=seq, t_ns=t, value=0.1 * ((seq % 21) - 10), src_seq=seq))
+        z = 0.1 * ((seq % 21) - 10)
+        return m.encode(m.Opinions(seq=seq, t_ns=t, src_seq=seq, **m.signed_fields(z)))
     if name == "hand":
         points = tuple((0.5 + 0.001 * (i % 7), 0.6 + 0.001 * (i % 5)) for i in range(21))
         return m.encode(m.HandPose(seq=seq, t_ns=t, detected=True, center=(0.502, 0.601),

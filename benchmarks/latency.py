@@ -253,7 +253,7 @@ def measure(client: zenoh.Session, seconds: float, rate: float, rounds: int = 4)
             client,
             KEYS.topic("vision/hand"),
             KEYS.topic("decision/z_r"),
-            lambda b: m.decode(m.Scalar, b).src_seq,
+            lambda b: m.decode(m.Opinions, b).src_seq,
         ),
     }
     n = int(seconds * rate) // rounds

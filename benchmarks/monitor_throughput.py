@@ -90,7 +90,8 @@ def main() -> int:
             pubs["vision/hand"].put(m.encode(hand))
             sent["vision/hand"] += 1
             for t, v in (("decision/z_h", x), ("decision/z_r", -x), ("decision/b_r", 0.1)):
-                pubs[t].put(m.encode(m.Scalar(seq=i, t_ns=t_ns, value=v, src_seq=i)))
+                cls = m.Observed if t == "decision/z_h" else m.Opinions
+                pubs[t].put(m.encode(cls(seq=i, t_ns=t_ns, src_seq=i, **m.signed_fields(v))))
                 sent[t] += 1
             if i % max(1, round(args.rate / 50)) == 0:
                 arm = m.ArmStateMsg(seq=i, t_ns=t_ns, ee=(x, 0.1), phase="move", moving=True)

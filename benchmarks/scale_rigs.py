@@ -74,7 +74,7 @@ class Observer:
 
         def on_zr(s: zenoh.Sample) -> None:
             t = time.monotonic_ns()
-            msg = m.decode(m.Scalar, s.payload.to_bytes())
+            msg = m.decode(m.Opinions, s.payload.to_bytes())
             with self.lock:
                 self.hot.setdefault(rig_of(s), Hot()).z_r(msg.src_seq, msg.t_ns, t)
 

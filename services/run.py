@@ -331,6 +331,7 @@ def _stored_results(db: Path, session: str) -> list[m.TrialResult]:
     store = Store(db)
     try:
         trials = [t for _, t in store.trials(session)]
+        options = store.option_names(session)  # the session's option set, by name
     finally:
         store.close()
     names = ("trial", "mode", "option", "robot", "human", "outcome", "switches", "violations",
@@ -338,7 +339,8 @@ def _stored_results(db: Path, session: str) -> list[m.TrialResult]:
     out = []
     for t in trials:
         fields: dict[str, Any] = {name: getattr(t, name) for name in names}
-        out.append(m.TrialResult(seq=0, t_ns=t.t_end_ns or 0, session=session, **fields))
+        out.append(m.TrialResult(seq=0, t_ns=t.t_end_ns or 0, session=session, options=options,
+                                 **fields))
     return out
 
 

@@ -7,24 +7,23 @@ garbled or unplugged bus), or an e-stop is engaged, the arm holds its position a
 key says why; the state also acknowledges the last e-stop command. The robot's press is
 published once per trial.
 
-One service for any number of options. What differs between the paper's table and one of
-N ≥ 3 boxes lives in one seam, the key space (`ArmKeys`), chosen by the option count
-(`arm_keys`): which keys carry z_r, the layout, the trial events and the robot's press, their
-messages and how they convert to the model's values, and which reactor and arm the model uses.
+One service for any number of options, on one key space (schema 3): z_r on `decision/z_r`,
+the table on `vision/layout` and the protocol's events on `experiment/trial`, each checked
+against the service's option set; each applied command on `actuation/cmd`, the arm's state on
+`actuation/state` and the robot's press on `actuation/press`, the box by option name. What the
+model does differently by the option count lives in one seam (`ArmSeam`, chosen by
+`arm_seam`):
 
-- `PaperArmKeys` (schema 1, the paper's two): z_r a number on `decision/z_r`, `vision/layout`,
-  `experiment/trial`, `RobotTrial` over red and blue, any `ArmDriver` (sim or Feetech); it
-  publishes each applied command on `actuation/cmd` and the press on `actuation/press`.
-- `OptionsArmKeys` (schema 2, N ≥ 3): z_r a vector on `options/z_r`, `options/layout`,
-  `options/trial` (each checked against N), `OptionsRobotTrial` with the tie rule, the
+- `PaperArmSeam` (two options, the paper's kernel): z_r the signed number of the vector,
+  `RobotTrial` over red and blue, any `ArmDriver` (sim or Feetech).
+- `OptionsArmSeam` (N ≥ 3): z_r the vector, `OptionsRobotTrial` with the tie rule, the
   `OptionsSimArm` or the Feetech arm pressing box j at its arm file's pose of option j (a file
-  without a pose for every option refused in one line); the arm's state by box on
-  `options/arm_state`, the press on `options/press`.
+  without a pose for every option refused in one line).
 
 The safety gate, Algorithm 2's timers, press detection, device-fault reporting and the e-stop
 wiring are `ActuationService`'s, written once; its safety state goes out on `actuation/state`
 whatever N (the e-stop's acknowledgement, `nod estop`, `nod status` and the recorders read it
-there). Unifying the key spaces (issue 34, step 3) replaces the seam and nothing else.
+there).
 """
 
 from __future__ import annotations
@@ -36,9 +35,8 @@ import logging
 import math
 import sys
 from abc import ABC, abstractmethod
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any, ClassVar, Generic, NamedTuple, Protocol, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -50,17 +48,16 @@ from services.actuation.drivers import (
 )
 from services.core import messages as m
 from services.core.cli import Parser, add_options_arg, add_service_args, fail
-from services.core.config import load_with_options, params_hash
+from services.core.config import load_with_options, option_names, params_hash
 from services.core.node import Node, setup_logging
 from services.core.priority import raise_priority
 from services.core.session import Fabric
 from services.model.arm import OptionsSimArm
 from services.model.behaviour import ArmCommand, OptionsCommand
-from services.model.geometry import Colour, OptionsLayout, Point, TableLayout
+from services.model.geometry import COLOURS, Colour, OptionsLayout, Point, TableLayout
 from services.model.params import NodConfig
 from services.model.robot import OptionsRobotTrial, RobotTrial, TrialReactor
 from services.model.safety import SafetyParams, Watchdog
-from services.model.schedule import OptionsSchedule
 from services.safety.latch_file import LatchFile, add_state_dir_arg, default_state_dir
 from services.safety.wiring import run_device_service, watch_safety_inputs
 
@@ -72,7 +69,6 @@ C = TypeVar("C", ArmCommand, OptionsCommand)  # an arm command: by colour, or by
 B = TypeVar("B")  # a box as the model names it: a colour, or an option index
 Z = TypeVar("Z")  # z_r: a number, or a vector over the options
 B_co = TypeVar("B_co", covariant=True)
-Handler = Callable[[Any], None]  # a subscriber's handler: the message type is the key's
 
 
 class ArmReport(Protocol[B_co]):
@@ -124,40 +120,24 @@ class Arm(Protocol[C, B_co]):
         """The arm's state at time t (s)."""
 
 
-class TrialStep(NamedTuple):
-    """What actuation reads of a trial event, whatever key space carried it."""
-
-    phase: str
-    trial: int
+# -- the seam: the paper's two-option kernel, or N boxes by index ---------------------------------
 
 
-# -- the seam: one key space each ----------------------------------------------------------------
+class ArmSeam(ABC, Generic[L, C, B, Z]):
+    """What actuation does differently by the option count (the module doc lists both).
 
-
-class ArmKeys(ABC, Generic[L, C, B, Z]):
-    """Everything actuation does differently in one key space (the module doc lists both).
-
-    The service's handlers are subscribed to this space's three input keys (`subscribe`) and
-    its messages converted by `z_r`, `layout` and `trial`; the service runs the `reactor` over
-    `table`, drives the arm `make_arm` built, and hands back what leaves on keys of this space
-    (`sent`, `pressed`, `report`).
+    The service converts what it hears with `z_r` and `layout`, runs the `reactor` over
+    `table`, drives the arm `make_arm` built, and names boxes on its keys with `name`.
     """
-
-    schema: ClassVar[int]  # the messages' schema version
 
     table: L  # the table until the layout key says otherwise
 
-    @abstractmethod
-    def __init__(self, node: Node, cfg: NodConfig, n_options: int) -> None:
-        """The space's publishers on `node` and its table of `n_options` boxes from `cfg`."""
-
-    @abstractmethod
-    def subscribe(self, node: Node, on_z_r: Handler, on_layout: Handler, on_trial: Handler) -> None:
-        """The robot's opinion (from decision), the table (vision, sim), the protocol's events."""
+    def __init__(self, cfg: NodConfig, names: tuple[str, ...]) -> None:
+        self.names = names
 
     @classmethod
     def check_driver(cls, driver: str, arm_config: Path | None, names: tuple[str, ...]) -> None:
-        """Refuse (ValueError, one line) an arm this space cannot drive (default: none)."""
+        """Refuse (ValueError, one line) an arm this seam cannot drive (default: none)."""
 
     @classmethod
     @abstractmethod
@@ -167,70 +147,43 @@ class ArmKeys(ABC, Generic[L, C, B, Z]):
         port: str | None,
         arm_config: Path | None,
         cfg: NodConfig,
-        n_options: int,
+        names: tuple[str, ...],
         t0: float,
-        names: tuple[str, ...] | None = None,
     ) -> Arm[C, B]:
-        """An unconnected arm for this space's table of options `names`.
-
-        `names` defaults to the default names of `n_options`; `t0` is the sim arm's start
-        time (s).
-        """
+        """An unconnected arm for the table of options `names` (`t0`: the sim arm's start, s)."""
 
     @abstractmethod
     def reactor(self, cfg: NodConfig) -> TrialReactor[L, C, B, Z]:
         """Algorithm 2 over `table`, with the config's behaviour, debounce and trial timeout."""
 
     @abstractmethod
-    def z_r(self, msg: Any) -> Z:
-        """The robot's opinion a message carries (MessageError: not for this table)."""
+    def z_r(self, msg: m.Opinions) -> Z:
+        """The robot's opinion as the model reads it (the message checked against our options)."""
 
     @abstractmethod
-    def layout(self, msg: Any) -> L:
-        """The table a layout message carries (MessageError: not for this table)."""
-
-    @abstractmethod
-    def trial(self, msg: Any) -> TrialStep:
-        """A trial event's phase and trial (MessageError: not for this table)."""
+    def layout(self, msg: m.Layout) -> L:
+        """The table as the model reads it (the message checked against our options)."""
 
     def arm_follows(self, arm: Arm[C, B], layout: L) -> None:
         """Give the arm a new trial's table (by default it keeps its own poses)."""
 
     @abstractmethod
-    def sent(self, applied: C) -> None:
-        """The command the arm applied (after Algorithm 2 and the safety gate)."""
+    def name(self, box: B | None) -> str | None:
+        """A box of the model by its option name (None stays None)."""
 
     @abstractmethod
-    def pressed(self, box: B, trial: int) -> None:
-        """The robot's press of this trial, published once."""
-
-    @abstractmethod
-    def colour(self, box: B | None) -> Colour | None:
-        """The box as `actuation/state` names it (a colour, or None where colours do not)."""
-
-    def report(
-        self, state: ArmReport[B], phase: str, safe_stop: bool, reason: str, trial: int
-    ) -> None:
-        """The arm's state on a key of this space's own, if it has one (50 Hz)."""
+    def aim(self, cmd: C) -> tuple[int, str | None]:
+        """A command's lateral direction and target option as `actuation/cmd` carries them."""
 
 
-class PaperArmKeys(ArmKeys[TableLayout, ArmCommand, Colour, float]):
-    """The paper's keys (schema 1): red and blue, z_r a number, any arm driver."""
+class PaperArmSeam(ArmSeam[TableLayout, ArmCommand, Colour, float]):
+    """The paper's two options: red and blue, z_r a signed number, any arm driver."""
 
-    schema = m.SCHEMA_VERSION
-
-    def __init__(self, node: Node, cfg: NodConfig, n_options: int = 2) -> None:
-        if n_options != 2:
-            raise ValueError(f"the paper's keys carry two options, not {n_options}")
+    def __init__(self, cfg: NodConfig, names: tuple[str, ...]) -> None:
+        super().__init__(cfg, names)
+        if len(names) != 2:
+            raise ValueError(f"the paper's robot presses one of two boxes, not {len(names)}")
         self.table = cfg.layout
-        self.pub_cmd = node.publisher("actuation/cmd")
-        self.pub_press = node.publisher("actuation/press")
-
-    def subscribe(self, node: Node, on_z_r: Handler, on_layout: Handler, on_trial: Handler) -> None:
-        """`decision/z_r`, `vision/layout`, `experiment/trial`."""
-        node.subscribe("decision/z_r", on_z_r)
-        node.subscribe("vision/layout", on_layout)
-        node.subscribe("experiment/trial", on_trial)
 
     @classmethod
     def make_arm(
@@ -239,9 +192,8 @@ class PaperArmKeys(ArmKeys[TableLayout, ArmCommand, Colour, float]):
         port: str | None,
         arm_config: Path | None,
         cfg: NodConfig,
-        n_options: int,
+        names: tuple[str, ...],
         t0: float,
-        names: tuple[str, ...] | None = None,
     ) -> Arm[ArmCommand, Colour]:
         """The `--driver` chosen: the sim arm, or a Feetech arm from its calibration file."""
         return make_arm_driver(driver, port, arm_config, cfg.layout, cfg.sim_arm, t0=t0)
@@ -250,53 +202,31 @@ class PaperArmKeys(ArmKeys[TableLayout, ArmCommand, Colour, float]):
         """The paper's robot (the two-option kernel of `services.model.robot`)."""
         return RobotTrial(self.table, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s)
 
-    def z_r(self, msg: m.Scalar) -> float:
-        """z_r as `decision/z_r` carries it: a number (> 0 red)."""
-        return msg.value
+    def z_r(self, msg: m.Opinions) -> float:
+        """z_r as the paper's signed number (> 0: option 0, red)."""
+        m.check_options(msg, self.names)
+        return msg.signed
 
     def layout(self, msg: m.Layout) -> TableLayout:
-        """The red and blue boxes of `vision/layout`."""
-        return m.layout_from_msg(msg)
+        """The two boxes as the paper's red and blue."""
+        m.check_options(msg, self.names)
+        return msg.paper_table()
 
-    def trial(self, msg: m.TrialEvent) -> TrialStep:
-        """An `experiment/trial` event."""
-        return TrialStep(msg.phase, msg.trial)
+    def name(self, box: Colour | None) -> str | None:
+        """Red is option 0, blue option 1."""
+        return None if box is None else self.names[COLOURS.index(box)]
 
-    def sent(self, applied: ArmCommand) -> None:
-        """Every applied command on `actuation/cmd` (changes only: the service filters)."""
-        self.pub_cmd.put(
-            action=applied.action,
-            direction=applied.direction,
-            target=applied.target,
-            reason=applied.reason[:200],
-        )
-
-    def pressed(self, box: Colour, trial: int) -> None:
-        """The press on `actuation/press`."""
-        self.pub_press.put(colour=box, trial=trial)
-        log.info("trial %d: robot pressed %s", trial, box)
-
-    def colour(self, box: Colour | None) -> Colour | None:
-        """Boxes are colours already."""
-        return box
+    def aim(self, cmd: ArmCommand) -> tuple[int, str | None]:
+        """Toward red (+1) or blue (-1), 0 at rest; the target by name."""
+        return cmd.direction, self.name(cmd.target)
 
 
-class OptionsArmKeys(ArmKeys[OptionsLayout, OptionsCommand, int, np.ndarray]):
-    """The `options/*` keys (schema 2): N boxes by index, z_r a vector, any arm driver."""
+class OptionsArmSeam(ArmSeam[OptionsLayout, OptionsCommand, int, np.ndarray]):
+    """Three or more options: N boxes by index, z_r a vector, any arm driver."""
 
-    schema = m.OPTIONS_SCHEMA_VERSION
-
-    def __init__(self, node: Node, cfg: NodConfig, n_options: int) -> None:
-        self.table = cfg.table(n_options)
-        self.n = n_options
-        self.pub_state = node.publisher("options/arm_state")
-        self.pub_press = node.publisher("options/press")
-
-    def subscribe(self, node: Node, on_z_r: Handler, on_layout: Handler, on_trial: Handler) -> None:
-        """`options/z_r`, `options/layout`, `options/trial`."""
-        node.subscribe("options/z_r", on_z_r)
-        node.subscribe("options/layout", on_layout)
-        node.subscribe("options/trial", on_trial)
+    def __init__(self, cfg: NodConfig, names: tuple[str, ...]) -> None:
+        super().__init__(cfg, names)
+        self.table = cfg.table(len(names))
 
     @classmethod
     def check_driver(cls, driver: str, arm_config: Path | None, names: tuple[str, ...]) -> None:
@@ -315,14 +245,12 @@ class OptionsArmKeys(ArmKeys[OptionsLayout, OptionsCommand, int, np.ndarray]):
         port: str | None,
         arm_config: Path | None,
         cfg: NodConfig,
-        n_options: int,
+        names: tuple[str, ...],
         t0: float,
-        names: tuple[str, ...] | None = None,
     ) -> Arm[OptionsCommand, int]:
         """The simulated arm, or the Feetech arm pressing box j at the pose of option j."""
-        names = names if names is not None else OptionsSchedule.default(n_options).names
         return make_options_arm(
-            driver, port, arm_config, cfg.table(n_options), names, cfg.sim_arm, t0=t0
+            driver, port, arm_config, cfg.table(len(names)), names, cfg.sim_arm, t0=t0
         )
 
     def reactor(self, cfg: NodConfig) -> OptionsRobotTrial:
@@ -331,54 +259,35 @@ class OptionsArmKeys(ArmKeys[OptionsLayout, OptionsCommand, int, np.ndarray]):
             self.table, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s
         )
 
-    def z_r(self, msg: m.OptionVector) -> np.ndarray:
-        """The vector of `options/z_r`, refused when it is not over our N options."""
-        return m.values_for(msg, self.n)
+    def z_r(self, msg: m.Opinions) -> np.ndarray:
+        """The vector z_r."""
+        return msg.vector(self.names)
 
-    def layout(self, msg: m.OptionsLayoutMsg) -> OptionsLayout:
-        """The boxes of `options/layout`, refused when they are not N."""
-        return m.same_count(msg.layout(), self.n)
-
-    def trial(self, msg: m.OptionsTrialEvent) -> TrialStep:
-        """An `options/trial` event, refused when it is for another N."""
-        m.check_count(msg, self.n)
-        return TrialStep(msg.phase, msg.trial)
+    def layout(self, msg: m.Layout) -> OptionsLayout:
+        """The N boxes."""
+        m.check_options(msg, self.names)
+        return msg.table()
 
     def arm_follows(self, arm: Arm[OptionsCommand, int], layout: OptionsLayout) -> None:
         """The simulated arm heads for the boxes of the trial's table."""
         if isinstance(arm, OptionsSimArm):
             arm.layout = layout
 
-    def sent(self, applied: OptionsCommand) -> None:
-        """No command key in this space yet: the log has the moves."""
-        if applied.action != "idle":
-            log.debug("arm: %s %s (%s)", applied.action, applied.target, applied.reason)
+    def name(self, box: int | None) -> str | None:
+        """Box j is option j."""
+        return None if box is None else self.names[box]
 
-    def pressed(self, box: int, trial: int) -> None:
-        """The press on `options/press`."""
-        self.pub_press.put(n_options=self.n, option=box, trial=trial)
-        log.info("trial %d: robot pressed box %d", trial, box)
-
-    def colour(self, box: int | None) -> Colour | None:
-        """Colours do not name N boxes: `actuation/state` carries no target here."""
-        return None
-
-    def report(
-        self, state: ArmReport[int], phase: str, safe_stop: bool, reason: str, trial: int
-    ) -> None:
-        """The state by box on `options/arm_state` (the sim draws and the conductor reads it)."""
-        self.pub_state.put(
-            n_options=self.n, ee=state.ee, phase=phase, moving=state.moving,
-            target=state.target, safe_stop=safe_stop, safety_reason=reason[:400], trial=trial,
-        )
+    def aim(self, cmd: OptionsCommand) -> tuple[int, str | None]:
+        """No one lateral direction among N boxes; the target by name."""
+        return 0, self.name(cmd.target)
 
 
-def key_space(n_options: int) -> type[ArmKeys[Any, Any, Any, Any]]:
-    """The key space of a table of `n_options` boxes: the paper's for two, `options/*` above."""
-    return PaperArmKeys if n_options == 2 else OptionsArmKeys
+def arm_seam(names: tuple[str, ...]) -> type[ArmSeam[Any, Any, Any, Any]]:
+    """The seam of an option set: the paper's kernel for two options, N boxes above."""
+    return PaperArmSeam if len(names) == 2 else OptionsArmSeam
 
 
-# -- the service, once for every key space -------------------------------------------------------
+# -- the service, once for every option set --------------------------------------------------------
 
 
 class ActuationService(Generic[L, C, B, Z]):
@@ -391,15 +300,16 @@ class ActuationService(Generic[L, C, B, Z]):
         arm: Arm[C, B],
         safety: SafetyParams,
         latch_file: LatchFile | None,
-        n_options: int = 2,
+        names: tuple[str, ...] = COLOURS,
     ) -> None:
-        """Drive `arm` (built by `key_space(n_options).make_arm`, connected) on the rig's keys."""
+        """Drive `arm` (built by `arm_seam(names).make_arm`, connected) on the rig's keys."""
         self.node = node
         self.arm: Arm[C, B] = arm
         self.cfg = cfg
-        self.keys: ArmKeys[L, C, B, Z] = key_space(n_options)(node, cfg, n_options)
-        self.layout: L = self.keys.table
-        self.robot: TrialReactor[L, C, B, Z] = self.keys.reactor(cfg)
+        self.names = tuple(names)
+        self.seam: ArmSeam[L, C, B, Z] = arm_seam(self.names)(cfg, self.names)
+        self.layout: L = self.seam.table
+        self.robot: TrialReactor[L, C, B, Z] = self.seam.reactor(cfg)
         self.watchdog = Watchdog(safety, ("z_r", "hand"))
         # Stopped until the first check of the gate says otherwise: nothing reaches the arm before
         # the watchdog has judged its inputs once.
@@ -410,7 +320,11 @@ class ActuationService(Generic[L, C, B, Z]):
         # message's timestamp (a peer's clock must not move the arm's timers), kept monotone.
         self._t = node.clock.now_ns() * NS
         self.pub_state = node.publisher("actuation/state")
-        self.keys.subscribe(node, self.on_z_r, self.on_layout, self.on_trial)
+        self.pub_cmd = node.publisher("actuation/cmd")
+        self.pub_press = node.publisher("actuation/press")
+        node.subscribe("decision/z_r", self.on_z_r)
+        node.subscribe("vision/layout", self.on_layout)
+        node.subscribe("experiment/trial", self.on_trial)
         node.subscribe("vision/hand", self.on_hand)
         watch_safety_inputs(
             node, self.watchdog, self.tick, latch_file, also_watch=("experiment",)
@@ -419,13 +333,13 @@ class ActuationService(Generic[L, C, B, Z]):
 
     # -- inputs --------------------------------------------------------------------------------
 
-    def on_z_r(self, msg: Any) -> None:
+    def on_z_r(self, msg: m.Opinions) -> None:
         """A new robot opinion: one Algorithm 2 step (if it is fresh by the watchdog's rule).
 
-        Converted first: a vector for another number of options is refused before it counts
-        as fresh input.
+        Converted first: a vector for another option set is refused before it counts as fresh
+        input.
         """
-        z_r = self.keys.z_r(msg)
+        z_r = self.seam.z_r(msg)
         if self.node.feed_watchdog(self.watchdog, "z_r", msg.t_ns):
             self._step(z_r)
 
@@ -436,20 +350,21 @@ class ActuationService(Generic[L, C, B, Z]):
         if pose.detected:
             self.robot.see_hand(pose.landmarks)
 
-    def on_layout(self, msg: Any) -> None:
+    def on_layout(self, msg: m.Layout) -> None:
         """Use the geometry vision (or the sim) published (takes effect next trial)."""
-        self.layout = self.keys.layout(msg)
+        self.layout = self.seam.layout(msg)
 
-    def on_trial(self, msg: Any) -> None:
+    def on_trial(self, msg: m.TrialEvent) -> None:
         """Setup: home and reset; go: start Algorithm 2; end: the trial's choice is over.
 
         From setup to the end of a trial the conductor's liveliness is required too: without
         it nobody records the trial, so the robot must not press.
         """
-        ev = self.keys.trial(msg)
+        m.check_options(msg, self.names)
+        ev = msg
         if ev.phase == "setup":
             self.robot.setup(ev.trial, self.layout)
-            self.keys.arm_follows(self.arm, self.layout)
+            self.seam.arm_follows(self.arm, self.layout)
             self.watchdog.require("experiment", True)
             self.arm.state(self._now())
             if not self.safe_stop:
@@ -489,8 +404,11 @@ class ActuationService(Generic[L, C, B, Z]):
             self._send(self.arm.send(cmd))
 
     def _send(self, applied: C) -> None:
+        """Every applied command on `actuation/cmd` (changes only: `_apply` filters)."""
         self.last_cmd = applied
-        self.keys.sent(applied)
+        direction, target = self.seam.aim(applied)
+        self.pub_cmd.put(action=applied.action, direction=direction, target=target,
+                         reason=applied.reason[:200])
 
     def tick(self, now_ns: int) -> None:
         """Periodic: safety gate, timers of Algorithm 2, arm state and the robot's press."""
@@ -512,14 +430,15 @@ class ActuationService(Generic[L, C, B, Z]):
             self._step(None)
         state = self.arm.state(self._now())
         if state.pressed is not None and self.robot.arm_pressed(state.pressed):
-            self.keys.pressed(state.pressed, self.robot.trial)
+            pressed = self.seam.name(state.pressed)
+            self.pub_press.put(option=pressed, trial=self.robot.trial)
+            log.info("trial %d: robot pressed %s", self.robot.trial, pressed)
         phase = self.robot.machine.phase
-        self.keys.report(state, phase, self.safe_stop, self.safety_reason, self.robot.trial)
         self.pub_state.put(
             ee=state.ee,
             phase=phase,
             moving=state.moving,
-            target=self.keys.colour(state.target),
+            target=self.seam.name(state.target),
             safe_stop=self.safe_stop,
             safety_reason=self.safety_reason[:400],
             fault=(state.fault or "")[:400],
@@ -559,9 +478,8 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.verbose)
     try:
         cfg, schedule = load_with_options(args.params, args.options)
-        names = OptionsSchedule.default(2).names if schedule is None else schedule.names
-        n_options = len(names)
-        key_space(n_options).check_driver(args.driver, args.arm_config, names)  # before opening
+        names = option_names(schedule)
+        arm_seam(names).check_driver(args.driver, args.arm_config, names)  # before opening
         safety = cfg.safety
         if args.stale_ms is not None:
             safety = dataclasses.replace(safety, stale_ms=args.stale_ms)
@@ -575,15 +493,14 @@ def main(argv: list[str] | None = None) -> int:
     log.info("effective config: %s", json.dumps(cfg.summary("behaviour", "sim_arm", "safety")))
     raise_priority("actuation")  # once its configuration is good: errors stay one line
     try:
-        arm: Arm[Any, Any] = key_space(n_options).make_arm(
-            args.driver, args.port, args.arm_config, cfg, n_options, node.clock.now_ns() * NS,
-            names,
+        arm: Arm[Any, Any] = arm_seam(names).make_arm(
+            args.driver, args.port, args.arm_config, cfg, names, node.clock.now_ns() * NS
         )
         arm.connect()
     except (ValueError, OSError, ConnectionError) as exc:
         node.close()
         return fail("nod actuation", exc)
-    ActuationService(node, cfg, arm, safety, latch_file, n_options)
+    ActuationService(node, cfg, arm, safety, latch_file, names)
     run_device_service(node, arm)  # the arm holds however the service ends
     return 0
 

@@ -23,6 +23,7 @@ import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
+from services.model.geometry import COLOURS
 from services.model.params import NodConfig
 from services.model.schedule import OptionsSchedule, schedule_from_table
 
@@ -206,3 +207,8 @@ def params_hash(cfg: NodConfig) -> str:
     """
     text = json.dumps(as_dict(cfg), sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:PARAMS_HASH_DIGITS]
+
+
+def option_names(schedule: OptionsSchedule | None) -> tuple[str, ...]:
+    """The option set a session runs: the paper's red and blue, or the schedule's names."""
+    return COLOURS if schedule is None else schedule.names

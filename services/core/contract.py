@@ -9,7 +9,7 @@ Services that read every key of a rig (`nod monitor`) subscribe to `nod/<rig>/**
 listed per topic.
 
 Each topic is also a constant named after its key, typed by its message: `DECISION_Z_R` is
-`Topic[m.Scalar]`, so code that passes the constant instead of the name ("decision/z_r") has
+`Topic[m.Opinions]`, so code that passes the constant instead of the name ("decision/z_r") has
 the message class checked, and the topic's publishers and subscribers are one lookup away.
 """
 
@@ -83,7 +83,9 @@ VISION_HAND = Topic(
 )
 VISION_LAYOUT = Topic(
     "vision/layout", m.Layout, ("vision", "sim"), ("decision", "actuation", "experiment"),
-    "1 Hz + queryable", RELIABLE, "`red`, `blue` [x1,y1,x2,y2] boxes, `commit_y`",
+    "1 Hz + queryable", RELIABLE,
+    "`options` (the option set's names), `boxes` [x1,y1,x2,y2] one per option (vision: found "
+    "by colour), `commit_y`",
 )
 VISION_FRAME = Topic(
     "vision/frame", m.VisionFrame, ("vision",), (), "2 Hz", STREAM,
@@ -96,32 +98,33 @@ SIM_CAMERA = Topic(
 )
 DECISION_Z_H = Topic(
     "decision/z_h", m.Observed, ("decision",), ("experiment", "lsl"), "per pose", STREAM,
-    "`value` ẑ_h, `src_seq` (the pose's seq), `theta` θ and `distance` d of eq 7 when "
-    "this pose set ẑ_h (else nil)",
+    "`options`, `values` ẑ_h one per option (two options: (ẑ_h, −ẑ_h)), `src_seq` (the pose's "
+    "seq), `theta` θ and `distance` d of eq 7 when this pose set ẑ_h (else nil)",
 )
 DECISION_Z_R = Topic(
-    "decision/z_r", m.Scalar, ("decision",), ("actuation", "experiment", "lsl"), "per pose",
+    "decision/z_r", m.Opinions, ("decision",), ("actuation", "experiment", "lsl"), "per pose",
     STREAM,
-    "`value` z_r, `src_seq`",
+    "`options`, `values` z_r one per option, `src_seq`",
 )
 DECISION_B_R = Topic(
-    "decision/b_r", m.Scalar, ("decision",), ("experiment", "lsl"), "per pose", STREAM,
-    "`value` b_r, `src_seq`",
+    "decision/b_r", m.Opinions, ("decision",), ("experiment", "lsl"), "per pose", STREAM,
+    "`options`, `values` b_r one per option, `src_seq`",
 )
 ACTUATION_CMD = Topic(
     "actuation/cmd", m.ArmCommandMsg, ("actuation",), (), "on change", RELIABLE,
-    "`action` idle/stop/move/press, `direction` ±1/0, `target`, `reason`",
+    "`action` idle/stop/move/press, `direction` ±1/0 (two options), `target` (an option), "
+    "`reason`",
 )
 ACTUATION_STATE = Topic(
     "actuation/state", m.ArmStateMsg, ("actuation",), ("sim", "experiment", "estop", "lsl"),
     "50 Hz",
     STREAM,
-    "`ee` [x,y], `phase`, `moving`, `target`, `safe_stop`, `safety_reason`, `fault`, "
+    "`ee` [x,y], `phase`, `moving`, `target` (an option), `safe_stop`, `safety_reason`, `fault`, "
     "`estop` (latched), `estop_id` (the last e-stop command obeyed), `trial`",
 )
 ACTUATION_PRESS = Topic(
     "actuation/press", m.PressMsg, ("actuation",), ("experiment", "sim"), "once per trial",
-    CONTROL, "`colour`, `trial`",
+    CONTROL, "`option` (the box the robot pressed), `trial`",
 )
 EYES_CMD = Topic(
     "eyes/cmd", m.GazeMsg, ("experiment",), ("eyes", "sim"), "per cue + 20 Hz keep-alive",
@@ -138,14 +141,14 @@ EXPERIMENT_TRIAL = Topic(
     ("decision", "actuation", "sim", "speaker", "display", "lsl", "run", "launcher",
      "operator", "lab"),
     "per event", CONTROL,
-    "`phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, `mode`, "
-    "`option`, `text`, `session`",
+    "`options`, `phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, "
+    "`mode`, `option` (O, by name), `text`, `session`",
 )
 EXPERIMENT_RESULT = Topic(
     "experiment/result", m.TrialResult, ("experiment",), ("display", "lsl", "run", "launcher"),
     "per trial", RELIABLE,
-    "`trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, `violations`, "
-    "`score`, `session`, `interrupted`",
+    "`options`, `trial`, `mode`, `option`, `robot`, `human` (by name), `outcome`, "
+    "`switches`, `violations`, `score`, `session`, `interrupted`",
 )
 EXPERIMENT_OPERATOR = Topic(
     "experiment/operator", m.OperatorCmd, ("operator",), ("experiment",), "on demand", CONTROL,
@@ -195,54 +198,11 @@ SAFETY_LATCH = Topic(
     "starts is engaged if any is",
     queried_only=True,
 )
-# A table of three or more boxes (docs/multi-option.md): keys of their own, schema version 2,
-# so the paper's two-option keys and payloads stay as they are.
-OPTIONS_LAYOUT = Topic(
-    "options/layout", m.OptionsLayoutMsg, ("vision", "sim"),
-    ("decision", "actuation", "experiment"), "1 Hz", RELIABLE,
-    "`names` of the options, `boxes` [x1,y1,x2,y2] one per option (vision: found by colour), "
-    "`commit_y`",
-)
-OPTIONS_Z_H = Topic(
-    "options/z_h", m.OptionVector, ("decision",), ("experiment",), "per pose", STREAM,
-    "`values` ẑ_h, one per option, `src_seq`",
-)
-OPTIONS_Z_R = Topic(
-    "options/z_r", m.OptionVector, ("decision",), ("actuation",), "per pose", STREAM,
-    "`values` z_r, one per option, `src_seq`",
-)
-OPTIONS_B_R = Topic(
-    "options/b_r", m.OptionVector, ("decision",), (), "per pose", STREAM,
-    "`values` b_r, one per option, `src_seq`",
-)
-OPTIONS_ARM_STATE = Topic(
-    "options/arm_state", m.OptionsArmState, ("actuation",), ("sim", "experiment"), "50 Hz",
-    STREAM,
-    "`n_options`, `ee` [x,y], `phase`, `moving`, `target` (a box), `safe_stop`, "
-    "`safety_reason`, `trial`",
-)
-OPTIONS_PRESS = Topic(
-    "options/press", m.OptionsPress, ("actuation",), ("experiment", "sim"), "once per trial",
-    CONTROL, "`n_options`, `option` (the box the robot pressed), `trial`",
-)
-OPTIONS_TRIAL = Topic(
-    "options/trial", m.OptionsTrialEvent, ("experiment",),
-    ("decision", "actuation", "sim", "speaker", "display", "lsl", "run", "operator", "lab"),
-    "per event",
-    CONTROL, "`n_options`, `phase`, `trial`, `mode`, `option` (O, a box), `text`, `session`",
-)
-OPTIONS_RESULT = Topic(
-    "options/result", m.OptionsResult, ("experiment",), ("display", "lsl", "run"), "per trial",
-    RELIABLE,
-    "`n_options`, `trial`, `mode`, `option`, `robot`, `human`, `outcome`, `switches`, "
-    "`violations`, `score`, `session`, `interrupted`",
-)
 _TOPICS: tuple[Topic[m.Message], ...] = (
     VISION_HAND, VISION_LAYOUT, VISION_FRAME, SIM_CAMERA, DECISION_Z_H, DECISION_Z_R, DECISION_B_R,
     ACTUATION_CMD, ACTUATION_STATE, ACTUATION_PRESS, EYES_CMD, EYES_STATE, EXPERIMENT_TRIAL,
     EXPERIMENT_RESULT, EXPERIMENT_OPERATOR, SPEAKER_PLAYED, RIG_STATUS, RIG_EVENT, SAFETY_ESTOP,
-    SAFETY_RELEASE, SAFETY_LATCH, OPTIONS_LAYOUT, OPTIONS_Z_H, OPTIONS_Z_R, OPTIONS_B_R,
-    OPTIONS_ARM_STATE, OPTIONS_PRESS, OPTIONS_TRIAL, OPTIONS_RESULT,
+    SAFETY_RELEASE, SAFETY_LATCH,
 )
 TOPICS: dict[str, Topic[m.Message]] = {t.name: t for t in _TOPICS}
 

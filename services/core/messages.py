@@ -10,20 +10,33 @@ version, missing or unknown fields, types (a bool is not a number), ranges (ever
 one, so NaN and ±inf never pass), lengths, and each message's own cross-field rules — and raises
 one `MessageError` whose text names the field, so a service can log one line and carry on.
 The checks run in msgspec's compiled decoder: a 21-landmark hand pose decodes in ~1.5 µs.
+
+One schema for any number of options (version 3). A message about options carries them: the
+table (`Layout`) and the opinions (`Opinions`: ẑ_h, z_r, b_r) carry the option set and one box
+or value per option, the protocol's events and results the set and O by name, the arm's state,
+commands and presses the box by name. The paper's study is the two-option case: options
+("red", "blue") and the paper's signed opinion z as the vector (z, -z) (docs/multi-option.md,
+"option_vector"), so `Opinions.signed` gives it back exactly. A receiver checks a message's
+options against its own (`check_options`, `index_in`): a service started for another option
+set is refused in one line.
+
+Earlier schemas: version 1 (the paper's keys: scalars and colours) is read by
+`services.core.schema1` (recordings made before this schema replay and convert); version 2 (the
+retired `options/*` keys) is refused.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, ClassVar, Literal, TypeAlias, TypedDict, TypeVar
+from typing import Annotated, Any, ClassVar, Literal, TypeAlias, TypeVar
 
 import msgspec
 import numpy as np
 
-from services.model.geometry import Box, CommitLine, OptionsLayout, TableLayout
+from services.model.geometry import COLOURS, Box, CommitLine, OptionsLayout, TableLayout
 from services.model.schedule import MAX_OPTIONS
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 3  # 1: the paper's two options (scalars, colours); 2: `options/*`; 3: one schema
 MAX_PAYLOAD_BYTES = 64 * 1024  # no message of ours comes near this; larger is garbage
 MAX_LANDMARKS = 64
 MAX_BLOB_BYTES = 256 * 1024  # a `bytes` field (the monitor's JPEG frame); larger is garbage
@@ -31,7 +44,7 @@ MAX_TEXT = 512
 
 
 def schema_version(cls: type[Any]) -> int:
-    """The schema version a message class is written in: its `v` tag (1, or 2 on `options/*`)."""
+    """The schema version a message class is written in: its `v` tag."""
     tag = cls.__struct_config__.tag
     assert isinstance(tag, int)
     return tag
@@ -46,7 +59,11 @@ class MessageError(ValueError):
 Counter: TypeAlias = Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)]
 Text: TypeAlias = Annotated[str, msgspec.Meta(max_length=MAX_TEXT)]
 Trial: TypeAlias = Annotated[int, msgspec.Meta(ge=0, le=10_000)]
-Colour: TypeAlias = Literal["red", "blue"]
+# an option's name (the paper's: red, blue), and an option set: its names in box order
+OptionName: TypeAlias = Annotated[str, msgspec.Meta(min_length=1, max_length=32)]
+OptionSet: TypeAlias = Annotated[
+    tuple[OptionName, ...], msgspec.Meta(min_length=2, max_length=MAX_OPTIONS)
+]
 # normalised image coordinates, with a margin for off-frame hands
 Coord: TypeAlias = Annotated[float, msgspec.Meta(ge=-0.5, le=1.5)]
 Vec2: TypeAlias = tuple[Coord, Coord]
@@ -56,6 +73,9 @@ Score: TypeAlias = Annotated[int, msgspec.Meta(ge=-100, le=100)]
 Direction: TypeAlias = Annotated[int, msgspec.Meta(ge=-1, le=1)]
 # ẑ_h, z_r, b_r: finite, far beyond any value the model reaches
 Opinion: TypeAlias = Annotated[float, msgspec.Meta(ge=-1e6, le=1e6)]
+Vector: TypeAlias = Annotated[
+    tuple[Opinion, ...], msgspec.Meta(min_length=2, max_length=MAX_OPTIONS)
+]
 Radians: TypeAlias = Annotated[float, msgspec.Meta(ge=-math.pi, le=math.pi)]
 # the arm's end effector, table coordinates with a margin
 Table: TypeAlias = Annotated[float, msgspec.Meta(ge=-1, le=2)]
@@ -105,18 +125,33 @@ class HandPose(Message, frozen=True, kw_only=True):
 
 
 class Layout(Message, frozen=True, kw_only=True):
-    """The buzzer boxes [x1, y1, x2, y2] and the commit line y, normalised coordinates."""
+    """The table: the option set, one box [x1, y1, x2, y2] per option, the commit line y."""
 
     KIND: ClassVar[str] = "layout"
-    red: Box4 = (0.0, 0.0, 0.0, 0.0)
-    blue: Box4 = (0.0, 0.0, 0.0, 0.0)
+    options: OptionSet
+    boxes: Annotated[tuple[Box4, ...], msgspec.Meta(min_length=2, max_length=MAX_OPTIONS)]
     commit_y: Unit = 0.45
 
     def __post_init__(self) -> None:
-        for name in ("red", "blue"):
-            x1, y1, x2, y2 = getattr(self, name)
+        _distinct(self.KIND, self.options)
+        if len(self.options) != len(self.boxes):
+            raise MessageError(
+                f"layout: {len(self.options)} options but {len(self.boxes)} boxes"
+            )
+        for name, (x1, y1, x2, y2) in zip(self.options, self.boxes, strict=True):
             if x1 > x2 or y1 > y2:
-                raise MessageError(f"layout: {name} box needs x1 <= x2 and y1 <= y2")
+                raise MessageError(f"layout: the {name} box needs x1 <= x2 and y1 <= y2")
+
+    def table(self) -> OptionsLayout:
+        """The geometry it carries (box j is option j's)."""
+        return OptionsLayout(tuple(Box(*b) for b in self.boxes), CommitLine(y=self.commit_y))
+
+    def paper_table(self) -> TableLayout:
+        """The two-option table as the paper's kernel reads it: option 0 red, option 1 blue."""
+        if len(self.boxes) != 2:
+            raise MessageError(f"layout: {len(self.boxes)} boxes, not the paper's two")
+        red, blue = (Box(*b) for b in self.boxes)
+        return TableLayout(red=red, blue=blue, commit=CommitLine(y=self.commit_y))
 
 
 class VisionFrame(Message, frozen=True, kw_only=True):
@@ -137,38 +172,67 @@ class VisionFrame(Message, frozen=True, kw_only=True):
             raise MessageError(f"frame: jpeg of {len(self.jpeg)} bytes exceeds {MAX_BLOB_BYTES}")
 
 
-def layout_from_msg(msg: Layout) -> TableLayout:
-    """The table geometry carried by a `vision/layout` message."""
-    return TableLayout(red=Box(*msg.red), blue=Box(*msg.blue), commit=CommitLine(y=msg.commit_y))
-
-
-def layout_fields(layout: TableLayout) -> dict[str, Any]:
-    """The fields of a `vision/layout` message for a geometry."""
-    r, b = layout.red, layout.blue
+def layout_fields(
+    options: tuple[str, ...], layout: OptionsLayout | TableLayout
+) -> dict[str, Any]:
+    """The fields of a `vision/layout` message for a geometry and its option names."""
+    table = OptionsLayout.from_table(layout) if isinstance(layout, TableLayout) else layout
+    if len(table.boxes) != len(options):
+        raise ValueError(f"{len(options)} option names for {len(table.boxes)} boxes")
     return {
-        "red": (r.x1, r.y1, r.x2, r.y2),
-        "blue": (b.x1, b.y1, b.x2, b.y2),
-        "commit_y": layout.commit.y,
+        "options": tuple(options),
+        "boxes": tuple((b.x1, b.y1, b.x2, b.y2) for b in table.boxes),
+        "commit_y": table.commit.y,
     }
 
 
 # --- decision ---------------------------------------------------------------------------------
 
 
-class Scalar(Message, frozen=True, kw_only=True):
-    """One opinion-dynamics quantity (ẑ_h, z_r or b_r) computed from hand pose `src_seq`."""
+class Opinions(Message, frozen=True, kw_only=True):
+    """One opinion-dynamics quantity (ẑ_h, z_r or b_r) over the options, from pose `src_seq`.
 
-    KIND: ClassVar[str] = "scalar"
-    value: Opinion = 0.0
+    `values[j]` is option j's; they sum to zero (the model's subspace). With the paper's two
+    options the vector is (z, -z) for the paper's signed z: `signed` is z, exactly.
+    """
+
+    KIND: ClassVar[str] = "opinions"
+    options: OptionSet
+    values: Vector
     src_seq: Counter = 0
 
+    def __post_init__(self) -> None:
+        if len(self.values) != len(self.options):
+            raise MessageError(
+                f"{self.KIND}: {len(self.values)} values for {len(self.options)} options"
+            )
 
-class Observed(Scalar, frozen=True, kw_only=True):
+    @property
+    def signed(self) -> float:
+        """The paper's signed opinion of a two-option message (z > 0: option 0, red)."""
+        if len(self.values) != 2:
+            raise MessageError(f"{self.KIND}: {len(self.values)} options have no signed opinion")
+        return self.values[0]
+
+    def vector(self, options: tuple[str, ...]) -> np.ndarray:
+        """The values as an array, refused (one line) when they are not over `options`."""
+        check_options(self, options)
+        return np.array(self.values, dtype=float)
+
+
+class Observed(Opinions, frozen=True, kw_only=True):
     """ẑ_h with what it was read from: θ (rad) and d (normalised) when this pose set it."""
 
     KIND: ClassVar[str] = "observed"
     theta: Annotated[float, msgspec.Meta(ge=0.0, le=math.pi)] | None = None
     distance: Annotated[float, msgspec.Meta(ge=0.0, le=5.0)] | None = None
+
+
+def signed_fields(z: float, options: tuple[str, ...] = COLOURS) -> dict[str, Any]:
+    """The `options` and `values` of an `Opinions` message for the paper's signed opinion z."""
+    if len(options) != 2:
+        raise ValueError(f"a signed opinion is over two options, not {len(options)}")
+    return {"options": tuple(options), "values": (z, -z)}
 
 
 # --- actuation --------------------------------------------------------------------------------
@@ -181,8 +245,8 @@ class ArmCommandMsg(Message, frozen=True, kw_only=True):
 
     KIND: ClassVar[str] = "arm_cmd"
     action: ArmAction = "idle"
-    direction: Direction = 0
-    target: Colour | None = None
+    direction: Direction = 0  # two options: toward option 0 (+1) or 1 (-1); else 0
+    target: OptionName | None = None
     reason: Text = ""
 
 
@@ -193,7 +257,7 @@ class ArmStateMsg(Message, frozen=True, kw_only=True):
     ee: tuple[Table, Table] = (0.5, 0.1)
     phase: Text = "idle"
     moving: bool = False
-    target: Colour | None = None
+    target: OptionName | None = None  # the box it heads for or presses, by option name
     safe_stop: bool = False
     safety_reason: Text = ""
     fault: Text = ""
@@ -206,7 +270,7 @@ class PressMsg(Message, frozen=True, kw_only=True):
     """A buzzer press, by the robot (actuation/press) or the human (experiment sees it)."""
 
     KIND: ClassVar[str] = "press"
-    colour: Colour = "red"
+    option: OptionName
     trial: Trial = 0
 
 
@@ -254,29 +318,37 @@ class TrialEvent(Message, frozen=True, kw_only=True):
     """A step of the protocol: setup (mode, O, gaze), countdown, go, end, result, abort."""
 
     KIND: ClassVar[str] = "trial"
+    options: OptionSet
     phase: TrialPhase = "setup"
     trial: Trial = 0
     mode: Mode = "dissensus"
-    option: Colour | None = None
+    option: OptionName | None = None
     text: Text = ""
     session: Text = ""
+
+    def __post_init__(self) -> None:
+        _named(self, option=self.option)
 
 
 class TrialResult(Message, frozen=True, kw_only=True):
     """The classified outcome of one trial."""
 
     KIND: ClassVar[str] = "result"
+    options: OptionSet
     trial: Trial = 0
     mode: Mode = "dissensus"
-    option: Colour | None = None
-    robot: Colour | None = None
-    human: Colour | None = None
+    option: OptionName | None = None
+    robot: OptionName | None = None
+    human: OptionName | None = None
     outcome: Literal["C", "CH", "D", "DH"] | None = None
     switches: Trial = 0
     violations: Trial = 0
     score: Score = 0
     session: Text = ""
     interrupted: bool = False  # broken by a safe stop or e-stop and not repeated: not scored
+
+    def __post_init__(self) -> None:
+        _named(self, option=self.option, robot=self.robot, human=self.human)
 
 
 # --- speaker ----------------------------------------------------------------------------------
@@ -375,6 +447,45 @@ class RigEvent(Message, frozen=True, kw_only=True):
     text: Text = ""
 
 
+# --- options: every receiver checks a message's options against its own -----------------------
+
+
+def _distinct(kind: str, options: tuple[str, ...]) -> None:
+    if len(set(options)) != len(options):
+        raise MessageError(f"{kind}: options must be distinct names, got {list(options)}")
+
+
+def _named(msg: TrialEvent | TrialResult, **names: str | None) -> None:
+    """The message's options are distinct and every option it names is one of them."""
+    _distinct(msg.KIND, msg.options)
+    for field, name in names.items():
+        if name is not None and name not in msg.options:
+            raise MessageError(
+                f"{msg.KIND}: {field} {name!r} is none of its options {list(msg.options)}"
+            )
+
+
+def check_options(msg: Layout | Opinions | TrialEvent | TrialResult,
+                  options: tuple[str, ...]) -> None:
+    """Refuse (MessageError, one line) a message about another option set than ours."""
+    if tuple(msg.options) != tuple(options):
+        raise MessageError(
+            f"{msg.KIND}: for options {','.join(msg.options)} but this rig runs "
+            f"{','.join(options)}; start every service with the same --options (or params file)"
+        )
+
+
+def index_in(options: tuple[str, ...], name: str, kind: str = "message") -> int:
+    """The box index of an option name (MessageError, one line, if it is none of ours)."""
+    try:
+        return options.index(name)
+    except ValueError:
+        raise MessageError(
+            f"{kind}: option {name!r} is none of this rig's {','.join(options)}; start every "
+            "service with the same --options (or params file)"
+        ) from None
+
+
 # --- codec ------------------------------------------------------------------------------------
 
 class _NoVersion(Message, frozen=True, kw_only=True, tag=-1):
@@ -420,190 +531,3 @@ def decode(cls: type[M], payload: bytes) -> M:
     if type(msg) is not cls:
         raise MessageError(f"{name}: schema version is not {schema_version(cls)}")
     return msg
-
-
-# --- Schema 2: a table of N options (`options/*`) ----------------------------------------------
-#
-# The N_o-option messages: vectors over the options, on topics of their own, schema version 2.
-#
-# A table of three or more boxes talks on `options/*` keys (`services.core.contract`) with these
-# messages, which carry one value per option. They are schema version 2 (`v` = 2): a payload of
-# version 1 — the paper's messages, or a service of before the option set — is refused with
-# "schema version is not 2", and one of version 2 on a paper key with "… is not 1". The paper's
-# two-option topics and messages are unchanged, byte for byte, so the study's recordings,
-# replays and stores are too (docs/multi-option.md says why this is not one message type for
-# both).
-#
-# Every vector's length is checked twice: against the message's own `n_options` when it has one
-# (a message that disagrees with itself never decodes), and against the receiver's option count
-# by `values_for` (a service started with another `--options` is refused with one line).
-#
-# One module holds both schema versions; the next step of the project puts the options into the
-# paper's keys' messages (one key space), and each service's key-space seam is where it changes.
-
-OPTIONS_SCHEMA_VERSION = 2
-OptionCount: TypeAlias = Annotated[int, msgspec.Meta(ge=2, le=MAX_OPTIONS)]
-OptionIndex: TypeAlias = Annotated[int, msgspec.Meta(ge=0, le=MAX_OPTIONS - 1)]
-Vector: TypeAlias = Annotated[
-    tuple[Opinion, ...], msgspec.Meta(min_length=2, max_length=MAX_OPTIONS)
-]
-OptionName: TypeAlias = Annotated[str, msgspec.Meta(min_length=1, max_length=32)]
-
-
-class OptionsMessage(
-    Message, frozen=True, kw_only=True, tag=OPTIONS_SCHEMA_VERSION
-):
-    """Base of the N_o-option messages: `v` = 2, `seq`, `t_ns`."""
-
-    KIND: ClassVar[str] = "options"
-
-
-class OptionVector(OptionsMessage, frozen=True, kw_only=True):
-    """One quantity over the options (ẑ_h, z_r or b_r) computed from hand pose `src_seq`."""
-
-    KIND: ClassVar[str] = "option_vector"
-    values: Vector = (0.0, 0.0)
-    src_seq: Counter = 0
-
-
-def values_for(msg: OptionVector, n_options: int) -> np.ndarray:
-    """The vector as an array, refused with one line when its length is not `n_options`."""
-    if len(msg.values) != n_options:
-        raise MessageError(
-            f"{msg.KIND}: {len(msg.values)} values but this rig runs {n_options} options; "
-            "start every service with the same --options (or params file)"
-        )
-    return np.array(msg.values, dtype=float)
-
-
-def check_count(msg: _WithOptionCount, n_options: int) -> None:
-    """Refuse (MessageError, one line) a message for another number of options than ours."""
-    if msg.n_options != n_options:
-        raise MessageError(
-            f"{msg.KIND}: for {msg.n_options} options but this rig runs {n_options}; start "
-            "every service with the same --options (or params file)"
-        )
-
-
-def same_count(layout: OptionsLayout, n_options: int) -> OptionsLayout:
-    """The layout, refused (MessageError, one line) when it has another number of boxes."""
-    if layout.n_options != n_options:
-        raise MessageError(
-            f"options_layout: {layout.n_options} boxes but this rig runs {n_options} options; "
-            "start every service with the same --options (or params file)"
-        )
-    return layout
-
-
-class OptionsLayoutMsg(OptionsMessage, frozen=True, kw_only=True):
-    """The table: option names, one box [x1, y1, x2, y2] per option, the commit line y."""
-
-    KIND: ClassVar[str] = "options_layout"
-    names: Annotated[tuple[OptionName, ...], msgspec.Meta(min_length=2, max_length=MAX_OPTIONS)]
-    boxes: Annotated[tuple[Box4, ...], msgspec.Meta(min_length=2, max_length=MAX_OPTIONS)]
-    commit_y: Unit = 0.45
-
-    def __post_init__(self) -> None:
-        if len(self.names) != len(self.boxes):
-            raise MessageError(
-                f"options_layout: {len(self.names)} names but {len(self.boxes)} boxes"
-            )
-        for j, (x1, y1, x2, y2) in enumerate(self.boxes):
-            if x1 > x2 or y1 > y2:
-                raise MessageError(f"options_layout: box {j} needs x1 <= x2 and y1 <= y2")
-
-    def layout(self) -> OptionsLayout:
-        """The geometry it carries."""
-        return OptionsLayout(tuple(Box(*b) for b in self.boxes), CommitLine(y=self.commit_y))
-
-
-class LayoutFields(TypedDict):
-    """The fields of an `options/layout` message."""
-
-    names: tuple[str, ...]
-    boxes: tuple[tuple[float, float, float, float], ...]
-    commit_y: float
-
-
-def layout_message_fields(names: tuple[str, ...], layout: OptionsLayout) -> LayoutFields:
-    """The fields of an `options/layout` message for a geometry and its option names."""
-    return {
-        "names": names,
-        "boxes": tuple((b.x1, b.y1, b.x2, b.y2) for b in layout.boxes),
-        "commit_y": layout.commit.y,
-    }
-
-
-class _WithOptionCount(OptionsMessage, frozen=True, kw_only=True):
-    """A message naming options by index, with the count they index into."""
-
-    n_options: OptionCount = 3
-
-    def _check(self, **options: int | None) -> None:
-        for name, value in options.items():
-            if value is not None and value >= self.n_options:
-                raise MessageError(
-                    f"{self.KIND}: {name} {value} is not one of the {self.n_options} options"
-                )
-
-
-class OptionsArmState(_WithOptionCount, frozen=True, kw_only=True):
-    """The N_o-box arm's state: end effector, phase, the box it heads for, safety."""
-
-    KIND: ClassVar[str] = "options_arm_state"
-    ee: tuple[Table, Table] = (0.5, 0.1)
-    phase: Text = "idle"
-    moving: bool = False
-    target: OptionIndex | None = None
-    safe_stop: bool = False
-    safety_reason: Text = ""
-    trial: Trial = 0
-
-    def __post_init__(self) -> None:
-        self._check(target=self.target)
-
-
-class OptionsPress(_WithOptionCount, frozen=True, kw_only=True):
-    """The robot's press of box `option` in trial `trial`."""
-
-    KIND: ClassVar[str] = "options_press"
-    option: OptionIndex = 0
-    trial: Trial = 0
-
-    def __post_init__(self) -> None:
-        self._check(option=self.option)
-
-
-class OptionsTrialEvent(_WithOptionCount, frozen=True, kw_only=True):
-    """A step of the protocol over N_o options (`messages.TrialEvent` with O an index)."""
-
-    KIND: ClassVar[str] = "options_trial"
-    phase: TrialPhase = "setup"
-    trial: Trial = 0
-    mode: Mode = "dissensus"
-    option: OptionIndex | None = None
-    text: Text = ""
-    session: Text = ""
-
-    def __post_init__(self) -> None:
-        self._check(option=self.option)
-
-
-class OptionsResult(_WithOptionCount, frozen=True, kw_only=True):
-    """The classified outcome of one N_o-option trial (options as indices)."""
-
-    KIND: ClassVar[str] = "options_result"
-    trial: Trial = 0
-    mode: Mode = "dissensus"
-    option: OptionIndex | None = None
-    robot: OptionIndex | None = None
-    human: OptionIndex | None = None
-    outcome: Literal["C", "CH", "D", "DH"] | None = None
-    switches: Trial = 0
-    violations: Trial = 0
-    score: Score = 0
-    session: Text = ""
-    interrupted: bool = False  # broken by safe stops and not repeated: stored, never scored
-
-    def __post_init__(self) -> None:
-        self._check(option=self.option, robot=self.robot, human=self.human)

@@ -14,9 +14,9 @@ participant may see is made here, where it is tested:
 
 Nothing that reveals the condition or the robot's opinion is shown: not the mode, the option O,
 the gaze level (a setup's text), the robot's press or the outcome label — only the countdown,
-go and points. The total is the sum of the scores of this session's trials 1..n; a display that
-missed a result (started late, a resumed session) shows the trial's points without a total
-rather than a wrong one.
+go and points, the same for any number of options. The total is the sum of the scores of this
+session's trials 1..n; a display that missed a result (started late, a resumed session) shows
+the trial's points without a total rather than a wrong one.
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ class DisplayState:
             return self._show(WAIT)
         return False  # back: the next event says what to show
 
-    def on_trial(self, ev: m.TrialEvent | m.OptionsTrialEvent) -> bool:
+    def on_trial(self, ev: m.TrialEvent) -> bool:
         """A protocol event; True if the screen changed. Refuses what it cannot show honestly."""
         if ev.phase in ("setup", "countdown", "go", "end") and ev.trial < 1:
             raise ValueError(f"a {ev.phase} event for trial {ev.trial}: trials count from 1")
@@ -113,7 +113,7 @@ class DisplayState:
         # end (the result follows), interrupted, abort, result: nothing to celebrate yet
         return self._show(WAIT)
 
-    def on_result(self, res: m.TrialResult | m.OptionsResult) -> bool:
+    def on_result(self, res: m.TrialResult) -> bool:
         """A trial's result; True if the screen changed."""
         if res.trial < 1:
             raise ValueError(f"a result for trial {res.trial}: trials count from 1")

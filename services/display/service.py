@@ -1,7 +1,7 @@
 """`nod display`: the participant's screen — countdown, go and points — as a web page on the rig.
 
-It follows the conductor's `experiment/trial` and `experiment/result` events (`options/trial`
-and `options/result` on a table of three or more boxes: the screen shows the same) and its
+It follows the conductor's `experiment/trial` and `experiment/result` events (one key space,
+schema 3: the same for any number of options, and nothing shown names one) and its
 liveliness (`services.display.screen` decides what may be shown) and serves the page and its
 Server-Sent Events stream (`services.display.web`) on `--http HOST:PORT`, for a browser in
 kiosk mode:
@@ -40,9 +40,6 @@ class DisplayService:
         self.feed = feed
         node.subscribe("experiment/trial", self.on_trial)
         node.subscribe("experiment/result", self.on_result)
-        # A table of N boxes: the same countdown, go and points (nothing here names an option)
-        node.subscribe("options/trial", self.on_trial)
-        node.subscribe("options/result", self.on_result)
         node.watch_liveliness("experiment", self.on_conductor)
 
     def _changed(self, changed: bool) -> None:
@@ -51,11 +48,11 @@ class DisplayService:
             log.info("display: %s %r %r", screen.kind, screen.big, screen.small)
             self.feed.publish(screen.as_json(self.state.version))
 
-    def on_trial(self, msg: m.TrialEvent | m.OptionsTrialEvent) -> None:
+    def on_trial(self, msg: m.TrialEvent) -> None:
         """A protocol event (ValueError: refused and counted by the node)."""
         self._changed(self.state.on_trial(msg))
 
-    def on_result(self, msg: m.TrialResult | m.OptionsResult) -> None:
+    def on_result(self, msg: m.TrialResult) -> None:
         """A trial's result."""
         self._changed(self.state.on_result(msg))
 

@@ -8,12 +8,12 @@ judge it (the key space's judge, `services.model.judge`), store it with its samp
 cues as played (`nod speaker`, `services.experiment.cues`) in one SQLite transaction, and
 publish the result. `nod experiment` (`services.experiment.service`) is its command line.
 
-One conductor for every option set: what differs by the number of options — the keys and
-message types (the paper's schema 1 or the `options/*` keys of schema 2), the judge, O as a
-colour or a box index — is the session's key space (`services.experiment.keyspace`), chosen by
-the option count. Everything else here (the operator gate, the cues as played, the console,
-the samples, the recorder's link, resume, the rig watch, interruptions, the clicks prompt) is
-written once, in option names.
+One conductor for every option set, on one key space (schema 3, options by name): what
+differs by the number of options — the trials' source, the judge, O as a colour or a box index
+— is the session's form (`services.experiment.keyspace`), chosen by the option count.
+Everything else here (the operator gate, the cues as played, the console, the samples, the
+recorder's link, resume, the rig watch, interruptions, the clicks prompt) is written once, in
+option names.
 """
 
 from __future__ import annotations

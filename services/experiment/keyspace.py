@@ -1,20 +1,21 @@
-"""The one seam between the conductor and its number of options: the session's key space.
+"""The one seam between the conductor and its number of options: the session's form.
 
-`services.experiment.conductor.Conductor` is written once for any option set; what a session
-says differently by its number of options lives here, chosen by the option count
-(`key_space`):
+`services.experiment.conductor.Conductor` is written once for any option set, on one key space
+(schema 3: `experiment/trial`, `experiment/result`, `decision/z_h|z_r|b_r`, `actuation/state`,
+`actuation/press`, `vision/layout`; each message carries or names its options, and each one
+heard is checked against the session's option set). What a session does differently by its
+number of options lives here, chosen by the option count (`key_space`):
 
-- `PaperKeys`, the paper's study (two options, red and blue): the schema-1 keys
-  (`experiment/trial`, `experiment/result`, `decision/z_h|z_r|b_r`, `actuation/state`,
-  `actuation/press`, `vision/layout`), O a colour, ẑ_h a number, `TrialJudge`; its trials are
-  the `TrialSpec`s of the configuration, which carry mode and O.
-- `OptionKeys`, a table of three or more boxes: the `options/*` keys of schema 2
-  (`services.core.messages`, schema 2), O a box index, ẑ_h a vector, `OptionsTrialJudge`; the
-  clock runs `OptionsSchedule.timing_specs` and each trial's mode and O are the schedule's.
+- `PaperKeys`, the paper's study (two options, red and blue): its trials are the `TrialSpec`s
+  of the configuration, which carry mode and O; the judge is `TrialJudge` (the two-option
+  kernel: O a colour, ẑ_h the signed number of the vector (z, -z)).
+- `OptionKeys`, a table of three or more boxes: the clock runs `OptionsSchedule.timing_specs`
+  and each trial's mode and O are the schedule's; the judge is `OptionsTrialJudge` (O a box
+  index, ẑ_h a vector).
 
-The conductor speaks in option *names* (what the store keeps, the console shows, the analysis
-reads); a key space turns a name into what its messages carry (`trial_event`, `result`) and a
-box of its messages or its judge back into a name (`name`). Readings come to the conductor in
+The conductor speaks in option *names* (what the messages carry, the store keeps, the console
+shows, the analysis reads); a session's form turns a box of its judge into a name (`name`) and
+a name heard on the wire into its judge's box (`box`). Readings come to the conductor in
 neutral form (`Output`, `ArmReading`, a press's trial and box), so the gate, the cues as
 played, the samples, the recorder, resume, the rig watch and the console are one code.
 
@@ -38,7 +39,6 @@ from typing import Any, Protocol, cast
 import numpy as np
 
 from services.core import messages as m
-from services.core.messages import check_count, same_count, values_for
 from services.core.node import Node, TopicPublisher
 from services.experiment.presses import Box as Wire  # an option on the wire: colour or index
 from services.model.geometry import COLOURS, Colour, OptionsLayout, TableLayout
@@ -62,9 +62,10 @@ class Output:
     distance: float | None = None
 
     @classmethod
-    def of_scalar(cls, msg: m.Scalar) -> Output:
-        """The paper's scalar output (an `Observed` ẑ_h carries θ and the distance too)."""
-        return cls(msg.t_ns, msg.src_seq, msg.value, msg.value,
+    def of_signed(cls, msg: m.Opinions) -> Output:
+        """The paper's signed output (an `Observed` ẑ_h carries θ and the distance too)."""
+        z = msg.signed
+        return cls(msg.t_ns, msg.src_seq, z, z,
                    getattr(msg, "theta", None), getattr(msg, "distance", None))
 
 
@@ -124,25 +125,49 @@ class KeySpace(ABC):
     def judge(self, layout: Any, mode: Mode) -> Judge[Any, Any, Any]:
         """The judge of a trial on `layout`, from its "go"."""
 
-    @abstractmethod
     def publishers(self, node: Node) -> tuple[TopicPublisher, TopicPublisher]:
-        """The session's trial-event and result keys.
+        """`experiment/trial` and `experiment/result`."""
+        return node.publisher("experiment/trial"), node.publisher("experiment/result")
 
-        Each implementation names its keys in its `publisher` calls: the contract test reads
-        the keys a service publishes from its code.
-        """
+    def wire(self, node: Node, listener: Listener) -> None:
+        """`vision/layout`, `decision/*`, `actuation/state|press`, each checked for our options."""
+
+        def layout(msg: m.Layout) -> None:
+            m.check_options(msg, self.names)
+            listener.on_layout(self.table(msg))
+
+        def output(name: str, msg: m.Opinions) -> None:
+            m.check_options(msg, self.names)
+            listener.on_output(name, self.output(msg))
+
+        def arm(msg: m.ArmStateMsg) -> None:
+            target = None if msg.target is None else self.box(msg.target)
+            listener.on_arm(ArmReading(msg.trial, msg.phase, target, msg.ee, msg.safe_stop,
+                                       msg.safety_reason))
+
+        node.subscribe("vision/layout", layout)
+        node.subscribe("decision/z_h", functools.partial(output, "z_h"))
+        node.subscribe("decision/z_r", functools.partial(output, "z_r"))
+        node.subscribe("decision/b_r", functools.partial(output, "b_r"))
+        node.subscribe("actuation/state", arm)
+        node.subscribe("actuation/press",
+                       lambda msg: listener.on_press(msg.trial, self.box(msg.option)))
 
     @abstractmethod
-    def wire(self, node: Node, listener: Listener) -> None:
-        """Subscribe the schema's decision, arm, press and layout keys for `listener`."""
+    def table(self, msg: m.Layout) -> Any:
+        """The table of a layout message as the judge reads it."""
+
+    @abstractmethod
+    def output(self, msg: m.Opinions) -> Output:
+        """A decision output as the judge reads it."""
 
     @abstractmethod
     def name(self, option: Wire | None) -> str | None:
-        """The name of an option as the messages and the judge carry it (None stays None)."""
+        """The name of an option as the judge carries it (None stays None)."""
 
     @abstractmethod
-    def on_wire(self, name: str | None) -> Wire | None:
-        """An option name as the schema's messages carry it (None stays None)."""
+    def box(self, name: str) -> Wire:
+        """An option name heard on the wire as the judge's box (MessageError: none of ours)."""
 
     @abstractmethod
     def summary(self) -> dict[str, Any]:
@@ -161,21 +186,16 @@ class KeySpace(ABC):
         """The same session with its consensus trials' O in `order` (gazes turned toward O)."""
 
     def trial_event(self, **fields: Any) -> dict[str, Any]:
-        """The fields of a trial event (`option` by name) as the schema's message has them."""
-        if "option" in fields:
-            fields["option"] = self.on_wire(fields["option"])
-        return fields
+        """The fields of a trial event (options by name), with the session's option set."""
+        return {**fields, "options": self.names}
 
     def result(self, **fields: Any) -> dict[str, Any]:
-        """The fields of a result (options by name) as the schema's message has them."""
-        for key in ("option", "robot", "human"):
-            if key in fields:
-                fields[key] = self.on_wire(fields[key])
-        return fields
+        """The fields of a result (options by name), with the session's option set."""
+        return {**fields, "options": self.names}
 
 
 class PaperKeys(KeySpace):
-    """The paper's study: red and blue on the schema-1 keys, byte for byte as before the fold."""
+    """The paper's study: red and blue, its trials and its two-option judge."""
 
     names = COLOURS
 
@@ -199,32 +219,21 @@ class PaperKeys(KeySpace):
         """The paper's judge (two-option kernel): O a colour, ẑ_h a number."""
         return TrialJudge(self.cfg, layout, mode)
 
-    def publishers(self, node: Node) -> tuple[TopicPublisher, TopicPublisher]:
-        """`experiment/trial` and `experiment/result`."""
-        return node.publisher("experiment/trial"), node.publisher("experiment/result")
+    def table(self, msg: m.Layout) -> TableLayout:
+        """The two boxes as red and blue."""
+        return msg.paper_table()
 
-    def wire(self, node: Node, listener: Listener) -> None:
-        """The schema-1 keys: `vision/layout`, `decision/*`, `actuation/state|press`."""
-        node.subscribe("vision/layout", lambda msg: listener.on_layout(m.layout_from_msg(msg)))
-        output = functools.partial(self._output, listener)
-        node.subscribe("decision/z_h", functools.partial(output, "z_h"))
-        node.subscribe("decision/z_r", functools.partial(output, "z_r"))
-        node.subscribe("decision/b_r", functools.partial(output, "b_r"))
-        node.subscribe("actuation/state", lambda msg: listener.on_arm(ArmReading(
-            msg.trial, msg.phase, msg.target, msg.ee, msg.safe_stop, msg.safety_reason)))
-        node.subscribe("actuation/press", lambda msg: listener.on_press(msg.trial, msg.colour))
-
-    @staticmethod
-    def _output(listener: Listener, name: str, msg: m.Scalar) -> None:
-        listener.on_output(name, Output.of_scalar(msg))
+    def output(self, msg: m.Opinions) -> Output:
+        """The signed number of the vector (z, -z)."""
+        return Output.of_signed(msg)
 
     def name(self, option: Wire | None) -> str | None:
         """A colour is its own name."""
         return None if option is None else str(option)
 
-    def on_wire(self, name: str | None) -> Wire | None:
-        """A name is its colour on the paper's keys."""
-        return name
+    def box(self, name: str) -> Colour:
+        """Option 0 is red, option 1 blue."""
+        return COLOURS[m.index_in(self.names, name)]
 
     def summary(self) -> dict[str, Any]:
         """The effective configuration, as the paper's sessions have always stored it."""
@@ -248,7 +257,7 @@ class PaperKeys(KeySpace):
 
 
 class OptionKeys(KeySpace):
-    """A table of three or more boxes: the `options/*` keys of schema 2, O a box index."""
+    """A table of three or more boxes: the schedule's trials, the judge over N (O a box index)."""
 
     def __init__(self, cfg: NodConfig, schedule: OptionsSchedule) -> None:
         self.cfg = cfg
@@ -274,41 +283,21 @@ class OptionKeys(KeySpace):
         """The judge over N boxes: O a box index, ẑ_h a vector."""
         return OptionsTrialJudge(self.cfg, layout, mode)
 
-    def publishers(self, node: Node) -> tuple[TopicPublisher, TopicPublisher]:
-        """`options/trial` and `options/result`."""
-        return node.publisher("options/trial"), node.publisher("options/result")
+    def table(self, msg: m.Layout) -> OptionsLayout:
+        """The N boxes."""
+        return msg.table()
 
-    def wire(self, node: Node, listener: Listener) -> None:
-        """The `options/*` keys, each vector and box count checked against N."""
-        n = self.n_options
-
-        def output(name: str, msg: m.OptionVector) -> None:
-            listener.on_output(name, Output(msg.t_ns, msg.src_seq, values_for(msg, n), None))
-
-        def arm(msg: m.OptionsArmState) -> None:
-            check_count(msg, n)
-            listener.on_arm(ArmReading(msg.trial, msg.phase, msg.target, msg.ee, msg.safe_stop,
-                                       msg.safety_reason))
-
-        def press(msg: m.OptionsPress) -> None:
-            check_count(msg, n)
-            listener.on_press(msg.trial, msg.option)
-
-        def layout(msg: m.OptionsLayoutMsg) -> None:
-            listener.on_layout(same_count(msg.layout(), n))
-
-        node.subscribe("options/layout", layout)
-        node.subscribe("options/z_h", lambda msg: output("z_h", msg))
-        node.subscribe("options/arm_state", arm)
-        node.subscribe("options/press", press)
+    def output(self, msg: m.Opinions) -> Output:
+        """The vector (no samples' scalar: the module doc)."""
+        return Output(msg.t_ns, msg.src_seq, np.array(msg.values, dtype=float), None)
 
     def name(self, option: Wire | None) -> str | None:
         """Box j's name is the option set's j-th."""
         return None if option is None else self.names[int(option)]
 
-    def on_wire(self, name: str | None) -> Wire | None:
+    def box(self, name: str) -> int:
         """A name's box index."""
-        return None if name is None else self.schedule.index_of(name)
+        return m.index_in(self.names, name)
 
     def summary(self) -> dict[str, Any]:
         """The configuration with the option set and its schedule (the analysis reads them)."""
@@ -332,14 +321,6 @@ class OptionKeys(KeySpace):
             for t in self.schedule.trials
         )
         return OptionKeys(self.cfg, dataclasses.replace(self.schedule, trials=trials))
-
-    def trial_event(self, **fields: Any) -> dict[str, Any]:
-        """With the option count its messages carry."""
-        return {**super().trial_event(**fields), "n_options": self.n_options}
-
-    def result(self, **fields: Any) -> dict[str, Any]:
-        """With the option count its messages carry."""
-        return {**super().result(**fields), "n_options": self.n_options}
 
 
 def parse_names(text: str, names: Sequence[str], n: int) -> Order:

@@ -14,8 +14,8 @@ operator (from the rig's own output). Ctrl-C (or SIGTERM) stops every rig; the e
 the first rig's that failed.
 
 A table of N boxes (`--options N`, or a params file listing the options) is every rig's: each
-rig's `nod run` gets the same `--options` and `--params`, its conductor speaks the `options/*`
-keys, and its lines here name the options as its table does.
+rig's `nod run` gets the same `--options` and `--params`; its conductor's results are on the one
+key space (schema 3) whatever N, and its lines here name the options as the results do.
 """
 
 from __future__ import annotations
@@ -29,19 +29,17 @@ from pathlib import Path
 
 from services.core import messages as m
 from services.core.config import load_with_options
+from services.core.contract import EXPERIMENT_RESULT
 from services.core.keys import Keys
 from services.core.lifeline import nod_command
 from services.core.session import make_config, open_session
 from services.core.signals import on_stop_signal
 from services.launch.run_logs import LogWatch, run_folder
-from services.model.geometry import COLOURS
 from services.store import Store, StoreError
 from services.store.participants import first_free_ids, sessions_by_participant
 
 # What every rig takes from the run (argparse dests); the rest is its own: name, store, people.
 RIG_FLAGS = ("speed", "params", "options", "clicks", "stale_ms", "record", "render", "verbose")
-# Each rig's stored trials, on whichever key space its conductor speaks (the paper's, or N's)
-RESULTS = (("experiment/result", m.TrialResult), ("options/result", m.OptionsResult))
 OWN = ("resume", "participant", "order", "again", "monitor")  # one session's, or one screen's
 
 
@@ -107,18 +105,16 @@ class RigProgress:
 
     A rig runs its block of ids one after another, so the k-th session a rig's results name is
     its k-th participant's (a restarted conductor resumes the same session: the same person).
-    `names`: the table's options, which an N-option result names by index.
+    Results name their options, whatever the option set.
     """
 
-    def __init__(self, people: dict[str, list[str]], n_trials: int,
-                 names: tuple[str, ...] = COLOURS) -> None:
+    def __init__(self, people: dict[str, list[str]], n_trials: int) -> None:
         self.people = people
         self.n = n_trials
-        self.names = names
         self.sessions: dict[str, list[str]] = {rig: [] for rig in people}
         self.lock = threading.Lock()
 
-    def line(self, rig: str, r: m.TrialResult | m.OptionsResult) -> str:
+    def line(self, rig: str, r: m.TrialResult) -> str:
         """The line of one stored trial of `rig`."""
         with self.lock:
             seen = self.sessions[rig]
@@ -127,9 +123,7 @@ class RigProgress:
             k = seen.index(r.session)
         ids = self.people[rig]
         who = ids[k] if k < len(ids) else r.session
-        o: str | None = r.option if isinstance(r, m.TrialResult) else (
-            None if r.option is None else self.names[r.option])  # a box index, named
-        option = f" O={o}" if o else ""
+        option = f" O={r.option}" if r.option else ""
         what = "interrupted" if r.interrupted else f"{r.outcome or '-'} score {r.score}"
         return f"{rig} {who} trial {r.trial}/{self.n} [{r.mode}{option}]: {what}"
 
@@ -188,7 +182,6 @@ def run_rigs(args: argparse.Namespace, passthrough: list[str]) -> int:
     progress = RigProgress(
         dict(zip(rigs, people, strict=True)),
         len(cfg.protocol.trials if schedule is None else schedule.trials),
-        *([] if schedule is None else [schedule.names]),
     )
     subs = [sub for rig in rigs for sub in _follow(router, rig, progress)]
     try:
@@ -219,20 +212,16 @@ def run_rigs(args: argparse.Namespace, passthrough: list[str]) -> int:
 
 
 def _follow(router, rig: str, progress: RigProgress) -> list:
-    """Print a line per trial `rig` stores (subscribers, one per key space: undeclare them)."""
+    """Print a line per trial `rig` stores (a subscriber in a list: undeclare it)."""
 
-    def printer(kind: type[m.TrialResult] | type[m.OptionsResult]):
-        def on_result(sample) -> None:
-            try:
-                result = m.decode(kind, sample.payload.to_bytes())
-            except m.MessageError:
-                return  # the rig's own table names it; one bad message is no reason to stop
-            print(progress.line(rig, result), flush=True)
+    def on_result(sample) -> None:
+        try:
+            result = m.decode(EXPERIMENT_RESULT.message, sample.payload.to_bytes())
+        except m.MessageError:
+            return  # the rig's own table names it; one bad message is no reason to stop
+        print(progress.line(rig, result), flush=True)
 
-        return on_result
-
-    return [router.declare_subscriber(Keys(rig).topic(key), printer(kind))
-            for key, kind in RESULTS]
+    return [router.declare_subscriber(Keys(rig).topic(EXPERIMENT_RESULT.name), on_result)]
 
 
 def _wait(children: dict[str, subprocess.Popen], stopping: threading.Event,

@@ -2,9 +2,9 @@
 
 `nod run` and `nod up` subscribe to the conductor's trial events and results and feed them here:
 the operator sees every trial's outcome in the launcher's terminal, whoever runs the conductor.
-One view for any option set: the paper's messages name O, the robot's and the human's box
-(experiment/*), those of a table of N boxes index them (options/*); both are shown by name, in
-columns as wide as the longest name, so the paper's table is what it always was.
+One view for any option set (one key space, schema 3): the conductor's messages name O, the
+robot's and the human's box, and they are shown by name, in columns as wide as the longest name
+of the session's options, so the paper's table is what it always was.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any
 import zenoh
 
 from services.core import messages as m
-from services.core.contract import TOPICS
+from services.core.contract import EXPERIMENT_RESULT, EXPERIMENT_TRIAL
 from services.core.keys import Keys
 from services.core.node import clip
 from services.model.geometry import COLOURS
@@ -26,10 +26,6 @@ from services.model.params import NodConfig
 from services.model.schedule import OptionsSchedule
 
 log = logging.getLogger("nod.launch")
-# The conductor's events and results, on whichever key space the rig's conductor speaks
-FOLLOWED = ("experiment/trial", "experiment/result", "options/trial", "options/result")
-Event = m.TrialEvent | m.OptionsTrialEvent
-Result = m.TrialResult | m.OptionsResult
 
 
 class SessionView:
@@ -52,19 +48,16 @@ class SessionView:
         self.out = stream
         self.tty = stream.isatty()
         self.lock = threading.Lock()
-        self.results: list[Result] = []
+        self.results: list[m.TrialResult] = []
         self.finished = threading.Event()
         self._header_done = False
 
-    def name(self, option: str | int | None) -> str:
-        """An option by name ('-' for none): an index of `options/*` into the table's names."""
-        if option is None or option == "":
-            return "-"
-        if isinstance(option, str):
-            return option
-        return self.names[option] if option < len(self.names) else f"box {option}"
+    @staticmethod
+    def name(option: str | None) -> str:
+        """An option's name, '-' for none."""
+        return option or "-"
 
-    def on_trial(self, ev: Event) -> None:
+    def on_trial(self, ev: m.TrialEvent) -> None:
         """A protocol step: update the progress line."""
         with self.lock:
             if ev.phase in ("session_end", "abort"):
@@ -94,7 +87,7 @@ class SessionView:
             self.out.write(f"{text}\n")
             self.out.flush()
 
-    def on_result(self, r: Result) -> None:
+    def on_result(self, r: m.TrialResult) -> None:
         """A finished trial: a table row (one participant) or a participant's line (a study)."""
         with self.lock:
             self.results.append(r)
@@ -139,14 +132,11 @@ class SessionView:
 
             return on_sample
 
-        handlers = {"trial": self.on_trial, "result": self.on_result}
         return [
-            session.declare_subscriber(
-                keys.topic(topic),
-                decoded(TOPICS[topic].message, handlers[topic.rsplit("/", 1)[1]]),
-            )
-            for topic in FOLLOWED
-            if topic in TOPICS  # one key space left when the other is folded into it
+            session.declare_subscriber(keys.topic(EXPERIMENT_TRIAL.name),
+                                       decoded(EXPERIMENT_TRIAL.message, self.on_trial)),
+            session.declare_subscriber(keys.topic(EXPERIMENT_RESULT.name),
+                                       decoded(EXPERIMENT_RESULT.message, self.on_result)),
         ]
 
 

@@ -10,6 +10,11 @@ A service of its own rather than a flag of the monitor or the recorder: it needs
 pylsl (and liblsl), it must run on a host LabRecorder can reach, and it is the one process that
 owns LSL's clock mapping; like the display, it only listens, and the conductor never waits for
 it.
+
+One key space, schema 3, for any option set: the signals outlet opens with the paper's red and
+blue (one signed channel per quantity) and, when a trial event or an opinion over another set
+arrives, opens again with one channel per option (`samples.signal_names`); markers name options
+by name, and any set but the paper's in `options`.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from services.lsl.samples import (
     estop_marker,
     marker,
     result_marker,
+    signal_names,
     trial_marker,
 )
 
@@ -48,39 +54,51 @@ class LslService:
         self.anchor = anchor
         self.rows = SignalRows()
         self.safe_stops = SafeStops()
-        node.subscribe("vision/hand", self.rows.on_pose)
+        node.subscribe("vision/hand", self.on_pose)
         node.subscribe("decision/z_h", self._value_handler("z_h"))
         node.subscribe("decision/z_r", self._value_handler("z_r"))
         node.subscribe("decision/b_r", self._value_handler("b_r"))
         node.subscribe("experiment/trial", self.on_trial)
         node.subscribe("experiment/result", self.on_result)
-        # A table of N boxes: the same markers (O and the presses as box indices). Its opinions
-        # are vectors on `options/*`, which the signal outlet's scalar channels do not carry.
-        node.subscribe("options/trial", self.on_trial)
-        node.subscribe("options/result", self.on_result)
         node.subscribe("safety/estop", self.on_estop)
         node.subscribe("safety/release", self.on_estop)
         node.subscribe("actuation/state", self.on_arm)
         node.subscribe("eyes/state", self.on_eyes)
         node.every(REFRESH_S, self.refresh)
 
-    def _value_handler(self, name: str) -> Callable[[m.Scalar], None]:
-        def on_value(msg: m.Scalar) -> None:
+    def _use_options(self, options: tuple[str, ...]) -> None:
+        """Signals over another option set: open the outlet again with its channels."""
+        options = tuple(options)
+        if options == self.rows.options:
+            return
+        log.info("lsl: options %s: signals outlet re-opened with channels %s",
+                 ",".join(options), ",".join(signal_names(options)))
+        self.outlets.open_signals(options, self.anchor.offset_s())
+        self.rows = SignalRows(options)
+
+    def _value_handler(self, name: str) -> Callable[[m.Opinions], None]:
+        def on_value(msg: m.Opinions) -> None:
+            self._use_options(msg.options)
             row = self.rows.on_value(name, msg)
             if row is not None:
                 self.outlets.push_row(row.values, self.anchor.to_lsl(row.t_ns))
 
         return on_value
 
+    def on_pose(self, pose: m.HandPose) -> None:
+        """A hand pose, for its row (to the rows of today's option set: `_use_options`)."""
+        self.rows.on_pose(pose)
+
     def _mark(self, text: str, t_ns: int) -> None:
         self.outlets.push_marker(text, self.anchor.to_lsl(t_ns))
         log.debug("lsl: marker %s", text)
 
-    def on_trial(self, ev: m.TrialEvent | m.OptionsTrialEvent) -> None:
-        """A protocol event."""
+    def on_trial(self, ev: m.TrialEvent) -> None:
+        """A protocol event (its option set is the session's: the signals follow it)."""
+        self._use_options(ev.options)
         self._mark(trial_marker(ev), ev.t_ns)
 
-    def on_result(self, res: m.TrialResult | m.OptionsResult) -> None:
+    def on_result(self, res: m.TrialResult) -> None:
         """A trial's result."""
         self._mark(result_marker(res), res.t_ns)
 

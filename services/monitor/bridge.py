@@ -6,8 +6,8 @@ stamped with the message's own source time `t_ns` on the `time` timeline and wit
 trial on the `trial` sequence timeline. The entity tree (`ENTITIES`) and the blueprint that lays
 it out live here too, so the paths are written once:
 
-    opinion/{z_h,z_r,b_r}     time series of ẑ_h, z_r, b_r (one view)
-    options/{z_h,z_r,b_r}     over N options: a bar chart each, one bar per option
+    opinion/{z_h,z_r,b_r}     two options: time series of the signed ẑ_h, z_r, b_r (one view)
+    bars/{z_h,z_r,b_r}        three or more options: a bar chart each, one bar per option
     table/{buzzers,commit_line,hand,arm}   the table: boxes, commit line, hand centre, end effector
     table/{arm_link,gaze}     the arm as a segment from its base, the gaze as arrows from the eyes
     eyes/gaze/{yaw,pitch}     the commanded gaze (rad);  eyes/servos: the servo targets (deg)
@@ -15,11 +15,12 @@ it out live here too, so the paths are written once:
     log/{trial,result,arm,safety,services}   text log: events, countdown, outcomes, safety
     camera/frame              the vision service's low-rate JPEG frames, all at FRAME_SIZE
 
-One bridge for any option set: the paper's keys (`decision/*`, `vision/layout`, `actuation/*`,
-`experiment/*`) and those of a table of N boxes (`options/*`, options as indices) reach the same
-table, arm, trial and result lines; only the opinions differ (a scalar per key over two options,
-a vector over N, shown as bars). Boxes are drawn in their options' colours and labelled by name,
-so the paper's red and blue are the N-option case's red and blue.
+One key space, schema 3, for any option set: every message names its options, so one table,
+arm, trial and result line serves every N. Only the opinions are shown two ways: over the
+paper's two options a message's signed value (`Opinions.signed`, z > 0 toward option 0) is a
+time series as it always was; over three or more the vector is a bar chart, one bar per option.
+Boxes are drawn in their options' colours and labelled by name, so the paper's red and blue are
+the N-option case's red and blue.
 
 Not shown: `sim/camera`, the rendered 30 Hz camera that `nod sim --render` feeds to `nod vision`
 (full-size JPEGs at camera rate); the camera view shows vision's annotated `vision/frame` only.
@@ -72,9 +73,9 @@ ENTITIES: dict[str, str] = {
     "decision/z_h": "opinion/z_h",
     "decision/z_r": "opinion/z_r",
     "decision/b_r": "opinion/b_r",
-    "options/z_h": "options/z_h",
-    "options/z_r": "options/z_r",
-    "options/b_r": "options/b_r",
+    "bars/z_h": "bars/z_h",
+    "bars/z_r": "bars/z_r",
+    "bars/b_r": "bars/b_r",
     "hand": "table/hand",
     "buzzers": "table/buzzers",
     "commit_line": "table/commit_line",
@@ -99,15 +100,15 @@ ENTITIES: dict[str, str] = {
 def blueprint(bars: bool = False) -> rrb.Blueprint:
     """The at-a-glance layout: opinions and states left, table, camera and text log right.
 
-    With `bars` the opinions are N-option vectors, one bar chart each (a time series of a vector
-    over N options does not read at a glance); everything else is the same layout.
+    With `bars` the opinions are vectors over three or more options, one bar chart each (a time
+    series of a vector over N options does not read at a glance); everything else is the same.
     """
     opinions: rrb.Container | rrb.View = rrb.TimeSeriesView(
         origin="opinion", name="opinions: ẑ_h, z_r, b_r"
     )
     if bars:
         opinions = rrb.Horizontal(*(
-            rrb.BarChartView(origin=ENTITIES[f"options/{o}"], name=f"{label}, one bar per option")
+            rrb.BarChartView(origin=ENTITIES[f"bars/{o}"], name=f"{label}, one bar per option")
             for o, label in (("z_h", "ẑ_h"), ("z_r", "z_r"), ("b_r", "b_r"))
         ))
     trail = rrb.VisibleTimeRange(
@@ -222,9 +223,8 @@ class RerunBridge:
         self._cmd: tuple[Any, ...] | None = None
         self._gaze_state: str | None = None
         self.frames_dropped = 0  # vision frames that did not decode
-        # The options of the table as last laid out (names of the indices of `options/*`)
-        self.option_names: tuple[str, ...] = ()
-        self.bars_sent = False  # the blueprint with bar charts, sent on the first vector
+        self.option_names: tuple[str, ...] = ()  # the options of the table as last laid out
+        self.bars_sent = False  # the blueprint with bar charts, sent on the first N > 2 vector
 
     def log_styles(self) -> None:
         """Static names and colours of the series (once, before any data)."""
@@ -249,7 +249,7 @@ class RerunBridge:
         handler = getattr(self, f"_on_{msg.KIND}", None)
         if handler is None or topic in NOT_SHOWN:
             return
-        if isinstance(msg, m.TrialEvent | m.TrialResult | m.OptionsTrialEvent | m.OptionsResult):
+        if isinstance(msg, m.TrialEvent | m.TrialResult):
             self.trial = msg.trial  # before stamping: an event belongs to its own trial
         self._stamp(msg.t_ns)
         handler(topic, msg)
@@ -274,13 +274,8 @@ class RerunBridge:
             self.rec.log(ENTITIES["hand"], rr.Points2D([msg.center]))
 
     def _on_layout(self, topic: str, msg: m.Layout) -> None:
-        self._table(("red", "blue"), (msg.red, msg.blue), msg.commit_y)
-
-    def _on_options_layout(self, topic: str, msg: m.OptionsLayoutMsg) -> None:
-        self._table(msg.names, msg.boxes, msg.commit_y)
-
-    def _table(self, names: tuple[str, ...], boxes: tuple[Any, ...], commit_y: float) -> None:
         """The boxes in their options' colours, labelled by name, and the commit line."""
+        names, boxes, commit_y = tuple(msg.options), tuple(msg.boxes), msg.commit_y
         key = (names, boxes, commit_y)
         if key == self._layout:
             return  # re-published every second; log only what changed
@@ -317,35 +312,30 @@ class RerunBridge:
 
     # -- decision ------------------------------------------------------------------------------
 
-    def _on_scalar(self, topic: str, msg: m.Scalar) -> None:
-        path = ENTITIES.get(topic)
-        if path is not None:
-            self.rec.log(path, rr.Scalars(msg.value))
-
-    # ẑ_h is a scalar that also carries eq 7's θ and d: its value is plotted like z_r and b_r.
-    _on_observed = _on_scalar
-
-    def _on_option_vector(self, topic: str, msg: m.OptionVector) -> None:
-        """ẑ_h, z_r or b_r over N options: a bar chart of the latest vector."""
-        if not self.bars_sent:  # the first vector: the layout shows bars, not time series
+    def _on_opinions(self, topic: str, msg: m.Opinions) -> None:
+        """ẑ_h, z_r or b_r: two options, the signed value's time series; more, a bar chart."""
+        if len(msg.values) == 2:
+            path = ENTITIES.get(topic)
+            if path is not None:
+                self.rec.log(path, rr.Scalars(msg.signed))
+            return
+        path = ENTITIES.get("bars/" + topic.removeprefix("decision/"))
+        if path is None:
+            return
+        if not self.bars_sent:  # the first N-option vector: the layout shows bars
             self.bars_sent = True
             self.rec.send_blueprint(blueprint(bars=True))
-        path = ENTITIES.get(topic)
-        if path is not None:
-            self.rec.log(path, rr.BarChart(np.asarray(msg.values, dtype=np.float64)))
+        self.rec.log(path, rr.BarChart(np.asarray(msg.values, dtype=np.float64)))
+
+    # ẑ_h also carries eq 7's θ and d: its values are plotted like z_r's and b_r's.
+    _on_observed = _on_opinions
 
     # -- actuation -----------------------------------------------------------------------------
 
     def _on_arm_state(self, topic: str, msg: m.ArmStateMsg) -> None:
-        self._arm_state(msg.ee, msg.phase, msg.safe_stop, msg.safety_reason, msg.fault)
-
-    def _on_options_arm_state(self, topic: str, msg: m.OptionsArmState) -> None:
-        self._arm_state(msg.ee, msg.phase, msg.safe_stop, msg.safety_reason, "")
-
-    def _arm_state(
-        self, ee: tuple[float, float], phase: str, safe_stop: bool, reason: str, fault: str
-    ) -> None:
         """The end effector, the arm's segment, its phase lane and its safety lines."""
+        ee, phase, safe_stop = msg.ee, msg.phase, msg.safe_stop
+        reason, fault = msg.safety_reason, msg.fault
         prev = self._arm
         if prev.get("safe_stop") != safe_stop:  # red while safe-stopped
             colour = (230, 60, 60) if safe_stop else (90, 200, 250)
@@ -376,15 +366,9 @@ class RerunBridge:
         )
 
     def _on_press(self, topic: str, msg: m.PressMsg) -> None:
-        self._press(msg.trial, msg.colour)
-
-    def _on_options_press(self, topic: str, msg: m.OptionsPress) -> None:
-        self._press(msg.trial, self.name(msg.option))
-
-    def _press(self, trial: int, option: str) -> None:
         self.rec.log(
             ENTITIES["log_trial"],
-            rr.TextLog(f"trial {trial}: robot pressed {option}", level="INFO"),
+            rr.TextLog(f"trial {msg.trial}: robot pressed {msg.option}", level="INFO"),
         )
 
     # -- eyes ----------------------------------------------------------------------------------
@@ -438,17 +422,10 @@ class RerunBridge:
 
     # -- experiment and safety -----------------------------------------------------------------
 
-    def name(self, option: str | int | None) -> str:
-        """An option by name: the paper's messages name it, `options/*` index the table's."""
-        if option is None or isinstance(option, str):
-            return _opt(option)
-        names = self.option_names
-        return names[option] if option < len(names) else f"box {option}"
-
-    def _on_trial(self, topic: str, msg: m.TrialEvent | m.OptionsTrialEvent) -> None:
+    def _on_trial(self, topic: str, msg: m.TrialEvent) -> None:
         self.rec.log(ENTITIES["state_trial"], rr.StateChange(state=msg.phase))
         if msg.phase == "setup":
-            option = f" O={self.name(msg.option)}" if msg.option is not None else ""
+            option = f" O={msg.option}" if msg.option is not None else ""
             text = f"trial {msg.trial} setup: {msg.mode}{option}, gaze {_opt(msg.text)}"
         elif msg.phase == "countdown":
             text = f"trial {msg.trial} countdown {msg.text}"
@@ -458,21 +435,17 @@ class RerunBridge:
         level = "WARN" if msg.phase == "abort" else "INFO"
         self.rec.log(ENTITIES["log_trial"], rr.TextLog(text, level=level))
 
-    def _on_result(self, topic: str, msg: m.TrialResult | m.OptionsResult) -> None:
-        option = f" O={self.name(msg.option)}" if msg.option is not None else ""
+    def _on_result(self, topic: str, msg: m.TrialResult) -> None:
+        option = f" O={msg.option}" if msg.option is not None else ""
         text = (
-            f"trial {msg.trial} [{msg.mode}{option}]: robot {self.name(msg.robot)}, human "
-            f"{self.name(msg.human)} → {_opt(msg.outcome)} (switches {msg.switches}, violations "
+            f"trial {msg.trial} [{msg.mode}{option}]: robot {_opt(msg.robot)}, human "
+            f"{_opt(msg.human)} → {_opt(msg.outcome)} (switches {msg.switches}, violations "
             f"{msg.violations}, score {msg.score})"
         )
         if msg.interrupted:
             text += ": interrupted, not scored"
         level = "WARN" if msg.interrupted else "INFO"
         self.rec.log(ENTITIES["log_result"], rr.TextLog(text, level=level))
-
-    # a table of N boxes: the same lines, its options by name
-    _on_options_trial = _on_trial
-    _on_options_result = _on_result
 
     def _on_rig_event(self, topic: str, msg: m.RigEvent) -> None:
         level = {"gave_up": "ERROR", "restarting": "WARN", "exited": "WARN"}.get(msg.kind, "INFO")

@@ -2,7 +2,7 @@
 
 Three lanes, each with a fixed capacity, so memory stays bounded however fast keys arrive:
 
-- `events` (every scalar, state, trial event, result, estop): sized generously (default 200 000
+- `events` (every opinion, state, trial event, result, estop): sized generously (default 200 000
   items, minutes of every key at 120 Hz) and never drops while there is room; if it ever fills,
   the newest sample is dropped and counted, and the monitor reports it.
 - `hand` (hand poses, 120 Hz) and `frame` (JPEG frames): lossy; when full the oldest sample goes,
@@ -58,7 +58,7 @@ class Inbox:
                 self.dropped[lane] += 1
                 kept = False
                 if lane not in LOSSY:
-                    return False  # never evict a queued scalar or event: drop the newest
+                    return False  # never evict a queued opinion or event: drop the newest
                 q.popleft()
             q.append(item)
             if len(q) > self.high_water[lane]:

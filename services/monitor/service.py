@@ -4,7 +4,7 @@ One Zenoh subscriber on `nod/<rig>/**` copies each sample's bytes into a bounded
 blocking Zenoh's delivery thread; the keys in `bridge.NOT_SHOWN`, the simulated camera, are
 skipped there without a copy); one logger thread decodes them with the contract and hands
 them to the `RerunBridge`. Hand poses and camera frames are dropped (oldest first) when the
-viewer falls behind; scalars and events have a large queue and are counted if they ever drop. The
+viewer falls behind; opinions and events have a large queue and are counted if they ever drop. The
 monitor is its own process and only subscribes, so it cannot slow the control loop.
 
 Sinks (any combination): `--spawn` starts the native viewer (the default when no sink is given),
@@ -147,7 +147,7 @@ class Monitor:
         lost = ib.dropped["events"] - self._reported["events"]
         if lost > 0:
             self._reported["events"] = ib.dropped["events"]
-            self.bridge.note(f"monitor fell behind: {lost} scalar/event samples dropped", "WARN")
+            self.bridge.note(f"monitor fell behind: {lost} opinion/event samples dropped", "WARN")
 
     # -- shutdown ------------------------------------------------------------------------------
 
@@ -203,7 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--hand-queue", type=int_in(1, 10**6), default=240,
                    help="hand poses held (lossy; 240)")
     q.add_argument("--event-queue", type=int_in(1, 10**7), default=200_000,
-                   help="scalars/events held (200000)")
+                   help="opinions/events held (200000)")
     g.add_argument(
         "--viewer-grace",
         type=float,

@@ -37,6 +37,7 @@ from mcap.writer import CompressionType, Writer
 from services.core import messages as m
 from services.core.contract import TOPICS
 from services.core.keys import topic_of
+from services.core.schema1 import upgrade
 
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "msgpack"
@@ -254,6 +255,12 @@ class Entry:
     def key(self) -> str:
         """The channel topic: the full key."""
         return self.channel.topic
+
+    @property
+    def payload(self) -> bytes:
+        """The message's payload in today's schema (a schema-1 one rewritten: `schema1`)."""
+        topic = topic_of(self.key)
+        return self.message.data if topic is None else upgrade(topic, self.message.data)
 
     @property
     def valid(self) -> bool:

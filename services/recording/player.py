@@ -248,7 +248,7 @@ class Player:
             if wait <= 0:
                 break
             self.stop.wait(min(wait, 0.05))
-        self._pub(topic).put(e.message.data)
+        self._pub(topic).put(e.payload)
         self._note(time.monotonic() - due)
 
     def _skip(self, topic: str, e: Entry, skipped_last: dict[str, tuple[m.Message, int]]) -> None:

@@ -79,8 +79,8 @@ class Recorder:
             return
         self.out.write(self.out.channel(key), log_time_ns, msg.t_ns, payload, msg.seq)
         self.counts[key] += 1
-        session = msg.session if isinstance(msg, m.TrialEvent | m.OptionsTrialEvent) else ""
-        if session and session not in self.sessions:  # the trial events of any option set
+        session = msg.session if isinstance(msg, m.TrialEvent) else ""
+        if session and session not in self.sessions:
             self.sessions.append(session)
             self.out.metadata(
                 SESSION_METADATA, {"session": session, "key": key, "seen_ns": log_time_ns}

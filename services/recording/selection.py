@@ -112,7 +112,7 @@ def scan(src: McapIn) -> Scan:
         out.topics.add(topic)
         if out.rig is None:
             out.rig = rig_of(e.key)
-        if topic in ("experiment/trial", "options/trial"):  # a table of N boxes: its own key
+        if topic == "experiment/trial":
             ev = decode_entry(topic, e)
             if ev is not None and ev.phase in ANCHOR_PHASES:
                 out.anchors.append(Anchor(e.index, ev.phase, ev.trial, ev.t_ns))
@@ -130,6 +130,6 @@ def scan(src: McapIn) -> Scan:
 def decode_entry(topic: str, e: Entry) -> Any:
     """A recorded message decoded as its topic's type (None if it is not valid)."""
     try:
-        return m.decode(TOPICS[topic].message, e.message.data)
+        return m.decode(TOPICS[topic].message, e.payload)
     except m.MessageError:
         return None

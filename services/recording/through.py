@@ -3,8 +3,10 @@
 The recorded vision/hand, vision/layout and experiment/trial messages go in order through
 `DecisionModel` (reset on setup/go with `DecisionModel.on_trial`, like the decision service);
 the output file is the recording without its decision/* channels plus the recomputed ones.
-A recording of a table of N options (its opinions on `options/*`) is refused in one line: the
-comparison here is of the paper's signed z_r and b_r, not yet of vectors.
+A recording of a table of N options (messages over three or more options, or the retired
+`options/*` keys) is refused in one line: the comparison here is of the paper's signed z_r and
+b_r, not yet of vectors. A recording of schema 1 (before one schema for any N) is read through
+`services.core.schema1`, and its copy is written in today's schema.
 """
 
 from __future__ import annotations
@@ -14,12 +16,13 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from services.core import messages as m
 from services.core.config import from_mapping, load_toml, split_options
 from services.core.keys import topic_of
 from services.model.decision import DecisionModel
+from services.model.geometry import COLOURS, Colour
 from services.model.params import NodConfig
 from services.recording.mcap_io import (
     END_METADATA,
@@ -101,6 +104,19 @@ def two_options_only(why: str) -> str:
             "the paper's two-option engine only (docs/multi-option.md)")
 
 
+def paper_options(msg: m.TrialEvent | m.TrialResult | m.Layout, src: Path) -> None:
+    """Refuse (ValueError, one line) a recorded message of another option set than the paper's."""
+    if tuple(msg.options) != COLOURS:
+        raise ValueError(two_options_only(f"{src} has {msg.KIND} over {','.join(msg.options)}"))
+
+
+def paper_value(msg: m.Opinions, src: Path) -> float:
+    """The paper's signed number of a recorded opinion (refused for N options)."""
+    if tuple(msg.options) != COLOURS:
+        raise ValueError(two_options_only(f"{src} has opinions over {','.join(msg.options)}"))
+    return msg.signed
+
+
 @dataclass
 class ThroughResult:
     """What `--through decision` did."""
@@ -132,8 +148,8 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
     try:
         for e in src:
             topic = topic_of(e.key)
-            if topic is not None and topic.startswith("options/"):
-                raise ValueError(two_options_only(f"{src_path} has {topic}"))
+            if e.key.split("/", 2)[-1].startswith("options/"):  # the retired N-option keys
+                raise ValueError(two_options_only(f"{src_path} has {e.key}"))
             if topic in DECISION_TOPICS:
                 left_out += 1
                 if (
@@ -143,20 +159,25 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
                     msg = decode_entry(topic, e)
                     if msg is not None:
                         z_r, b_r = current.recorded.get(msg.src_seq, (math.nan, math.nan))
+                        value = paper_value(msg, src_path)
                         current.recorded[msg.src_seq] = (
-                            (msg.value, b_r) if topic == "decision/z_r" else (z_r, msg.value)
+                            (value, b_r) if topic == "decision/z_r" else (z_r, value)
                         )
                 continue
             out.write(out.copy_channel(e.channel, e.schema), e.message.log_time,
-                      e.message.publish_time, e.message.data, e.message.sequence)
+                      e.message.publish_time, e.payload if e.valid else e.message.data,
+                      e.message.sequence)
             if topic is None or not e.valid:
                 continue
             msg = decode_entry(topic, e)
             if msg is None:
                 continue
+            if isinstance(msg, m.TrialEvent | m.TrialResult | m.Layout):
+                paper_options(msg, src_path)
             if isinstance(msg, m.TrialEvent):
                 try:
-                    model.on_trial(msg.phase, msg.mode, msg.option)
+                    # a colour: `paper_options` held the event's options to red and blue
+                    model.on_trial(msg.phase, msg.mode, cast(Colour | None, msg.option))
                 except ValueError as exc:  # the decision service refuses such an event too
                     log.warning("trial event refused: %s", exc)
                 if msg.phase == "setup":
@@ -168,7 +189,7 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
                 t.robot, t.human, t.outcome = msg.robot, msg.human, msg.outcome
             elif isinstance(msg, m.Layout):
                 try:
-                    model.set_layout(m.layout_from_msg(msg))
+                    model.set_layout(msg.paper_table())
                 except ValueError as exc:
                     log.warning("layout refused: %s", exc)
             elif isinstance(msg, m.HandPose):
@@ -178,18 +199,20 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
                 res = model.on_hand(msg.t_ns, msg.landmarks if msg.detected else None)
                 prefix = e.key[: -len("vision/hand")]
                 obs = res.observation
-                for name, value in (
-                    ("decision/z_r", m.Scalar(seq=seq["decision/z_r"], t_ns=msg.t_ns,
-                                              value=res.z_r, src_seq=msg.seq)),
+                outputs: tuple[tuple[str, m.Opinions], ...] = (
+                    ("decision/z_r", m.Opinions(seq=seq["decision/z_r"], t_ns=msg.t_ns,
+                                                src_seq=msg.seq, **m.signed_fields(res.z_r))),
                     ("decision/z_h", m.Observed(seq=seq["decision/z_h"], t_ns=msg.t_ns,
-                                                value=res.z_hat, src_seq=msg.seq,
-                                                theta=obs.theta, distance=obs.distance)),
-                    ("decision/b_r", m.Scalar(seq=seq["decision/b_r"], t_ns=msg.t_ns,
-                                              value=res.b_r, src_seq=msg.seq)),
-                ):
+                                                src_seq=msg.seq, theta=obs.theta,
+                                                distance=obs.distance,
+                                                **m.signed_fields(res.z_hat))),
+                    ("decision/b_r", m.Opinions(seq=seq["decision/b_r"], t_ns=msg.t_ns,
+                                                src_seq=msg.seq, **m.signed_fields(res.b_r))),
+                )
+                for name, output in outputs:
                     seq[name] += 1
                     out.write(out.channel(prefix + name), e.message.log_time, msg.t_ns,
-                              m.encode(value), value.seq)
+                              m.encode(output), output.seq)
                     recomputed += 1
                 if current is not None and not current.closed:
                     current.recomputed[msg.seq] = (res.z_r, res.b_r)

@@ -7,12 +7,12 @@ and its opinion (eq 2) steers the hand. Seeded: the same seed and the same robot
 participant. The participant is the default simulated person (the traits fitted to the paper,
 `services.cohort.person`) unless `--params` sets `[participant]` keys.
 
-One service for any number of options (`--options N`, or a params file's list): the person is
-one `Participant` at the table of N boxes, and the loop, timing, rendering and trial handling
-below are written once. What differs with N is only the key space it talks in, `SimKeys`: the
-paper's two options speak schema 1 (`experiment/trial`, `actuation/*`, `vision/layout`; options
-as colours, the arm's heading a sign), three or more speak schema 2 (`options/*`, options as
-box indices; `services.core.messages`, schema 2). `sim_keys` picks one by the option count.
+One service for any number of options (`--options N`, or a params file's list), on one key
+space (schema 3: options by name, each message checked against the sim's option set): the
+person is one `Participant` at the table of N boxes, and the keys, loop, timing, rendering and
+trial handling below are written once. What differs with N is only how the person names an
+option, `SimSeam`: the paper's person (the two-option kernel) by colour, the arm's heading a
+sign; the person at N boxes by box index. `sim_seam` picks one by the option count.
 
 With `--render` it is the camera instead: frames of the table (N boxes, each in its option's
 colour, `services.scene.option_colours`) on `sim/camera`, for `nod vision`, which publishes the
@@ -37,7 +37,7 @@ from services.core.config import load_with_options
 from services.core.node import Node, TopicPublisher, setup_logging
 from services.core.session import Fabric
 from services.model.gaze import GazeCommand
-from services.model.geometry import Box, Colour, OptionsLayout, TableLayout, colour_sign
+from services.model.geometry import COLOURS, Box, Colour, OptionsLayout, TableLayout, colour_sign
 from services.model.params import NodConfig
 from services.model.participant import Opt, Participant, ParticipantParams, jittered
 from services.model.schedule import OptionsSchedule
@@ -50,124 +50,72 @@ NS = 1e-9
 Painted = tuple[tuple[Box, tuple[int, int, int]], ...]
 
 
-class SimKeys(ABC, Generic[Opt]):
-    """The key space the sim talks in: its keys, and their messages turned into the person's.
+class SimSeam(ABC, Generic[Opt]):
+    """How the person names options: the one place the sim differs by the option count."""
 
-    The one place where the paper's schema 1 and the N-option schema 2 differ for the sim, so
-    that unifying the two key spaces changes this seam and nothing of `SimService`.
-    """
-
-    @abstractmethod
-    def wire(self, node: Node, sim: SimService[Opt], render: bool) -> TopicPublisher | None:
-        """Subscribe `sim` to the trials and the arm; return the table's publisher.
-
-        The protocol's events, the arm's state and its press come in; the table goes out
-        unless `--render` (None: vision publishes it then).
-
-        Written as literal calls per key space, so the contract's check of the code
-        (tests/unit/test_contract.py) reads every key each service uses.
-        """
+    def __init__(self, names: tuple[str, ...], layout: TableLayout | OptionsLayout) -> None:
+        self.names = names
+        self.layout = layout
 
     @abstractmethod
     def person(self, params: ParticipantParams, seed: int) -> Participant[Opt]:
-        """The person at this key space's table, naming options as its messages do."""
+        """The person at this table."""
 
     @abstractmethod
-    def trial_option(self, ev: Any) -> Opt | None:
-        """The O a trial event carries (None: a control trial), as the person names options."""
+    def option(self, name: str) -> Opt:
+        """An option name as the person names it (MessageError: none of ours)."""
 
     @abstractmethod
-    def heading(self, msg: Any) -> int | None:
+    def heading(self, target: str | None, moving: bool) -> int | None:
         """Where an arm state says the arm heads, in the person's `see_robot` terms."""
 
-    @abstractmethod
-    def pressed(self, msg: Any) -> Opt:
-        """The option an arm's press is on."""
-
-    @abstractmethod
     def layout_fields(self) -> dict[str, Any]:
-        """The fields of this key space's layout message."""
+        """The fields of `vision/layout`: the option set, its boxes and the commit line."""
+        return m.layout_fields(self.names, self.layout)
 
     @abstractmethod
     def painted(self) -> Painted | None:
         """The boxes a rendered frame paints in their options' colours (None: the paper's)."""
 
 
-class PaperKeys(SimKeys[Colour]):
-    """Schema 1, the paper's two options: colours, the arm's heading a sign (byte for byte)."""
+class PaperSeam(SimSeam[Colour]):
+    """The paper's two options: colours, the arm's heading a sign."""
 
-    def __init__(self, layout: TableLayout) -> None:
-        self.layout = layout
-
-    def wire(self, node: Node, sim: SimService[Colour], render: bool) -> TopicPublisher | None:
-        """`experiment/trial`, `actuation/state`, `actuation/press`; `vision/layout` out."""
-        node.subscribe("experiment/trial", sim.on_trial)
-        node.subscribe("actuation/state", sim.on_arm)
-        node.subscribe("actuation/press", sim.on_press)
-        return None if render else node.publisher("vision/layout")
+    layout: TableLayout
 
     def person(self, params: ParticipantParams, seed: int) -> Participant[Colour]:
         """The paper's person on its table (`TableLayout`): options are colours."""
         return Participant(params, self.layout, seed=seed)
 
-    def trial_option(self, ev: m.TrialEvent) -> Colour | None:
-        """The paper's events carry O as a colour."""
-        return ev.option
+    def option(self, name: str) -> Colour:
+        """Option 0 is red, option 1 blue."""
+        return COLOURS[m.index_in(self.names, name)]
 
-    def heading(self, msg: m.ArmStateMsg) -> int:
+    def heading(self, target: str | None, moving: bool) -> int:
         """+1 toward red, −1 toward blue, 0 still: the paper's sign."""
-        return colour_sign(msg.target) if msg.target and msg.moving else 0
-
-    def pressed(self, msg: m.PressMsg) -> Colour:
-        """The press names its buzzer's colour."""
-        return msg.colour
-
-    def layout_fields(self) -> dict[str, Any]:
-        """`vision/layout`: the red and blue boxes and the commit line."""
-        return m.layout_fields(self.layout)
+        return colour_sign(self.option(target)) if target and moving else 0
 
     def painted(self) -> None:
         """The renderer's own red and blue buzzers."""
         return None
 
 
-class OptionKeys(SimKeys[int]):
-    """Schema 2, three or more options: box indices, each message checked for our count."""
+class OptionsSeam(SimSeam[int]):
+    """Three or more options: box indices."""
 
-    def __init__(self, names: tuple[str, ...], layout: OptionsLayout) -> None:
-        self.names = names
-        self.layout = layout
-        self.n = layout.n_options
-
-    def wire(self, node: Node, sim: SimService[int], render: bool) -> TopicPublisher | None:
-        """`options/trial`, `options/arm_state`, `options/press`; `options/layout` out."""
-        node.subscribe("options/trial", sim.on_trial)
-        node.subscribe("options/arm_state", sim.on_arm)
-        node.subscribe("options/press", sim.on_press)
-        return None if render else node.publisher("options/layout")
+    layout: OptionsLayout
 
     def person(self, params: ParticipantParams, seed: int) -> Participant[int]:
         """The person at the N boxes (`OptionsLayout`): options are box indices."""
         return Participant(params, self.layout, seed)
 
-    def trial_option(self, ev: m.OptionsTrialEvent) -> int | None:
-        """O of a consensus trial (a box index), refused when for another option count."""
-        m.check_count(ev, self.n)
-        return ev.option if ev.mode == "consensus" else None
+    def option(self, name: str) -> int:
+        """A name's box index."""
+        return m.index_in(self.names, name)
 
-    def heading(self, msg: m.OptionsArmState) -> int | None:
+    def heading(self, target: str | None, moving: bool) -> int | None:
         """The box the arm heads for, None when still."""
-        m.check_count(msg, self.n)
-        return msg.target if msg.moving else None
-
-    def pressed(self, msg: m.OptionsPress) -> int:
-        """The box pressed."""
-        m.check_count(msg, self.n)
-        return msg.option
-
-    def layout_fields(self) -> dict[str, Any]:
-        """`options/layout`: the option names, their boxes and the commit line."""
-        return dict(m.layout_message_fields(self.names, self.layout))
+        return self.option(target) if target is not None and moving else None
 
     def painted(self) -> Painted:
         """Each box in its option's colour."""
@@ -176,31 +124,32 @@ class OptionKeys(SimKeys[int]):
         return painted_boxes(self.names, self.layout)
 
 
-def sim_keys(cfg: NodConfig, schedule: OptionsSchedule | None) -> SimKeys[Any]:
-    """The key space for the option count: the paper's for two, `options/*` for more."""
+def sim_seam(cfg: NodConfig, schedule: OptionsSchedule | None) -> SimSeam[Any]:
+    """The seam for the option set: the paper's person for two options, box indices above."""
     if schedule is None:
-        return PaperKeys(cfg.layout)
-    return OptionKeys(schedule.names, cfg.table(schedule.n_options))
+        return PaperSeam(COLOURS, cfg.layout)
+    return OptionsSeam(schedule.names, cfg.table(schedule.n_options))
 
 
 class SimService(Generic[Opt]):
-    """Wires a Participant to the rig's keys, in the key space of its option count."""
+    """Wires a Participant to the rig's keys, for any option set."""
 
     def __init__(
         self,
         node: Node,
         cfg: NodConfig,
-        keys: SimKeys[Opt],
+        seam: SimSeam[Opt],
         seed: int,
         rate_hz: float,
         cohort: bool,
         render: bool = False,
     ) -> None:
         self.node = node
-        self.keys: SimKeys[Opt] = keys
+        self.seam: SimSeam[Opt] = seam
+        self.names = seam.names
         rng = np.random.default_rng(seed)
         params = jittered(cfg.participant, rng) if cohort else cfg.participant
-        self.person: Participant[Opt] = keys.person(params, int(rng.integers(2**31)))
+        self.person: Participant[Opt] = seam.person(params, int(rng.integers(2**31)))
         self.person.advance(node.clock.now_ns() * NS)  # at rest: only sets its clock
         self.robot: Opt | None = None
         # --render: be the camera, not the tracker — frames go to `nod vision`, which publishes
@@ -210,13 +159,14 @@ class SimService(Generic[Opt]):
             from services.scene.render import SceneRenderer
 
             self.renderer = SceneRenderer(layout=cfg.layout, noise=2.0, seed=seed,
-                                          options=keys.painted())
+                                          options=seam.painted())
             self.pub_camera = node.publisher("sim/camera")
         else:
             self.pub_hand = node.publisher("vision/hand")
-        layout = keys.wire(node, self, render)
-        if layout is not None:
-            self.pub_layout = layout
+            self.pub_layout = node.publisher("vision/layout")
+        node.subscribe("experiment/trial", self.on_trial)
+        node.subscribe("actuation/state", self.on_arm)
+        node.subscribe("actuation/press", self.on_press)
         node.subscribe("eyes/cmd", self.on_gaze)
         node.every(1.0 / rate_hz, self.frame)
         if not render:
@@ -230,9 +180,11 @@ class SimService(Generic[Opt]):
         if not msg.gesture:
             self.person.see_gaze(GazeCommand(msg.yaw, msg.pitch))
 
-    def on_trial(self, ev: m.TrialEvent | m.OptionsTrialEvent) -> None:
+    def on_trial(self, ev: m.TrialEvent) -> None:
         """Follow the protocol like a participant listening to the countdown."""
-        option = self.keys.trial_option(ev)  # and refused if for another option count
+        m.check_options(ev, self.names)
+        named = ev.option if ev.mode == "consensus" else None
+        option = None if named is None else self.seam.option(named)
         t = self._advance(self.node.clock.now_ns())  # our clock, not the event's stamp
         if ev.phase == "setup":
             self.robot = None
@@ -244,13 +196,14 @@ class SimService(Generic[Opt]):
         elif ev.phase == "interrupted":  # a void trial teaches nothing
             self.person.trial_ended(None)
 
-    def on_arm(self, msg: m.ArmStateMsg | m.OptionsArmState) -> None:
+    def on_arm(self, msg: m.ArmStateMsg) -> None:
         """Where the arm is heading, as the participant sees it."""
-        self.person.see_robot(self.node.clock.now_ns() * NS, self.keys.heading(msg))
+        heading = self.seam.heading(msg.target, msg.moving)
+        self.person.see_robot(self.node.clock.now_ns() * NS, heading)
 
-    def on_press(self, msg: m.PressMsg | m.OptionsPress) -> None:
+    def on_press(self, msg: m.PressMsg) -> None:
         """The robot pressed a box."""
-        self.robot = self.keys.pressed(msg)
+        self.robot = self.seam.option(msg.option)
 
     def _advance(self, t_ns: int) -> float:
         t = t_ns * NS
@@ -276,7 +229,7 @@ class SimService(Generic[Opt]):
 
     def publish_layout(self, now_ns: int) -> None:
         """The table geometry, for every service that needs the boxes."""
-        self.pub_layout.put(t_ns=now_ns, **self.keys.layout_fields())
+        self.pub_layout.put(t_ns=now_ns, **self.seam.layout_fields())
 
 
 def publish_frame(
@@ -330,7 +283,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError, ConnectionError) as exc:
         return fail("nod sim", exc)
     log.info("effective config: %s", json.dumps(cfg.summary("participant")))
-    SimService(node, cfg, sim_keys(cfg, schedule), args.seed, args.rate, args.cohort,
+    SimService(node, cfg, sim_seam(cfg, schedule), args.seed, args.rate, args.cohort,
                render=args.render)
     node.run()
     return 0

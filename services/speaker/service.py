@@ -1,6 +1,7 @@
 """`nod speaker`: the participant's audio countdown — a tone per word and a distinct go tone.
 
-It listens to the conductor's `experiment/trial` events and plays a short 660 Hz beep for each
+It listens to the conductor's `experiment/trial` events (one key space, schema 3: a session over
+any number of options counts down alike) and plays a short 660 Hz beep for each
 countdown word and a longer 990 Hz tone for go (`services.speaker.tones`), through a driver
 (`services.speaker.drivers`: sim, wav, sounddevice), and publishes each cue's onset as played
 on `speaker/played`; the conductor stores them with the trial (table `cues`, `cues.csv`).
@@ -38,14 +39,13 @@ class SpeakerService:
         self.node = node
         self.driver = driver
         self.sounds = {phase: render(tone_for(phase)) for phase in PHASES}
-        self.pending: queue.Queue[m.TrialEvent | m.OptionsTrialEvent] = queue.Queue(QUEUE)
+        self.pending: queue.Queue[m.TrialEvent] = queue.Queue(QUEUE)
         self.pub = node.publisher("speaker/played")
         node.subscribe("experiment/trial", self.on_trial)
-        node.subscribe("options/trial", self.on_trial)  # a table of N boxes counts down alike
         self._thread = threading.Thread(target=self._play_loop, name="speaker", daemon=True)
         self._thread.start()
 
-    def on_trial(self, msg: m.TrialEvent | m.OptionsTrialEvent) -> None:
+    def on_trial(self, msg: m.TrialEvent) -> None:
         """A countdown word or go: queue its tone (the other phases are silent)."""
         if msg.phase not in PHASES:
             return

@@ -3,11 +3,12 @@
 It listens to every rig at once (`nod/*/…`) for `--duration` seconds (default 2): the liveliness
 tokens say which services of each rig are alive; the heartbeats (rig/status, 1 Hz per service)
 where each runs and its host's clock offset from ours, and the conductor's its session,
-participant and trial; the conductor's events (experiment/trial, or options/trial on a table
-of N boxes) the trial's phase as it happens. A rig is on the network when anything of it was
-heard. On a secured lab it speaks with the lab's read-only identity (`--config
-<lab>/lab/monitor/zenoh.json5`): a rig's own identities see only their rig. `--json` prints one
-object, `--watch` refreshes until Ctrl-C (keeping each rig's last event between refreshes).
+participant and trial; the conductor's events (experiment/trial: one key space, schema 3, for
+any option set) the trial's phase and the session's options as it happens. A rig is on the
+network when anything of it was heard. On a secured lab it speaks with the lab's read-only
+identity (`--config <lab>/lab/monitor/zenoh.json5`): a rig's own identities see only their rig.
+`--json` prints one object, `--watch` refreshes until Ctrl-C (keeping each rig's last event
+between refreshes).
 Exit 1 when no rig answered, 2 on bad input.
 """
 
@@ -25,6 +26,7 @@ import zenoh
 from services.core import messages as m
 from services.core.cli import Parser, fail
 from services.core.session import add_zenoh_args
+from services.model.geometry import COLOURS
 from services.tools.observe import CLOCK_WARN_MS, ToolError, Window, listen
 
 PROG = "nod lab status"
@@ -37,8 +39,7 @@ class LabObservation:
 
     alive: dict[str, set[str]] = field(default_factory=dict)  # rig -> services
     heartbeats: dict[tuple[str, str], tuple[m.NodeStatus, int]] = field(default_factory=dict)
-    # rig -> its last event (the paper's key, or a table of N boxes')
-    events: dict[str, m.TrialEvent | m.OptionsTrialEvent] = field(default_factory=dict)
+    events: dict[str, m.TrialEvent] = field(default_factory=dict)  # rig -> its last event
     invalid: int = 0
 
 
@@ -48,7 +49,7 @@ def _rig_of(key: str) -> str:
 
 def observe(
     session: zenoh.Session, duration: float, stop: threading.Event,
-    events: dict[str, m.TrialEvent | m.OptionsTrialEvent] | None = None,
+    events: dict[str, m.TrialEvent] | None = None,
 ) -> LabObservation:
     """Listen to every rig for `duration` seconds (`events`: the last ones already known)."""
     obs = LabObservation(events=dict(events or {}))
@@ -63,7 +64,7 @@ def observe(
             else:
                 services.discard(service)
 
-    keys = ["nod/*/rig/status", "nod/*/experiment/trial", "nod/*/options/trial"]
+    keys = ["nod/*/rig/status", "nod/*/experiment/trial"]
     with Window(session, keys, "nod/*/alive/*", on_alive) as window:
         for item, msg in window.heard(time.monotonic() + duration, stop):
             if msg is None:
@@ -72,7 +73,7 @@ def observe(
             rig = _rig_of(item.key)
             if isinstance(msg, m.NodeStatus):
                 obs.heartbeats[(rig, msg.service)] = (msg, item.wall_ns)
-            elif isinstance(msg, (m.TrialEvent, m.OptionsTrialEvent)):
+            elif isinstance(msg, m.TrialEvent):
                 obs.events[rig] = msg
     with lock:
         obs.alive = {rig: set(s) for rig, s in obs.alive.items()}
@@ -112,6 +113,7 @@ def report(obs: LabObservation, now_wall: int) -> dict[str, Any]:
             "trial": (event.trial if fresh and event else
                       conductor.trial if conductor is not None else 0) or None,
             "phase": event.phase if fresh and event else None,
+            "options": list(event.options) if fresh and event else None,
             "max_clock_offset_ms": max(offsets, key=abs) if offsets else None,
             "clock_warning": any(s.get("clock_warning") for s in services),
         })
@@ -128,6 +130,8 @@ def text(doc: dict[str, Any]) -> str:
         where = f"trial {r['trial']}" if r["trial"] else "no trial"
         if r["phase"]:
             where += f" ({r['phase']})"
+        if r.get("options") and tuple(r["options"]) != COLOURS:  # the paper's go unsaid
+            where += f", options {','.join(r['options'])}"
         who = (f"participant {r['participant']}, session {r['session']}" if r["participant"]
                else "no session" if not r["session"] else f"session {r['session']}")
         clock = ("" if r["max_clock_offset_ms"] is None
@@ -163,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         return fail(PROG, exc)
     doc: dict[str, Any] = {"rigs": []}
     try:
-        events: dict[str, m.TrialEvent | m.OptionsTrialEvent] = {}
+        events: dict[str, m.TrialEvent] = {}
         while True:
             obs = observe(session, args.duration, stop, events)
             events = obs.events

@@ -1,8 +1,8 @@
 """`nod experiment next | pause`: the operator's start gate, from any host of the rig.
 
 `next` starts the trial that waits for the operator (`[protocol] gate = true`, or after a
-pause) and waits until the conductor announces its setup (on `experiment/trial`, or on
-`options/trial` for a table of three or more boxes: one command for any option set); `pause`
+pause) and waits until the conductor announces its setup on `experiment/trial` (one key space,
+schema 3: one command for any option set); `pause`
 holds the next trial until a `next`. Each command is sent once, reliably, when the conductor
 listens: a repeat could start the trial after the one meant. `--rig-file RIG.toml` takes the
 rig, its router (or, under rig.tls, the control station's identity) from the rig file, as
@@ -77,12 +77,11 @@ def main(argv: list[str]) -> int:
         started = threading.Event()
         trial = getattr(args, "trial", 0)
 
-        def on_trial(ev: m.TrialEvent | m.OptionsTrialEvent) -> None:
+        def on_trial(ev: m.TrialEvent) -> None:
             if ev.phase == "setup" and trial in (0, ev.trial):
                 started.set()
 
         node.subscribe("experiment/trial", on_trial)
-        node.subscribe("options/trial", on_trial)
         pub = node.publisher("experiment/operator")
         deadline = time.monotonic() + args.timeout
         while not pub.matched() and time.monotonic() < deadline:

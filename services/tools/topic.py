@@ -196,7 +196,7 @@ def _value(value: Any) -> str:
     if isinstance(value, bytes):
         return f"<{len(value)} bytes>"
     if isinstance(value, tuple):
-        if len(value) > 4 and all(isinstance(v, tuple) for v in value):
+        if len(value) > 4 and all(isinstance(v, tuple) and len(v) == 2 for v in value):
             return f"<{len(value)} points>"  # hand landmarks: the JSON form has them all
         return "[" + ",".join(_value(v) for v in value) + "]"
     if isinstance(value, str):

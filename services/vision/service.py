@@ -6,9 +6,9 @@ Keys (see docs/vision.md):
   `center` in normalised image coordinates, `source` = the tracker's name. No hand → detected
   false and nothing else; no frame (a lost camera) → nothing at all, so the key goes stale.
 - the table, once at start (or once found) and then at 1 Hz, and answered to a zenoh `get` on
-  the same key for late joiners: the paper's two options on `vision/layout` (Layout), the buzzer
-  boxes and the commit line from `--calibration` (else the params file's `[layout]`, else SPEC's
-  defaults); three or more on `options/layout` (OptionsLayoutMsg), the option names and their
+  the same key for late joiners, on `vision/layout` (Layout: the option set, a box per option,
+  the commit line): the paper's two options, the buzzer boxes and the commit line from
+  `--calibration` (else the params file's `[layout]`, else SPEC's defaults); three or more, the
   boxes from a `--calibration` file with a box per option, else found by their colours in the
   camera's frames (`calibration.find_option_boxes`; nothing is published until every box is
   found, each tracked frame tries again, with a warning every 100 frames).
@@ -16,8 +16,8 @@ Keys (see docs/vision.md):
   `--frames-key-hz` (default 2, 0 = off), encoded on the node's tick thread, never on the
   tracking thread that publishes hand poses.
 
-One service for any number of options: what differs with N is the table alone (`PaperTable`,
-`OptionsTable`: its key, its message, where its boxes come from), picked by `vision_table`.
+One service for any number of options on one key space: what differs with N is where the table's
+boxes come from (`PaperTable`, `OptionsTable`), picked by `vision_table`.
 
 The tracking thread takes the newest captured frame, tracks it and publishes the pose; the node's
 main thread runs the low-rate ticks (layout, monitor frame, a 10 s status line).
@@ -43,8 +43,7 @@ from services.core.cli import add_options_arg, add_params_arg, fabric_parser, fa
 from services.core.clock import add_clock_args
 from services.core.config import ConfigError, load_with_options
 from services.core.contract import check_publisher
-from services.core.messages import layout_message_fields
-from services.core.node import Node, TopicPublisher, declare_publisher, setup_logging
+from services.core.node import Node, declare_publisher, setup_logging
 from services.core.session import Fabric
 from services.model.geometry import COLOURS, CommitLine, OptionsLayout, TableLayout
 from services.model.schedule import OptionsSchedule
@@ -111,31 +110,24 @@ class HandPublisher:
 
 
 class PaperTable:
-    """The paper's two options (schema 1): red and blue on `vision/layout`, known at start."""
+    """The paper's two options: red and blue, known at start."""
 
-    key = "vision/layout"
     names: tuple[str, ...] = COLOURS
 
     def __init__(self, layout: TableLayout) -> None:
         self.layout: TableLayout | OptionsLayout | None = layout
-        self.fields: dict[str, Any] | None = m.layout_fields(layout)
-
-    def publisher(self, node: Node) -> TopicPublisher:
-        """The table's key (a literal call: the contract's check of the code reads it)."""
-        return node.publisher("vision/layout")
+        self.fields: dict[str, Any] | None = m.layout_fields(self.names, layout)
 
     def look(self, image: Any) -> None:
         """Nothing to find: the boxes came from the calibration, the params or SPEC."""
 
 
 class OptionsTable:
-    """Three or more options (schema 2): names and boxes on `options/layout`.
+    """Three or more options: their boxes given or found.
 
     The boxes are given (a calibration file with one per option) or found by their colours in
     the camera's frames, tried on every tracked frame until all are found.
     """
-
-    key = "options/layout"
 
     def __init__(
         self, names: tuple[str, ...], commit: CommitLine, boxes: OptionsLayout | None = None
@@ -148,12 +140,8 @@ class OptionsTable:
         if boxes is not None:
             self._found(boxes)
 
-    def publisher(self, node: Node) -> TopicPublisher:
-        """The table's key (a literal call: the contract's check of the code reads it)."""
-        return node.publisher("options/layout")
-
     def _found(self, boxes: OptionsLayout) -> None:
-        self.fields = dict(layout_message_fields(self.names, boxes))
+        self.fields = m.layout_fields(self.names, boxes)
         self.layout = boxes  # after the fields: whoever sees the layout can publish them
 
     def look(self, image: Any) -> None:
@@ -215,9 +203,9 @@ class VisionService:
         self.table = table
         self.frame_width = frame_width
         self.pub_hand = HandPublisher(node, lossless=capture.lossless)
-        self.pub_layout = table.publisher(node)
+        self.pub_layout = node.publisher("vision/layout")
         self.pub_frame = node.publisher("vision/frame") if frames_hz > 0 else None
-        self._layout_key = node.keys.topic(table.key)
+        self._layout_key = node.keys.topic("vision/layout")
         self._queryable = node.session.declare_queryable(self._layout_key, self._on_layout_query)
         self._latest: tuple[Frame, TrackResult] | None = None
         self._shown = -1

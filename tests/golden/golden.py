@@ -116,7 +116,7 @@ def replay_decision(out: Path) -> dict[str, Any]:
         topic = topic_of(entry.key)
         if topic in DECISION_TOPICS:
             msg = m.decode(_message_type(topic), entry.message.data)
-            values.append((topic, msg.src_seq, repr(msg.value)))
+            values.append((topic, msg.src_seq, repr(msg.signed)))  # schema 3: (z, -z)
     return {
         "poses": res.poses, "recomputed": res.recomputed, "left_out": res.left_out,
         "trials": [

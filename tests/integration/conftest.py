@@ -23,7 +23,7 @@ from tests.protocols import SHORT as SHORT  # a three-trial protocol: whole sess
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 # SHORT on a table of three boxes: three trials, one control and two consensus, O by name (the
-# one conductor runs it on the `options/*` keys; the tests of N = 2 are parametrised with it).
+# one conductor runs it on the one key space; the tests of N = 2 are parametrised with it).
 SHORT_THREE = """
 [protocol]
 options = ["red", "blue", "green"]

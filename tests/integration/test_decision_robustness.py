@@ -22,7 +22,7 @@ def _pose(seq: int, t_ns: int, x: float, y: float) -> bytes:
 
 def test_decision_survives_garbage_and_keeps_publishing(client, spawn):
     proc = spawn("decision")
-    z_r = Collector(client, KEYS.topic("decision/z_r"), m.Scalar)
+    z_r = Collector(client, KEYS.topic("decision/z_r"), m.Opinions)
     z_h = Collector(client, KEYS.topic("decision/z_h"), m.Observed)
     # BLOCK: the 100 kB garbage must not make the test's own valid poses droppable en route.
     hand = client.declare_publisher(
@@ -39,7 +39,7 @@ def test_decision_survives_garbage_and_keeps_publishing(client, spawn):
         msgpack.packb([1, 2, 3]),
         msgpack.packb(
             {
-                "v": 1,
+                "v": m.SCHEMA_VERSION,
                 "seq": 1,
                 "t_ns": 1,
                 "detected": True,
@@ -49,7 +49,7 @@ def test_decision_survives_garbage_and_keeps_publishing(client, spawn):
         ),
         msgpack.packb(
             {
-                "v": 1,
+                "v": m.SCHEMA_VERSION,
                 "seq": 1,
                 "t_ns": 1,
                 "detected": True,
@@ -63,7 +63,8 @@ def test_decision_survives_garbage_and_keeps_publishing(client, spawn):
     for payload in garbage:
         hand.put(payload)
         trial.put(payload)
-    trial.put(m.encode(m.TrialEvent(seq=0, t_ns=t0 + 1, phase="go", trial=1, mode="dissensus")))
+    trial.put(m.encode(m.TrialEvent(seq=0, t_ns=t0 + 1, phase="go", trial=1, mode="dissensus",
+                                    options=("red", "blue"))))
 
     # A hand heading for red after the garbage: decision must still answer every pose.
     n_before = len(z_r.items)
@@ -82,8 +83,8 @@ def test_decision_survives_garbage_and_keeps_publishing(client, spawn):
     assert len(answered & set(range(1, 31))) >= 28, (sorted(answered), proc.log_path.read_text())
     assert proc.poll() is None, "decision died on garbage"
     last_zh = z_h.messages[-1]
-    assert last_zh.value > 0  # the human heads for red
-    assert z_r.messages[-1].value < 0  # dissensus trial: the robot opposes
+    assert last_zh.signed > 0  # the human heads for red
+    assert z_r.messages[-1].signed < 0  # dissensus trial: the robot opposes
     log = proc.log_path.read_text()
     assert log.count("dropped bad message") >= 2 * len(garbage) - 2
     assert "vision/hand" in log and "experiment/trial" in log

@@ -86,9 +86,7 @@ def test_a_silent_and_an_unplugged_bus_interrupt_their_trials(tmp_path, device, 
         client = None
         try:
             client = connect_when_listening(endpoint)
-            events = (Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
-                      if n_options == 2 else
-                      Collector(client, KEYS.topic("options/trial"), m.OptionsTrialEvent))
+            events = Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
             arm = Collector(client, KEYS.topic(f"{device}/state"), state_cls)
             delays = {}
             for trial, fault in ((2, "silent"), (3, "unplugged")):

@@ -74,15 +74,16 @@ class Conductor:
 
     def event(self, phase: str, trial: int, text: str = "") -> None:
         self.seq += 1
-        msg = m.TrialEvent(seq=self.seq, t_ns=time.time_ns(), phase=phase, trial=trial,
-                           mode="consensus", option="red", text=text, session="S1")
+        msg = m.TrialEvent(seq=self.seq, t_ns=time.time_ns(), options=("red", "blue"),
+                           phase=phase, trial=trial, mode="consensus", option="red", text=text,
+                           session="S1")
         self.trial_pub.put(m.encode(msg))
 
     def result(self, trial: int, score: int) -> None:
         self.seq += 1
-        msg = m.TrialResult(seq=self.seq, t_ns=time.time_ns(), trial=trial, mode="consensus",
-                            option="red", robot="red", human="red", outcome="C", score=score,
-                            session="S1")
+        msg = m.TrialResult(seq=self.seq, t_ns=time.time_ns(), options=("red", "blue"),
+                            trial=trial, mode="consensus", option="red", robot="red",
+                            human="red", outcome="C", score=score, session="S1")
         self.result_pub.put(m.encode(msg))
 
 

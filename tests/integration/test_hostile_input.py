@@ -33,11 +33,23 @@ def _rss_kb(pid: int) -> int:
     raise AssertionError("no VmRSS")
 
 
+# What a message of schema 3 must carry (its options, and a value or box per option), so that a
+# junk map below is refused for its poison, not merely for a missing field.
+REQUIRED: dict[str, dict[str, object]] = {
+    "opinions": {"options": ["red", "blue"], "values": [0.5, -0.5]},
+    "observed": {"options": ["red", "blue"], "values": [0.5, -0.5]},
+    "layout": {"options": ["red", "blue"], "boxes": [[0.7, 0.1, 0.9, 0.3], [0.1, 0.1, 0.3, 0.3]]},
+    "trial": {"options": ["red", "blue"]},
+    "result": {"options": ["red", "blue"]},
+    "press": {"option": "red"},
+}
+
+
 def corpus(cls: type[m.Message], n: int, seed: int) -> list[bytes]:
     """n payloads that must all be refused: garbage, junk maps, hostile values, wrong versions."""
     rng = random.Random(seed)
     fields = m.fields(cls)
-    valid = {"v": 1, "seq": 1, "t_ns": time.time_ns()}
+    valid = {"v": m.SCHEMA_VERSION, "seq": 1, "t_ns": time.time_ns(), **REQUIRED.get(cls.KIND, {})}
     junk_values = [
         float("nan"), float("inf"), -float("inf"), 1e308, -(2**63), 2**64 - 1, True, None,
         "x" * 600, "", [], {}, [[[[[[1.0]]]]]], b"\xff" * 10, 100.0, -100.0,
@@ -51,7 +63,7 @@ def corpus(cls: type[m.Message], n: int, seed: int) -> list[bytes]:
             f = rng.choice(fields[2:] or fields)
             out.append(msgpack.packb({**valid, f: rng.choice(junk_values)}))
         elif kind == 2:  # wrong or missing schema version
-            version = rng.choice([0, 2, 99, -1, "1", None])
+            version = rng.choice([0, 1, 2, 99, -1, "3", None])
             payload = {**valid, "v": version} if version is not None else {"seq": 1, "t_ns": 1}
             out.append(msgpack.packb(payload))
         elif kind == 3:  # unknown fields
@@ -60,7 +72,7 @@ def corpus(cls: type[m.Message], n: int, seed: int) -> list[bytes]:
             depth = rng.randrange(100, 30_000)
             out.append(b"\x91" * depth + b"\xc0")
         elif kind == 5:  # truncated valid-looking map
-            full = msgpack.packb({**valid, "value": 0.5, "src_seq": 1})
+            full = msgpack.packb({**valid, "src_seq": 1})
             out.append(full[: rng.randrange(1, len(full))])
         elif kind == 6:  # too big for any message (the decoders' limit)
             out.append(msgpack.packb({**valid, "text": "y" * 70_000}))
@@ -75,7 +87,7 @@ def test_fuzzed_keys_leave_every_service_alive_bounded_and_working(router, endpo
     try:
         state = Collector(client, KEYS.topic("actuation/state"), m.ArmStateMsg)
         eyes = Collector(client, KEYS.topic("eyes/state"), m.EyesStateMsg)
-        z_r = Collector(client, KEYS.topic("decision/z_r"), m.Scalar)
+        z_r = Collector(client, KEYS.topic("decision/z_r"), m.Opinions)
         wait_for(lambda: bool(state.messages) and bool(eyes.messages), 30, "services up")
         targets = sorted({t for s in SERVICES for t in TOPICS if s in TOPICS[t].subscribers})
         pubs = {t: client.declare_publisher(KEYS.topic(t)) for t in targets}
@@ -135,11 +147,11 @@ def test_fuzzed_keys_leave_every_service_alive_bounded_and_working(router, endpo
 def test_the_transport_refuses_an_oversized_message(router, endpoint, client):
     # zenoh's own limit is 1 GiB: one 300 MB message stayed resident in every host it crossed.
     # The rig's configs cap a message at 1 MiB; the router drops the bigger one and goes on.
-    got = Collector(client, KEYS.topic("decision/z_r"), m.Scalar)
+    got = Collector(client, KEYS.topic("decision/z_r"), m.Opinions)
     attacker = open_session(make_config(mode="client", connect=[endpoint]))
     honest = open_session(make_config(mode="client", connect=[endpoint]))
     try:
-        ok = m.encode(m.Scalar(seq=1, t_ns=time.time_ns(), value=0.5, src_seq=1))
+        ok = m.encode(m.Opinions(seq=1, t_ns=time.time_ns(), src_seq=1, **m.signed_fields(0.5)))
 
         def honest_gets_through(after: int) -> bool:
             honest.put(KEYS.topic("decision/z_r"), ok)
@@ -155,7 +167,7 @@ def test_the_transport_refuses_an_oversized_message(router, endpoint, client):
             "honest traffic through the router after the oversized message",
         )
         assert got.bad == 0  # the 2 MB payload never reached the subscriber
-        assert all(math.isfinite(msg.value) for msg in got.messages)
+        assert all(math.isfinite(v) for msg in got.messages for v in msg.values)
     finally:
         attacker.close()
         honest.close()

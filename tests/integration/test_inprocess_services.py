@@ -23,6 +23,7 @@ from services.eyes.servos import SimServoDriver
 from services.model.decision import DecisionModel, OptionsDecision
 from services.model.params import NodConfig
 from services.model.safety import SafetyParams
+from services.model.schedule import OptionsSchedule
 from tests.integration.conftest import Collector, wait_for
 
 pytestmark = pytest.mark.integration
@@ -84,33 +85,32 @@ def _stream(n: int, hz: float = 30.0) -> list[tuple[int, list[tuple[float, float
 
 @pytest.mark.parametrize("n_options", [2, 3])
 def test_live_decision_publishes_exactly_the_models_values(router, endpoint, client, n_options):
-    # One decision service whatever the number of options: the paper's kernel on its scalar keys
-    # at two, the N-option engine on the options/* vectors at three, each value the engine's.
+    # One decision service on one key space whatever the number of options: the paper's kernel
+    # at two (its signed z as (z, -z)), the N-option engine's vectors at three, each value the
+    # engine's.
     cfg = NodConfig()
+    names = OptionsSchedule.default(n_options).names
     fabric = Fabric(connect=(endpoint,))
     decision = Node("decision", fabric)
-    DecisionService(decision, cfg, n_options)
+    DecisionService(decision, cfg, names)
     decision.ready()
     camera = Node("sim", fabric)
+    reference: DecisionModel | OptionsDecision
     if n_options == 2:
-        outputs, vector = "decision", m.Scalar
-        reference: DecisionModel | OptionsDecision = DecisionModel(cfg.decision, cfg.layout)
+        reference = DecisionModel(cfg.decision, cfg.layout)
         reference.reset("consensus", "red")
-        cue = {"option": "red"}
     else:
-        outputs, vector = "options", m.OptionVector
         reference = OptionsDecision(cfg.table(n_options), cfg.decision)
         reference.reset("consensus", 0)
-        cue = {"n_options": n_options, "option": 0}
-    z_r = Collector(client, camera.keys.topic(f"{outputs}/z_r"), vector)
-    b_r = Collector(client, camera.keys.topic(f"{outputs}/b_r"), vector)
+    z_r = Collector(client, camera.keys.topic("decision/z_r"), m.Opinions)
+    b_r = Collector(client, camera.keys.topic("decision/b_r"), m.Opinions)
     conductor = Node("experiment", fabric)
-    trial_key = "experiment/trial" if n_options == 2 else "options/trial"
+    trial_key = "experiment/trial"
     trial = conductor.publisher(trial_key)
     hands = camera.publisher("vision/hand")
     try:
         wait_for(lambda: hands._pub.matching_status.matching, 5.0, "decision subscribed")
-        trial.put(phase="go", trial=5, mode="consensus", **cue)
+        trial.put(phase="go", trial=5, mode="consensus", option="red", options=names)
         wait_for(lambda: decision.received[trial_key] == 1, 5.0, "the trial event")
         stream = _stream(60)
         for i, (t_ns, pts) in enumerate(stream):
@@ -122,11 +122,12 @@ def test_live_decision_publishes_exactly_the_models_values(router, endpoint, cli
             wait_for(lambda n=i + 1: len(z_r.messages) >= n, 30.0, f"z_r of pose {i + 1}")
         expected = [reference.on_hand(t, pts) for t, pts in stream]
 
-        def values(x: object) -> object:  # a number, or a vector as its tuple
-            return tuple(x.tolist()) if isinstance(x, np.ndarray) else x
+        def values(x: object) -> object:  # the paper's z as (z, -z), a vector as its tuple
+            return tuple(x.tolist()) if isinstance(x, np.ndarray) else (x, -x)  # type: ignore[operator]
 
-        def got(msg: m.Scalar | m.OptionVector) -> object:
-            return msg.value if isinstance(msg, m.Scalar) else msg.values
+        def got(msg: m.Opinions) -> object:
+            assert msg.options == names
+            return msg.values
 
         received = sorted(z_r.messages, key=lambda msg: msg.src_seq)
         assert [got(msg) for msg in received] == [values(e.z_r) for e in expected]
@@ -244,7 +245,7 @@ def test_a_silent_arm_bus_never_holds_up_the_actuation_safety(router, endpoint, 
         state = Collector(client, node.keys.topic("actuation/state"), m.ArmStateMsg)
 
         def inputs() -> None:
-            z_r.put(value=0.3, src_seq=0)
+            z_r.put(src_seq=0, **m.signed_fields(0.3))
             hands.put(detected=True, center=(0.5, 0.85), landmarks=((0.5, 0.85),))
 
         try:
@@ -267,23 +268,23 @@ def test_an_arm_fault_is_a_safe_stop_whatever_the_number_of_options(
     # The arm reports a device fault mid-trial (the sim arm's stand-in for a silent bus): the
     # one actuation service stops on it, says so on actuation/state for any number of options
     # (the N-option copy never told its watchdog), and clears once the device is healthy.
-    from services.actuation.service import ActuationService, key_space
+    from services.actuation.service import ActuationService, arm_seam
 
     cfg = NodConfig()
+    names = OptionsSchedule.default(n_options).names
     fabric = Fabric(connect=(endpoint,))
     node = Node("actuation", fabric)
-    keys = key_space(n_options)
-    arm = keys.make_arm("sim", None, None, cfg, n_options, node.clock.now_ns() * 1e-9)
+    arm = arm_seam(names).make_arm("sim", None, None, cfg, names, node.clock.now_ns() * 1e-9)
     arm.connect()
     safety = SafetyParams(stale_ms=500.0, require_alive=("decision",))
-    ActuationService(node, cfg, arm, safety, None, n_options)
+    ActuationService(node, cfg, arm, safety, None, names)
     peer = Node("decision", fabric)
-    z_r = peer.publisher("decision/z_r" if n_options == 2 else "options/z_r")
+    z_r = peer.publisher("decision/z_r")
     peer.ready()
     camera = Node("sim", fabric)
     hands = camera.publisher("vision/hand")
     state = Collector(client, node.keys.topic("actuation/state"), m.ArmStateMsg)
-    z = {"value": 0.3} if n_options == 2 else {"values": (0.3, -0.1, -0.2)}
+    z = {"options": names, "values": (0.3, -0.3) if n_options == 2 else (0.3, -0.1, -0.2)}
 
     def inputs() -> None:
         z_r.put(src_seq=0, **z)

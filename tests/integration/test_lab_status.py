@@ -17,11 +17,13 @@ import pytest
 
 from services.core.node import Node
 from services.core.session import Fabric
+from services.tools.lab_status import text as lab_text
 from tests.processes import stop_all
 
 from .conftest import ROOT, wait_for
 
 pytestmark = pytest.mark.integration
+THREE = ("red", "blue", "green")  # one key space: a session over any option set names it
 
 
 @pytest.fixture
@@ -87,7 +89,8 @@ def test_watch_follows_the_conductors_events_and_status_lab_is_the_same_tool(
         seen: list[dict] = []
 
         def phase_go() -> bool:
-            go.put(phase="go", trial=4, mode="consensus", option="red", session="s-rig2")
+            go.put(options=THREE, phase="go", trial=4, mode="consensus", option="green",
+                   session="s-rig2")
             line = watch.stdout.readline() if watch.stdout else ""
             if line:
                 seen.append({r["rig"]: r for r in json.loads(line)["rigs"]})
@@ -95,7 +98,10 @@ def test_watch_follows_the_conductors_events_and_status_lab_is_the_same_tool(
 
         wait_for(phase_go, 20, "rig2's 'go' in the watched lab view")
         assert seen[-1]["rig2"]["trial"] == 4  # the event is fresher than the heartbeat
-        go.put(phase="go", trial=4, mode="consensus", session="s-rig2")
+        assert seen[-1]["rig2"]["options"] == list(THREE)  # and names the session's options
+        assert "trial 4 (go), options red,blue,green," in lab_text(
+            {"rigs": [seen[-1]["rig2"]]})  # (the paper's red, blue go unsaid)
+        go.put(options=THREE, phase="go", trial=4, mode="consensus", session="s-rig2")
         # A later window with no event keeps the last one.
         line = json.loads(watch.stdout.readline() if watch.stdout else "{}")
         assert {r["rig"]: r["phase"] for r in line["rigs"]}["rig2"] == "go"

@@ -28,6 +28,7 @@ pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
 STEP_NS = 100_000_000  # the events' stamps, 100 ms apart, all before they are sent
 TOLERANCE_S = 0.0005  # stamp mapped by the service vs by this test, both on this host (~1 µs)
+PAPER = ("red", "blue")
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -47,6 +48,15 @@ def loopback_lsl(tmp_path_factory):
         del os.environ["LSLAPICFG"]
     else:
         os.environ["LSLAPICFG"] = before
+
+
+def _labels(info) -> list[str]:
+    channel = info.desc().child("channels").child("channel")
+    labels = []
+    while not channel.empty():
+        labels.append(channel.child_value("label"))
+        channel = channel.next_sibling()
+    return labels
 
 
 def _inlet(source_id: str):
@@ -89,12 +99,7 @@ def test_the_inlet_gets_a_trials_markers_in_order_on_the_rigs_clock_and_one_samp
     markers, signals = _inlet("nod-rig1-markers"), _inlet("nod-rig1-signals")
     info = signals.info(timeout=5)
     assert info.nominal_srate() == pylsl.IRREGULAR_RATE and info.channel_count() == 5
-    channel = info.desc().child("channels").child("channel")
-    labels = []
-    while not channel.empty():
-        labels.append(channel.child_value("label"))
-        channel = channel.next_sibling()
-    assert labels == ["z_h", "z_r", "b_r", "hand_x", "hand_y"]
+    assert _labels(info) == ["z_h", "z_r", "b_r", "hand_x", "hand_y"]
 
     pub = {k: client.declare_publisher(KEYS.topic(k)) for k in (
         "experiment/trial", "experiment/result", "safety/estop", "actuation/state",
@@ -110,7 +115,8 @@ def test_the_inlet_gets_a_trials_markers_in_order_on_the_rigs_clock_and_one_samp
     def at(i: int) -> int:
         return base + i * STEP_NS
 
-    common = {"trial": 4, "mode": "consensus", "option": "blue", "session": "S9"}
+    common = {"trial": 4, "mode": "consensus", "option": "blue", "session": "S9",
+              "options": PAPER}
     put("experiment/trial", m.TrialEvent(seq=1, t_ns=at(0), phase="setup", text="low",
                                           **common), "setup")
     for i, word in enumerate(("1", "2", "3"), start=1):
@@ -123,10 +129,13 @@ def test_the_inlet_gets_a_trials_markers_in_order_on_the_rigs_clock_and_one_samp
         put("vision/hand", m.HandPose(seq=seq, t_ns=at(i), detected=True, center=(0.25, 0.75),
                                       landmarks=((0.25, 0.75),)) if seen else
             m.HandPose(seq=seq, t_ns=at(i)))
-        put("decision/z_h", m.Observed(seq=seq, t_ns=at(i), value=0.5, src_seq=seq))
-        put("decision/z_r", m.Scalar(seq=seq, t_ns=at(i), value=-0.25 * seq / 100, src_seq=seq))
+        put("decision/z_h", m.Observed(seq=seq, t_ns=at(i), src_seq=seq,
+                                       **m.signed_fields(0.5)))
+        put("decision/z_r", m.Opinions(seq=seq, t_ns=at(i), src_seq=seq,
+                                       **m.signed_fields(-0.25 * seq / 100)))
         if seq != 101:
-            put("decision/b_r", m.Scalar(seq=seq, t_ns=at(i), value=1.5, src_seq=seq))
+            put("decision/b_r", m.Opinions(seq=seq, t_ns=at(i), src_seq=seq,
+                                           **m.signed_fields(1.5)))
     put("actuation/state", m.ArmStateMsg(seq=1, t_ns=at(7)))
     put("actuation/state", m.ArmStateMsg(seq=2, t_ns=at(8), safe_stop=True,
                                          safety_reason="stale decision"), "safe_stop")
@@ -135,7 +144,8 @@ def test_the_inlet_gets_a_trials_markers_in_order_on_the_rigs_clock_and_one_samp
     put("actuation/state", m.ArmStateMsg(seq=3, t_ns=at(10)), "safe_stop_cleared")
     put("experiment/trial", m.TrialEvent(seq=6, t_ns=at(11), phase="end", text="human pressed",
                                           **common), "end")
-    put("experiment/result", m.TrialResult(seq=1, t_ns=at(12), trial=4, mode="consensus",
+    put("experiment/result", m.TrialResult(seq=1, t_ns=at(12), options=PAPER, trial=4,
+                                           mode="consensus",
                                            option="blue", robot="blue", human="blue",
                                            outcome="C", score=2, session="S9"), "result")
     offset = _offset_s()
@@ -163,3 +173,36 @@ def test_the_inlet_gets_a_trials_markers_in_order_on_the_rigs_clock_and_one_samp
     assert last[:3] == [0.5, -0.255, 1.5] and all(math.isnan(v) for v in last[3:]), last
     for (_, stamp), i in zip(rows, (5, 6), strict=True):
         assert abs(stamp - (at(i) / 1e9 + offset)) < TOLERANCE_S
+
+
+def test_three_options_reopen_the_signals_with_a_channel_per_option(router, client, spawn):
+    """One key space: a session over three options names them; the signals follow its set."""
+    names = ("red", "blue", "green")
+    service = spawn("lsl")
+    wait_for(lambda: any(r.ok is not None for r in client.liveliness().get(
+        KEYS.alive("lsl"), timeout=0.3)) or service.poll() is not None, 30, "nod lsl up")
+    assert service.poll() is None, service.log_path.read_text()[-2000:]
+    markers = _inlet("nod-rig1-markers")
+    pub = {k: client.declare_publisher(KEYS.topic(k)) for k in (
+        "experiment/trial", "vision/hand", "decision/z_h", "decision/z_r", "decision/b_r")}
+    now = time.time_ns()
+    pub["experiment/trial"].put(m.encode(m.TrialEvent(
+        seq=1, t_ns=now, options=names, phase="setup", trial=1, option="green", text="low",
+        session="S3")))
+    assert json.loads(_pull(markers, 1)[0][0][0])["options"] == list(names)
+    signals = _inlet("nod-rig1-signals-red-blue-green")
+    info = signals.info(timeout=5)
+    assert info.channel_count() == 11
+    assert _labels(info)[:3] == ["z_h:red", "z_h:blue", "z_h:green"]
+    vectors = {"z_h": (0.5, -0.25, -0.25), "z_r": (0.1, 0.0, -0.1), "b_r": (1.0, 1.0, -2.0)}
+    for seq in (200, 201):  # the inlet may miss the first: it connects as the rows go out
+        pub["vision/hand"].put(m.encode(m.HandPose(
+            seq=seq, t_ns=now + seq, detected=True, center=(0.25, 0.75),
+            landmarks=((0.25, 0.75),))))
+        for q, values in vectors.items():
+            cls = m.Observed if q == "z_h" else m.Opinions
+            pub[f"decision/{q}"].put(m.encode(cls(seq=seq, t_ns=now + seq, src_seq=seq,
+                                                  options=names, values=values)))
+        time.sleep(0.2)
+    rows = _pull(signals, 1)
+    assert rows and rows[0][0] == [*vectors["z_h"], *vectors["z_r"], *vectors["b_r"], 0.25, 0.75]

@@ -37,19 +37,24 @@ def _publish_session(client, keys: Keys) -> dict[str, int]:
         pubs[topic].put(m.encode(cls(seq=seqs[topic], t_ns=t_ns, **fields)))
         seqs[topic] += 1
 
-    box = {"red": (0.72, 0.12, 0.86, 0.26), "blue": (0.14, 0.12, 0.28, 0.26), "commit_y": 0.45}
+    paper = ("red", "blue")
+    box = {"options": paper, "boxes": ((0.72, 0.12, 0.86, 0.26), (0.14, 0.12, 0.28, 0.26)),
+           "commit_y": 0.45}
     put("vision/layout", m.Layout, t0, **box)
-    put("experiment/trial", m.TrialEvent, t0, phase="setup", trial=1, text="neutral")
+    put("experiment/trial", m.TrialEvent, t0, options=paper, phase="setup", trial=1,
+        text="neutral")
     for k in (3, 2, 1):
-        put("experiment/trial", m.TrialEvent, t0 + 1, phase="countdown", trial=1, text=str(k))
-    put("experiment/trial", m.TrialEvent, t0 + 2, phase="go", trial=1)
+        put("experiment/trial", m.TrialEvent, t0 + 1, options=paper, phase="countdown", trial=1,
+            text=str(k))
+    put("experiment/trial", m.TrialEvent, t0 + 2, options=paper, phase="go", trial=1)
     for i in range(N_POSES):
         t = t0 + 10_000_000 + i * 8_333_333
         x = 0.5 + 0.2 * i / N_POSES
         lm = ((x, 0.7), (x + 0.01, 0.71))
         put("vision/hand", m.HandPose, t, detected=True, center=(x + 0.005, 0.705), landmarks=lm)
         for topic, value in (("decision/z_h", x), ("decision/z_r", -x), ("decision/b_r", 0.1)):
-            put(topic, m.Scalar, t, value=value, src_seq=i)
+            cls = m.Observed if topic == "decision/z_h" else m.Opinions
+            put(topic, cls, t, src_seq=i, **m.signed_fields(value))
         if i % 10 == 0:
             put("actuation/state", m.ArmStateMsg, t, ee=(0.5, 0.1), phase="move", moving=True)
         time.sleep(1 / N_POSES)
@@ -61,8 +66,9 @@ def _publish_session(client, keys: Keys) -> dict[str, int]:
             put("vision/frame", m.VisionFrame, t, jpeg=_jpeg(320, 240), width=320, height=240)
     t_end = t0 + 2_000_000_000
     put("safety/estop", m.Estop, t_end, engaged=True, reason="test", source="pytest")
-    put("experiment/trial", m.TrialEvent, t_end, phase="end", trial=1)
-    put("experiment/result", m.TrialResult, t_end, trial=1, robot="red", human="red", outcome="C")
+    put("experiment/trial", m.TrialEvent, t_end, options=paper, phase="end", trial=1)
+    put("experiment/result", m.TrialResult, t_end, options=paper, trial=1, robot="red",
+        human="red", outcome="C")
     return seqs
 
 

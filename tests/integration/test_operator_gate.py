@@ -1,8 +1,8 @@
 """The operator's start gate: with `gate = true` no trial starts before `nod experiment next`,
 and `nod experiment pause` holds the next trial of an ungated session (real processes).
 
-One conductor for any option set: the gate's tests run on the paper's two options and on a
-table of three (its trial events on `options/trial`)."""
+One conductor and one key space (schema 3) for any option set: the gate's tests run on the
+paper's two options and on a table of three, their trial events alike on `experiment/trial`."""
 
 from __future__ import annotations
 
@@ -23,17 +23,14 @@ from .conftest import SHORT, SHORT_THREE, Collector, wait_for
 pytestmark = pytest.mark.integration
 KEYS = Keys("rig1")
 SPEED = ("--speed", "4")
-# option count: (the 3-trial params, the conductor's trial-event key and message)
-SESSIONS: dict[int, tuple[str, str, type[m.Message]]] = {
-    2: (SHORT, "experiment/trial", m.TrialEvent),
-    3: (SHORT_THREE, "options/trial", m.OptionsTrialEvent),
-}
+# option count: the 3-trial params
+SESSIONS: dict[int, str] = {2: SHORT, 3: SHORT_THREE}
 by_option_count = pytest.mark.parametrize("n", sorted(SESSIONS), ids=lambda n: f"{n} options")
 
 
 def _params(n: int, gated: bool) -> str:
     """The 3-trial params of `n` options, with the operator's gate if `gated`."""
-    text = SESSIONS[n][0]
+    text = SESSIONS[n]
     if not gated:
         return text
     if "[protocol]\n" in text:
@@ -41,9 +38,8 @@ def _params(n: int, gated: bool) -> str:
     return text.replace("[[protocol.trials]]", "[protocol]\ngate = true\n\n[[protocol.trials]]", 1)
 
 
-def _events(client, n: int) -> Collector:
-    _, key, cls = SESSIONS[n]
-    return Collector(client, KEYS.topic(key), cls)
+def _events(client) -> Collector:
+    return Collector(client, KEYS.topic("experiment/trial"), m.TrialEvent)
 
 
 def _rig(spawn, params: str, epoch: str) -> None:
@@ -67,7 +63,7 @@ def _session(
     params.write_text(_params(n, gated))
     epoch = str(time.time_ns())
     _rig(spawn, str(params), epoch)
-    events = _events(client, n)
+    events = _events(client)
     db = tmp_path / "s.sqlite"
     conductor = spawn("experiment", *SPEED, "--epoch-ns", epoch, "--params", str(params),
                       "--db", str(db), "--clicks", "10", "--console", "lines")
@@ -93,6 +89,7 @@ def test_a_gated_session_starts_each_trial_only_when_the_operator_says(
         _operator(endpoint, "next")
         wait_for(lambda t=trial: t in _setups(events), 10, f"trial {trial} set up")
     assert conductor.wait(60) == 0, conductor.log_path.read_text()[-2000:]
+    assert {len(e.options) for e in events.messages} == {n}  # every event names the set
     store = Store(db)
     try:
         assert [t.trial for _, t in store.trials()] == [1, 2, 3]

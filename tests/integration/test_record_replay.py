@@ -70,8 +70,8 @@ def recorded(tmp_path_factory) -> Recorded:
     return _record(tmp_path_factory, SHORT)
 
 
-# option count: the keys of its decision outputs and results
-RESULT_KEYS = {2: ("decision/z_r", "experiment/result"), 3: ("options/z_r", "options/result")}
+# option count: the keys of its decision outputs and results (one key space for any count)
+RESULT_KEYS = {2: ("decision/z_r", "experiment/result"), 3: ("decision/z_r", "experiment/result")}
 
 
 @pytest.fixture(scope="module", params=sorted(RESULT_KEYS), ids=lambda n: f"{n} options")
@@ -120,10 +120,8 @@ def test_the_session_is_recorded_one_channel_per_key_and_linked_in_the_store(rec
             assert (schema.name, schema.encoding) == (TOPICS[topic].message.__name__, "jsonschema")
             assert TOPICS[topic].message.__name__ in json.loads(schema.data)["$defs"]
             assert channel.message_encoding == "msgpack"
-            # each channel says the schema its key's messages are written in (2: options/*)
-            want = m.schema_version(TOPICS[topic].message)
-            assert channel.metadata["schema_version"] == str(want)
-            assert (want == 2) == topic.startswith("options/")
+            # each channel says the schema its key's messages are written in (one for all)
+            assert channel.metadata["schema_version"] == str(m.SCHEMA_VERSION)
             assert channel.metadata["topic"] == topic
         assert counts["nod/rig1/vision/hand"] > 100
         assert counts[f"nod/rig1/{z_r}"] > 100
@@ -232,8 +230,8 @@ def test_through_decision_with_another_b_star_changes_b_r_in_consensus_trials(re
                     gap.setdefault(trial, last + 1)
                 last = seq
             elif topic == "decision/b_r" and trial:
-                msg = m.decode(m.Scalar, e.message.data)
-                b_r.setdefault(trial, {})[msg.src_seq] = msg.value
+                msg = m.decode(m.Opinions, e.message.data)
+                b_r.setdefault(trial, {})[msg.src_seq] = msg.signed
         return b_r, hands
 
     orig, orig_hands = per_trial(recorded.mcap)

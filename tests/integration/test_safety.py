@@ -7,6 +7,7 @@ import pytest
 
 from services.core import messages as m
 from services.core.keys import Keys
+from services.model.geometry import COLOURS
 
 from .conftest import Collector, wait_for
 
@@ -48,7 +49,8 @@ class Feeder:
                         )
                     )
                 )
-                self.z_r.put(m.encode(m.Scalar(seq=self.seq, t_ns=t, value=0.3, src_seq=self.seq)))
+                self.z_r.put(m.encode(m.Opinions(seq=self.seq, t_ns=t, src_seq=self.seq,
+                                                 **m.signed_fields(0.3))))
             time.sleep(0.01)
 
     def close(self) -> None:
@@ -64,9 +66,11 @@ def _start_moving(client, spawn):
     feeder = Feeder(client)
     trial = client.declare_publisher(KEYS.topic("experiment/trial"))
     wait_for(lambda: any(not s.safe_stop for s in state.messages[-3:]), 20, "actuation ready")
-    trial.put(m.encode(m.TrialEvent(seq=0, t_ns=time.time_ns(), phase="setup", trial=1)))
+    trial.put(m.encode(m.TrialEvent(seq=0, t_ns=time.time_ns(), options=COLOURS, phase="setup",
+                                    trial=1)))
     wait_for(lambda: bool(state.messages) and state.messages[-1].trial == 1, 10, "trial 1 set up")
-    trial.put(m.encode(m.TrialEvent(seq=1, t_ns=time.time_ns(), phase="go", trial=1)))
+    trial.put(m.encode(m.TrialEvent(seq=1, t_ns=time.time_ns(), options=COLOURS, phase="go",
+                                    trial=1)))
     wait_for(lambda: bool(state.messages) and state.messages[-1].moving, 10, "the arm moving")
     return state, feeder
 
@@ -157,8 +161,10 @@ def test_future_stamps_cannot_hold_the_gate_open(client, spawn):
             seq=10**6, t_ns=t + hour, detected=True, center=(0.5, 0.85), landmarks=((0.5, 0.85),)
         )
         feeder.hand.put(m.encode(forged_hand))
-        feeder.z_r.put(m.encode(m.Scalar(seq=10**6, t_ns=t + hour, value=0.3, src_seq=1)))
-        feeder.z_r.put(m.encode(m.Scalar(seq=10**6 + 1, t_ns=2**63 - 1, value=0.3, src_seq=2)))
+        feeder.z_r.put(m.encode(m.Opinions(seq=10**6, t_ns=t + hour, src_seq=1,
+                                           **m.signed_fields(0.3))))
+        feeder.z_r.put(m.encode(m.Opinions(seq=10**6 + 1, t_ns=2**63 - 1, src_seq=2,
+                                           **m.signed_fields(0.3))))
         t_quiet = time.time_ns()
         wait_for(
             lambda: _first_after(state, t_quiet, lambda s: s.safe_stop) is not None,

@@ -117,7 +117,7 @@ def test_echo_json_prints_messages_and_one_line_per_garbage_payload(endpoint, st
     bad = [r for r in rows if "error" in r]
     assert len(good) == 3, run.stdout
     for r in good:
-        assert r["key"] == HAND and r["v"] == 1 and r["detected"] is True
+        assert r["key"] == HAND and r["v"] == m.SCHEMA_VERSION and r["detected"] is True
         assert set(r) >= {"seq", "t_ns", "center", "landmarks", "source"}
         assert len(r["center"]) == 2 and len(r["landmarks"]) == 2
     assert bad, run.stdout

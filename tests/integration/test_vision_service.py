@@ -75,9 +75,9 @@ def test_vision_publishes_the_rendered_path_of_a_video_file(client, spawn, tmp_p
     assert good >= 0.95 * sum(h is not None for h in truth)
     assert all(b.t_ns >= a.t_ns for a, b in zip(poses, poses[1:], strict=False))
     lay = layouts.messages[0]
-    assert (lay.red, lay.blue, lay.commit_y) == (
-        (0.7, 0.1, 0.88, 0.28),
-        (0.12, 0.1, 0.3, 0.28),
+    assert (lay.options, lay.boxes, lay.commit_y) == (
+        ("red", "blue"),
+        ((0.7, 0.1, 0.88, 0.28), (0.12, 0.1, 0.3, 0.28)),
         0.5,
     )
     assert frames.items, "no monitor frame"
@@ -97,14 +97,15 @@ THREE = OptionsLayout(
 def test_late_joiners_get_the_layout_and_sigterm_stops_cleanly(
     client, endpoint, spawn, tmp_path, n
 ):
-    """The table from the calibration file: the paper's two on vision/layout, N on options/."""
+    """The table from the calibration file on vision/layout, the paper's two boxes or N."""
     cal = tmp_path / "table.toml"
+    key, cls = "vision/layout", m.Layout
     if n == 2:
         cal.write_text(dump_calibration(LAYOUT))
-        key, cls, options = "vision/layout", m.Layout, ()
+        options: tuple[str, ...] = ()
     else:
         cal.write_text(dump_calibration(THREE, names=("red", "blue", "green")))
-        key, cls, options = "options/layout", m.OptionsLayoutMsg, ("--options", "3")
+        options = ("--options", "3")
     hands = Collector(client, KEYS.topic("vision/hand"), m.HandPose)
     layouts = Collector(client, KEYS.topic(key), cls)
     proc = spawn(
@@ -124,9 +125,10 @@ def test_late_joiners_get_the_layout_and_sigterm_stops_cleanly(
     assert replies, "nobody answered a get on the layout key"
     for lay in (layouts.messages[0], m.decode(cls, replies[0].ok.payload.to_bytes())):
         if n == 2:
-            assert lay.red == (0.7, 0.1, 0.88, 0.28) and lay.commit_y == 0.5
+            assert lay.options == ("red", "blue")
+            assert lay.boxes[0] == (0.7, 0.1, 0.88, 0.28) and lay.commit_y == 0.5
         else:
-            assert lay.names == ("red", "blue", "green") and lay.layout() == THREE
+            assert lay.options == ("red", "blue", "green") and lay.table() == THREE
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(10) == 0, proc.log_path.read_text()
 

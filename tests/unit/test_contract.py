@@ -106,7 +106,7 @@ def test_undeclared_publishing_or_subscribing_is_refused():
     with pytest.raises(KeyError, match="unknown topic"):
         check_publisher("decision/z_q", "decision")
     assert check_publisher("safety/estop", "estop").qos.priority == "real_time"
-    assert check_subscriber("decision/z_r", "actuation").message.KIND == "scalar"
+    assert check_subscriber("decision/z_r", "actuation").message.KIND == "opinions"
 
 
 def test_safety_and_protocol_messages_are_never_dropped():
@@ -121,11 +121,11 @@ def test_every_topic_is_a_constant_named_after_its_key():
         name.upper().replace("/", "_"): name for name in TOPICS
     }
     assert all(TOPICS[t.name] is t for t in constants.values())
-    assert contract.DECISION_Z_R.message is m.Scalar
+    assert contract.DECISION_Z_R.message is m.Opinions
     assert check_publisher(contract.EYES_CMD, "experiment") is contract.EYES_CMD
     assert check_subscriber(contract.DECISION_Z_R, "actuation") is TOPICS["decision/z_r"]
     with pytest.raises(ContractError, match="declare it"):
         check_publisher(contract.DECISION_Z_R, "vision")
-    stray = Topic("decision/z_r", m.Scalar, ("vision",), (), "", contract.STREAM, "")
+    stray = Topic("decision/z_r", m.Opinions, ("vision",), (), "", contract.STREAM, "")
     with pytest.raises(KeyError, match="unknown topic"):  # only the declared constant counts
         check_publisher(stray, "vision")

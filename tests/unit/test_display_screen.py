@@ -38,25 +38,23 @@ ROOT = Path(__file__).resolve().parents[2]
 REVEALING = re.compile(r"red|blue|consensus|dissensus|low|significant|none|\b(C|CH|D|DH)\b", re.I)
 
 
+OPTION_NAMES = ("red", "blue", "green", "yellow")
+
+
 def ev(phase: str, trial: int = 1, text: str = "", session: str = "S1", n: int = 2) -> Any:
-    """A trial event of the paper's key (two options) or of a table of `n` boxes."""
-    if n > 2:
-        return m.OptionsTrialEvent(seq=0, t_ns=0, n_options=n, phase=phase, trial=trial,
-                                    mode="consensus", option=2, text=text, session=session)  # type: ignore[arg-type]
-    return m.TrialEvent(seq=0, t_ns=0, phase=phase, trial=trial, mode="consensus", option="red",
-                        text=text, session=session)  # type: ignore[arg-type]
+    """A trial event over `n` options (one key space: two are the paper's red and blue)."""
+    names = OPTION_NAMES[:n]
+    return m.TrialEvent(seq=0, t_ns=0, options=names, phase=phase, trial=trial,  # type: ignore[arg-type]
+                        mode="consensus", option=names[-1], text=text, session=session)
 
 
 def res(trial: int, score: int, session: str = "S1", interrupted: bool = False,
         n: int = 2) -> Any:
-    """A trial's result on the paper's key or of a table of `n` boxes."""
-    if n > 2:
-        return m.OptionsResult(seq=0, t_ns=0, n_options=n, trial=trial, mode="consensus",
-                                option=1, robot=1, human=2, outcome="D", score=score,
-                                session=session, interrupted=interrupted)
-    return m.TrialResult(seq=0, t_ns=0, trial=trial, mode="consensus", option="blue",
-                         robot="blue", human="red", outcome="D", score=score, session=session,
-                         interrupted=interrupted)
+    """A trial's result over `n` options."""
+    names = OPTION_NAMES[:n]
+    return m.TrialResult(seq=0, t_ns=0, options=names, trial=trial, mode="consensus",
+                         option=names[1], robot=names[1], human=names[0], outcome="D",
+                         score=score, session=session, interrupted=interrupted)
 
 
 def live(session: str = "S1") -> DisplayState:

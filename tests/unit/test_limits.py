@@ -50,8 +50,18 @@ def wide(t: mi.Type, value):
     if isinstance(t, mi.StrType) and t.pattern is None and t.max_length is not None:
         return WIDE * t.max_length
     if isinstance(t, mi.VarTupleType):
-        return tuple(wide(t.item_type, v) for v in value)
+        return distinct(tuple(wide(t.item_type, v) for v in value))
     return value
+
+
+def distinct(items: tuple) -> tuple:
+    """A tuple of equal wide strings made distinct (an option set's names must be), each as long.
+
+    The first stays as it was, so a field naming one of the set (O, a press) still names one.
+    """
+    if len(items) < 2 or not all(isinstance(s, str) and s and s[-1] == WIDE for s in items):
+        return items
+    return (items[0],) + tuple(s[:-1] + chr(ord(WIDE) + i) for i, s in enumerate(items[1:], 1))
 
 
 def msgpack_of(value) -> bytes:
@@ -63,6 +73,9 @@ def msgpack_of(value) -> bytes:
 def worst(cls: type[m.Message]) -> m.Message:
     info = mi.type_info(cls)
     kwargs = {f.name: wide(f.type, largest(f.type)) for f in info.fields}
+    for name in ("option", "robot", "human"):  # must name one of the set: its widest name
+        if isinstance(kwargs.get(name), str) and "options" in kwargs:
+            kwargs[name] = kwargs["options"][0]
     return cls(**kwargs)
 
 

@@ -13,10 +13,12 @@ from services.core import messages as m
 from services.lsl.clockmap import Anchor, read_anchor
 from services.lsl.samples import (
     PENDING,
+    SIGNALS,
     SafeStops,
     SignalRows,
     estop_marker,
     result_marker,
+    signal_names,
     trial_marker,
 )
 
@@ -44,8 +46,9 @@ def test_the_tightest_bracket_is_kept():
     assert anchor.offset_s() == pytest.approx(5.01)
 
 
-def scalar(cls, seq: int, value: float, t_ns: int = 7) -> m.Scalar:
-    return cls(seq=seq, t_ns=t_ns, value=value, src_seq=seq)
+def scalar(seq: int, value: float, t_ns: int = 7) -> m.Opinions:
+    """A two-option opinion message of the paper's signed value."""
+    return m.Opinions(seq=seq, t_ns=t_ns, src_seq=seq, **m.signed_fields(value))
 
 
 def pose(seq: int, centre: tuple[float, float] | None) -> m.HandPose:
@@ -60,7 +63,7 @@ def test_a_row_comes_once_all_three_values_of_its_pose_are_in_in_any_order(order
     if seen:
         rows.on_pose(pose(3, (0.1, 0.9) if found else None))
     values = {"z_h": 0.5, "z_r": -0.2, "b_r": 1.25}
-    out = [rows.on_value(name, scalar(m.Scalar, 3, values[name], t_ns=99)) for name in order]
+    out = [rows.on_value(name, scalar(3, values[name], t_ns=99)) for name in order]
     assert out[:2] == [None, None]
     row = out[2]
     assert row is not None and row.t_ns == 99
@@ -69,23 +72,42 @@ def test_a_row_comes_once_all_three_values_of_its_pose_are_in_in_any_order(order
         assert row.values[3:] == (0.1, 0.9)
     else:
         assert all(math.isnan(v) for v in row.values[3:])
-    assert rows.on_value("z_r", scalar(m.Scalar, 3, 0.0)) is None  # a repeat starts a new one
+    assert rows.on_value("z_r", scalar(3, 0.0)) is None  # a repeat starts a new one
 
 
 def test_only_the_newest_poses_are_waited_for():
     rows = SignalRows()
     for seq in range(PENDING + 10):
-        rows.on_value("z_h", scalar(m.Scalar, seq, 0.0))
-        rows.on_value("z_r", scalar(m.Scalar, seq, 0.0))
-    assert rows.on_value("b_r", scalar(m.Scalar, 0, 0.0)) is None  # long given up
-    assert rows.on_value("b_r", scalar(m.Scalar, PENDING + 9, 0.0)) is not None
+        rows.on_value("z_h", scalar(seq, 0.0))
+        rows.on_value("z_r", scalar(seq, 0.0))
+    assert rows.on_value("b_r", scalar(0, 0.0)) is None  # long given up
+    assert rows.on_value("b_r", scalar(PENDING + 9, 0.0)) is not None
     with pytest.raises(ValueError):
-        rows.on_value("theta", scalar(m.Scalar, 1, 0.0))
+        rows.on_value("theta", scalar(1, 0.0))
+
+
+def test_three_options_make_one_channel_per_option_and_another_set_is_refused():
+    names = ("red", "blue", "green")
+    assert signal_names() == SIGNALS == ("z_h", "z_r", "b_r", "hand_x", "hand_y")
+    assert signal_names(names) == (
+        "z_h:red", "z_h:blue", "z_h:green", "z_r:red", "z_r:blue", "z_r:green",
+        "b_r:red", "b_r:blue", "b_r:green", "hand_x", "hand_y")
+    rows = SignalRows(names)
+    assert rows.names == signal_names(names)
+    rows.on_pose(pose(5, (0.2, 0.8)))
+    vectors = {"z_h": (0.5, -0.25, -0.25), "z_r": (0.0, 0.1, -0.1), "b_r": (1.0, -2.0, 1.0)}
+    out = [rows.on_value(q, m.Opinions(seq=5, t_ns=9, src_seq=5, options=names, values=v))
+           for q, v in vectors.items()]
+    row = out[-1]
+    assert row is not None and len(row.values) == len(rows.names)
+    assert row.values == (*vectors["z_h"], *vectors["z_r"], *vectors["b_r"], 0.2, 0.8)
+    with pytest.raises(m.MessageError, match="this rig runs red,blue,green"):
+        rows.on_value("z_h", scalar(6, 0.5))  # the paper's two options: another set
 
 
 def test_markers_are_json_with_what_an_analyst_needs():
     common = {"seq": 0, "t_ns": 0, "trial": 4, "mode": "consensus", "option": "red",
-              "session": "S1"}
+              "session": "S1", "options": ("red", "blue")}
     assert json.loads(trial_marker(m.TrialEvent(phase="setup", text="low", **common))) == {
         "event": "setup", "trial": 4, "session": "S1", "mode": "consensus", "option": "red",
         "gaze": "low"}
@@ -93,25 +115,28 @@ def test_markers_are_json_with_what_an_analyst_needs():
         "event": "countdown", "trial": 4, "session": "S1", "word": "2"}
     assert json.loads(trial_marker(m.TrialEvent(phase="interrupted", text="e-stop", **common))) \
         == {"event": "interrupted", "trial": 4, "session": "S1", "why": "e-stop"}
-    res = m.TrialResult(seq=0, t_ns=0, trial=4, mode="consensus", option="red", robot="red",
-                        human=None, outcome=None, score=0, session="S1")
+    res = m.TrialResult(seq=0, t_ns=0, options=("red", "blue"), trial=4, mode="consensus",
+                        option="red", robot="red", human=None, outcome=None, score=0,
+                        session="S1")
     assert json.loads(result_marker(res)) == {"event": "result", "trial": 4, "session": "S1",
                                               "robot": "red", "score": 0}
     assert json.loads(estop_marker(m.Estop(seq=0, t_ns=0, engaged=False, source="op@ctl"))) == {
         "event": "estop_release", "source": "op@ctl"}
 
 
-def test_a_table_of_n_boxes_gets_the_same_markers_with_box_indices():
-    ev = m.OptionsTrialEvent(seq=0, t_ns=0, n_options=3, phase="setup", trial=4,
-                              mode="consensus", option=2, text="low", session="S1")
+def test_any_other_option_set_gets_the_same_markers_naming_its_options():
+    names = ("red", "blue", "green")
+    ev = m.TrialEvent(seq=0, t_ns=0, options=names, phase="setup", trial=4, mode="consensus",
+                      option="green", text="low", session="S1")
     assert json.loads(trial_marker(ev)) == {
-        "event": "setup", "trial": 4, "session": "S1", "n_options": 3, "mode": "consensus",
-        "option": 2, "gaze": "low"}
-    res = m.OptionsResult(seq=0, t_ns=0, n_options=3, trial=4, mode="consensus", option=2,
-                           robot=2, human=1, outcome="D", score=0, session="S1")
+        "event": "setup", "trial": 4, "session": "S1", "options": list(names),
+        "mode": "consensus", "option": "green", "gaze": "low"}
+    res = m.TrialResult(seq=0, t_ns=0, options=names, trial=4, mode="consensus",
+                        option="green", robot="green", human="blue", outcome="D", score=0,
+                        session="S1")
     assert json.loads(result_marker(res)) == {
-        "event": "result", "trial": 4, "session": "S1", "outcome": "D", "robot": 2, "human": 1,
-        "score": 0, "n_options": 3}
+        "event": "result", "trial": 4, "session": "S1", "outcome": "D", "robot": "green",
+        "human": "blue", "score": 0, "options": list(names)}
 
 
 def test_a_safe_stop_is_marked_where_it_begins_and_ends_per_device():

@@ -34,6 +34,7 @@ from services.monitor.service import Monitor
 from services.monitor.sinks import ViewerWatch
 
 T0 = 1_795_448_811_000_000_000
+PAPER = ("red", "blue")
 LANDMARKS = ((0.5, 0.7), (0.52, 0.71), (0.51, 0.69))
 
 
@@ -84,12 +85,17 @@ def _values(path, entity, column):
     return [v for v in _column(path, entity, column) if v is not None]
 
 
-def test_scalars_are_time_series_on_the_message_time_and_trial(tmp_path):
-    msgs = [("experiment/trial", m.TrialEvent(seq=0, t_ns=T0, phase="setup", trial=3))]
+def test_two_option_opinions_are_time_series_of_the_signed_value(tmp_path):
+    """Over the paper's two options an opinion is its signed z, plotted as it always was."""
+    msgs = [("experiment/trial",
+             m.TrialEvent(seq=0, t_ns=T0, options=PAPER, phase="setup", trial=3))]
     for i in range(5):
         for j, topic in enumerate(("decision/z_h", "decision/z_r", "decision/b_r")):
-            msgs.append((topic, m.Scalar(seq=i, t_ns=T0 + i * 1000, value=i + j / 10, src_seq=i)))
-    path, _ = _record(tmp_path, msgs)
+            cls = m.Observed if topic == "decision/z_h" else m.Opinions
+            msgs.append((topic, cls(seq=i, t_ns=T0 + i * 1000, src_seq=i,
+                                    **m.signed_fields(i + j / 10))))
+    path, bridge = _record(tmp_path, msgs)
+    assert not bridge.bars_sent  # two options: no bar charts
     rows, static = rrd_rows(path)
     for topic in ("decision/z_h", "decision/z_r", "decision/b_r"):
         assert rows["/" + ENTITIES[topic]] == 5
@@ -106,11 +112,13 @@ def test_every_message_type_reaches_its_entities(tmp_path):
     msgs = [
         (
             "vision/layout",
-            m.Layout(seq=0, t_ns=T0, red=(0.7, 0.1, 0.9, 0.3), blue=(0.1, 0.1, 0.3, 0.3)),
+            m.Layout(seq=0, t_ns=T0, options=PAPER,
+                     boxes=((0.7, 0.1, 0.9, 0.3), (0.1, 0.1, 0.3, 0.3))),
         ),
         (
             "vision/layout",
-            m.Layout(seq=1, t_ns=T0 + 1, red=(0.7, 0.1, 0.9, 0.3), blue=(0.1, 0.1, 0.3, 0.3)),
+            m.Layout(seq=1, t_ns=T0 + 1, options=PAPER,
+                     boxes=((0.7, 0.1, 0.9, 0.3), (0.1, 0.1, 0.3, 0.3))),
         ),
         ("vision/hand", _hand(1)),
         ("vision/hand", _hand(2, detected=False)),
@@ -138,7 +146,7 @@ def test_every_message_type_reaches_its_entities(tmp_path):
             ),
         ),
         ("actuation/state", m.ArmStateMsg(seq=4, t_ns=T0 + 40, phase="idle")),
-        ("actuation/press", m.PressMsg(seq=0, t_ns=T0, colour="red", trial=1)),
+        ("actuation/press", m.PressMsg(seq=0, t_ns=T0, option="red", trial=1)),
         ("eyes/cmd", m.GazeMsg(seq=0, t_ns=T0, yaw=0.3, pitch=-0.2, level="low", trial=1)),
         ("eyes/cmd", m.GazeMsg(seq=1, t_ns=T0 + 1, yaw=0.3, pitch=-0.2, level="low", trial=1)),
         ("eyes/state", m.EyesStateMsg(seq=0, t_ns=T0, angles_deg=(100, 80, 100, 80))),
@@ -146,10 +154,14 @@ def test_every_message_type_reaches_its_entities(tmp_path):
             "eyes/state",
             m.EyesStateMsg(seq=1, t_ns=T0 + 2, clamped=("left_pan",), fault="servo timeout"),
         ),
-        ("experiment/trial", m.TrialEvent(seq=0, t_ns=T0, phase="countdown", trial=1, text="3")),
+        (
+            "experiment/trial",
+            m.TrialEvent(seq=0, t_ns=T0, options=PAPER, phase="countdown", trial=1, text="3"),
+        ),
         (
             "experiment/result",
-            m.TrialResult(seq=0, t_ns=T0, trial=1, robot="red", human="red", outcome="C"),
+            m.TrialResult(seq=0, t_ns=T0, options=PAPER, trial=1, robot="red", human="red",
+                          outcome="C"),
         ),
         ("safety/estop", m.Estop(seq=0, t_ns=T0, engaged=True, reason="test", source="pytest")),
         ("safety/estop", m.Estop(seq=1, t_ns=T0 + 1, engaged=False)),
@@ -275,39 +287,21 @@ def test_the_arm_is_a_segment_from_its_base_and_the_gaze_arrows_from_the_eyes(tm
 def _one_trial(n_options):
     """A layout, one trial of O = the last option, the arm, its press and the result.
 
-    Two options come on the paper's keys (options by colour), more on `options/*` (by index):
-    one bridge draws and writes both alike.
+    One key space for any option count: the same keys and messages, the options by name.
     """
-    if n_options == 2:
-        return ("red", "blue"), [
-            ("vision/layout", m.Layout(seq=0, t_ns=T0, red=(0.7, 0.1, 0.9, 0.3),
-                                       blue=(0.1, 0.1, 0.3, 0.3))),
-            ("experiment/trial", m.TrialEvent(seq=0, t_ns=T0, phase="setup", trial=4,
-                                              mode="consensus", option="blue", text="low")),
-            ("actuation/state", m.ArmStateMsg(seq=0, t_ns=T0 + 1, ee=(0.3, 0.2), phase="move")),
-            ("actuation/state", m.ArmStateMsg(seq=1, t_ns=T0 + 2, ee=(0.2, 0.2), safe_stop=True,
-                                              phase="stop", safety_reason="stale (257 ms)")),
-            ("actuation/press", m.PressMsg(seq=0, t_ns=T0 + 3, colour="blue", trial=4)),
-            ("experiment/result", m.TrialResult(seq=0, t_ns=T0 + 4, trial=4, mode="consensus",
-                                                option="blue", robot="blue", human="blue",
-                                                outcome="C", score=2)),
-        ]
     names = ("red", "blue", "green", "yellow")[:n_options]
-    last = n_options - 1
-    layout = m.layout_message_fields(names, OptionsLayout.row(n_options))
+    last = names[-1]
+    layout = m.layout_fields(names, OptionsLayout.row(n_options))
     return names, [
-        ("options/layout", m.OptionsLayoutMsg(seq=0, t_ns=T0, **layout)),
-        ("options/trial", m.OptionsTrialEvent(seq=0, t_ns=T0, n_options=n_options, phase="setup",
-                                               trial=4, mode="consensus", option=last,
-                                               text="low")),
-        ("options/arm_state", m.OptionsArmState(seq=0, t_ns=T0 + 1, n_options=n_options,
-                                                 ee=(0.3, 0.2), phase="move", target=last)),
-        ("options/arm_state", m.OptionsArmState(seq=1, t_ns=T0 + 2, n_options=n_options,
-                                                 ee=(0.2, 0.2), phase="stop", safe_stop=True,
-                                                 safety_reason="stale (257 ms)")),
-        ("options/press", m.OptionsPress(seq=0, t_ns=T0 + 3, n_options=n_options, option=last,
-                                          trial=4)),
-        ("options/result", m.OptionsResult(seq=0, t_ns=T0 + 4, n_options=n_options, trial=4,
+        ("vision/layout", m.Layout(seq=0, t_ns=T0, **layout)),
+        ("experiment/trial", m.TrialEvent(seq=0, t_ns=T0, options=names, phase="setup", trial=4,
+                                          mode="consensus", option=last, text="low")),
+        ("actuation/state", m.ArmStateMsg(seq=0, t_ns=T0 + 1, ee=(0.3, 0.2), phase="move",
+                                          target=last)),
+        ("actuation/state", m.ArmStateMsg(seq=1, t_ns=T0 + 2, ee=(0.2, 0.2), safe_stop=True,
+                                          phase="stop", safety_reason="stale (257 ms)")),
+        ("actuation/press", m.PressMsg(seq=0, t_ns=T0 + 3, option=last, trial=4)),
+        ("experiment/result", m.TrialResult(seq=0, t_ns=T0 + 4, options=names, trial=4,
                                             mode="consensus", option=last, robot=last,
                                             human=last, outcome="C", score=2)),
     ]
@@ -339,18 +333,25 @@ def test_the_table_and_the_trial_read_alike_for_any_option_count(tmp_path, n_opt
 
 
 def test_opinions_over_three_options_are_bar_charts_and_the_layout_shows_bars(tmp_path):
+    """The same keys as the paper's: a vector over three options is a bar chart, not a series."""
+    names = ("red", "blue", "green")
     msgs = []
     for i in range(4):
-        for topic in ("options/z_h", "options/z_r", "options/b_r"):
+        for topic in ("decision/z_h", "decision/z_r", "decision/b_r"):
+            cls = m.Observed if topic == "decision/z_h" else m.Opinions
             values = (0.2 * i, -0.1 * i, -0.1 * i)
-            msgs.append((topic, m.OptionVector(seq=i, t_ns=T0 + i, values=values)))
+            msgs.append((topic, cls(seq=i, t_ns=T0 + i, options=names, values=values)))
     path, bridge = _record(tmp_path, msgs)
     rows, _ = rrd_rows(path)
-    for topic in ("options/z_h", "options/z_r", "options/b_r"):
-        assert rows["/" + ENTITIES[topic]] == 4
+    for q in ("z_h", "z_r", "b_r"):
+        assert rows["/" + ENTITIES[f"bars/{q}"]] == 4
+        assert "/" + ENTITIES[f"decision/{q}"] not in rows  # no time series of a vector
     assert bridge.bars_sent
+    tensor = _column(path, "/bars/z_r", "BarChart:values")[-1][0]
+    assert tensor["shape"] == [3]  # one bar per option, the latest vector
+    assert tensor["buffer"] == pytest.approx([0.6, -0.3, -0.3])
     bars = [str(v.origin) for v in _views(blueprint(bars=True)) if "BarChart" in type(v).__name__]
-    assert bars == ["options/z_h", "options/z_r", "options/b_r"]
+    assert bars == ["bars/z_h", "bars/z_r", "bars/b_r"]
     paper = {str(v.origin) for v in _views(blueprint())}
     assert {str(v.origin) for v in _views(blueprint(bars=True))} - paper == set(bars)
 

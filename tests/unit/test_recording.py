@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import sqlite3
 
+import msgspec
 import pytest
 from mcap.reader import make_reader
 
@@ -23,6 +25,7 @@ from services.recording.through import through_decision
 from services.store import Store
 
 JPEG = b"\xff\xd8\xff\xe0" + b"\x00" * 60
+PAPER = ("red", "blue")
 
 
 def _pose(seq: int, t_ns: int, x: float = 0.5, y: float = 0.8) -> m.HandPose:
@@ -31,10 +34,10 @@ def _pose(seq: int, t_ns: int, x: float = 0.5, y: float = 0.8) -> m.HandPose:
 
 
 def test_inputs_are_what_the_services_under_test_need_from_outside():
-    # the camera's: the hand, the paper's two boxes, a table of N boxes (docs/multi-option.md)
-    assert input_topics() == ("vision/hand", "vision/layout", "options/layout")
+    # the camera's: the hand and the table (any number of boxes, one key: schema 3)
+    assert input_topics() == ("vision/hand", "vision/layout")
     every = set(TOPICS)
-    assert select_topics(every, None, True) == {"vision/hand", "vision/layout", "options/layout"}
+    assert select_topics(every, None, True) == {"vision/hand", "vision/layout"}
     # a whole replay leaves the e-stop release out unless it is named
     assert "safety/release" not in select_topics(every, None, False)
     assert "safety/estop" in select_topics(every, None, False)
@@ -52,7 +55,8 @@ def test_the_recorder_writes_original_bytes_per_key_and_keeps_invalid_payloads_a
     rec = Recorder(out, images=True)
     pose = m.encode(_pose(7, 1_000))
     rec.add("nod/rig1/vision/hand", pose, 5_000)
-    event = m.encode(m.TrialEvent(seq=0, t_ns=2_000, phase="setup", trial=1, session="s1"))
+    event = m.encode(m.TrialEvent(seq=0, t_ns=2_000, phase="setup", trial=1, session="s1",
+                                  options=PAPER))
     rec.add("nod/rig1/experiment/trial", event, 6_000)
     rec.add("nod/rig1/experiment/trial", event, 6_500)  # the session is noted once
     rec.add("nod/rig1/vision/hand", b"\xc1garbage", 7_000)
@@ -121,9 +125,9 @@ def test_through_decision_recomputes_what_the_model_says(tmp_path):
     t0 = 1_000_000_000
     events = [
         (0, m.TrialEvent(seq=0, t_ns=t0, phase="setup", trial=1, mode="consensus",
-                         option="red")),
+                         option="red", options=PAPER)),
         (1, m.TrialEvent(seq=1, t_ns=t0 + 10_000_000, phase="go", trial=1, mode="consensus",
-                         option="red")),
+                         option="red", options=PAPER)),
     ]
     for i, ev in events:
         out.write(out.channel("nod/rig1/experiment/trial"), i, ev.t_ns, m.encode(ev))
@@ -131,7 +135,7 @@ def test_through_decision_recomputes_what_the_model_says(tmp_path):
              for i in range(20)]
     for i, pose in enumerate(poses):
         out.write(out.channel("nod/rig1/vision/hand"), 10 + i, pose.t_ns, m.encode(pose))
-        bogus = m.Scalar(seq=i, t_ns=pose.t_ns, value=99.0, src_seq=pose.seq)
+        bogus = m.Opinions(seq=i, t_ns=pose.t_ns, src_seq=pose.seq, **m.signed_fields(99.0))
         out.write(out.channel("nod/rig1/decision/z_r"), 10 + i, pose.t_ns, m.encode(bogus))
     out.finish()
 
@@ -139,14 +143,77 @@ def test_through_decision_recomputes_what_the_model_says(tmp_path):
     model = DecisionModel()
     model.on_trial("go", "consensus", "red")
     expected = [model.on_hand(p.t_ns, p.landmarks).z_r for p in poses]
-    got = [m.decode(m.Scalar, e.message.data) for e in McapIn(tmp_path / "out.mcap")
+    got = [m.decode(m.Opinions, e.message.data) for e in McapIn(tmp_path / "out.mcap")
            if topic_of(e.key) == "decision/z_r"]
-    assert [s.value for s in got] == expected  # the recorded 99.0 are gone
+    assert [s.signed for s in got] == expected  # the recorded 99.0 are gone
     assert [s.src_seq for s in got] == [p.seq for p in poses]
     assert res.poses == 20 and res.left_out == 20 and res.recomputed == 60
     (trial,) = res.trials
     assert trial.final()[1] == (expected[-1], model.b_r)
     assert "trial 1 consensus O=red" in trial.line()
+
+
+def _v1(**fields) -> bytes:
+    """A payload as the paper's keys carried it before schema 3 (schema 1)."""
+    return msgspec.msgpack.encode({"v": 1, "seq": 0, **fields})
+
+
+def test_a_schema_1_recording_reads_replays_and_goes_through_decision_in_todays_schema(tmp_path):
+    src = tmp_path / "old.mcap"
+    out = McapOut(src)
+    out.metadata(FILE_METADATA, {"rig": "rig1"})
+    t0 = 1_000_000_000
+    red, blue = (0.1, 0.05, 0.3, 0.25), (0.7, 0.05, 0.9, 0.25)
+    out.write(out.channel("nod/rig1/vision/layout"), 0, t0,
+              _v1(t_ns=t0, red=red, blue=blue, commit_y=0.45))
+    for i, phase in enumerate(("setup", "go")):
+        out.write(out.channel("nod/rig1/experiment/trial"), 1 + i, t0 + i,
+                  _v1(t_ns=t0 + i, phase=phase, trial=1, mode="consensus", option="blue",
+                      text="", session="s1"))
+    poses = [_pose(i, t0 + 20_000_000 + i * 33_000_000, x=0.5 + 0.01 * i) for i in range(10)]
+    for i, pose in enumerate(poses):
+        out.write(out.channel("nod/rig1/vision/hand"), 10 + i, pose.t_ns, m.encode(pose))
+        out.write(out.channel("nod/rig1/decision/z_r"), 10 + i, pose.t_ns,
+                  _v1(t_ns=pose.t_ns, value=-0.5 * i, src_seq=pose.seq))
+    out.write(out.channel("nod/rig1/actuation/press"), 40, t0 + 10**9,
+              _v1(t_ns=t0 + 10**9, colour="blue", trial=1))
+    out.finish()
+
+    read = {topic_of(e.key): m.decode(TOPICS[topic_of(e.key)].message, e.payload)
+            for e in McapIn(src)}
+    assert read["vision/layout"].options == ("red", "blue")
+    assert read["vision/layout"].boxes == (red, blue)
+    assert read["experiment/trial"].options == ("red", "blue")
+    assert read["experiment/trial"].option == "blue"
+    assert read["decision/z_r"].values == (-4.5, 4.5) and read["decision/z_r"].signed == -4.5
+    assert read["actuation/press"].option == "blue"
+
+    res = through_decision(src, tmp_path / "out.mcap", None)
+    model = DecisionModel()
+    model.set_layout(read["vision/layout"].paper_table())
+    model.on_trial("go", "consensus", "blue")
+    expected = [model.on_hand(p.t_ns, p.landmarks).z_r for p in poses]
+    recorded, _ = res.trials[0].final()
+    assert recorded is not None and recorded[0] == -4.5 and math.isnan(recorded[1])
+    copied = [e for e in McapIn(tmp_path / "out.mcap")]
+    for e in copied:  # every message of the derived file is of today's schema
+        assert msgspec.msgpack.decode(e.message.data)["v"] == m.SCHEMA_VERSION
+    got = [m.decode(m.Opinions, e.message.data).signed for e in copied
+           if topic_of(e.key) == "decision/z_r"]
+    assert got == expected
+
+
+def test_a_recording_of_three_options_does_not_go_through_the_paper_engine(tmp_path):
+    src = tmp_path / "three.mcap"
+    out = McapOut(src)
+    out.metadata(FILE_METADATA, {"rig": "rig1"})
+    ev = m.TrialEvent(seq=0, t_ns=5, phase="setup", trial=1, mode="consensus", option="green",
+                      options=("red", "blue", "green"))
+    out.write(out.channel("nod/rig1/experiment/trial"), 0, 5, m.encode(ev))
+    out.finish()
+    with pytest.raises(ValueError, match="table of N options .*red,blue,green"):
+        through_decision(src, tmp_path / "out.mcap", None)
+    assert not (tmp_path / "out.mcap").exists()
 
 
 def test_the_store_links_recordings_to_sessions_and_adds_the_table_to_old_files(tmp_path):

@@ -18,22 +18,17 @@ def _rows(text: str) -> dict[int, str]:
     return {int(line.split()[0]): line for line in text.splitlines() if line.split()[0].isdigit()}
 
 
-def _results(n_options: int) -> list[m.TrialResult | m.OptionsResult]:
+def _results(n_options: int) -> list[m.TrialResult]:
     """A consensus trial on the last option, then an interrupted one on the first.
 
-    Two options come as the paper's messages (options by colour), more as `options/*` (by
-    index): one table shows both by name.
+    One key space for any option count: the results name their options, and the table too.
     """
-    if n_options == 2:
-        return [m.TrialResult(seq=0, t_ns=1, trial=1, mode="consensus", option="blue",
-                              robot="blue", human="blue", outcome="C", score=2),
-                m.TrialResult(seq=1, t_ns=2, trial=2, mode="consensus", option="red",
-                              interrupted=True)]
-    last = n_options - 1
-    return [m.OptionsResult(seq=0, t_ns=1, n_options=n_options, trial=1, mode="consensus",
-                             option=last, robot=last, human=last, outcome="C", score=2),
-            m.OptionsResult(seq=1, t_ns=2, n_options=n_options, trial=2, mode="consensus",
-                             option=0, interrupted=True)]
+    names = NAMES[:n_options]
+    last = names[-1]
+    return [m.TrialResult(seq=0, t_ns=1, options=names, trial=1, mode="consensus", option=last,
+                          robot=last, human=last, outcome="C", score=2),
+            m.TrialResult(seq=1, t_ns=2, options=names, trial=2, mode="consensus",
+                          option=names[0], interrupted=True)]
 
 
 @pytest.mark.parametrize("n_options", [2, 3, 4])
@@ -53,8 +48,8 @@ def test_the_table_names_the_options_and_marks_an_interrupted_trial(n_options: i
 def test_the_paper_table_keeps_its_columns() -> None:
     out = io.StringIO()
     view = SessionView(2, out)
-    view.on_result(m.TrialResult(seq=0, t_ns=1, trial=1, robot="red", human="blue",
-                                 outcome="D", score=0))
+    view.on_result(m.TrialResult(seq=0, t_ns=1, options=("red", "blue"), trial=1, robot="red",
+                                 human="blue", outcome="D", score=0))
     header, row = out.getvalue().splitlines()
     assert header == "trial mode       O     robot  human  outcome  switch viol score"
     assert row == "    1 dissensus  -     red    blue   D             0    0     0"
@@ -68,7 +63,8 @@ def test_the_view_of_a_run_is_of_its_option_set() -> None:
     assert view.names == schedule.names and view.n == len(schedule.trials)
 
 
-def test_an_interrupted_result_survives_the_wire() -> None:
-    decoded = m.decode(m.OptionsResult, m.encode(m.OptionsResult(seq=2, t_ns=3, n_options=3,
-                                                                   interrupted=True)))
-    assert decoded.interrupted
+@pytest.mark.parametrize("n_options", [2, 3])
+def test_an_interrupted_result_survives_the_wire(n_options: int) -> None:
+    sent = m.TrialResult(seq=2, t_ns=3, options=NAMES[:n_options], interrupted=True)
+    decoded = m.decode(m.TrialResult, m.encode(sent))
+    assert decoded.interrupted and decoded == sent

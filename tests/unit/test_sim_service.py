@@ -20,7 +20,7 @@ from services.model.gaze import GazeCommand
 from services.model.params import NodConfig
 from services.model.participant import Participant
 from services.model.schedule import OptionsSchedule
-from services.sim.service import OptionKeys, PaperKeys, SimService, sim_keys
+from services.sim.service import OptionsSeam, PaperSeam, SimService, sim_seam
 
 T0 = 1_000_000_000
 SEED = 3
@@ -67,37 +67,31 @@ class _Node:
         self.ticks.append((period_s, fn))
 
 
-def _keys(n: int) -> PaperKeys | OptionKeys:
+def _seam(n: int) -> PaperSeam | OptionsSeam:
     schedule = None if n == 2 else OptionsSchedule.default(n)
-    keys = sim_keys(NodConfig(), schedule)
-    assert isinstance(keys, PaperKeys if n == 2 else OptionKeys)
-    return keys
+    seam = sim_seam(NodConfig(), schedule)
+    assert isinstance(seam, PaperSeam if n == 2 else OptionsSeam)
+    return seam
 
 
-def _events(n: int, keys: PaperKeys | OptionKeys) -> dict[str, Callable[..., m.Message]]:
-    """The messages of one key space, by what they say (option 0 the consensus O and target)."""
-    if n == 2:
-        return {
-            "trial": lambda phase: m.TrialEvent(seq=0, t_ns=0, phase=phase, trial=4,
-                                                mode="consensus", option="red"),
-            "arm": lambda: m.ArmStateMsg(seq=0, t_ns=0, moving=True, target="red"),
-            "press": lambda: m.PressMsg(seq=0, t_ns=0, colour="red", trial=4),
-        }
+def _events(n: int) -> dict[str, Callable[..., m.Message]]:
+    """The messages of one option set, by what they say (option 0 the consensus O and target)."""
+    names = OptionsSchedule.default(n).names
     return {
-        "trial": lambda phase: m.OptionsTrialEvent(seq=0, t_ns=0, n_options=n, phase=phase,
-                                                    trial=4, mode="consensus", option=0),
-        "arm": lambda: m.OptionsArmState(seq=0, t_ns=0, n_options=n, moving=True, target=0),
-        "press": lambda: m.OptionsPress(seq=0, t_ns=0, n_options=n, option=0, trial=4),
+        "trial": lambda phase: m.TrialEvent(seq=0, t_ns=0, phase=phase, trial=4,
+                                            mode="consensus", option="red", options=names),
+        "arm": lambda: m.ArmStateMsg(seq=0, t_ns=0, moving=True, target="red"),
+        "press": lambda: m.PressMsg(seq=0, t_ns=0, option="red", trial=4),
     }
 
 
 @pytest.mark.parametrize("n", [2, 3])
 def test_one_service_drives_the_person_as_the_model_would(n: int) -> None:
-    cfg, keys, node = NodConfig(), _keys(n), _Node()
-    service = SimService(node, cfg, keys, seed=SEED, rate_hz=30.0, cohort=False)  # type: ignore[arg-type]
+    cfg, seam, node = NodConfig(), _seam(n), _Node()
+    service = SimService(node, cfg, seam, seed=SEED, rate_hz=30.0, cohort=False)  # type: ignore[arg-type]
+    # one key space whatever the number of options
     trial_key, arm_key, press_key, layout_key = (
-        ("experiment/trial", "actuation/state", "actuation/press", "vision/layout") if n == 2
-        else ("options/trial", "options/arm_state", "options/press", "options/layout")
+        "experiment/trial", "actuation/state", "actuation/press", "vision/layout"
     )
     assert set(node.handlers) == {trial_key, arm_key, press_key, "eyes/cmd"}
     # the reference: the same seed drawn as the service draws it, the model's own values
@@ -107,7 +101,7 @@ def test_one_service_drives_the_person_as_the_model_would(n: int) -> None:
         else Participant(cfg.participant, cfg.table(n), seed)
     )
     reference.advance(T0 * 1e-9)
-    events = _events(n, keys)
+    events = _events(n)
     gaze = m.GazeMsg(seq=0, t_ns=0, yaw=0.3, pitch=-0.1)
     hand_seen: list[tuple[tuple[float, float], ...]] = []
 
@@ -145,18 +139,21 @@ def test_one_service_drives_the_person_as_the_model_would(n: int) -> None:
     layout_tick = next(fn for period, fn in node.ticks if period == 1.0)
     layout_tick(T0)
     (layout,) = node.sent[layout_key]
+    assert isinstance(layout, m.Layout)
+    assert layout.options == OptionsSchedule.default(n).names
     if n == 2:
-        assert isinstance(layout, m.Layout) and layout.red == m.layout_fields(cfg.layout)["red"]
+        assert layout.paper_table() == cfg.layout
     else:
-        assert isinstance(layout, m.OptionsLayoutMsg)
-        assert layout.names == ("red", "blue", "green")
-        assert layout.layout() == cfg.table(n)
+        assert layout.table() == cfg.table(n)
 
 
-def test_a_message_for_another_option_count_is_refused() -> None:
+def test_a_message_for_another_option_set_is_refused() -> None:
     node = _Node()
-    keys = _keys(3)
-    SimService(node, NodConfig(), keys, seed=SEED, rate_hz=30.0, cohort=False)  # type: ignore[arg-type]
-    four = m.OptionsTrialEvent(seq=0, t_ns=0, n_options=4, phase="setup", option=3)
-    with pytest.raises(m.MessageError, match="for 4 options but this rig runs 3"):
-        node.handlers["options/trial"](four)
+    SimService(node, NodConfig(), _seam(3), seed=SEED, rate_hz=30.0, cohort=False)  # type: ignore[arg-type]
+    four = m.TrialEvent(seq=0, t_ns=0, phase="setup", option="yellow",
+                        options=("red", "blue", "green", "yellow"))
+    with pytest.raises(m.MessageError, match="for options red,blue,green,yellow but this rig "
+                                             "runs red,blue,green"):
+        node.handlers["experiment/trial"](four)
+    with pytest.raises(m.MessageError, match="option 'yellow' is none of this rig's"):
+        node.handlers["actuation/press"](m.PressMsg(seq=0, t_ns=0, option="yellow", trial=1))

@@ -138,7 +138,7 @@ def test_cues_are_stored_with_their_trial_and_exported_as_cues_csv(tmp_path: Pat
 @pytest.mark.parametrize("bad", [{"planned_ns": -1}, {"played_ns": 2**63}, {"cue": ""},
                                  {"trial": 10_001}, {"cue": "x" * 33}])
 def test_a_cue_message_is_ranged(bad: dict) -> None:
-    fields = {"v": 1, "seq": 0, "t_ns": 0, "trial": 1, "cue": "go", "planned_ns": 0,
+    fields = {"v": m.SCHEMA_VERSION, "seq": 0, "t_ns": 0, "trial": 1, "cue": "go", "planned_ns": 0,
               "played_ns": 1}
     assert m.decode(m.CuePlayed, msgspec.msgpack.encode(fields)).cue == "go"
     with pytest.raises(m.MessageError):

@@ -120,11 +120,28 @@ def test_a_message_as_text_and_as_json():
     assert line.startswith("nod/rig1/vision/hand #7 ")
     assert line.endswith(' detected=true center=[0.5,0.25] landmarks=<6 points> source="camera"')
     row = json.loads(topic.json_line("nod/rig1/vision/hand", pose))
-    assert row["key"] == "nod/rig1/vision/hand" and row["v"] == 1 and row["seq"] == 7
+    assert row["key"] == "nod/rig1/vision/hand" and row["v"] == m.SCHEMA_VERSION == 3
+    assert row["seq"] == 7
     assert row["center"] == [0.5, 0.25] and len(row["landmarks"]) == 6
     frame = m.VisionFrame(seq=1, t_ns=2, jpeg=b"\xff\xd8\xff" + b"\0" * 10)
     assert "jpeg=<13 bytes>" in topic.text_line("k", frame)
     assert "target=none" in topic.text_line("k", m.ArmStateMsg(seq=1, t_ns=2))
+
+
+@pytest.mark.parametrize("n", [2, 3, 5])
+def test_the_options_and_their_values_show_whatever_their_number(n):
+    """One key space, schema 3: a layout or an opinion over N options shows each option's."""
+    names = ("red", "blue", "green", "yellow", "white")[:n]
+    layout = m.Layout(seq=1, t_ns=2, options=names,
+                      boxes=tuple((0.1 * j, 0.1, 0.1 * j + 0.05, 0.2) for j in range(n)))
+    line = topic.text_line("nod/rig1/vision/layout", layout)
+    assert "options=[" + ",".join(f'"{o}"' for o in names) + "]" in line
+    assert "points" not in line and line.count("[") == n + 2  # the set, the boxes, each box
+    values = tuple([0.5] + [-0.5 / (n - 1)] * (n - 1))
+    z_r = m.Opinions(seq=3, t_ns=4, options=names, values=values, src_seq=3)
+    row = json.loads(topic.json_line("nod/rig1/decision/z_r", z_r))
+    assert row["options"] == list(names) and row["values"] == pytest.approx(list(values))
+    assert "values=[0.5," in topic.text_line("nod/rig1/decision/z_r", z_r)
 
 
 def test_an_invalid_payload_is_one_line():

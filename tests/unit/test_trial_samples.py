@@ -25,7 +25,9 @@ def test_a_flood_of_poses_stops_at_the_cap_counted_and_the_press_still_counts(mo
     for seq in range(2_000):
         p = pose(seq)
         samples.on_hand(p)
-        out = Output.of_scalar(m.Observed(seq=seq, t_ns=p.t_ns, value=0.2, src_seq=seq))
+        out = Output.of_signed(
+            m.Observed(seq=seq, t_ns=p.t_ns, src_seq=seq, **m.signed_fields(0.2))
+        )
         samples.on_output("z_h", out, p)
     samples.on_hand(pose(10))  # a kept pose's seq again: no new row, nothing dropped
     assert samples.dropped == 1_500  # every pose after the first 500
