@@ -36,7 +36,7 @@ import math
 import sys
 from abc import ABC, abstractmethod
 from pathlib import Path
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, Generic, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
@@ -123,6 +123,14 @@ class Arm(Protocol[C, B_co]):
 # -- the seam: the paper's two-option kernel, or N boxes by index ---------------------------------
 
 
+class ArmChoice(NamedTuple):
+    """The arm the command line asked for: its driver, serial port and calibration file."""
+
+    driver: str
+    port: str | None = None
+    arm_config: Path | None = None
+
+
 class ArmSeam(ABC, Generic[L, C, B, Z]):
     """What actuation does differently by the option count (the module doc lists both).
 
@@ -136,19 +144,13 @@ class ArmSeam(ABC, Generic[L, C, B, Z]):
         self.names = names
 
     @classmethod
-    def check_driver(cls, driver: str, arm_config: Path | None, names: tuple[str, ...]) -> None:
+    def check_driver(cls, choice: ArmChoice, names: tuple[str, ...]) -> None:
         """Refuse (ValueError, one line) an arm this seam cannot drive (default: none)."""
 
     @classmethod
     @abstractmethod
     def make_arm(
-        cls,
-        driver: str,
-        port: str | None,
-        arm_config: Path | None,
-        cfg: NodConfig,
-        names: tuple[str, ...],
-        t0: float,
+        cls, choice: ArmChoice, cfg: NodConfig, names: tuple[str, ...], t0: float
     ) -> Arm[C, B]:
         """An unconnected arm for the table of options `names` (`t0`: the sim arm's start, s)."""
 
@@ -187,16 +189,10 @@ class PaperArmSeam(ArmSeam[TableLayout, ArmCommand, Colour, float]):
 
     @classmethod
     def make_arm(
-        cls,
-        driver: str,
-        port: str | None,
-        arm_config: Path | None,
-        cfg: NodConfig,
-        names: tuple[str, ...],
-        t0: float,
+        cls, choice: ArmChoice, cfg: NodConfig, names: tuple[str, ...], t0: float
     ) -> Arm[ArmCommand, Colour]:
         """The `--driver` chosen: the sim arm, or a Feetech arm from its calibration file."""
-        return make_arm_driver(driver, port, arm_config, cfg.layout, cfg.sim_arm, t0=t0)
+        return make_arm_driver(*choice, cfg.layout, cfg.sim_arm, t0=t0)
 
     def reactor(self, cfg: NodConfig) -> RobotTrial:
         """The paper's robot (the two-option kernel of `services.model.robot`)."""
@@ -229,29 +225,21 @@ class OptionsArmSeam(ArmSeam[OptionsLayout, OptionsCommand, int, np.ndarray]):
         self.table = cfg.table(len(names))
 
     @classmethod
-    def check_driver(cls, driver: str, arm_config: Path | None, names: tuple[str, ...]) -> None:
+    def check_driver(cls, choice: ArmChoice, names: tuple[str, ...]) -> None:
         """A Feetech arm file needs a press pose for every option.
 
         Checked before anything opens: a file calibrated for other boxes fails in one line
         naming the options it lacks.
         """
-        if driver == "feetech" and arm_config is not None:
-            check_arm_file(arm_config, names)
+        if choice.driver == "feetech" and choice.arm_config is not None:
+            check_arm_file(choice.arm_config, names)
 
     @classmethod
     def make_arm(
-        cls,
-        driver: str,
-        port: str | None,
-        arm_config: Path | None,
-        cfg: NodConfig,
-        names: tuple[str, ...],
-        t0: float,
+        cls, choice: ArmChoice, cfg: NodConfig, names: tuple[str, ...], t0: float
     ) -> Arm[OptionsCommand, int]:
         """The simulated arm, or the Feetech arm pressing box j at the pose of option j."""
-        return make_options_arm(
-            driver, port, arm_config, cfg.table(len(names)), names, cfg.sim_arm, t0=t0
-        )
+        return make_options_arm(*choice, cfg.table(len(names)), names, cfg.sim_arm, t0=t0)
 
     def reactor(self, cfg: NodConfig) -> OptionsRobotTrial:
         """The robot over N boxes, with the dissensus tie rule."""
@@ -479,7 +467,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg, schedule = load_with_options(args.params, args.options)
         names = option_names(schedule)
-        arm_seam(names).check_driver(args.driver, args.arm_config, names)  # before opening
+        choice = ArmChoice(args.driver, args.port, args.arm_config)
+        arm_seam(names).check_driver(choice, names)  # before opening
         safety = cfg.safety
         if args.stale_ms is not None:
             safety = dataclasses.replace(safety, stale_ms=args.stale_ms)
@@ -493,9 +482,7 @@ def main(argv: list[str] | None = None) -> int:
     log.info("effective config: %s", json.dumps(cfg.summary("behaviour", "sim_arm", "safety")))
     raise_priority("actuation")  # once its configuration is good: errors stay one line
     try:
-        arm: Arm[Any, Any] = arm_seam(names).make_arm(
-            args.driver, args.port, args.arm_config, cfg, names, node.clock.now_ns() * NS
-        )
+        arm: Arm[Any, Any] = arm_seam(names).make_arm(choice, cfg, names, node.clock.now_ns() * NS)
         arm.connect()
     except (ValueError, OSError, ConnectionError) as exc:
         node.close()

@@ -45,14 +45,7 @@ from services.experiment.bids_sidecars import (
     participants_sidecar,
     sessions_sidecar,
 )
-from services.store.records import (
-    CueRecord,
-    Interruption,
-    RigEventRecord,
-    SafetyEvent,
-    Sample,
-    TrialRecord,
-)
+from services.store import records as rec
 from services.store.withdrawals import WithdrawnFilter
 
 BIDS_VERSION = "1.11.1"
@@ -90,27 +83,27 @@ def read_sessions(db: sqlite3.Connection, keep: WithdrawnFilter) -> list[StoredS
             started_ns=int(started), finished_ns=finished, status=str(status),
             config=_json_object(config), options=options.get(session, PAPER_OPTIONS),
             order=orders.get(session), trials=_trials(db, session),
-            samples=tuple((int(r[0]), Sample(r[1], bool(r[2]), *r[3:])) for r in db.execute(
+            samples=tuple((int(r[0]), rec.Sample(r[1], bool(r[2]), *r[3:])) for r in db.execute(
                 "SELECT trial, t_ns, detected, hand_x, hand_y, z_h, z_r, b_r, ee_x, ee_y, "
                 "theta, distance, landmarks FROM samples WHERE session = ? ORDER BY t_ns",
                 (session,))),
-            cues=tuple(CueRecord(*r) for r in db.execute(
+            cues=tuple(rec.CueRecord(*r) for r in db.execute(
                 "SELECT trial, attempt, cue, planned_ns, played_ns FROM cues WHERE session = ? "
                 "ORDER BY planned_ns", (session,))),
-            safety=tuple(SafetyEvent(*r) for r in db.execute(
+            safety=tuple(rec.SafetyEvent(*r) for r in db.execute(
                 "SELECT trial, attempt, t_ns, device, event, reason FROM safety_events "
                 "WHERE session = ? ORDER BY t_ns", (session,))),
-            interruptions=tuple(Interruption(*r) for r in db.execute(
+            interruptions=tuple(rec.Interruption(*r) for r in db.execute(
                 "SELECT trial, attempt, t_start_ns, t_ns, reason FROM interruptions "
                 "WHERE session = ? ORDER BY trial, attempt", (session,))),
-            rig_events=tuple(RigEventRecord(*r) for r in db.execute(
+            rig_events=tuple(rec.RigEventRecord(*r) for r in db.execute(
                 "SELECT trial, attempt, t_ns, host, service, kind, code, text FROM rig_events "
                 "WHERE session = ? ORDER BY t_ns", (session,))),
         ))
     return out
 
 
-def _trials(db: sqlite3.Connection, session: str) -> tuple[TrialRecord, ...]:
+def _trials(db: sqlite3.Connection, session: str) -> tuple[rec.TrialRecord, ...]:
     cur = db.execute("SELECT * FROM trials WHERE session = ? ORDER BY trial", (session,))
     cols = [c[0] for c in cur.description]
     out = []
@@ -118,7 +111,7 @@ def _trials(db: sqlite3.Connection, session: str) -> tuple[TrialRecord, ...]:
         fields = dict(zip(cols, row, strict=True))  # by name: the columns a migration added
         fields.pop("session")
         fields["interrupted"] = bool(fields["interrupted"])
-        out.append(TrialRecord(**fields))
+        out.append(rec.TrialRecord(**fields))
     return tuple(out)
 
 

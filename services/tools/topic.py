@@ -41,6 +41,11 @@ REPORT_S = 1.0  # `hz` prints once per second
 # --- the command line ---------------------------------------------------------------------------
 
 
+def add_duration(p: argparse.ArgumentParser, text: str, default: float | None = None) -> None:
+    """A subcommand's `--duration S`: how long it listens."""
+    p.add_argument("--duration", type=positive_float, default=default, metavar="S", help=text)
+
+
 def build_parser() -> Parser:
     """The command line of `nod topic`."""
     p = Parser(
@@ -62,10 +67,7 @@ def build_parser() -> Parser:
         description="Listen to nod/<rig>/** and list every key seen (count, rate, message type, "
         "publishers), the contract's keys that stayed silent, and the services alive.",
     )
-    ls.add_argument(
-        "--duration", type=positive_float, default=2.0, metavar="S",
-        help="seconds to listen (2)",
-    )
+    add_duration(ls, "seconds to listen (2)", 2.0)
     ls.add_argument("--json", action="store_true", help="print one JSON object")
     ls.set_defaults(run=run_list)
 
@@ -83,10 +85,7 @@ def build_parser() -> Parser:
         "-n", "--count", type=int_in(1), default=None, metavar="N",
         help="stop after N valid messages",
     )
-    echo.add_argument(
-        "--duration", type=positive_float, default=None, metavar="S",
-        help="stop after S seconds",
-    )
+    add_duration(echo, "stop after S seconds")
     echo.set_defaults(run=run_echo)
 
     hz = sub.add_parser(
@@ -98,10 +97,7 @@ def build_parser() -> Parser:
         "Exit 1 if nothing arrived.",
     )
     hz.add_argument("key", metavar="KEY", help="one key, e.g. vision/hand")
-    hz.add_argument(
-        "--duration", type=positive_float, default=None, metavar="S",
-        help="stop after S seconds (default: Ctrl-C)",
-    )
+    add_duration(hz, "stop after S seconds (default: Ctrl-C)")
     hz.add_argument(
         "--window", type=int_in(2), default=100, metavar="W",
         help="messages the per-second rate is computed over (100)",

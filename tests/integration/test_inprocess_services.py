@@ -268,13 +268,13 @@ def test_an_arm_fault_is_a_safe_stop_whatever_the_number_of_options(
     # The arm reports a device fault mid-trial (the sim arm's stand-in for a silent bus): the
     # one actuation service stops on it, says so on actuation/state for any number of options
     # (the N-option copy never told its watchdog), and clears once the device is healthy.
-    from services.actuation.service import ActuationService, arm_seam
+    from services.actuation.service import ActuationService, ArmChoice, arm_seam
 
     cfg = NodConfig()
     names = OptionsSchedule.default(n_options).names
     fabric = Fabric(connect=(endpoint,))
     node = Node("actuation", fabric)
-    arm = arm_seam(names).make_arm("sim", None, None, cfg, names, node.clock.now_ns() * 1e-9)
+    arm = arm_seam(names).make_arm(ArmChoice("sim"), cfg, names, node.clock.now_ns() * 1e-9)
     arm.connect()
     safety = SafetyParams(stale_ms=500.0, require_alive=("decision",))
     ActuationService(node, cfg, arm, safety, None, names)
