@@ -498,7 +498,10 @@ class _NoVersion(Message, frozen=True, kw_only=True, tag=-1):
 
 M = TypeVar("M", bound=Message)
 _ENCODER = msgspec.msgpack.Encoder()
+_JSON_ENCODER = msgspec.json.Encoder()
 _DECODERS: dict[type[Message], msgspec.msgpack.Decoder[Any]] = {}
+_JSON_DECODERS: dict[type[Message], msgspec.json.Decoder[Any]] = {}
+JSON_SIZE_FACTOR = 2  # a JSON payload's limit, × the msgpack one (base64 bytes, field names)
 
 
 def fields(cls: type[Message]) -> tuple[str, ...]:
@@ -511,14 +514,35 @@ def encode(msg: Message) -> bytes:
     return _ENCODER.encode(msg)
 
 
+def encode_json(msg: Message) -> bytes:
+    """The message as a JSON object, as recordings keep it (`bytes` fields as base64 strings)."""
+    return _JSON_ENCODER.encode(msg)
+
+
 def decode(cls: type[M], payload: bytes) -> M:
     """Parse and validate a payload as message type `cls`, or raise MessageError."""
-    name = cls.KIND
-    if len(payload) > cls.MAX_BYTES:
-        raise MessageError(f"{name}: payload of {len(payload)} bytes exceeds the limit")
     decoder = _DECODERS.get(cls)
     if decoder is None:
         decoder = _DECODERS[cls] = msgspec.msgpack.Decoder(cls | _NoVersion)
+    return _checked(cls, decoder, payload, cls.MAX_BYTES, "msgpack")
+
+
+def decode_json(cls: type[M], data: bytes) -> M:
+    """Parse and validate a JSON object (`encode_json`'s) as message type `cls`, or MessageError.
+
+    The same checks as `decode`: a recorded JSON message is held to the contract as a payload.
+    """
+    decoder = _JSON_DECODERS.get(cls)
+    if decoder is None:
+        decoder = _JSON_DECODERS[cls] = msgspec.json.Decoder(cls | _NoVersion)
+    return _checked(cls, decoder, data, cls.MAX_BYTES * JSON_SIZE_FACTOR, "JSON")
+
+
+def _checked(cls: type[M], decoder: msgspec.msgpack.Decoder[Any] | msgspec.json.Decoder[Any],
+             payload: bytes, limit: int, syntax: str) -> M:
+    name = cls.KIND
+    if len(payload) > limit:
+        raise MessageError(f"{name}: payload of {len(payload)} bytes exceeds the limit")
     try:
         msg = decoder.decode(payload)
     except msgspec.ValidationError as exc:
@@ -527,7 +551,7 @@ def decode(cls: type[M], payload: bytes) -> M:
             text = f"schema version is not {schema_version(cls)} ({text})"
         raise MessageError(f"{name}: {text}") from None
     except msgspec.DecodeError as exc:
-        raise MessageError(f"{name}: not valid msgpack ({exc})") from None
+        raise MessageError(f"{name}: not valid {syntax} ({exc})") from None
     if type(msg) is not cls:
         raise MessageError(f"{name}: schema version is not {schema_version(cls)}")
     return msg

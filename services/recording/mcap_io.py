@@ -1,20 +1,24 @@
 """The recording format: MCAP, one channel per key, the payloads exactly as they travelled.
 
-- A channel per key: topic = the full key (`nod/rig1/vision/hand`), message encoding
-  `msgpack` (the wire format), and the schema of its message type: name = the message class
-  (`HandPose`), encoding `jsonschema`, data = msgspec's JSON schema of the class. (MCAP pairs
-  `jsonschema` with JSON messages; here it describes the msgpack map field for field, `bytes`
-  fields travel as msgpack bin, not base64.) The channel metadata holds the contract topic, the
-  message class, the schema version (`messages.SCHEMA_VERSION`) and the QoS.
+- A channel per key: topic = the full key (`nod/rig1/vision/hand`), message encoding `json`,
+  and the schema of its message type: name = the message class (`HandPose`), encoding
+  `jsonschema`, data = the class's JSON Schema (`services.recording.json_channels`), so any
+  MCAP reader decodes it. The channel metadata holds the contract topic, the message class, the
+  schema version (`messages.SCHEMA_VERSION`) and the QoS.
 - Each message: `log_time` = the recorder's wall clock at arrival (ns), `publish_time` = the
   message's own `t_ns` (the rig clock: simulated under `--sim`), `sequence` = its `seq` (mod
-  2^32), `data` = the original payload bytes.
+  2^32), `data` = the validated message as JSON (`messages.encode_json`).
+- Recordings made before (schema 1 or 3) have message encoding `msgpack`: `data` is the
+  original payload bytes, the schema described the msgpack map. They still read: `Entry.payload`
+  gives every reader a msgpack payload in today's schema whatever the file's encoding or schema
+  version (`nod record convert` rewrites one as today's).
 - A payload that fails validation (or a key outside the contract) is kept, for the record, on a
   channel of its own for that key: no schema, encoding `application/octet-stream`, metadata
   `invalid` = the first error; publish_time = log_time. Players never republish those.
 - File metadata records: `nod` at the start (rig, host, nod-hri version, start time, keys,
   parameters when given), `nod.session` when a session id first shows on experiment/trial, and
   `nod.end` at a clean stop (counts, drops, the sessions seen).
+- Attachments: a Foxglove layout and a Rerun blueprint of a trial (`services.views`).
 
 `McapIn` reads sequentially with the library's stream reader, so it reads a file whose writer
 was killed (no summary, a chunk cut short) up to its last complete chunk, and says so.
@@ -28,9 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
-import msgspec
 from mcap.exceptions import EndOfFile
-from mcap.records import Channel, Footer, Header, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
@@ -38,9 +41,10 @@ from services.core import messages as m
 from services.core.contract import TOPICS
 from services.core.keys import topic_of
 from services.core.schema1 import upgrade
+from services.recording.json_channels import JSON_ENCODING, SCHEMA_ENCODING, schema_data, to_wire
 
-SCHEMA_ENCODING = "jsonschema"
-MESSAGE_ENCODING = "msgpack"
+MESSAGE_ENCODING = JSON_ENCODING  # today's recordings
+MSGPACK_ENCODING = "msgpack"  # recordings made before: the wire's payloads as they travelled
 RAW_ENCODING = "application/octet-stream"
 FILE_METADATA = "nod"
 SESSION_METADATA = "nod.session"
@@ -71,11 +75,6 @@ def rig_of(key: str) -> str | None:
     """The rig chunk of a full key (`nod/<rig>/...`), or None."""
     parts = key.split("/", 2)
     return parts[1] if len(parts) == 3 and parts[0] == "nod" else None
-
-
-def schema_data(cls: type[m.Message]) -> bytes:
-    """The JSON schema msgspec derives from a message class, as the schema record's data."""
-    return json.dumps(msgspec.json.schema(cls), sort_keys=True).encode()
 
 
 def channel_metadata(topic: str) -> dict[str, str]:
@@ -187,6 +186,36 @@ class McapOut:
 
     # -- records -----------------------------------------------------------------------------
 
+    def write_message(self, key: str, msg: m.Message, log_time: int) -> None:
+        """A valid message of the contract on its key's channel, as JSON (publish_time = t_ns)."""
+        self.write(self.channel(key), log_time, msg.t_ns, m.encode_json(msg), msg.seq)
+
+    def rewrite(self, e: Entry) -> m.Message | None:
+        """A message of another recording in today's form; the message decoded, if valid.
+
+        A valid one is decoded and written as JSON in today's schema; an invalid payload or a
+        derived image is copied as it was; a payload of a valid channel that no longer decodes
+        goes to its key's invalid channel.
+        """
+        topic = topic_of(e.key)
+        if e.valid and topic is not None:
+            try:
+                msg = m.decode(TOPICS[topic].message, e.payload)
+            except m.MessageError as exc:
+                self.write(self.raw_channel(e.key, str(exc)), e.message.log_time,
+                           e.message.log_time, e.message.data)
+                return None
+            self.write_message(e.key, msg, e.message.log_time)
+            return msg
+        self.write(self.copy_channel(e.channel, e.schema), e.message.log_time,
+                   e.message.publish_time, e.message.data, e.message.sequence)
+        return None
+
+    def attach(self, name: str, media_type: str, data: bytes, log_time: int = 0) -> None:
+        """An attachment (a file kept in the recording: a viewer's layout)."""
+        self._writer.add_attachment(create_time=log_time, log_time=log_time, name=name,
+                                    media_type=media_type, data=data)
+
     def write(
         self, channel_id: int, log_time: int, publish_time: int, data: bytes, sequence: int = 0
     ) -> None:
@@ -258,15 +287,31 @@ class Entry:
 
     @property
     def payload(self) -> bytes:
-        """The message's payload in today's schema (a schema-1 one rewritten: `schema1`)."""
+        """The message as a msgpack payload in today's schema, whatever the file's encoding.
+
+        A JSON message (today's recordings) is decoded, checked and encoded as msgpack; a
+        msgpack one (older recordings) is returned as it travelled, a schema-1 one rewritten
+        (`schema1`). A JSON message that fails the contract (a file edited by hand) is returned
+        as it is, so every decoder downstream refuses it as it refuses any bad payload.
+        """
         topic = topic_of(self.key)
-        return self.message.data if topic is None else upgrade(topic, self.message.data)
+        data = self.message.data
+        if topic is None:
+            return data
+        if self.channel.message_encoding == JSON_ENCODING:
+            try:
+                return to_wire(TOPICS[topic].message, data)
+            except m.MessageError:
+                return data
+        return upgrade(topic, data)
 
     @property
     def valid(self) -> bool:
         """A validated message of the contract (not an invalid payload, not a derived image)."""
-        return self.channel.message_encoding == MESSAGE_ENCODING and "invalid" not in (
-            self.channel.metadata
+        meta = self.channel.metadata
+        return (
+            self.channel.message_encoding in (JSON_ENCODING, MSGPACK_ENCODING)
+            and "invalid" not in meta and "derived_from" not in meta
         )
 
 
@@ -284,6 +329,7 @@ class McapIn:
     metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
     channels: dict[int, Channel] = field(default_factory=dict)
     schemas: dict[int, Schema] = field(default_factory=dict)
+    attachments: list[Attachment] = field(default_factory=list)
     complete: bool = False
     truncated: str | None = None
     count: int = 0
@@ -296,7 +342,7 @@ class McapIn:
             raise ValueError(f"{self.path} is not an MCAP file")
 
     def __iter__(self) -> Iterator[Entry]:
-        self.metadata, self.channels, self.schemas = [], {}, {}
+        self.metadata, self.channels, self.schemas, self.attachments = [], {}, {}, []
         self.complete, self.truncated, self.count = False, None, 0
         with self.path.open("rb") as fh:
             records = StreamReader(fh, validate_crcs=True).records
@@ -325,6 +371,8 @@ class McapIn:
                     self.schemas[record.id] = record
                 elif isinstance(record, Metadata):
                     self.metadata.append((record.name, dict(record.metadata)))
+                elif isinstance(record, Attachment):
+                    self.attachments.append(record)
                 elif isinstance(record, Header):
                     self.header = record
                 elif isinstance(record, Footer):

@@ -77,7 +77,7 @@ class Recorder:
         except m.MessageError as exc:
             self._invalid(key, payload, log_time_ns, str(exc))
             return
-        self.out.write(self.out.channel(key), log_time_ns, msg.t_ns, payload, msg.seq)
+        self.out.write_message(key, msg, log_time_ns)
         self.counts[key] += 1
         session = msg.session if isinstance(msg, m.TrialEvent) else ""
         if session and session not in self.sessions:

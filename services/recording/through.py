@@ -6,7 +6,7 @@ the output file is the recording without its decision/* channels plus the recomp
 A recording of a table of N options (messages over three or more options, or the retired
 `options/*` keys) is refused in one line: the comparison here is of the paper's signed z_r and
 b_r, not yet of vectors. A recording of schema 1 (before one schema for any N) is read through
-`services.core.schema1`, and its copy is written in today's schema.
+`services.core.schema1`, and its copy is written in today's schema and form (JSON channels).
 """
 
 from __future__ import annotations
@@ -164,12 +164,7 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
                             (value, b_r) if topic == "decision/z_r" else (z_r, value)
                         )
                 continue
-            out.write(out.copy_channel(e.channel, e.schema), e.message.log_time,
-                      e.message.publish_time, e.payload if e.valid else e.message.data,
-                      e.message.sequence)
-            if topic is None or not e.valid:
-                continue
-            msg = decode_entry(topic, e)
+            msg = out.rewrite(e)
             if msg is None:
                 continue
             if isinstance(msg, m.TrialEvent | m.TrialResult | m.Layout):
@@ -211,8 +206,7 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
                 )
                 for name, output in outputs:
                     seq[name] += 1
-                    out.write(out.channel(prefix + name), e.message.log_time, msg.t_ns,
-                              m.encode(output), output.seq)
+                    out.write_message(prefix + name, output, e.message.log_time)
                     recomputed += 1
                 if current is not None and not current.closed:
                     current.recomputed[msg.seq] = (res.z_r, res.b_r)

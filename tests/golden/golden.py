@@ -115,7 +115,7 @@ def replay_decision(out: Path) -> dict[str, Any]:
     for entry in McapIn(out):
         topic = topic_of(entry.key)
         if topic in DECISION_TOPICS:
-            msg = m.decode(_message_type(topic), entry.message.data)
+            msg = m.decode(_message_type(topic), entry.payload)
             values.append((topic, msg.src_seq, repr(msg.signed)))  # schema 3: (z, -z)
     return {
         "poses": res.poses, "recomputed": res.recomputed, "left_out": res.left_out,

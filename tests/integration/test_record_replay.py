@@ -118,8 +118,8 @@ def test_the_session_is_recorded_one_channel_per_key_and_linked_in_the_store(rec
             assert topic is not None and channel.topic.startswith("nod/rig1/")
             schema = summary.schemas[channel.schema_id]
             assert (schema.name, schema.encoding) == (TOPICS[topic].message.__name__, "jsonschema")
-            assert TOPICS[topic].message.__name__ in json.loads(schema.data)["$defs"]
-            assert channel.message_encoding == "msgpack"
+            assert json.loads(schema.data)["title"] == TOPICS[topic].message.__name__
+            assert channel.message_encoding == "json"
             # each channel says the schema its key's messages are written in (one for all)
             assert channel.metadata["schema_version"] == str(m.SCHEMA_VERSION)
             assert channel.metadata["topic"] == topic
@@ -129,7 +129,7 @@ def test_the_session_is_recorded_one_channel_per_key_and_linked_in_the_store(rec
         metadata = {md.name: md.metadata for md in reader.iter_metadata()}
         checked = 0
         for _schema, channel, message in reader.iter_messages():
-            msg = m.decode(TOPICS[topic_of(channel.topic)].message, message.data)
+            msg = m.decode_json(TOPICS[topic_of(channel.topic)].message, message.data)
             assert message.publish_time == msg.t_ns  # the message's own stamp
             assert message.sequence == msg.seq
             checked += 1
@@ -221,16 +221,16 @@ def test_through_decision_with_another_b_star_changes_b_r_in_consensus_trials(re
         for e in McapIn(path):
             topic = topic_of(e.key)
             if topic == "experiment/trial":
-                ev = m.decode(m.TrialEvent, e.message.data)
+                ev = m.decode(m.TrialEvent, e.payload)
                 trial = ev.trial if ev.phase == "go" else 0
             elif topic == "vision/hand":
                 hands += 1
-                seq = m.decode(m.HandPose, e.message.data).seq
+                seq = m.decode(m.HandPose, e.payload).seq
                 if trial and last is not None and seq > last + 1:
                     gap.setdefault(trial, last + 1)
                 last = seq
             elif topic == "decision/b_r" and trial:
-                msg = m.decode(m.Opinions, e.message.data)
+                msg = m.decode(m.Opinions, e.payload)
                 b_r.setdefault(trial, {})[msg.src_seq] = msg.signed
         return b_r, hands
 

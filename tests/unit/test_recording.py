@@ -13,12 +13,14 @@ import sqlite3
 import msgspec
 import pytest
 from mcap.reader import make_reader
+from mcap.records import Channel, Schema
 
 from services.core import messages as m
 from services.core.contract import TOPICS
 from services.core.keys import topic_of
 from services.model.decision import DecisionModel
-from services.recording.mcap_io import FILE_METADATA, McapIn, McapOut
+from services.recording.json_channels import schema_data
+from services.recording.mcap_io import FILE_METADATA, McapIn, McapOut, channel_metadata
 from services.recording.record import Recorder
 from services.recording.selection import input_topics, select_topics
 from services.recording.through import through_decision
@@ -48,7 +50,9 @@ def test_inputs_are_what_the_services_under_test_need_from_outside():
         select_topics(every, ["vi*/hand"], False)
 
 
-def test_the_recorder_writes_original_bytes_per_key_and_keeps_invalid_payloads_apart(tmp_path):
+def test_the_recorder_writes_each_message_as_json_per_key_and_keeps_invalid_payloads_apart(
+    tmp_path,
+):
     path = tmp_path / "r.mcap"
     out = McapOut(path)
     out.metadata(FILE_METADATA, {"rig": "rig1", "params": {"a": 1}})
@@ -71,12 +75,16 @@ def test_the_recorder_writes_original_bytes_per_key_and_keeps_invalid_payloads_a
         reader = make_reader(fh)
         rows = [(c.topic, c, s, msg) for s, c, msg in reader.iter_messages()]
         meta = [(md.name, md.metadata) for md in reader.iter_metadata()]
-    valid = [(t, msg) for t, c, _s, msg in rows if c.message_encoding == "msgpack"]
-    assert [(t, msg.data, msg.log_time, msg.publish_time, msg.sequence) for t, msg in valid] == [
-        ("nod/rig1/vision/hand", pose, 5_000, 1_000, 7),
-        ("nod/rig1/experiment/trial", event, 6_000, 2_000, 0),
-        ("nod/rig1/experiment/trial", event, 6_500, 2_000, 0),
-        ("nod/rig1/vision/frame", m.encode(frame), 9_000, 3_000, 3),
+    valid = [(t, msg) for t, c, _s, msg in rows
+             if c.message_encoding == "json" and "derived_from" not in c.metadata]
+    as_json = [(t, json.loads(msg.data), msg.log_time, msg.publish_time, msg.sequence)
+               for t, msg in valid]
+    assert as_json == [
+        ("nod/rig1/vision/hand", msgspec.msgpack.decode(pose), 5_000, 1_000, 7),
+        ("nod/rig1/experiment/trial", msgspec.msgpack.decode(event), 6_000, 2_000, 0),
+        ("nod/rig1/experiment/trial", msgspec.msgpack.decode(event), 6_500, 2_000, 0),
+        ("nod/rig1/vision/frame", {**msgspec.msgpack.decode(m.encode(frame)),
+                                   "jpeg": base64.b64encode(JPEG).decode()}, 9_000, 3_000, 3),
     ]
     schemas = {t: s.name for t, c, s, _ in rows if s is not None}
     assert schemas["nod/rig1/vision/hand"] == "HandPose"
@@ -92,8 +100,10 @@ def test_the_recorder_writes_original_bytes_per_key_and_keeps_invalid_payloads_a
     assert body["timestamp"] == {"sec": 0, "nsec": 3_000}
     assert [name for name, _ in meta] == ["nod", "nod.session"]
     assert json.loads(meta[0][1]["params"]) == {"a": 1}
-    # the players read only the contract's messages
-    assert [e.key for e in McapIn(path) if e.valid] == [t for t, _ in valid]
+    # the players read only the contract's messages, as the msgpack payloads they travelled as
+    assert [(e.key, e.payload) for e in McapIn(path) if e.valid] == [
+        ("nod/rig1/vision/hand", pose), ("nod/rig1/experiment/trial", event),
+        ("nod/rig1/experiment/trial", event), ("nod/rig1/vision/frame", m.encode(frame))]
 
 
 def test_a_file_cut_short_reads_up_to_its_last_complete_chunk(tmp_path):
@@ -102,7 +112,7 @@ def test_a_file_cut_short_reads_up_to_its_last_complete_chunk(tmp_path):
     out.metadata(FILE_METADATA, {"rig": "rig1"})
     sizes: list[int] = []
     for i in range(300):
-        out.write(out.channel("nod/rig1/vision/hand"), 10_000 + i, i, m.encode(_pose(i, i)), i)
+        out.write_message("nod/rig1/vision/hand", _pose(i, i), 10_000 + i)
         if i % 100 == 99:
             out.flush()  # three chunks
             sizes.append(out.size())
@@ -111,7 +121,7 @@ def test_a_file_cut_short_reads_up_to_its_last_complete_chunk(tmp_path):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(whole[: sizes[1] + 100])  # the third chunk is cut short
     read = McapIn(cut)
-    seqs = [m.decode(m.HandPose, e.message.data).seq for e in read]
+    seqs = [m.decode(m.HandPose, e.payload).seq for e in read]
     assert seqs == list(range(200)) and not read.complete and read.truncated
     assert read.file_metadata() == {"rig": "rig1"}
     full = McapIn(path)
@@ -130,20 +140,20 @@ def test_through_decision_recomputes_what_the_model_says(tmp_path):
                          option="red", options=PAPER)),
     ]
     for i, ev in events:
-        out.write(out.channel("nod/rig1/experiment/trial"), i, ev.t_ns, m.encode(ev))
+        out.write_message("nod/rig1/experiment/trial", ev, i)
     poses = [_pose(i, t0 + 20_000_000 + i * 33_000_000, x=0.5 - 0.01 * i, y=0.8 - 0.02 * i)
              for i in range(20)]
     for i, pose in enumerate(poses):
-        out.write(out.channel("nod/rig1/vision/hand"), 10 + i, pose.t_ns, m.encode(pose))
+        out.write_message("nod/rig1/vision/hand", pose, 10 + i)
         bogus = m.Opinions(seq=i, t_ns=pose.t_ns, src_seq=pose.seq, **m.signed_fields(99.0))
-        out.write(out.channel("nod/rig1/decision/z_r"), 10 + i, pose.t_ns, m.encode(bogus))
+        out.write_message("nod/rig1/decision/z_r", bogus, 10 + i)
     out.finish()
 
     res = through_decision(src, tmp_path / "out.mcap", None)
     model = DecisionModel()
     model.on_trial("go", "consensus", "red")
     expected = [model.on_hand(p.t_ns, p.landmarks).z_r for p in poses]
-    got = [m.decode(m.Opinions, e.message.data) for e in McapIn(tmp_path / "out.mcap")
+    got = [m.decode(m.Opinions, e.payload) for e in McapIn(tmp_path / "out.mcap")
            if topic_of(e.key) == "decision/z_r"]
     assert [s.signed for s in got] == expected  # the recorded 99.0 are gone
     assert [s.src_seq for s in got] == [p.seq for p in poses]
@@ -158,24 +168,35 @@ def _v1(**fields) -> bytes:
     return msgspec.msgpack.encode({"v": 1, "seq": 0, **fields})
 
 
+def write_old(out: McapOut, key: str, log_time: int, publish_time: int, payload: bytes) -> None:
+    """A payload as recordings kept it before JSON channels: msgpack, as it travelled."""
+    topic = topic_of(key)
+    assert topic is not None
+    cls = TOPICS[topic].message
+    channel = Channel(id=0, topic=key, message_encoding="msgpack", schema_id=0,
+                      metadata=channel_metadata(topic))
+    schema = Schema(id=0, name=cls.__name__, encoding="jsonschema", data=schema_data(cls))
+    out.write(out.copy_channel(channel, schema), log_time, publish_time, payload)
+
+
 def test_a_schema_1_recording_reads_replays_and_goes_through_decision_in_todays_schema(tmp_path):
     src = tmp_path / "old.mcap"
     out = McapOut(src)
     out.metadata(FILE_METADATA, {"rig": "rig1"})
     t0 = 1_000_000_000
     red, blue = (0.1, 0.05, 0.3, 0.25), (0.7, 0.05, 0.9, 0.25)
-    out.write(out.channel("nod/rig1/vision/layout"), 0, t0,
+    write_old(out, "nod/rig1/vision/layout", 0, t0,
               _v1(t_ns=t0, red=red, blue=blue, commit_y=0.45))
     for i, phase in enumerate(("setup", "go")):
-        out.write(out.channel("nod/rig1/experiment/trial"), 1 + i, t0 + i,
+        write_old(out, "nod/rig1/experiment/trial", 1 + i, t0 + i,
                   _v1(t_ns=t0 + i, phase=phase, trial=1, mode="consensus", option="blue",
                       text="", session="s1"))
     poses = [_pose(i, t0 + 20_000_000 + i * 33_000_000, x=0.5 + 0.01 * i) for i in range(10)]
     for i, pose in enumerate(poses):
-        out.write(out.channel("nod/rig1/vision/hand"), 10 + i, pose.t_ns, m.encode(pose))
-        out.write(out.channel("nod/rig1/decision/z_r"), 10 + i, pose.t_ns,
+        write_old(out, "nod/rig1/vision/hand", 10 + i, pose.t_ns, m.encode(pose))
+        write_old(out, "nod/rig1/decision/z_r", 10 + i, pose.t_ns,
                   _v1(t_ns=pose.t_ns, value=-0.5 * i, src_seq=pose.seq))
-    out.write(out.channel("nod/rig1/actuation/press"), 40, t0 + 10**9,
+    write_old(out, "nod/rig1/actuation/press", 40, t0 + 10**9,
               _v1(t_ns=t0 + 10**9, colour="blue", trial=1))
     out.finish()
 
@@ -196,9 +217,10 @@ def test_a_schema_1_recording_reads_replays_and_goes_through_decision_in_todays_
     recorded, _ = res.trials[0].final()
     assert recorded is not None and recorded[0] == -4.5 and math.isnan(recorded[1])
     copied = [e for e in McapIn(tmp_path / "out.mcap")]
-    for e in copied:  # every message of the derived file is of today's schema
-        assert msgspec.msgpack.decode(e.message.data)["v"] == m.SCHEMA_VERSION
-    got = [m.decode(m.Opinions, e.message.data).signed for e in copied
+    for e in copied:  # every message of the derived file is of today's schema and form
+        assert e.channel.message_encoding == "json"
+        assert json.loads(e.message.data)["v"] == m.SCHEMA_VERSION
+    got = [m.decode(m.Opinions, e.payload).signed for e in copied
            if topic_of(e.key) == "decision/z_r"]
     assert got == expected
 
@@ -209,7 +231,7 @@ def test_a_recording_of_three_options_does_not_go_through_the_paper_engine(tmp_p
     out.metadata(FILE_METADATA, {"rig": "rig1"})
     ev = m.TrialEvent(seq=0, t_ns=5, phase="setup", trial=1, mode="consensus", option="green",
                       options=("red", "blue", "green"))
-    out.write(out.channel("nod/rig1/experiment/trial"), 0, 5, m.encode(ev))
+    out.write_message("nod/rig1/experiment/trial", ev, 0)
     out.finish()
     with pytest.raises(ValueError, match="table of N options .*red,blue,green"):
         through_decision(src, tmp_path / "out.mcap", None)
