@@ -226,3 +226,18 @@ def test_a_small_real_recovery_gives_each_row_its_intervals_and_repeats(tmp_path
     assert versus["accuracy"] >= 0.8
     assert main(args[:-1] + ["--versus", str(other)]) == 0
     assert f"model recovery (the prior or {other})" in capsys.readouterr().out
+
+
+def test_a_bad_prior_file_is_one_line(tmp_path, capsys):
+    """`--prior FILE` is read before anything is simulated; a wrong one ends in one line."""
+    db = tmp_path / "empty.sqlite"
+    Store(db).close()
+    bad = tmp_path / "prior.toml"
+    bad.write_text("[traits.speed]\nlow = 0.4\nhigh = 0.2\n")
+    assert main(["--db", str(db), "--prior", str(bad)]) == 2
+    assert "traits.speed: needs finite low <= high" in _one_line(capsys)
+    assert main(["recovery", "--participants", "2", "--prior", str(tmp_path / "nope.toml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "config file not found" in err
+    assert main(["recovery", "--participants", "2", "--population", str(bad)]) == 2
+    assert "traits.speed: needs finite low <= high" in capsys.readouterr().err
