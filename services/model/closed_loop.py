@@ -36,6 +36,17 @@ from services.model.judge import Judge, OptionsTrialJudge, TrialJudge
 from services.model.outcome import TrialJudgement
 from services.model.params import NodConfig
 from services.model.participant import Participant, ParticipantParams, jittered
+from services.model.policy import (
+    Kind,
+    Played,
+    Policy,
+    PolicyRun,
+    PolicySettings,
+    decision_for,
+    kind_of,
+    paper_settings,
+    spec_for,
+)
 from services.model.protocol import Cue, ProtocolParams, SessionProtocol
 from services.model.replayed_hand import Pose, ReplayedHand
 from services.model.robot import OptionsRobotTrial, RobotTrial, TrialReactor
@@ -82,6 +93,7 @@ class OfflineTrial(Generic[Opt]):
     samples: tuple[LoopSample, ...] = ()  # every frame from "go" to the end (when recorded)
     interrupted: bool = False  # broken by a safe stop and not repeated: never scored
     attempts: int = 1  # starts of this trial, the interrupted ones included
+    settings: PolicySettings | None = None  # the robot policy's settings (None: no policy)
 
 
 def centre(pts: np.ndarray) -> Point:
@@ -132,6 +144,13 @@ def _draws(cfg: NodConfig, seed: int, cohort: bool) -> tuple[ParticipantParams, 
     return params, int(rng.integers(2**31))
 
 
+def person_kind(cfg: NodConfig, seed: int, cohort: bool = True) -> Kind:
+    """The kind of the person `run_offline_session` simulates for this seed (`policy.kind_of`)."""
+    params, person_seed = _draws(cfg, seed, cohort)
+    p = Participant(params, cfg.layout, seed=person_seed)
+    return kind_of(p.strategist, p.contrarian, p.firm)
+
+
 class _Loop(ABC, Generic[Opt]):
     """One participant's session: the protocol's cues dispatched to the loop's parts."""
 
@@ -146,6 +165,7 @@ class _Loop(ABC, Generic[Opt]):
         arm: _Arm[Opt],
         boxes: Sequence[Box],
         protocol: ProtocolParams,
+        policy: PolicyRun | None = None,
     ) -> None:
         self.cfg = cfg
         self.clicks = clicks
@@ -155,7 +175,9 @@ class _Loop(ABC, Generic[Opt]):
         self.arm: _Arm[Opt] = arm
         self._boxes = box_bounds(boxes)
         self.arm.connect()
-        self.protocol = SessionProtocol(protocol)
+        self.policy = policy
+        self._settings: dict[int, PolicySettings] = {}  # the policy's, per trial index
+        self.protocol = SessionProtocol(protocol, planner=None if policy is None else self._plan)
         self.judge: Judge[Any, Opt, Any] | None = None  # from "go" to the trial's verdict
         self.ended = False  # the trial's "end" has come (its verdict and samples are kept)
         self.t_go = 0.0
@@ -184,6 +206,19 @@ class _Loop(ABC, Generic[Opt]):
     @abstractmethod
     def _opinions(self, out: Any) -> tuple[float | None, ...]:
         """A recorded frame's ẑ_h, z_r, b_r, θ and d."""
+
+    def _retune(self, s: PolicySettings, paper: PolicySettings) -> None:
+        """Give the decision engine a trial's b* and u_r (only the paper's table has a policy)."""
+        raise ValueError("a robot policy runs on the paper's two-option table only")
+
+    def _plan(self, spec: TrialSpec) -> TrialSpec:
+        """The trial as the policy sets it, as it begins: its gaze level, b* and u_r."""
+        assert self.policy is not None  # the protocol's planner only with a policy
+        paper = paper_settings(self.cfg.decision, spec)
+        s = self.policy.settings(spec, paper)
+        self._settings[spec.index] = s
+        self._retune(s, paper)
+        return spec_for(spec, s)
 
     # -- the session, written once -----------------------------------------------------------
 
@@ -257,13 +292,17 @@ class _Loop(ABC, Generic[Opt]):
     ) -> None:
         """Store the trial ending at t with judgement j, as the conductor stores it."""
         mode, option, _ = self._trial(spec)
+        settings = self._settings.get(spec.index)
         self.results.append(
             OfflineTrial(
                 spec.index, mode, option, j.human, j.robot, j.outcome, j.switches, j.violations,
                 j.score, t - self.t_go, press_s, samples, interrupted=interrupted,
-                attempts=self.protocol.attempt,
+                attempts=self.protocol.attempt, settings=settings,
             )
         )
+        if self.policy is not None and settings is not None:
+            self.policy.played(Played(spec.index, mode, settings, j.outcome,
+                                      option is not None and j.human == option))
 
     def _idle(self) -> bool:
         """Whether nothing reads this frame's pose or the decision engine (`frame` skips both).
@@ -343,6 +382,7 @@ class _PaperLoop(_Loop[Colour]):
         clicks: int | None,
         record: bool = False,
         hand: ReplayedHand | None = None,
+        policy: PolicyRun | None = None,
     ) -> None:
         params, person_seed = _draws(cfg, seed, cohort)
         layout = cfg.layout
@@ -354,10 +394,18 @@ class _PaperLoop(_Loop[Colour]):
             arm=SimArm(layout, cfg.sim_arm, t0=0.0),
             boxes=(layout.red, layout.blue),
             protocol=cfg.protocol,
+            policy=policy,
         )
 
     def _trial(self, spec: TrialSpec) -> tuple[Mode, Colour | None, Colour | None]:
         return spec.mode, spec.option, spec.consensus_option
+
+    def _retune(self, s: PolicySettings, paper: PolicySettings) -> None:
+        params = self.cfg.decision if s == paper else decision_for(self.cfg.decision, s)
+        model = self.model
+        assert isinstance(model, DecisionModel)
+        if params != model.params:
+            model.retune(params)
 
     def _new_judge(self, mode: Mode) -> TrialJudge:
         return TrialJudge(self.cfg, self.cfg.layout, mode)
@@ -430,6 +478,7 @@ def run_offline_session(
     safe_again_s: float = ...,
     hands: Mapping[int, Sequence[Pose]] | None = ...,
     schedule: None = ...,
+    policy: Policy | PolicyRun | None = ...,
 ) -> list[OfflineTrial[Colour]]: ...
 
 
@@ -446,6 +495,7 @@ def run_offline_session(
     hands: Mapping[int, Sequence[Pose]] | None = ...,
     *,
     schedule: OptionsSchedule,
+    policy: None = ...,
 ) -> list[OfflineTrial[int]]: ...
 
 
@@ -460,6 +510,7 @@ def run_offline_session(
     safe_again_s: float = 1.0,
     hands: Mapping[int, Sequence[Pose]] | None = None,
     schedule: OptionsSchedule | None = None,
+    policy: Policy | PolicyRun | None = None,
 ) -> list[OfflineTrial[Colour]] | list[OfflineTrial[int]]:
     """Simulate one participant's whole session; return each trial's outcome (and samples).
 
@@ -474,11 +525,19 @@ def run_offline_session(
     `hands` replaces the simulated participant with a recorded hand: per trial, its poses timed
     from that trial's "go" (`services.model.replayed_hand`; `services.recording.reaches` reads
     them from a recording).
+
+    `policy` chooses each trial's b*, gaze level and u_r as the trial begins, inside the
+    envelope `cfg.policy` (`services.model.policy`; a `PolicyRun` to freeze it or read its
+    history); None, like `PaperPolicy`, runs today's robot. The paper's table only.
     """
     hand = ReplayedHand(hands) if hands is not None else None
+    run = policy if isinstance(policy, PolicyRun) or policy is None else PolicyRun(
+        policy, cfg.policy)
     if schedule is None:
-        return _run(_PaperLoop(cfg, seed, cohort, clicks, record, hand), rate_hz, breaks,
+        return _run(_PaperLoop(cfg, seed, cohort, clicks, record, hand, run), rate_hz, breaks,
                     safe_again_s)
+    if run is not None:
+        raise ValueError("a robot policy runs on the paper's two-option table only")
     return _run(_OptionsLoop(cfg, schedule, seed, cohort, clicks, record, hand), rate_hz, breaks,
                 safe_again_s)
 

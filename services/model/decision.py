@@ -281,6 +281,18 @@ class DecisionModel(PoseEngine[float, Colour, DecisionOutput]):
         else:
             self._sigma = self._beta = 0.0
 
+    def retune(self, params: DecisionParams) -> None:
+        """Use `params` from the next `reset` on (a policy's b* and u_r for a trial).
+
+        The observer is the engine's own: parameters with another observer are refused.
+        """
+        if params.observer != self._params.observer:
+            raise ValueError("retune keeps the engine's observer: its parameters cannot change")
+        self._params = params
+        self._dt_ns = max(1, round(params.dt * 1e9))
+        self._max_gap_ns = max(1, round(params.max_gap_s * 1e9))
+        self._b_star = params.bias.threshold(params.pair.robot.u)
+
     def set_layout(self, layout: TableLayout) -> None:
         """Use a new table layout for later poses (state and ẑ_h are kept)."""
         self._observer.layout = layout

@@ -18,6 +18,7 @@ from services.model.debounce import DebounceParams
 from services.model.decision import DecisionParams
 from services.model.geometry import OptionsLayout, TableLayout
 from services.model.participant import ParticipantParams
+from services.model.policy import Envelope
 from services.model.protocol import ProtocolParams
 from services.model.safety import SafetyParams
 from services.model.servos import EyesCalibration
@@ -36,6 +37,7 @@ class NodConfig:
     eyes: EyesCalibration = field(default_factory=EyesCalibration)
     protocol: ProtocolParams = field(default_factory=ProtocolParams)
     participant: ParticipantParams = field(default_factory=ParticipantParams)
+    policy: Envelope = field(default_factory=Envelope)  # the robot policy's bounds ([policy])
 
     def summary(self, *sections: str) -> dict[str, Any]:
         """The effective values of some sections (all when none named), for the start-up log."""

@@ -17,6 +17,7 @@ origin, always passed in.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
 
@@ -130,13 +131,20 @@ class SessionProtocol:
     """
 
     def __init__(
-        self, params: ProtocolParams, first_trial: int = 1, attempts_before: int = 0
+        self,
+        params: ProtocolParams,
+        first_trial: int = 1,
+        attempts_before: int = 0,
+        planner: Callable[[TrialSpec], TrialSpec] | None = None,
     ) -> None:
         """A session over `params.trials`, starting at trial `first_trial` (resume: > 1).
 
         `attempts_before`: starts of `first_trial` already made and lost (a resumed session
-        whose conductor died mid-trial); the first start counts on from them.
+        whose conductor died mid-trial); the first start counts on from them. `planner`: each
+        trial's spec passes through it as the trial begins (a robot policy's gaze level,
+        `services.model.policy`), after the trials before it have ended.
         """
+        self._planner = planner
         if not 1 <= first_trial <= len(params.trials):
             raise ValueError(
                 f"first_trial must be in 1..{len(params.trials)}, got {first_trial!r}"
@@ -287,6 +295,8 @@ class SessionProtocol:
             out.append(Cue("session_end", None, "complete"))
             return
         spec = self.params.trials[self._next_index]
+        if self._planner is not None:
+            spec = self._planner(spec)
         self._next_index += 1
         self._attempt = self._attempt + 1 if repeat else 1
         self._trial = spec
