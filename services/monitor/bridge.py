@@ -3,8 +3,9 @@
 No Zenoh here: `RerunBridge.log(topic, msg)` takes a message of the contract and logs it to a
 `rerun.RecordingStream`, so it is tested against a recording saved to an `.rrd` file. Every row is
 stamped with the message's own source time `t_ns` on the `time` timeline and with the current
-trial on the `trial` sequence timeline. The entity tree (`ENTITIES`) and the blueprint that lays
-it out live here too, so the paths are written once:
+trial on the `trial` sequence timeline. The entity tree (`ENTITIES`) is
+`services.views.entities`' (the recordings' blueprint lays it out too), and the views the
+monitor's blueprint shares with it are `services.views.blueprint`'s:
 
     opinion/{z_h,z_r,b_r}     two options: time series of the signed ẑ_h, z_r, b_r (one view)
     bars/{z_h,z_r,b_r}        three or more options: a bar chart each, one bar per option
@@ -40,12 +41,9 @@ import rerun.blueprint as rrb
 from services.core import messages as m
 from services.model.servos import SERVO_NAMES
 from services.scene.option_colours import COLOURS
+from services.views.blueprint import opinions_view, table_view
+from services.views.entities import ENTITIES, TIMELINE, TRIAL_TIMELINE
 
-APPLICATION_ID = "nod_hri"
-TIMELINE = "time"  # the message's source timestamp, `t_ns`
-TRIAL_TIMELINE = "trial"  # the trial number (0 before the first trial)
-TRAIL_S = 3.0  # seconds of hand / end-effector path shown on the table
-LIVE_S = 0.1  # the arm segment and the gaze arrows: only the last 0.1 s (≥ 2 samples of each)
 # Keys the monitor does not record: the raw rendered camera is vision's input (30 Hz, full size);
 # the camera view shows vision's own low-rate annotated frames (`vision/frame`).
 NOT_SHOWN: frozenset[str] = frozenset({"sim/camera"})
@@ -69,33 +67,6 @@ SCALAR_STYLE: dict[str, tuple[str, tuple[int, int, int]]] = {
     "decision/b_r": ("b_r (robot bias)", (130, 80, 200)),
 }
 
-ENTITIES: dict[str, str] = {
-    "decision/z_h": "opinion/z_h",
-    "decision/z_r": "opinion/z_r",
-    "decision/b_r": "opinion/b_r",
-    "bars/z_h": "bars/z_h",
-    "bars/z_r": "bars/z_r",
-    "bars/b_r": "bars/b_r",
-    "hand": "table/hand",
-    "buzzers": "table/buzzers",
-    "commit_line": "table/commit_line",
-    "arm": "table/arm",
-    "arm_link": "table/arm_link",
-    "gaze": "table/gaze",
-    "gaze_yaw": "eyes/gaze/yaw",
-    "gaze_pitch": "eyes/gaze/pitch",
-    "servos": "eyes/servos",
-    "state_trial": "state/trial",
-    "state_arm": "state/arm",
-    "state_gaze": "state/gaze",
-    "log_trial": "log/trial",
-    "log_result": "log/result",
-    "log_arm": "log/arm",
-    "log_safety": "log/safety",
-    "log_services": "log/services",
-    "frame": "camera/frame",
-}
-
 
 def blueprint(bars: bool = False) -> rrb.Blueprint:
     """The at-a-glance layout: opinions and states left, table, camera and text log right.
@@ -103,21 +74,8 @@ def blueprint(bars: bool = False) -> rrb.Blueprint:
     With `bars` the opinions are vectors over three or more options, one bar chart each (a time
     series of a vector over N options does not read at a glance); everything else is the same.
     """
-    opinions: rrb.Container | rrb.View = rrb.TimeSeriesView(
-        origin="opinion", name="opinions: ẑ_h, z_r, b_r"
-    )
-    if bars:
-        opinions = rrb.Horizontal(*(
-            rrb.BarChartView(origin=ENTITIES[f"bars/{o}"], name=f"{label}, one bar per option")
-            for o, label in (("z_h", "ẑ_h"), ("z_r", "z_r"), ("b_r", "b_r"))
-        ))
-    trail = rrb.VisibleTimeRange(
-        TIMELINE,
-        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-TRAIL_S),
-        end=rrb.TimeRangeBoundary.cursor_relative(),
-    )
     left = rrb.Vertical(
-        opinions,
+        opinions_view(bars),
         rrb.Horizontal(
             rrb.TimeSeriesView(origin="eyes/gaze", name="gaze command (rad)"),
             rrb.TimeSeriesView(origin="eyes/servos", name="eye servo targets (deg)"),
@@ -125,22 +83,10 @@ def blueprint(bars: bool = False) -> rrb.Blueprint:
         rrb.StateTimelineView(origin="state", name="trial · arm · gaze"),
         row_shares=[3, 2, 1],
     )
-    live = rrb.VisibleTimeRanges(
-        timeline=TIMELINE,
-        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-LIVE_S),
-        end=rrb.TimeRangeBoundary.cursor_relative(),
-    )
     width, height = FRAME_SIZE
     right = rrb.Vertical(
         rrb.Horizontal(
-            rrb.Spatial2DView(
-                origin="table",
-                name="table: buzzers, commit line, hand, arm and gaze",
-                visual_bounds=rrb.VisualBounds2D(x_range=[0.0, 1.0], y_range=[0.0, 1.0]),
-                time_ranges=trail,
-                # the arm and the gaze as they are now, not a 3 s fan of old segments and arrows
-                overrides={ENTITIES["arm_link"]: live, ENTITIES["gaze"]: live},
-            ),
+            table_view(),
             rrb.Spatial2DView(
                 origin="camera",
                 name="camera",

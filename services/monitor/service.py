@@ -33,9 +33,10 @@ from services.core.contract import TOPICS
 from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
 from services.core.session import Fabric, open_session
-from services.monitor.bridge import APPLICATION_ID, NOT_SHOWN, RerunBridge
+from services.monitor.bridge import NOT_SHOWN, RerunBridge
 from services.monitor.inbox import Inbox, Item, lane_of
 from services.monitor.sinks import ViewerWatch, open_sinks
+from services.views.entities import APPLICATION_ID
 
 log = logging.getLogger("nod.monitor")
 STATUS_PERIOD_S = 10.0

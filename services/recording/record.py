@@ -1,8 +1,10 @@
-"""`nod record --out FILE.mcap`: every message of a rig, as it travelled, into one MCAP file.
+"""`nod record --out FILE.mcap`: every message of a rig into one MCAP file any viewer opens.
 
-It subscribes to `nod/<rig>/**` (or the `--only` keys) and writes each payload's original bytes
-on its key's channel (see `services.recording.mcap_io` for the layout). It only listens: no
-liveliness token, nothing published.
+It subscribes to `nod/<rig>/**` (or the `--only` keys) and writes each validated message as JSON
+on its key's channel, with its JSON Schema (see `services.recording.mcap_io` for the layout),
+plus a Foxglove layout and a Rerun blueprint as attachments (`services.recording.attachments`).
+It only listens: no liveliness token, nothing published. `nod record convert OLD NEW` rewrites
+an older recording (msgpack) as today's (`services.recording.convert`).
 
 - Bounded memory: zenoh's thread stamps and queues each sample (`services.core.tap.Tap`, at most
   10 000 samples and `--queue-mb` of payloads); what overflows is dropped and counted, never
@@ -41,6 +43,7 @@ from services.core.node import install_signal_handlers, package_version, setup_l
 from services.core.provenance import PROVENANCE_METADATA, metadata_arg
 from services.core.session import Fabric, open_session
 from services.core.tap import QUEUE_MAX, Tap
+from services.recording.attachments import attach_views
 from services.recording.mcap_io import (
     END_METADATA,
     FILE_METADATA,
@@ -215,7 +218,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Record until Ctrl-C, SIGTERM or --duration; 2 on bad flags or an unreachable router.
 
-    `nod record repair FILE` makes a cut recording whole (`services.recording.repair`).
+    `nod record repair FILE` makes a cut recording whole (`services.recording.repair`), `nod
+    record convert OLD NEW` rewrites an older one in today's form (`services.recording.convert`).
     """
     if argv is None:
         argv = sys.argv[1:]
@@ -223,6 +227,10 @@ def main(argv: list[str] | None = None) -> int:
         from services.recording.repair import main as repair
 
         return repair(argv[1:])
+    if argv[:1] == ["convert"]:
+        from services.recording.convert import main as convert
+
+        return convert(argv[1:])
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
     try:
@@ -254,6 +262,7 @@ def _record(args: argparse.Namespace, session: zenoh.Session, out: McapOut, expr
     out.metadata(FILE_METADATA, meta)
     if args.provenance:
         out.metadata(PROVENANCE_METADATA, args.provenance)
+    attach_views(out, args.rig, time.time_ns())
     out.flush()
     t0 = time.monotonic()
     deadline = None if args.duration is None else t0 + args.duration

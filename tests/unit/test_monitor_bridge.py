@@ -14,7 +14,6 @@ from services.core import messages as m
 from services.core.keys import Keys
 from services.model.geometry import OptionsLayout
 from services.monitor.bridge import (
-    APPLICATION_ID,
     ARM_BASE,
     ENTITIES,
     EYES,
@@ -32,6 +31,7 @@ from services.monitor.bridge import (
 from services.monitor.inbox import Inbox, Item, lane_of
 from services.monitor.service import Monitor
 from services.monitor.sinks import ViewerWatch
+from services.views.entities import APPLICATION_ID
 
 T0 = 1_795_448_811_000_000_000
 PAPER = ("red", "blue")
