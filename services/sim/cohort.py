@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from services.cohort.person import load_cohort_params
+from services.cohort.policy_file import PolicyFile, make_policy, read_policy_file
 from services.compute.engine import (
     Engine,
     EngineError,
@@ -39,8 +40,9 @@ from services.compute.engine import (
 )
 from services.core.cli import SEED, Parser, fail, int_in
 from services.core.config import ConfigError, from_mapping
-from services.model.closed_loop import OfflineTrial, run_offline_session
+from services.model.closed_loop import OfflineTrial, person_kind, run_offline_session
 from services.model.params import NodConfig
+from services.model.policy import Policy, spec_for
 from services.model.protocol import TrialSpec
 from services.store import Sample, Store, StoreError, TrialRecord
 from services.store.cohorts import (
@@ -51,6 +53,7 @@ from services.store.cohorts import (
     stored_sessions,
     unfinished,
 )
+from services.store.policies import read_policies, write_policy
 
 SESSION_SPACING_NS = 10**12  # each session's clock starts 1000 s after the previous one
 
@@ -63,11 +66,21 @@ class Job:
     seed: int
     cfg: NodConfig
     record: bool
+    policy: Policy | None = None  # None: today's robot, stored without a policy
+
+
+@dataclass(frozen=True)
+class StoredPolicy:
+    """The policy a cohort runs, as its sessions store it."""
+
+    file: PolicyFile
+    policy: Policy
 
 
 def simulate(job: Job) -> list[OfflineTrial]:
     """Run one participant's session (a task on the engine)."""
-    return run_offline_session(job.cfg, job.seed, cohort=True, record=job.record)
+    return run_offline_session(job.cfg, job.seed, cohort=True, record=job.record,
+                               policy=job.policy)
 
 
 def offline_record(t: OfflineTrial, spec: TrialSpec, t_go_ns: int) -> TrialRecord:
@@ -92,8 +105,11 @@ def offline_record(t: OfflineTrial, spec: TrialSpec, t_go_ns: int) -> TrialRecor
     )
 
 
-def store_session(store: Store, job: Job, trials: list[OfflineTrial], prefix: str) -> None:
-    """Write one simulated session the way the conductor writes a real one."""
+def store_session(
+    store: Store, job: Job, trials: list[OfflineTrial], prefix: str,
+    policy: PolicyFile | None = None,
+) -> None:
+    """Write one simulated session the way the conductor writes a real one (and its policy)."""
     session = f"{prefix}-{job.seed}"
     base = (job.index + 1) * SESSION_SPACING_NS
     store.begin_session(
@@ -101,11 +117,15 @@ def store_session(store: Store, job: Job, trials: list[OfflineTrial], prefix: st
     )
     for t in trials:
         spec = job.cfg.protocol.trials[t.trial - 1]
+        spec = spec if t.settings is None else spec_for(spec, t.settings)  # the gaze played
         shift = base + t.trial * 60 * 10**9  # the trial's go, on the session's clock
         samples = [Sample(s.t_ns + base, True, *s[1:]) for s in t.samples]
         t_go = samples[0].t_ns if samples else shift
         record = offline_record(t, spec, t_go)
         store.write_trial(session, record, samples)
+    if policy is not None:
+        write_policy(store, session, policy.name, policy.sha256, person_kind(job.cfg, job.seed),
+                     {t.trial: t.settings for t in trials if t.settings is not None})
     store.finish_session(session, base + 59 * 60 * 10**9, "complete")
 
 
@@ -136,12 +156,15 @@ def run_cohort(
     record: bool = True,
     prefix: str = "cohort",
     show: bool = True,
+    policy: StoredPolicy | None = None,
 ) -> tuple[int, float]:
     """Simulate and store n participants; return (trials stored, seconds).
 
     CohortStoppedError if the engine fails half-way: the store then marks the cohort incomplete.
+    `policy`: the robot's, stored with each session (None: today's robot, stored without one).
     """
-    jobs = [Job(i, seed + i, cfg, record) for i in range(n)]
+    jobs = [Job(i, seed + i, cfg, record, None if policy is None else policy.policy)
+            for i in range(n)]
     store = Store(db)
     try:
         taken = {s["session"] for s in store.sessions()} & {f"{prefix}-{j.seed}" for j in jobs}
@@ -152,7 +175,8 @@ def run_cohort(
                 f"another --seed (seeds {seed}-{seed + n - 1} are taken in part) or another --db"
             )
         cohort = begin_cohort(store, prefix, seed, n, record, config_json(cfg))
-        return _simulate(engine, store, cohort, jobs, show)
+        return _simulate(engine, store, cohort, jobs, show,
+                         None if policy is None else policy.file)
     finally:
         store.close()
 
@@ -180,6 +204,12 @@ def resume_cohorts(
                     f"nod-hri ({exc}); resume it with that version"
                 ) from None
             status = stored_sessions(store, cohort)
+            ran = {p.policy for s, p in read_policies(store).items() if s in status}
+            if ran - {"paper"}:
+                raise StoreError(
+                    f"the cohort {cohort.describe()} in {db} ran the policy {min(ran)}: resuming "
+                    "a cohort with a policy is not done yet; run it again into a new --db"
+                )
             for name, state in status.items():
                 if state != "complete":
                     drop_session(store, name)
@@ -196,7 +226,8 @@ def resume_cohorts(
 
 
 def _simulate(
-    engine: Engine, store: Store, cohort: CohortRecord, jobs: Sequence[Job], show: bool
+    engine: Engine, store: Store, cohort: CohortRecord, jobs: Sequence[Job], show: bool,
+    policy: PolicyFile | None = None,
 ) -> tuple[int, float]:
     """Simulate and store jobs of a cohort, then mark it complete; (trials stored, seconds)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
@@ -216,7 +247,7 @@ def _simulate(
         with Progress(*columns, disable=not show, transient=True) as bar:
             task = bar.add_task("participants", total=len(jobs))
             for job, trials in zip(jobs, engine.imap(simulate, jobs), strict=True):
-                store_session(store, job, trials, cohort.prefix)
+                store_session(store, job, trials, cohort.prefix, policy)
                 stored += len(trials)
                 bar.advance(task)
     except EngineError as exc:
@@ -243,6 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", type=Path, required=True, help="session database to write")
     p.add_argument("--params", type=Path, default=None,
                    help="TOML overriding the fitted person and SPEC defaults")
+    p.add_argument("--policy", default=None, metavar="paper|adaptive|FILE.toml",
+                   help="the robot's policy (default paper: today's robot); its name and hash "
+                   "and its settings per trial are stored with each session (docs/adaptive.md)")
     p.add_argument("--resume", action="store_true",
                    help="finish the store's incomplete cohort (its participants, seeds and "
                    "configuration are in the store)")
@@ -270,7 +304,8 @@ def stopped(args: argparse.Namespace, exc: CohortStoppedError) -> int:
 
 def _resume(args: argparse.Namespace) -> int:
     given = [f for f, v in (("--participants", args.participants), ("--seed", args.seed),
-                            ("--params", args.params), ("--no-samples", args.no_samples or None))
+                            ("--params", args.params), ("--no-samples", args.no_samples or None),
+                            ("--policy", args.policy))
              if v is not None]
     if given:
         return fail("nod cohort", f"--resume takes the cohort from the store: leave out "
@@ -306,15 +341,17 @@ def main(argv: list[str] | None = None) -> int:
     seed = 1 if args.seed is None else args.seed
     try:
         cfg = load_cohort_params(args.params)
+        policy_file = read_policy_file(args.policy or "paper")
         Store(args.db).close()
     except (ValueError, OSError, StoreError) as exc:
         return fail("nod cohort", exc)
     t0 = time.monotonic()
     try:
         with engine_from_args(args) as engine:
+            policy = StoredPolicy(policy_file, make_policy(policy_file, cfg, engine.imap))
             stored, seconds = run_cohort(
                 engine, args.participants, seed, args.db, cfg,
-                record=not args.no_samples, show=not args.quiet,
+                record=not args.no_samples, show=not args.quiet, policy=policy,
             )
             where = engine.where
     except CohortStoppedError as exc:

@@ -1,0 +1,71 @@
+"""The robot policy of each session and its settings per trial (issue 36).
+
+`policy_sessions`: a session's policy (its name and its file's SHA-256) and, for a simulated
+participant, the kind of person the simulator drew (strategist, contrarian, firm, rest; NULL
+for a real one). `policy_trials`: the settings the policy chose for each trial (b*, the gaze
+level toward O, u_r). A session stored without a policy has no rows: today's robot.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from services.model.policy import PolicySettings
+from services.store.store import Store
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS policy_sessions (
+    session        TEXT PRIMARY KEY,
+    policy         TEXT NOT NULL,
+    policy_sha256  TEXT NOT NULL,
+    kind           TEXT
+);
+CREATE TABLE IF NOT EXISTS policy_trials (
+    session     TEXT NOT NULL,
+    trial       INTEGER NOT NULL,
+    b_star      REAL NOT NULL,
+    gaze_level  TEXT NOT NULL,
+    u_r         REAL NOT NULL,
+    PRIMARY KEY (session, trial)
+);
+"""
+
+
+@dataclass(frozen=True, slots=True)
+class SessionPolicy:
+    """A session's policy as stored."""
+
+    session: str
+    policy: str
+    sha256: str
+    kind: str | None
+    trials: dict[int, PolicySettings]
+
+
+def write_policy(
+    store: Store, session: str, policy: str, sha256: str, kind: str | None,
+    trials: dict[int, PolicySettings],
+) -> None:
+    """Store a session's policy and its settings per trial, in one transaction."""
+    with store.db:
+        store.db.executescript(SCHEMA)
+    with store.db:
+        store.db.execute("BEGIN")
+        store.db.execute("INSERT OR REPLACE INTO policy_sessions VALUES (?, ?, ?, ?)",
+                         (session, policy, sha256, kind))
+        store.db.executemany(
+            "INSERT OR REPLACE INTO policy_trials VALUES (?, ?, ?, ?, ?)",
+            [(session, i, s.b_star, s.gaze_level, s.u_r) for i, s in sorted(trials.items())])
+
+
+def read_policies(store: Store) -> dict[str, SessionPolicy]:
+    """Every session's stored policy, by session (empty for a store without any)."""
+    with store.db:
+        store.db.executescript(SCHEMA)
+    trials: dict[str, dict[int, PolicySettings]] = {}
+    for session, trial, b, g, u in store.db.execute("SELECT * FROM policy_trials"):
+        trials.setdefault(session, {})[int(trial)] = PolicySettings(float(b), g, float(u))
+    return {
+        s: SessionPolicy(s, p, h, k, trials.get(s, {}))
+        for s, p, h, k in store.db.execute("SELECT * FROM policy_sessions ORDER BY session")
+    }
