@@ -46,6 +46,7 @@ from services.experiment.bids_sidecars import (
     sessions_sidecar,
 )
 from services.store import records as rec
+from services.store.provenance import read_provenance
 from services.store.withdrawals import WithdrawnFilter
 
 BIDS_VERSION = "1.11.1"
@@ -136,6 +137,27 @@ def consent_versions(db: sqlite3.Connection) -> dict[str, str]:
         "ON s.session = p.session WHERE p.consent_version IS NOT NULL ORDER BY p.started_ns"
     )
     return {str(pid): str(v) for pid, v in rows}
+
+
+# What a sidecar carries of each run's provenance: the code, the inputs' digests and the study's
+# facts; not the files' paths, the hosts or the wall-clock times (no date is exported).
+PROVENANCE_FIELDS = (
+    "version", "sources_sha256", "params_hash", "params_sha256", "rig_sha256", "policy_sha256",
+    "study_name", "study_sha256", "consent_version", "allocation_seed", "preregistration",
+    "recording_sha256",
+)
+
+
+def session_provenance(db: sqlite3.Connection) -> dict[str, list[dict[str, Any]]]:
+    """Each session's runs (oldest first) as its sidecars' `Provenance`; {} in an older store."""
+    if "sources_sha256" not in _columns(db, "provenance"):
+        return {}
+    out: dict[str, list[dict[str, Any]]] = {}
+    for run in read_provenance(db):
+        row = run.provenance.as_dict()
+        out.setdefault(run.session, []).append(
+            {k: row[k] for k in PROVENANCE_FIELDS if row[k] is not None})
+    return out
 
 
 def _columns(db: sqlite3.Connection, table: str) -> list[str]:
@@ -309,12 +331,14 @@ def export_bids(
         by_person.setdefault(s.participant, []).append(s)
     several = any(len(v) > 1 for v in by_person.values())
     out.mkdir(parents=True, exist_ok=True)
+    provenance = session_provenance(db)
     files = 0
     for pid, own in by_person.items():
         sub = f"sub-{labels[pid]}"
         for n, s in enumerate(own, start=1):
             ses = f"ses-{n}" if several else None
-            files += _write_session(s, out / sub / (ses or ""), "_".join(filter(None, (sub, ses))))
+            files += _write_session(s, out / sub / (ses or ""), "_".join(filter(None, (sub, ses))),
+                                    provenance.get(s.session, []))
         if several:
             write_tsv(out / sub / f"{sub}_sessions.tsv",
                       ["session_id", "status", "simulated", "order"],
@@ -331,21 +355,24 @@ def export_bids(
     ])
     write_json(out / "participants.json", participants_sidecar())
     simulated = sum(s.simulated for s in sessions)
+    runs = [run for s in sessions for run in provenance.get(s.session, [])]
     write_json(out / "dataset_description.json", dataset_description(
-        len(sessions), simulated, sources))
+        len(sessions), simulated, sources, runs))
     (out / "README.md").write_text(readme(len(by_person), len(sessions), simulated),
                                    encoding="utf-8")
     return Written(len(by_person), len(sessions), simulated, files + 4)
 
 
-def _write_session(s: StoredSession, where: Path, prefix: str) -> int:
-    """One session's beh and motion files; how many were written."""
+def _write_session(s: StoredSession, where: Path, prefix: str,
+                   runs: list[dict[str, Any]]) -> int:
+    """One session's beh and motion files (its provenance `runs` in the sidecars); how many."""
+    carried = {"Provenance": runs} if runs else {}
     beh = where / "beh"
     beh.mkdir(parents=True, exist_ok=True)
     stem = f"{prefix}_task-{TASK}"
     write_tsv(beh / f"{stem}_beh.tsv", *beh_rows(s))
-    write_json(beh / f"{stem}_beh.json", beh_sidecar(
-        list(s.options), [t.gaze_level for t in s.trials], note_of(s)))
+    write_json(beh / f"{stem}_beh.json", {**beh_sidecar(
+        list(s.options), [t.gaze_level for t in s.trials], note_of(s)), **carried})
     events = event_rows(s, session_events(s))
     write_tsv(beh / f"{stem}_events.tsv", *events)
     write_json(beh / f"{stem}_events.json", events_sidecar(note_of(s), package_version()))
@@ -359,7 +386,7 @@ def _write_session(s: StoredSession, where: Path, prefix: str) -> int:
     write_tsv(motion / f"{mstem}_events.tsv", *events)
     write_json(motion / f"{mstem}_events.json", events_sidecar(note_of(s), package_version()))
     write_tsv(motion / f"{mstem}_motion.tsv", None, motion_rows(s))
-    write_json(motion / f"{mstem}_motion.json", motion_sidecar(s, label, system))
+    write_json(motion / f"{mstem}_motion.json", {**motion_sidecar(s, label, system), **carried})
     write_tsv(motion / f"{mstem}_channels.tsv",
               ["name", "component", "type", "tracked_point", "units", "reference_frame",
                "description"],
@@ -369,8 +396,17 @@ def _write_session(s: StoredSession, where: Path, prefix: str) -> int:
     return 10
 
 
-def dataset_description(sessions: int, simulated: int, sources: Sequence[str]) -> dict[str, Any]:
-    """dataset_description.json: the dataset, the software that wrote it, what is simulated."""
+def dataset_description(sessions: int, simulated: int, sources: Sequence[str],
+                        runs: Sequence[dict[str, Any]] = ()) -> dict[str, Any]:
+    """dataset_description.json: the dataset, the software that wrote and ran it, what is simulated.
+
+    GeneratedBy names the exporter, then each code version and sources digest that ran sessions
+    (from their provenance `runs`).
+    """
+    code: dict[tuple[str, str], int] = {}
+    for run in runs:
+        ident = (str(run["version"]), str(run["sources_sha256"]))
+        code[ident] = code.get(ident, 0) + 1
     kind = ("every session SIMULATED" if simulated == sessions
             else f"{simulated} of {sessions} sessions SIMULATED" if simulated
             else "no session simulated")
@@ -383,7 +419,12 @@ def dataset_description(sessions: int, simulated: int, sources: Sequence[str]) -
             "Version": package_version(),
             "Description": f"nod export --bids of {len(sources) or 1} session store(s); {kind} "
             "(participants.tsv: simulated)",
-        }],
+        }, *({
+            "Name": "nod-hri",
+            "Version": version,
+            "Description": f"ran {n} session run(s) of this dataset (their sidecars' "
+            f"Provenance); services sources sha256 {digest}",
+        } for (version, digest), n in sorted(code.items()))],
     }
 
 

@@ -20,17 +20,27 @@ from pathlib import Path
 import pytest
 
 from services.cohort.person import load_cohort_params
+from services.core.provenance import Provenance
 from services.experiment.bids import export_bids, subject_labels
 from services.experiment.bids_sidecars import CHANNELS
 from services.experiment.export import main
 from services.sim.cohort import Job, simulate, store_session
 from services.store import Store
+from services.store.provenance import write_provenance
 from services.store.study_stores import open_stores, union_of
 from services.store.withdrawals import WithdrawnFilter
 
 ROOT = Path(__file__).resolve().parents[2]
 GOLDEN_STORE = ROOT / "tests" / "golden" / "store-2026-12.sqlite"
 VALIDATOR = Path(sys.executable).parent / "bids-validator-deno"
+# One run's provenance, stored with the first offline session (as a conductor would store it).
+RUN = Provenance(
+    version="1.2.3", sources_sha256="ab" * 32, params_hash="0123456789ab", params_sha256="cd" * 32,
+    params_file="/home/lab/params.toml", study_file="/home/lab/study.toml", study_sha256="ef" * 32,
+    study_name="pilot", consent_version="v2", allocation_seed=7, preregistration="osf.io/ab12c",
+    hosts={"decision": ("lab-pc1",)}, recording_file="/home/lab/s.mcap",
+    recording_sha256="12" * 32,
+)
 
 
 def _cohort(path: Path, seeds: tuple[int, ...], prefix: str = "cohort", index0: int = 0) -> None:
@@ -47,6 +57,10 @@ def study(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     """The study's two stores: two offline participants, and the golden's rig session."""
     where = tmp_path_factory.mktemp("study")
     _cohort(where / "cohort.sqlite", (1, 2))
+    with Store(where / "cohort.sqlite") as store:
+        (first,) = store.db.execute(
+            "SELECT session FROM sessions ORDER BY started_ns, session LIMIT 1").fetchone()
+        write_provenance(store, first, 1, RUN)
     shutil.copy(GOLDEN_STORE, where / "rig.sqlite")
     return [where / "cohort.sqlite", where / "rig.sqlite"]
 
@@ -195,3 +209,23 @@ def test_a_session_with_no_samples_has_no_motion(tmp_path: Path) -> None:
         export_bids(conn, tmp_path / "ds", WithdrawnFilter({}))
     assert not (tmp_path / "ds" / "sub-P001" / "motion").exists()
     assert len(_tsv(tmp_path / "ds" / "sub-P001" / "beh" / "sub-P001_task-consensus_events.tsv"))
+
+
+def test_each_sessions_provenance_is_in_its_sidecars(dataset: Path) -> None:
+    expected = {"version": "1.2.3", "sources_sha256": "ab" * 32, "params_hash": "0123456789ab",
+                "params_sha256": "cd" * 32, "study_name": "pilot", "study_sha256": "ef" * 32,
+                "consent_version": "v2", "allocation_seed": 7, "preregistration": "osf.io/ab12c",
+                "recording_sha256": "12" * 32}
+    carried = {path.name: json.loads(path.read_text())["Provenance"]
+               for path in dataset.rglob("*.json") if "Provenance" in json.loads(path.read_text())}
+    # the one session with provenance: its beh and motion sidecars; the others have none
+    assert sorted(n.rsplit("_", 1)[-1] for n in carried) == ["beh.json", "motion.json"]
+    assert all(runs == [expected] for runs in carried.values())
+    # no local path, host or wall-clock time leaves the store
+    text = "".join(p.read_text() for p in dataset.rglob("*.json"))
+    assert "/home/lab" not in text and "lab-pc1" not in text
+    generated = json.loads((dataset / "dataset_description.json").read_text())["GeneratedBy"]
+    assert [g["Name"] for g in generated] == ["nod-hri", "nod-hri"]
+    assert generated[1]["Version"] == "1.2.3" and "ab" * 32 in generated[1]["Description"]
+    people = _tsv(dataset / "participants.tsv")
+    assert [p["consent_version"] for p in people].count("v2") == 1
