@@ -225,6 +225,28 @@ def _build_parser() -> Parser:
     p.add_argument("--out", metavar="DIR", help="write power.json and power.png (and .pdf)")
 
     p = sub.add_parser(
+        "policies",
+        help="two robots' cohorts compared: C and C+CH on O per trial and kind, and power",
+        description="Compare a cohort of the paper's robot with one of another policy (each "
+        "store one condition, `nod cohort --policy`): per consensus trial and over trials "
+        "4-8, the share that ends on O without a switch (C) and in agreement (C+CH), the time "
+        "to an agreed trial's end, per kind of person where the store knows it, each with a "
+        "95%% bootstrap interval over participants; and the power of a between-subjects study "
+        "of the two robots at N per robot (docs/adaptive.md).",
+    )
+    p.add_argument("paper_db", metavar="DB_PAPER", help="the paper's robot's cohort")
+    p.add_argument("adaptive_db", metavar="DB_ADAPTIVE", help="the other robot's cohort")
+    p.add_argument("--participants", default="20,40,60",
+                   help="study sizes per robot for the power (default 20,40,60)")
+    p.add_argument("--bootstrap", type=int_in(100, 10**6), default=2000,
+                   help="bootstrap resamples (2000)")
+    p.add_argument("--runs", type=int_in(10, 10**6), default=1000,
+                   help="drawn studies per size for the power (1000)")
+    p.add_argument("--alpha", type=positive_float, default=0.05, help="significance level")
+    p.add_argument("--seed", type=SEED, default=1, help="the resampling's seed")
+    p.add_argument("--json", action="store_true", help="print every number as JSON")
+
+    p = sub.add_parser(
         "study",
         help="the whole study: Fig 8 and the Sec 7-8 statistics",
         description="Every session of a database: per-trial outcome frequencies (Fig 8a), "

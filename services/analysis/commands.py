@@ -245,14 +245,7 @@ def power(args: argparse.Namespace) -> int:
     from services.cohort.person import load_cohort_params
     from services.compute.engine import EngineError, engine_from_args
 
-    try:
-        sizes = [int(x) for x in args.participants.split(",") if x.strip()]
-    except ValueError:
-        raise UsageError(
-            f"--participants must be sizes like 20,40,60, got {args.participants!r}"
-        ) from None
-    if not sizes or min(sizes) < 2 or max(sizes) > 10_000:
-        raise UsageError("--participants: sizes between 2 and 10000")
+    sizes = _sizes(args.participants)
     if not (1 <= args.runs <= 100_000 and 10 <= args.population <= 1_000_000 and args.alpha < 1):
         raise UsageError("--runs 1-100000, --population 10-1000000, --alpha in (0, 1)")
     if max(sizes) > args.population:
@@ -361,7 +354,31 @@ def trial(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sizes(text: str) -> list[int]:
+    """Study sizes from `--participants 20,40,60` (2 to 10000 each)."""
+    try:
+        sizes = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise UsageError(f"--participants must be sizes like 20,40,60, got {text!r}") from None
+    if not sizes or min(sizes) < 2 or max(sizes) > 10_000:
+        raise UsageError("--participants: sizes between 2 and 10000")
+    return sizes
+
+
+def policies(args: argparse.Namespace) -> int:
+    """`nod analyze policies`: the paper's robot against another policy's, on two cohorts."""
+    from services.analysis.policies import compare, load_condition, markdown
+
+    sizes = _sizes(args.participants)
+    doc = compare(load_condition(args.paper_db), load_condition(args.adaptive_db), args.seed,
+                  args.bootstrap, sizes, args.runs, args.alpha)
+    print(json.dumps(doc, indent=2) if args.json else markdown(doc), end="" if not args.json
+          else "\n")
+    return 0
+
+
 COMMANDS = {
+    "policies": policies,
     "trial": trial,
     "power": power,
     "bstar": bstar,
