@@ -28,13 +28,14 @@ import rerun as rr
 import zenoh
 
 from services.core import messages as m
-from services.core.cli import PORT, fabric_parser, fail, int_in
+from services.core.cli import PORT, fabric_parser, fail, int_in, one_line
 from services.core.contract import TOPICS
 from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
 from services.core.session import Fabric, open_session
 from services.monitor.bridge import NOT_SHOWN, RerunBridge
 from services.monitor.inbox import Inbox, Item, lane_of
+from services.monitor.offline import log_recording
 from services.monitor.sinks import ViewerWatch, open_sinks
 from services.views.entities import APPLICATION_ID
 
@@ -212,6 +213,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds a closed viewer is waited for before stopping or warning (30)",
     )
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    p.add_argument(
+        "--from", dest="recording", type=Path, default=None, metavar="FILE.mcap",
+        help="show a recording (nod record's) instead of a rig: every message through the same "
+        "views, then exit (with --save: an .rrd the recording's rerun-blueprint.rbl lays out)",
+    )
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
@@ -220,6 +226,8 @@ def main(argv: list[str] | None = None) -> int:
     """Run the monitor until SIGINT/SIGTERM (or --duration); exit 0 after a clean flush."""
     args = build_parser().parse_args(argv)
     setup_logging(args.verbose)
+    if args.recording is not None:
+        return _show_recording(args)
     try:
         keys = Keys(args.rig)
         inbox = Inbox(events=args.event_queue, hand=args.hand_queue)
@@ -275,6 +283,29 @@ def main(argv: list[str] | None = None) -> int:
     )
     return 0
 
+
+
+def _show_recording(args: argparse.Namespace) -> int:
+    """`--from FILE.mcap`: the recording through the bridge into the sinks; 2 if unreadable."""
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
+    try:
+        sinks = open_sinks(rec, args)
+    except (RuntimeError, OSError, ValueError) as exc:
+        return fail("nod monitor", f"cannot open the Rerun sink: {exc}")
+    for line in sinks.lines:
+        print(f"nod monitor: {line}", flush=True)
+    rec.send_recording_name(f"nod {args.recording.name}")
+    try:
+        shown = log_recording(RerunBridge(rec), args.recording)
+    except (OSError, ValueError) as exc:
+        return fail("nod monitor", one_line(str(exc)))
+    finally:
+        rec.flush(timeout_sec=10.0)
+        rec.disconnect()
+    cut = f"; the file was cut: {shown.truncated}" if shown.truncated else ""
+    print(f"nod monitor: {args.recording}: {shown.logged} messages shown, {shown.undecodable} "
+          f"undecodable{cut}", flush=True)
+    return 0
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -184,3 +184,33 @@ def test_the_layout_and_the_blueprint_show_the_hand_the_opinions_and_the_arm(tmp
     (blueprint,) = RrdReader(rbl).blueprints()  # the SDK reads it back
     assert blueprint.application_id == APPLICATION_ID
     assert {"opinion/z_r", "table/hand", "table/arm"} <= set(ENTITIES.values())
+
+
+def test_the_monitor_shows_a_recording_under_the_blueprints_entities(tmp_path, capsys):
+    from services.monitor.bridge import rrd_rows
+    from services.monitor.service import main as monitor
+    from services.views.blueprint import trial_blueprint
+
+    path, rrd = tmp_path / "session.mcap", tmp_path / "session.rrd"
+    convert(GOLDEN, path)
+    assert monitor(["--from", str(path), "--save", str(rrd)]) == 0
+    assert "messages shown, 0 undecodable" in capsys.readouterr().out
+    temporal, _ = rrd_rows(rrd)
+    z_r = sum(1 for e in McapIn(path) if topic_of(e.key) == "decision/z_r")
+    assert temporal["/opinion/z_r"] == z_r > 800
+    assert temporal["/table/hand"] > 800 and temporal["/table/arm"] > 800
+    # every view of the attached blueprint has entities of the recording under its origin
+    origins = [str(v.origin) for v in _views(trial_blueprint().root_container)]
+    assert set(origins) == {"opinion", "state", "table", "log"}
+    for origin in origins:
+        assert any(e.startswith(f"/{origin}/") for e in temporal), origin
+
+
+def _views(node):
+    """The views under a blueprint container, depth first."""
+    views = []
+    for child in getattr(node, "contents", []) or []:
+        views.extend(_views(child))
+    if hasattr(node, "origin"):
+        views.append(node)
+    return views
