@@ -6,8 +6,9 @@
     gaze_levels = ["neutral", "moderate", "extreme"]   # the candidates: every combination
     b_stars = [4.54, 6.0]
     u_rs = [2.24]
-    table_people = 150             # simulated people per candidate in its table
+    table_people = 150             # simulated people in its table (each explores candidates)
     table_seed = 900000001         # their first seed
+    agreement_weight = 0.0         # the value: P(C on O) + this × P(C or CH on O)
 
 `paper` and `adaptive` are the texts in `BUILT_IN` (write one to a file to change it). A
 policy's name (a built-in's name, or the file's stem) and the SHA-256 of its bytes are stored
@@ -46,13 +47,15 @@ kind = "adaptive"
 gaze_levels = ["neutral", "moderate", "extreme"]
 b_stars = [4.54, 6.0]
 u_rs = [2.24]
-# The table: this many simulated people per candidate, seeds table_seed, table_seed + 1, ...
-# (far from the cohorts' seeds, so a cohort's people are people the policy never saw).
-table_people = 150
+# The table: this many simulated people, each drawing a candidate per consensus trial; seeds
+# table_seed, table_seed + 1, ... (far from a cohort's, so its people are ones never seen).
+table_people = 1200
 table_seed = 900000001
 """,
 }
-_KEYS = {"kind", "gaze_levels", "b_stars", "u_rs", "table_people", "table_seed"}
+TABLE_FORMAT = 2  # the cached tables' layout (`policy_table`): a new one is built when it changes
+_KEYS = {"kind", "gaze_levels", "b_stars", "u_rs", "table_people", "table_seed",
+         "agreement_weight"}
 
 
 @dataclass(frozen=True)
@@ -98,7 +101,7 @@ def read_policy_file(arg: str) -> PolicyFile:
         raise ValueError(f"--policy {arg}: needs kind = \"paper\" or \"adaptive\" and only the "
                          f"keys {sorted(_KEYS)}; got {sorted(data)}")
     if data["kind"] == "adaptive":
-        missing = sorted(_KEYS - set(data))
+        missing = sorted(_KEYS - set(data) - {"agreement_weight"})
         if missing:
             raise ValueError(f"--policy {arg}: an adaptive policy needs {missing}")
     return PolicyFile(name, hashlib.sha256(raw).hexdigest(), data)
@@ -115,15 +118,16 @@ def make_policy(pf: PolicyFile, cfg: NodConfig, mapper: Mapper | None = None) ->
     if pf.kind == "paper":
         return PaperPolicy()
     candidates = pf.candidates(cfg)
-    key = hashlib.sha256(json.dumps(
-        [pf.sha256, dataclasses.asdict(cfg)], sort_keys=True, default=str).encode()).hexdigest()
+    what = [TABLE_FORMAT, pf.sha256, dataclasses.asdict(cfg)]
+    key = hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
     path = cache_dir() / f"{key[:24]}.json"
+    weight = float(pf.data.get("agreement_weight", 0.0))
     if path.is_file():
-        return AdaptivePolicy(table_from_json(path.read_text()), pf.name)
+        return AdaptivePolicy(table_from_json(path.read_text()), pf.name, weight)
     table = build_table(cfg, candidates, int(pf.data["table_people"]),
                         int(pf.data["table_seed"]), mapper)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     tmp.write_text(table_to_json(table))
     tmp.replace(path)
-    return AdaptivePolicy(table, pf.name)
+    return AdaptivePolicy(table, pf.name, weight)

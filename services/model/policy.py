@@ -14,8 +14,11 @@ Two policies, one idea each:
   it infers which kind of person this is (`KINDS`: strategist, contrarian, firm, the rest) from
   the outcomes so far, as a posterior against an `OutcomeTable` of simulated people (built once,
   seeded, by `services.cohort.policy_table`), and picks the candidate setting with the best
-  predicted chance of C on O (agreement on O without the person switching). Control trials
-  keep the paper's settings: they are where the person is observed.
+  predicted chance of C on O (agreement on O without the person switching), optionally plus a
+  weight on agreement on O. Control trials keep the paper's settings: they are where the
+  person is observed.
+- `ExplorePolicy`: a candidate at random per consensus trial (seeded): how the table's
+  simulated people are run, so every cell of it is visited.
 
 `PolicyRun` is one session's use of a policy: its history, the operator's freeze (a frozen
 policy keeps its last settings for the remaining trials) and the envelope. Pure: no files, no
@@ -25,6 +28,7 @@ clocks; the command line loads a policy file (`services.cohort.policy_file`).
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal, Protocol, TypeAlias
@@ -180,10 +184,11 @@ class PaperPolicy:
 
 @dataclass(frozen=True, slots=True)
 class Counts:
-    """Simulated people's outcomes of one trial under one setting, for one kind."""
+    """Simulated people's outcomes of one table cell, for one kind."""
 
     outcomes: tuple[int, ...]  # per `OUTCOMES`
     c_on_o: int  # of them C with the person on O
+    agree_on_o: int = 0  # of them C or CH with the person on O
 
     @property
     def n(self) -> int:
@@ -191,24 +196,32 @@ class Counts:
         return sum(self.outcomes)
 
 
-TableKey: TypeAlias = tuple[PolicySettings, int]  # (the trial's settings, the trial's index)
+# A table cell: (the trial's settings, its index, how many consensus trials before it had a
+# gaze cue). The last is the robot's own history, which a contrarian learns from.
+TableKey: TypeAlias = tuple[PolicySettings, int, int]
+
+
+def cued_before(history: Sequence[Played], trial: int) -> int:
+    """How many consensus trials before `trial` the eyes gave a cue (a level not neutral)."""
+    return sum(1 for p in history
+               if p.trial < trial and p.mode == "consensus" and p.settings.gaze_level != "neutral")
 
 
 @dataclass(frozen=True)
 class OutcomeTable:
-    """Simulated people's outcomes per (settings, trial) and kind, and the kinds' shares.
+    """Simulated people's outcomes per cell (`TableKey`) and kind, and the kinds' counts.
 
-    Built by `services.cohort.policy_table` from sessions each of which kept one candidate
-    setting for every consensus trial (the paper's in the control trials).
+    Built by `services.cohort.policy_table` from sessions whose consensus trials each drew a
+    candidate setting at random (`ExplorePolicy`; the paper's in the control trials).
     """
 
     candidates: tuple[PolicySettings, ...]
     prior: Mapping[Kind, int]  # simulated people of each kind
     cells: Mapping[TableKey, Mapping[Kind, Counts]] = field(default_factory=dict)
 
-    def likelihood(self, played: Played, kind: Kind) -> float | None:
-        """P(this trial's outcome | kind, its settings), smoothed; None: the table has no cell."""
-        cell = self.cells.get((played.settings, played.trial))
+    def likelihood(self, played: Played, cued: int, kind: Kind) -> float | None:
+        """P(this trial's outcome | kind, its cell), smoothed; None: the table has no cell."""
+        cell = self.cells.get((played.settings, played.trial, cued))
         if cell is None or kind not in cell:
             return None
         c = cell[kind]
@@ -217,48 +230,103 @@ class OutcomeTable:
     def posterior(self, history: Sequence[Played]) -> dict[Kind, float]:
         """P(kind | the outcomes so far): the table's shares times each trial's likelihood.
 
-        Trials are taken as independent given the kind (the person's learning is in the
-        table's cells only through the trial's index): an approximation, stated in
-        docs/adaptive.md. A trial whose settings the table lacks gives no evidence.
+        Trials are taken as independent given the kind and the cell (the person's learning
+        enters only through the cell's trial index and cues before): an approximation, stated
+        in docs/adaptive.md. A trial whose cell the table lacks gives no evidence.
         """
         total = sum(self.prior.values())
         logp = {k: math.log((self.prior.get(k, 0) + 0.5) / (total + 0.5 * len(KINDS)))
                 for k in KINDS}
         for played in history:
-            lik = {k: self.likelihood(played, k) for k in KINDS}
-            if any(v is None for v in lik.values()):
+            cued = cued_before(history, played.trial)
+            lik = [self.likelihood(played, cued, k) for k in KINDS]
+            if any(v is None for v in lik):
                 continue
-            for k in KINDS:
-                logp[k] += math.log(lik[k])  # type: ignore[arg-type]
+            for k, v in zip(KINDS, lik, strict=True):
+                logp[k] += math.log(v)  # type: ignore[arg-type]
         top = max(logp.values())
         w = {k: math.exp(v - top) for k, v in logp.items()}
         s = sum(w.values())
         return {k: v / s for k, v in w.items()}
 
-    def chance_c(self, s: PolicySettings, trial: int, kind: Kind) -> float:
-        """P(C on O | kind, settings, trial), Beta(1, 1)-smoothed (0.5 for an empty cell)."""
-        c = self.cells.get((s, trial), {}).get(kind)
-        return 0.5 if c is None else (c.c_on_o + 1) / (c.n + 2)
+    def chances(self, key: TableKey, kind: Kind) -> tuple[float, float]:
+        """P(C on O), P(C or CH on O) in a cell for a kind, Beta(1, 1)-smoothed."""
+        c = self.cells.get(key, {}).get(kind)
+        if c is None:
+            return 0.5, 0.5
+        return (c.c_on_o + 1) / (c.n + 2), (c.agree_on_o + 1) / (c.n + 2)
 
 
 @dataclass(frozen=True)
 class AdaptivePolicy:
-    """The expected-value rule over the simulated person (module doc)."""
+    """The expected-value rule over the simulated person (module doc).
+
+    The value of a candidate in a cell is P(C on O) + agreement_weight · P(C or CH on O), the
+    posterior's mixture over kinds (a weight above 0 guards agreement on O while seeking C).
+    The rule looks ahead over the session's remaining consensus trials: a cue now changes
+    the cells of the trials after it (a contrarian learns from the cues), so it takes the
+    candidate that starts the best plan over them, by dynamic programming over (trial, cues
+    so far), the posterior held at today's (`plan`).
+    """
 
     table: OutcomeTable
     name: str = "adaptive"
+    agreement_weight: float = 0.0
+
+    def value(self, s: PolicySettings, trial: int, cued: int, post: Mapping[Kind, float]
+              ) -> float:
+        """The candidate's expected value in one trial for this person (the posterior)."""
+        total = 0.0
+        for k, p in post.items():
+            c, agree = self.table.chances((s, trial, cued), k)
+            total += p * (c + self.agreement_weight * agree)
+        return total
+
+    def plan(self, trial: int, cued: int, post: Mapping[Kind, float]
+             ) -> tuple[float, PolicySettings]:
+        """The best total value over the table's trials from `trial` on, and its first step."""
+        trials = sorted({t for (_, t, _) in self.table.cells if t >= trial} | {trial})
+        best: dict[tuple[int, int], tuple[float, PolicySettings]] = {}
+
+        def go(i: int, c: int) -> float:
+            if i == len(trials):
+                return 0.0
+            if (i, c) not in best:
+                best[(i, c)] = max(
+                    ((self.value(s, trials[i], c, post)
+                      + go(i + 1, c + (s.gaze_level != "neutral")), s)
+                     for s in self.table.candidates),
+                    key=lambda vs: vs[0])
+            return best[(i, c)][0]
+
+        return go(0, cued), best[(0, cued)][1]
 
     def choose(
         self, spec: TrialSpec, paper: PolicySettings, history: Sequence[Played]
     ) -> PolicySettings:
-        """The paper's in a control trial, else the candidate likeliest to give C on O."""
+        """The paper's in a control trial, else the first step of the best plan."""
         if spec.mode != "consensus" or not self.table.candidates:
             return paper
         post = self.table.posterior(history)
-        return max(
-            self.table.candidates,
-            key=lambda s: sum(p * self.table.chance_c(s, spec.index, k) for k, p in post.items()),
-        )
+        return self.plan(spec.index, cued_before(history, spec.index), post)[1]
+
+
+@dataclass(frozen=True)
+class ExplorePolicy:
+    """Each consensus trial a candidate drawn at random (seeded): how the table is simulated."""
+
+    candidates: tuple[PolicySettings, ...]
+    seed: int
+    name: str = "explore"
+
+    def choose(
+        self, spec: TrialSpec, paper: PolicySettings, history: Sequence[Played]
+    ) -> PolicySettings:
+        """The paper's in a control trial, else a candidate drawn for (seed, trial)."""
+        if spec.mode != "consensus" or not self.candidates:
+            return paper
+        return self.candidates[random.Random(f"{self.seed}:{spec.index}").randrange(
+            len(self.candidates))]
 
 
 class PolicyRun:

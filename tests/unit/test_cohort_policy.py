@@ -110,9 +110,14 @@ def test_policy_files_are_refused_in_one_line(tmp_path):
 def test_a_table_counts_each_person_once_and_survives_json():
     cfg = load_cohort_params(None)
     a, b = PolicySettings(4.54, "neutral", 2.24), PolicySettings(6.0, "extreme", 2.24)
-    table = build_table(cfg, (a, b), 3, 900000001)
-    assert sum(table.prior.values()) == 3
-    assert sum(c.n for c in table.cells[(b, 4)].values()) == 3
+    table = build_table(cfg, (a, b), 6, 900000001)
+    assert sum(table.prior.values()) == 6  # each person once
     control = paper_settings(DecisionParams(), default_schedule()[0])
-    assert sum(c.n for c in table.cells[(control, 1)].values()) == 6  # both candidates' people
+    assert sum(c.n for c in table.cells[(control, 1, 0)].values()) == 6
+    for t in (4, 5, 6, 7, 8):  # each consensus trial: one candidate per person
+        cells = [c for (s, i, _), by_kind in table.cells.items() if i == t
+                 for c in by_kind.values()]
+        assert sum(c.n for c in cells) == 6
+    cued = {key[2] for key in table.cells if key[0] == b and key[1] == 6}
+    assert cued and cued <= {0, 1, 2}  # trials 4 and 5 each drew a (neutral) or b (extreme)
     assert table_from_json(table_to_json(table)) == table

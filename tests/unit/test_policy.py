@@ -25,6 +25,7 @@ from services.model.policy import (
     Played,
     PolicyRun,
     PolicySettings,
+    cued_before,
     decision_for,
     paper_settings,
 )
@@ -47,8 +48,9 @@ def wild_table(candidates: list[PolicySettings], counts: list[int]) -> OutcomeTa
     """A table whose candidates may lie anywhere (an adaptive policy's worst case)."""
     it = itertools.cycle(counts)
     cells = {
-        (s, t): {k: Counts(tuple(next(it) for _ in OUTCOMES), next(it)) for k in KINDS}
-        for s in candidates for t in range(1, 9)
+        (s, t, cued): {k: Counts(tuple(next(it) for _ in OUTCOMES), next(it), next(it))
+                       for k in KINDS}
+        for s in candidates for t in range(1, 9) for cued in range(5)
     }
     return OutcomeTable(tuple(candidates), {k: 1 + next(it) for k in KINDS}, cells)
 
@@ -155,3 +157,37 @@ def test_the_policys_settings_reach_the_robot():
         assert first[0] > 1.2 * first[1]
     assert [t[:3] for t in today] == [[dataclasses.replace(x, settings=None) for x in t[:3]]
                                       for t in runs]  # the control trials are today's
+
+
+def test_the_cues_before_a_trial_and_the_posterior_they_read():
+    cue, none = PolicySettings(4.54, "extreme", 2.24), PolicySettings(4.54, "neutral", 2.24)
+    past = [Played(2, "dissensus", PolicySettings(4.54, "neutral", 2.24), "D", False),
+            Played(4, "consensus", cue, "CH", True), Played(5, "consensus", none, "C", True),
+            Played(6, "consensus", cue, "D", False)]
+    assert [cued_before(past, t) for t in (4, 5, 6, 7)] == [0, 1, 1, 2]
+    # a table where only contrarians end trial 4 CH under a cue: one CH makes one a contrarian
+    cells = {(cue, 4, 0): {k: Counts((9, 1, 0, 0, 0) if k != "contrarian" else (0, 9, 1, 0, 0),
+                                     9 if k != "contrarian" else 0, 10) for k in KINDS}}
+    table = OutcomeTable((cue, none), {k: 10 for k in KINDS}, cells)
+    post = table.posterior(past[:2])
+    assert post["contrarian"] == pytest.approx(0.76 / (0.76 + 3 * 0.12))
+    assert sum(post.values()) == pytest.approx(1.0)
+    assert table.posterior([]) == pytest.approx({k: 0.25 for k in KINDS})
+
+
+def test_the_rule_plans_past_the_next_trial():
+    """A cue that costs now and pays later (a contrarian taught by it) is taken."""
+    cue, none = PolicySettings(4.54, "extreme", 2.24), PolicySettings(4.54, "neutral", 2.24)
+
+    def cell(c_in_100: int) -> dict:
+        return {k: Counts((100, 0, 0, 0, 0), c_in_100, c_in_100) for k in KINDS}
+
+    cells = {(none, 4, 0): cell(50), (cue, 4, 0): cell(30),
+             (none, 5, 0): cell(50), (cue, 5, 0): cell(30),
+             (none, 5, 1): cell(50), (cue, 5, 1): cell(90)}
+    policy = AdaptivePolicy(OutcomeTable((none, cue), {k: 1 for k in KINDS}, cells))
+    spec4, spec5 = SPECS[3], SPECS[4]
+    assert policy.choose(spec4, PAPER, []) == cue  # 0.3 + 0.9 over 0.5 + 0.5
+    assert policy.choose(spec5, PAPER, [Played(4, "consensus", cue, "D", False)]) == cue
+    assert policy.choose(spec5, PAPER, [Played(4, "consensus", none, "C", True)]) == none
+    assert policy.plan(4, 0, {k: 0.25 for k in KINDS})[0] == pytest.approx(31 / 102 + 91 / 102)
