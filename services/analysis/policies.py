@@ -8,9 +8,10 @@ agreement on O (the store keeps go and end; the press itself only with samples).
 with a 95 % percentile-bootstrap interval over participants, and the difference of the two
 robots with one (each condition resampled on its own: a between-subjects comparison), overall
 and per kind of person where the store knows it (`policy_sessions.kind`, the simulated
-person's; a real participant has none). The power of a real between-subjects study of the two
-robots with N participants per robot: studies of N drawn from each cohort with replacement,
-each tested with Welch's t on the participants' C share over trials 4–8, two-sided at α; the
+person's; a real participant has none). When both stores hold the same sessions (the same
+seeds: the same simulated people), the difference also gets a paired interval (the people
+resampled together). The power of a real between-subjects study of the two robots with N
+participants per robot: studies of N drawn from each cohort with replacement, each tested with Welch's t on the participants' C share over trials 4–8, two-sided at α; the
 share significant is the power (with its binomial 95 % interval).
 """
 
@@ -102,9 +103,16 @@ def _boot(values: np.ndarray, rng: np.random.Generator, reps: int) -> np.ndarray
     return values[idx].mean(axis=1)
 
 
-def estimate(a: np.ndarray, b: np.ndarray, rng: np.random.Generator, reps: int
-             ) -> dict[str, Any]:
-    """Means of a and b, b − a, each with a 95 % percentile-bootstrap interval."""
+def estimate(a: np.ndarray, b: np.ndarray, rng: np.random.Generator, reps: int,
+             paired: bool = False) -> dict[str, Any]:
+    """Means of a and b, b − a, each with a 95 % percentile-bootstrap interval.
+
+    `paired`: a[i] and b[i] are the same simulated person (the same seed in both cohorts):
+    also the interval of the difference with the pairs resampled together (`diff_paired_ci`),
+    which a simulation can give (common random numbers) and a between-subjects study cannot.
+    """
+    both = ~np.isnan(a) & ~np.isnan(b) if paired and len(a) == len(b) else None
+    pa, pb = (a[both], b[both]) if both is not None else (a[:0], b[:0])
     a, b = a[~np.isnan(a)], b[~np.isnan(b)]
     if len(a) == 0 or len(b) == 0:
         return {"n": [len(a), len(b)]}
@@ -113,9 +121,12 @@ def estimate(a: np.ndarray, b: np.ndarray, rng: np.random.Generator, reps: int
     def ci(x: np.ndarray) -> list[float]:
         return [float(np.percentile(x, 2.5)), float(np.percentile(x, 97.5))]
 
-    return {"n": [len(a), len(b)], "paper": float(a.mean()), "paper_ci": ci(ba),
-            "adaptive": float(b.mean()), "adaptive_ci": ci(bb),
-            "diff": float(b.mean() - a.mean()), "diff_ci": ci(bb - ba)}
+    out = {"n": [len(a), len(b)], "paper": float(a.mean()), "paper_ci": ci(ba),
+           "adaptive": float(b.mean()), "adaptive_ci": ci(bb),
+           "diff": float(b.mean() - a.mean()), "diff_ci": ci(bb - ba)}
+    if len(pa):
+        out["diff_paired_ci"] = ci(_boot(pb - pa, rng, reps))
+    return out
 
 
 def power(a: np.ndarray, b: np.ndarray, n: int, rng: np.random.Generator, runs: int,
@@ -138,6 +149,7 @@ def compare(paper: Condition, adaptive: Condition, seed: int = 1, reps: int = 20
             ) -> dict[str, Any]:
     """Every number of the comparison (module doc), as plain data."""
     rng = np.random.default_rng(seed)
+    paired = [p.session for p in paper.people] == [p.session for p in adaptive.people]
 
     def col(cond: Condition, which: str, trials: Sequence[int] = LATE,
             kind: str | None = None) -> np.ndarray:
@@ -152,12 +164,15 @@ def compare(paper: Condition, adaptive: Condition, seed: int = 1, reps: int = 20
                   "participants": len(paper.people)},
         "adaptive": {"store": adaptive.path, "policy": adaptive.policy,
                      "sha256": adaptive.sha256, "participants": len(adaptive.people)},
-        "per_trial": {str(t): {w: estimate(col(paper, w, (t,)), col(adaptive, w, (t,)), rng, reps)
-                               for w in ("c", "c_ch")} for t in CONSENSUS},
-        "trials_4_8": {w: estimate(col(paper, w), col(adaptive, w), rng, reps)
+        "paired": paired,
+        "per_trial": {str(t): {w: estimate(col(paper, w, (t,)), col(adaptive, w, (t,)), rng,
+                                           reps, paired) for w in ("c", "c_ch")}
+                      for t in CONSENSUS},
+        "trials_4_8": {w: estimate(col(paper, w), col(adaptive, w), rng, reps, paired)
                        for w in ("c", "c_ch")},
         "seconds_to_agreement": estimate(secs(paper), secs(adaptive), rng, reps),
-        "per_kind": {k: {w: estimate(col(paper, w, kind=k), col(adaptive, w, kind=k), rng, reps)
+        "per_kind": {k: {w: estimate(col(paper, w, kind=k), col(adaptive, w, kind=k), rng,
+                                     reps, paired and _same_kinds(paper, adaptive))
                          for w in ("c", "c_ch")} for k in KINDS},
     }
     out["per_kind"] = {k: v for k, v in out["per_kind"].items() if "diff" in v["c"]}
@@ -168,23 +183,30 @@ def compare(paper: Condition, adaptive: Condition, seed: int = 1, reps: int = 20
     return out
 
 
+def _same_kinds(a: Condition, b: Condition) -> bool:
+    """Whether the paired people are of the same kinds (so per kind they pair up too)."""
+    return [p.kind for p in a.people] == [p.kind for p in b.people]
+
+
 def _pct(x: float) -> str:
     return f"{100 * x:5.1f}"
 
 
 def _row(label: str, e: dict[str, Any]) -> str:
     if "diff" not in e:
-        return f"| {label} | – | – | – | n = {e['n']} |"
+        return f"| {label} | – | – | – | – | n = {e['n']} |"
     lo, hi = e["diff_ci"]
     diff = f"{100 * e['diff']:+.1f} [{100 * lo:+.1f}, {100 * hi:+.1f}]"
-    return (f"| {label} | {_pct(e['paper'])} | {_pct(e['adaptive'])} | {diff} | "
+    pl, ph = e.get("diff_paired_ci", (math.nan, math.nan))
+    paired = f"[{100 * pl:+.1f}, {100 * ph:+.1f}]" if "diff_paired_ci" in e else "–"
+    return (f"| {label} | {_pct(e['paper'])} | {_pct(e['adaptive'])} | {diff} | {paired} | "
             f"{e['n'][0]}, {e['n'][1]} |")
 
 
 def markdown(doc: dict[str, Any]) -> str:
     """The comparison as Markdown tables (percentages; differences adaptive − paper)."""
-    head = "| | paper % | adaptive % | difference, points [95 % CI] | N paper, adaptive |\n" \
-           "|---|---|---|---|---|"
+    head = ("| | paper % | adaptive % | difference, points [95 % CI] | paired 95 % CI | "
+            "N paper, adaptive |\n|---|---|---|---|---|---|")
     lines = [f"paper: {doc['paper']['store']} ({doc['paper']['policy']}, "
              f"{doc['paper']['participants']} people); adaptive: {doc['adaptive']['store']} "
              f"({doc['adaptive']['policy']} {doc['adaptive']['sha256'][:12]}, "

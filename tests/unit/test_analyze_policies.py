@@ -45,6 +45,7 @@ def test_the_shares_are_the_stores_counts(stores):
     e = doc["trials_4_8"]["c"]
     assert e["diff"] == pytest.approx(e["adaptive"] - e["paper"])
     assert e["diff_ci"][0] <= e["diff"] <= e["diff_ci"][1]
+    assert doc["paired"] and e["diff_paired_ci"][0] <= e["diff"] <= e["diff_paired_ci"][1]
     kinds = {p.kind for p in paper.people}
     assert set(doc["per_kind"]) == kinds and kinds <= set(KINDS)
 
@@ -65,5 +66,6 @@ def test_power_finds_a_real_difference_and_not_a_null_one():
     a = rng.uniform(0.3, 0.7, 400)
     assert power(a, a + 0.3, 20, rng, 200, 0.05)["power"] > 0.95
     assert power(a, a.copy(), 20, rng, 400, 0.05)["power"] < 0.1
-    e = estimate(a, a + 0.1, rng, 500)
+    e = estimate(a, a + 0.1, rng, 500, paired=True)
     assert e["diff"] == pytest.approx(0.1) and e["diff_ci"][0] > 0
+    assert e["diff_paired_ci"] == pytest.approx([0.1, 0.1])  # every pair differs by 0.1
