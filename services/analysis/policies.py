@@ -11,8 +11,9 @@ and per kind of person where the store knows it (`policy_sessions.kind`, the sim
 person's; a real participant has none). When both stores hold the same sessions (the same
 seeds: the same simulated people), the difference also gets a paired interval (the people
 resampled together). The power of a real between-subjects study of the two robots with N
-participants per robot: studies of N drawn from each cohort with replacement, each tested with Welch's t on the participants' C share over trials 4–8, two-sided at α; the
-share significant is the power (with its binomial 95 % interval).
+participants per robot: studies of N drawn from each cohort with replacement, each tested
+with Welch's t on the participants' C share over trials 4–8, two-sided at α; the share
+significant is the power (with its binomial 95 % interval).
 """
 
 from __future__ import annotations
