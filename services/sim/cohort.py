@@ -277,6 +277,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--policy", default=None, metavar="paper|adaptive|FILE.toml",
                    help="the robot's policy (default paper: today's robot); its name and hash "
                    "and its settings per trial are stored with each session (docs/adaptive.md)")
+    p.add_argument("--policy-params", type=Path, default=None, metavar="FILE.toml",
+                   help="the people an adaptive policy's table is simulated from (default: "
+                   "the cohort's own, --params): a policy tried on people it was not built for")
     p.add_argument("--resume", action="store_true",
                    help="finish the store's incomplete cohort (its participants, seeds and "
                    "configuration are in the store)")
@@ -305,7 +308,7 @@ def stopped(args: argparse.Namespace, exc: CohortStoppedError) -> int:
 def _resume(args: argparse.Namespace) -> int:
     given = [f for f, v in (("--participants", args.participants), ("--seed", args.seed),
                             ("--params", args.params), ("--no-samples", args.no_samples or None),
-                            ("--policy", args.policy))
+                            ("--policy", args.policy), ("--policy-params", args.policy_params))
              if v is not None]
     if given:
         return fail("nod cohort", f"--resume takes the cohort from the store: leave out "
@@ -342,13 +345,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = load_cohort_params(args.params)
         policy_file = read_policy_file(args.policy or "paper")
+        built_on = cfg if args.policy_params is None else load_cohort_params(args.policy_params)
         Store(args.db).close()
     except (ValueError, OSError, StoreError) as exc:
         return fail("nod cohort", exc)
     t0 = time.monotonic()
     try:
         with engine_from_args(args) as engine:
-            policy = StoredPolicy(policy_file, make_policy(policy_file, cfg, engine.imap))
+            policy = StoredPolicy(policy_file, make_policy(policy_file, built_on, engine.imap))
             stored, seconds = run_cohort(
                 engine, args.participants, seed, args.db, cfg,
                 record=not args.no_samples, show=not args.quiet, policy=policy,

@@ -121,3 +121,22 @@ def test_a_table_counts_each_person_once_and_survives_json():
     cued = {key[2] for key in table.cells if key[0] == b and key[1] == 6}
     assert cued and cued <= {0, 1, 2}  # trials 4 and 5 each drew a (neutral) or b (extreme)
     assert table_from_json(table_to_json(table)) == table
+
+
+def test_a_policy_built_on_other_people(tmp_path, monkeypatch):
+    """--policy-params: the table is simulated from those people, not the cohort's."""
+    monkeypatch.setenv("NOD_POLICY_CACHE", str(tmp_path / "cache"))
+    policy = tmp_path / "small.toml"
+    policy.write_text('kind = "adaptive"\ngaze_levels = ["neutral", "extreme"]\nb_stars = [4.54]\n'
+                      'u_rs = [2.24]\ntable_people = 3\ntable_seed = 900000001\n')
+    fitted, moved = tmp_path / "fitted.toml", tmp_path / "moved.toml"
+    fitted.write_text("")
+    moved.write_text("[participant]\ncontrarian_share = 0.9\n")
+    common = ["--participants", "2", "--quiet", "--workers", "1", "--no-samples", "--policy",
+              str(policy)]
+    assert cohort_main([*common, "--db", str(tmp_path / "a.sqlite"), "--params", str(moved),
+                        "--policy-params", str(fitted)]) == 0
+    assert cohort_main([*common, "--db", str(tmp_path / "b.sqlite")]) == 0  # the fitted people
+    assert len(list((tmp_path / "cache").glob("*.json"))) == 1  # one table: the fitted people's
+    assert cohort_main([*common, "--db", str(tmp_path / "c.sqlite"), "--params", str(moved)]) == 0
+    assert len(list((tmp_path / "cache").glob("*.json"))) == 2  # built on the moved people
