@@ -42,7 +42,7 @@ from services.core.cli import SEED, Parser, fail, int_in
 from services.core.config import ConfigError, from_mapping
 from services.model.closed_loop import OfflineTrial, person_kind, run_offline_session
 from services.model.params import NodConfig
-from services.model.policy import Policy, spec_for
+from services.model.policy import PaperPolicy, Policy, spec_for
 from services.model.protocol import TrialSpec
 from services.store import Sample, Store, StoreError, TrialRecord
 from services.store.cohorts import (
@@ -53,7 +53,7 @@ from services.store.cohorts import (
     stored_sessions,
     unfinished,
 )
-from services.store.policies import read_policies, write_policy
+from services.store.policies import cohort_policy, write_cohort_policy, write_policy
 
 SESSION_SPACING_NS = 10**12  # each session's clock starts 1000 s after the previous one
 
@@ -175,6 +175,8 @@ def run_cohort(
                 f"another --seed (seeds {seed}-{seed + n - 1} are taken in part) or another --db"
             )
         cohort = begin_cohort(store, prefix, seed, n, record, config_json(cfg))
+        if policy is not None:
+            write_cohort_policy(store, prefix, seed, policy.file.name, policy.file.sha256)
         return _simulate(engine, store, cohort, jobs, show,
                          None if policy is None else policy.file)
     finally:
@@ -204,21 +206,24 @@ def resume_cohorts(
                     f"nod-hri ({exc}); resume it with that version"
                 ) from None
             status = stored_sessions(store, cohort)
-            ran = {p.policy for s, p in read_policies(store).items() if s in status}
-            if ran - {"paper"}:
+            ran = cohort_policy(store, cohort.prefix, cohort.first_seed)
+            paper = read_policy_file("paper")
+            if ran is not None and ran != (paper.name, paper.sha256):
                 raise StoreError(
-                    f"the cohort {cohort.describe()} in {db} ran the policy {min(ran)}: resuming "
-                    "a cohort with a policy is not done yet; run it again into a new --db"
+                    f"the cohort {cohort.describe()} in {db} ran the policy {ran[0]}: resuming "
+                    "a cohort with a policy other than paper is not done yet; run it again "
+                    "into a new --db"
                 )
+            policy = None if ran is None else paper
             for name, state in status.items():
                 if state != "complete":
                     drop_session(store, name)
             jobs = [
-                Job(i, s, cfg, cohort.samples)
+                Job(i, s, cfg, cohort.samples, None if policy is None else PaperPolicy())
                 for i, s in enumerate(cohort.seeds)
                 if status.get(cohort.session(s)) != "complete"
             ]
-            stored, seconds = _simulate(engine, store, cohort, jobs, show)
+            stored, seconds = _simulate(engine, store, cohort, jobs, show, policy)
             done.append((cohort, len(jobs), stored, seconds))
         return done
     finally:

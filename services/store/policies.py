@@ -1,5 +1,6 @@
 """The robot policy of each session and its settings per trial (issue 36).
 
+`policy_cohorts`: the policy a `nod cohort` run was begun with (so `--resume` knows it).
 `policy_sessions`: a session's policy (its name and its file's SHA-256) and, for a simulated
 participant, the kind of person the simulator drew (strategist, contrarian, firm, rest; NULL
 for a real one). `policy_trials`: the settings the policy chose for each trial (b*, the gaze
@@ -14,6 +15,13 @@ from services.model.policy import PolicySettings
 from services.store.store import Store
 
 SCHEMA = """
+CREATE TABLE IF NOT EXISTS policy_cohorts (
+    prefix         TEXT NOT NULL,
+    first_seed     INTEGER NOT NULL,
+    policy         TEXT NOT NULL,
+    policy_sha256  TEXT NOT NULL,
+    PRIMARY KEY (prefix, first_seed)
+);
 CREATE TABLE IF NOT EXISTS policy_sessions (
     session        TEXT PRIMARY KEY,
     policy         TEXT NOT NULL,
@@ -69,3 +77,23 @@ def read_policies(store: Store) -> dict[str, SessionPolicy]:
         s: SessionPolicy(s, p, h, k, trials.get(s, {}))
         for s, p, h, k in store.db.execute("SELECT * FROM policy_sessions ORDER BY session")
     }
+
+
+def write_cohort_policy(store: Store, prefix: str, first_seed: int, policy: str,
+                        sha256: str) -> None:
+    """Store the policy a cohort run was begun with."""
+    with store.db:
+        store.db.executescript(SCHEMA)
+    with store.db:
+        store.db.execute("INSERT OR REPLACE INTO policy_cohorts VALUES (?, ?, ?, ?)",
+                         (prefix, first_seed, policy, sha256))
+
+
+def cohort_policy(store: Store, prefix: str, first_seed: int) -> tuple[str, str] | None:
+    """(name, SHA-256) of the policy a cohort run was begun with; None: none was stored."""
+    with store.db:
+        store.db.executescript(SCHEMA)
+    row = store.db.execute(
+        "SELECT policy, policy_sha256 FROM policy_cohorts WHERE prefix = ? AND first_seed = ?",
+        (prefix, first_seed)).fetchone()
+    return None if row is None else (str(row[0]), str(row[1]))

@@ -155,3 +155,31 @@ def test_a_store_from_before_cohorts_were_recorded_reads_as_before(
     with open_stores([db]) as opened:
         _, store = opened[0]
         assert len(store.sessions()) == 5 and cohorts(store) == []
+
+
+def test_resume_keeps_the_paper_policy_and_refuses_another(
+    tmp_path: Path, engines: list[InProcess], capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from services.store.policies import read_policies
+
+    monkeypatch.setenv("NOD_POLICY_CACHE", str(tmp_path / "cache"))
+    paper, other = tmp_path / "paper.sqlite", tmp_path / "other.sqlite"
+    policy = tmp_path / "bold.toml"
+    policy.write_text('kind = "adaptive"\ngaze_levels = ["extreme"]\nb_stars = [6.0]\n'
+                      'u_rs = [2.24]\ntable_people = 1\ntable_seed = 900000001\n')
+    # fail_after=1: the adaptive table's one person is simulated, the cohort stops after one
+    engines += [InProcess(fail_after=0), InProcess(), InProcess(fail_after=1), InProcess()]
+    assert cohort_cli.main([*COHORT, "--db", str(paper), "--policy", "paper"]) == 2
+    assert cohort_cli.main(["--db", str(paper), "--resume", "--quiet"]) == 0
+    store = Store(paper)
+    try:
+        assert {p.policy for p in read_policies(store).values()} == {"paper"}
+        assert len(read_policies(store)) == 5  # the resumed sessions store it too
+    finally:
+        store.close()
+    capsys.readouterr()
+    assert cohort_cli.main([*COHORT, "--db", str(other), "--policy", str(policy)]) == 2
+    assert cohort_cli.main(["--db", str(other), "--resume", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 2 and "ran the policy bold" in err and "not done yet" in err
