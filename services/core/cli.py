@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import NoReturn
 
@@ -27,6 +28,17 @@ def fail(prog: str, message: object) -> int:
     """Say what is wrong in one line on stderr, `prog: message`; return 2, a bad input's code."""
     print(f"{prog}: {one_line(str(message), limit=None)}", file=sys.stderr)
     return 2
+
+
+def print_report(
+    report: object, lines: Iterable[str], as_json: bool, out: Callable[[str], object] = print
+) -> None:
+    """A command's report: one JSON document (`--json`), else its lines for a person."""
+    if as_json:
+        out(json.dumps(report, ensure_ascii=False))
+    else:
+        for line in lines:
+            out(line)
 
 
 def finite_float(text: str) -> float:

@@ -38,14 +38,7 @@ from pathlib import Path
 
 from services.core.cli import Parser, fail
 from services.core.config import ConfigError
-from services.eyes.bench import (
-    BenchError,
-    add_bench_args,
-    describe,
-    open_driver,
-    settle,
-    sigterm_as_interrupt,
-)
+from services.eyes import bench
 from services.eyes.servos import ServoDriver
 from services.eyes.trims import MAX_TRIM_DEG, EyesTrims, apply_trims, load_and_apply, trims_toml
 from services.model.servos import SERVO_NAMES, EyesCalibration
@@ -255,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--trims` loads. Interactive on a terminal; --set or keys on stdin for scripts.",
         epilog=HELP,
     )
-    add_bench_args(p)
+    bench.add_bench_args(p)
     p.add_argument("--out", type=Path, required=True, help="trims file to write (TOML)")
     p.add_argument(
         "--set",
@@ -293,7 +286,7 @@ def calibrate(
                 session.set(name, value)
             trims = EyesTrims(**session.trims)
         elif sys.stdin.isatty():
-            print(f"Calibrating {describe(driver)}: neutral gaze, trims live.\n{HELP}")
+            print(f"Calibrating {bench.describe(driver)}: neutral gaze, trims live.\n{HELP}")
             show = _show_on_terminal
             show(session.status())
             try:
@@ -303,13 +296,13 @@ def calibrate(
         else:
             trims = run_keys(session, stream_keys(sys.stdin.read()), apply, None)
         driver.calibration = session.calibration
-        settle(driver, driver.neutral(), start)
+        bench.settle(driver, driver.neutral(), start)
     except (CalibrationAbortedError, KeyboardInterrupt):
         driver.calibration = base
-        with contextlib.suppress(BenchError):
-            settle(driver, driver.neutral(), None, timeout_s=1.0)
+        with contextlib.suppress(bench.BenchError):
+            bench.settle(driver, driver.neutral(), None, timeout_s=1.0)
         raise
-    write_trims(out, trims, base, describe(driver))
+    write_trims(out, trims, base, bench.describe(driver))
     return trims
 
 
@@ -325,15 +318,15 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--step must be in (0, {MAX_TRIM_DEG:g}] deg, got {args.step}")
     try:
         set_values = parse_set(args.set_spec) if args.set_spec is not None else None
-        driver = open_driver(args)
-    except (ValueError, BenchError) as exc:
+        driver = bench.open_driver(args)
+    except (ValueError, bench.BenchError) as exc:
         return fail(PROG, exc)
-    with sigterm_as_interrupt():
+    with bench.sigterm_as_interrupt():
         try:
             trims = calibrate(driver, args.out, set_values, args.step)
         except (ValueError, CalibrationAbortedError) as exc:
             return fail(PROG, exc)
-        except BenchError as exc:
+        except bench.BenchError as exc:
             print(f"{PROG}: {exc}; nothing written", file=sys.stderr)
             return 1
         except KeyboardInterrupt:

@@ -4,17 +4,9 @@ No Zenoh here: `RerunBridge.log(topic, msg)` takes a message of the contract and
 `rerun.RecordingStream`, so it is tested against a recording saved to an `.rrd` file. Every row is
 stamped with the message's own source time `t_ns` on the `time` timeline and with the current
 trial on the `trial` sequence timeline. The entity tree (`ENTITIES`) is
-`services.views.entities`' (the recordings' blueprint lays it out too), and the views the
-monitor's blueprint shares with it are `services.views.blueprint`'s:
-
-    opinion/{z_h,z_r,b_r}     two options: time series of the signed ẑ_h, z_r, b_r (one view)
-    bars/{z_h,z_r,b_r}        three or more options: a bar chart each, one bar per option
-    table/{buzzers,commit_line,hand,arm}   the table: boxes, commit line, hand centre, end effector
-    table/{arm_link,gaze}     the arm as a segment from its base, the gaze as arrows from the eyes
-    eyes/gaze/{yaw,pitch}     the commanded gaze (rad);  eyes/servos: the servo targets (deg)
-    state/{trial,arm,gaze}    protocol phase, arm phase and gaze level as state lanes
-    log/{trial,result,arm,safety,services}   text log: events, countdown, outcomes, safety
-    camera/frame              the vision service's low-rate JPEG frames, all at FRAME_SIZE
+`services.views.entities`' (its module doc lists the tree; the recordings' blueprint lays it
+out too; camera frames are all at FRAME_SIZE), and the views the monitor's blueprint shares with
+it are `services.views.blueprint`'s.
 
 One key space, schema 3, for any option set: every message names its options, so one table,
 arm, trial and result line serves every N. Only the opinions are shown two ways: over the

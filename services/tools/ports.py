@@ -9,14 +9,13 @@ never listed: pass their path to `--port` directly.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
 from serial.tools import list_ports
 from serial.tools.list_ports_common import ListPortInfo
 
-from services.core.cli import Parser
+from services.core.cli import Parser, print_report
 
 PTY_NOTE = "pseudo-terminals (test emulators, socat pairs) are not listed; pass them to --port"
 
@@ -127,11 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     """Print the serial devices; 0 even when there are none."""
     args = build_parser().parse_args(argv)
     found = ports()
-    if args.json:
-        print(json.dumps(found, ensure_ascii=False))
-    else:
-        for line in lines(found):
-            print(line)
+    print_report(found, lines(found), args.json)
     return 0
 
 

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import dataclass
 from typing import Any
 
 import zenoh
 
+from services.core.cli import print_report
 from services.core.contract import TOPICS
 from services.tools.observe import Rate, Window, listen, print_line
 
@@ -51,11 +51,7 @@ def run_list(args: argparse.Namespace) -> int:
     elapsed = min(time.monotonic(), deadline) - t0
     report = list_report(rig, elapsed, seen, sorted(s for s, up in alive.items() if up))
     report["dropped"] = window.tap.dropped
-    if args.json:
-        print_line(json.dumps(report, ensure_ascii=False))
-    else:
-        for line in list_lines(report):
-            print_line(line)
+    print_report(report, list_lines(report), args.json, print_line)
     return 0
 
 
