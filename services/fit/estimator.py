@@ -14,6 +14,11 @@ interval or set (`Estimates`). A third split checks each parameter as a recovery
 The model-recovery check (`ModelClassifier`) is a `HistGradientBoostingClassifier` on the same
 summaries: which of two descriptions made a session (with the gaze term or without; the fit's
 prior or another population, `nod fit recovery --versus`).
+
+The estimate as a session goes (`ByLength`, `estimate_after`): one `QuantileEstimator` per
+session length k = 1..8, each trained on the same reference table read as if only its first k
+trials had been played (`services.model.summaries.first_trials`), so each length's intervals
+are calibrated, and checked, at that length; at k = 8 it is the complete-session estimator.
 """
 
 from __future__ import annotations
@@ -25,7 +30,9 @@ from typing import Any
 
 import numpy as np
 
+from services.model.geometry import TableLayout
 from services.model.recovery import Recovery, recovery
+from services.model.summaries import TRIALS, TrialPath, first_trials, summarise
 
 LEVEL = 0.90  # the intervals' nominal coverage
 ALPHA_SET = 1 - LEVEL  # before calibration, a 0/1 parameter's set: the values at least this likely
@@ -234,6 +241,43 @@ class QuantileEstimator:
         """Estimates and conformalised 90 % intervals for people's summaries (n × F)."""
         with one_thread():
             return self._finish(self._raw(np.atleast_2d(summaries)[:, self._columns]))
+
+
+class ByLength:
+    """The estimator after 1, 2, … 8 trials: one `QuantileEstimator` per session length.
+
+    Each is trained on the same table, its summaries cut to the first k trials, with the same
+    seed (so the same split of the table): the one for k = 8 is the complete-session
+    estimator, trained on the same numbers.
+    """
+
+    def __init__(self, names: Sequence[str], seed: int = 0) -> None:
+        """Untrained estimators of these parameters, one per length."""
+        self.names = tuple(names)
+        self.seed = seed
+        self.at: dict[int, QuantileEstimator] = {}
+
+    def train(self, theta: np.ndarray, summaries: np.ndarray,
+              lengths: Sequence[int] = TRIALS) -> ByLength:
+        """Train (and check) the estimator of each length on the table cut to that length."""
+        self.at = {k: QuantileEstimator(self.names, self.seed).train(
+            theta, first_trials(summaries, k)) for k in lengths}
+        return self
+
+    def predict(self, k: int, summaries: np.ndarray) -> Estimates:
+        """Estimates after k trials, from sessions' summaries (only their first k trials read)."""
+        return self.at[k].predict(first_trials(np.atleast_2d(summaries), k))
+
+
+def estimate_after(estimators: ByLength, k: int, trials_so_far: Sequence[TrialPath],
+                   layout: TableLayout) -> Estimates:
+    """One person's estimates and 90 % intervals after their first k trials (one row).
+
+    Only the trials numbered 1..k are read, whatever else `trials_so_far` holds; a trial among
+    them that is missing or interrupted counts as one with nothing to read, as in `nod fit`.
+    """
+    played = [t for t in trials_so_far if 1 <= t.trial <= k]
+    return estimators.predict(k, summarise(played, layout))
 
 
 class ModelClassifier:

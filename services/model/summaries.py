@@ -192,17 +192,25 @@ def summarise(paths: Sequence[TrialPath], layout: TableLayout) -> np.ndarray:
         if r is not None and p.trial in TRIALS:
             readings[p.trial] = r
             modes[p.trial] = p.mode
+    return _vector(readings, modes)
+
+
+_FIELDS = ("onset", "speed", "press", "agree", "switch", "turn", "travel", "slow", "reversal")
+CONTROL_TRIALS = TRIALS[:3]  # the protocol's phases by trial (SPEC §5)
+
+
+def _vector(readings: dict[int, _Reading], modes: dict[int, str]) -> np.ndarray:
+    """The summaries of a session's readings (trial → reading) and the trials' phases."""
     out: list[float] = []
-    fields = ("onset", "speed", "press", "agree", "switch", "turn", "travel", "slow", "reversal")
     for k in TRIALS:
         r = readings.get(k)
-        out += [getattr(r, f) if r else NAN for f in fields]
+        out += [getattr(r, f) if r else NAN for f in _FIELDS]
     for k in TRIALS[3:]:
         r = readings.get(k)
         out += [r.gaze_first if r else NAN, r.gaze_press if r else NAN]
     for phase in ("dissensus", "consensus"):
         rs = [r for k, r in readings.items() if modes[k] == phase]
-        for f in fields:
+        for f in _FIELDS:
             values = [getattr(r, f) for r in rs]
             out.append(_mean(values) if f in ("agree", "switch", "turn") else _median(values))
     rs = list(readings.values())
@@ -210,6 +218,40 @@ def summarise(paths: Sequence[TrialPath], layout: TableLayout) -> np.ndarray:
     out += [max(speeds) if speeds else NAN, _mean([r.gaze_first for r in rs]),
             _mean([r.gaze_press for r in rs]), float(sum(r.late for r in rs)) if rs else NAN]
     return np.asarray(out, dtype=float)
+
+
+def first_trials(summaries: np.ndarray, k: int) -> np.ndarray:
+    """Sessions' summaries (F or n × F) as if only their first k trials had been played.
+
+    The per-trial summaries of later trials become NaN (missing, as an unplayed trial is), and
+    the phase and session summaries are taken again over the first k trials' per-trial ones by
+    the code `summarise` takes them with (phases by trial number, SPEC §5). One exception:
+    `late_turns` counts a per-trial reading the vector does not keep, so before the 8th trial
+    it is NaN, for simulated and real sessions alike (`services.fit.estimator.estimate_after`
+    reads a real session through this function too); at k = 8 it is kept. A session's own
+    summaries come back unchanged at k = 8.
+    """
+    if not 1 <= k <= len(TRIALS):
+        raise ValueError(f"a session has 1-{len(TRIALS)} trials, not {k}")
+    x = np.asarray(summaries, dtype=float)
+    rows = np.atleast_2d(x)
+    per = len(_FIELDS)
+    gaze_at = per * len(TRIALS)
+    out = []
+    for row in rows:
+        readings: dict[int, _Reading] = {}
+        for t in TRIALS[:k]:
+            values = dict(zip(_FIELDS, row[per * (t - 1):per * t], strict=True))
+            if not np.isfinite(list(values.values())).any():
+                continue  # a trial with nothing to read (interrupted, no hand)
+            gaze = row[gaze_at + 2 * (t - 4):gaze_at + 2 * (t - 3)] if t > 3 else (NAN, NAN)
+            readings[t] = _Reading(gaze_first=float(gaze[0]), gaze_press=float(gaze[1]),
+                                   late=NAN, **{f: float(v) for f, v in values.items()})
+        modes = {t: "dissensus" if t in CONTROL_TRIALS else "consensus" for t in readings}
+        out.append(_vector(readings, modes))
+        if k == len(TRIALS):
+            out[-1][-1] = row[-1]  # late_turns: the whole session's, as read
+    return np.stack(out) if x.ndim == 2 else out[0]
 
 
 def complete_trials(paths: Sequence[TrialPath]) -> int:
