@@ -3,6 +3,7 @@
     nod fit --db STUDY.sqlite [--participant P] [--min-trials N] [--include-withdrawn]
             [--out DIR] [--json] [--prior FILE.toml|cohort]
     nod fit recovery --participants N --seed S [--population FILE.toml] [--json]
+    nod fit recovery --by-length --participants N [--table K]   # after 1, 2, … 8 trials
 
 Both train the same estimator on the same reference table (K simulated people of the prior —
 the stated ranges of services/fit/prior.toml over the fitted cohort's person, or `--prior` —
@@ -21,6 +22,7 @@ from services.core.cli import SEED, Parser, fail, int_in
 
 PROG = "nod fit"
 K_DEFAULT = 2000  # reference-table people: docs/fit.md says why this many
+K_BY_LENGTH = 500  # `recovery --by-length` trains 8 estimators: a table that takes minutes
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -33,8 +35,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="what people may differ in: ranges of traits and odds of kinds "
                    "(default: the shipped services/fit/prior.toml; \"cohort\": the calibrated "
                    "cohort itself, the prior before it)")
-    p.add_argument("--table", type=int_in(20, 10**6), default=K_DEFAULT, metavar="K",
-                   help=f"simulated people the estimator learns from ({K_DEFAULT})")
+    p.add_argument("--table", type=int_in(20, 10**6), default=None, metavar="K",
+                   help=f"simulated people the estimator learns from ({K_DEFAULT}; "
+                   f"{K_BY_LENGTH} with recovery --by-length)")
     p.add_argument("--cache", type=Path, default=None, metavar="DIR",
                    help="where reference tables are kept (default: $NOD_CACHE_DIR or "
                    "~/.cache/nod/fit)")
@@ -87,6 +90,9 @@ def recovery_parser() -> Parser:
                    help="plant people of another population: a --params file (people drawn "
                    "around its traits, as nod cohort) or one that also states [traits.NAME] "
                    "ranges and [kinds] (drawn from them); default: the fit's prior")
+    p.add_argument("--by-length", action="store_true",
+                   help="r and coverage of each parameter after 1, 2, … 8 trials (the "
+                   "estimators of partial sessions; no model-recovery check)")
     _common(p)
     return p
 
@@ -100,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     recovery = bool(args_in) and args_in[0] == "recovery"
     parser = recovery_parser() if recovery else fit_parser()
     args = parser.parse_args(args_in[1:] if recovery else args_in)
+    if args.table is None:
+        args.table = K_BY_LENGTH if getattr(args, "by_length", False) else K_DEFAULT
     from services.compute.engine import EngineError
     from services.core.config import ConfigError
 

@@ -18,9 +18,10 @@ from services.compute.engine import engine_from_args
 from services.core.config import params_hash
 from services.fit.data import read_study
 from services.fit.estimator import LEVEL, ModelClassifier
-from services.fit.pipeline import Prepared, predictive, prepare
+from services.fit.pipeline import Prepared, predictive, prepare, prepare_by_length
 from services.fit.prior import load_prior
 from services.fit.report import (
+    by_length_table,
     fit_document,
     fit_table,
     flag_rate,
@@ -149,6 +150,8 @@ def recovery(args: argparse.Namespace) -> int:
     """`nod fit recovery`: planted people fitted as `nod fit` fits, and the gaze-model check."""
     pop = _population(args)
     planted = load_population(args.population) if args.population is not None else pop
+    if args.by_length:
+        return _recovery_by_length(args, pop, planted)
     n = args.participants
     with engine_from_args(args) as engine:
         prep = _prepared(args, pop, engine.map, engine.where)
@@ -187,6 +190,39 @@ def recovery(args: argparse.Namespace) -> int:
            "method": method(pop, args.table)}
     print(json.dumps(doc, indent=2) if args.json else recovery_table(checks, model, spread,
                                                                      doc["prior_check"], versus))
+    return 0
+
+
+def _recovery_by_length(args: argparse.Namespace, pop: Population, planted: Population
+                        ) -> int:
+    """`nod fit recovery --by-length`: the planted people fitted after 1, 2, … 8 trials."""
+    n = args.participants
+    with engine_from_args(args) as engine:
+        t0 = time.monotonic()
+        table, estimators, trained = prepare_by_length(pop, args.table, engine.map,
+                                                       _cache(args))
+        _say(f"reference table: {args.table} simulated people; estimators after 1-8 trials "
+             f"{'trained' if trained else 'from the cache'} ({time.monotonic() - t0:.0f} s)")
+        people = engine.map(simulate, [(planted, args.seed + i) for i in range(n)])
+    theta = np.stack([truth(*planted.person(args.seed + i), table.names) for i in range(n)])
+    summaries = np.stack([p.summaries for p in people])
+    checks: dict[int, list[Any]] = {}
+    widths: dict[int, list[float]] = {}
+    for k, estimator in estimators.at.items():
+        fit = estimators.predict(k, summaries)
+        checks[k] = [recover(name, theta[:, j], fit.graded[:, j], fit.low[:, j],
+                             fit.high[:, j], log=estimator.log_scaled[j])
+                     for j, name in enumerate(fit.names)]
+        widths[k] = [float(np.mean(fit.high[:, j] - fit.low[:, j]))
+                     for j in range(len(fit.names))]
+    doc = {"lengths": [{"trials": k, "parameters": [
+               c.as_dict() | {"mean_width": round(w, 4)}
+               for c, w in zip(checks[k], widths[k], strict=True)]} for k in sorted(checks)],
+           "participants": n, "seed": args.seed,
+           "population": "the fit's prior" if args.population is None else str(args.population),
+           "method": method(pop, args.table) + "; one estimator per session length k, trained "
+           "on the table cut to its first k trials"}
+    print(json.dumps(doc, indent=2) if args.json else by_length_table(checks))
     return 0
 
 

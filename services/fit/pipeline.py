@@ -7,7 +7,8 @@ person's posterior sample, by semi-automatic ABC (Fearnhead & Prangle 2012): the
 (of those the estimator did not learn from) whose estimated parameters lie nearest to the
 person's (the regression's estimates are the summary statistics) — their true parameters,
 jointly, so the dependence between parameters (gaze_gain × trust0) is kept. `predictive`: new
-sessions of those draws, for the posterior-predictive check.
+sessions of those draws, for the posterior-predictive check. `prepare_by_length`: the
+estimators after 1, 2, … 8 trials (`ByLength`) on the same table, cached beside it.
 """
 
 from __future__ import annotations
@@ -18,10 +19,11 @@ import pickle
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
-from services.fit.estimator import Estimates, QuantileEstimator
+from services.fit.estimator import ByLength, Estimates, QuantileEstimator
 from services.fit.prior import DERIVED, SHARE_OF, person_params
 from services.fit.prior_check import PriorCheck
 from services.fit.simulate import (
@@ -34,6 +36,7 @@ from services.fit.simulate import (
 )
 from services.model.params import NodConfig
 
+E = TypeVar("E", QuantileEstimator, ByLength)
 PREDICTIVE_SEED = 2 * 10**9  # predictive sessions' seeds: never a study's or the table's
 
 
@@ -58,21 +61,39 @@ def prepare(pop: Population, k: int, run: Mapper, cache: Path | None, seed: int 
             ) -> Prepared:
     """The reference table of K people and the estimator trained on it, each cached on disk."""
     table, cached = reference_table(pop, k, run, cache)
-    path = (cache / f"estimator-{pop.key()}-{k}-{estimator_digest()}-{seed}.pickle"
-            if cache is not None else None)
-    estimator = _load(path) if cached and path is not None else None
-    trained = estimator is None
-    if estimator is None:
-        estimator = QuantileEstimator(table.names, seed).train(table.theta, table.summaries)
-        if path is not None:
-            tmp = path.with_suffix(".tmp")
-            tmp.write_bytes(pickle.dumps(estimator))
-            tmp.replace(path)
+    estimator, trained = _trained(
+        QuantileEstimator(table.names, seed), table, cached,
+        cache / f"estimator-{pop.key()}-{k}-{estimator_digest()}-{seed}.pickle"
+        if cache is not None else None)
     held = estimator.held_out
     learnt = np.setdiff1d(np.arange(len(table.summaries)), held)
     check = PriorCheck.train(table.summaries[learnt], table.summaries[held])
     return Prepared(table, estimator, cached, trained, estimator.predict(table.summaries[held]),
                     check)
+
+
+def prepare_by_length(pop: Population, k: int, run: Mapper, cache: Path | None,
+                      seed: int = 0) -> tuple[Table, ByLength, bool]:
+    """The table of K people, the estimators after 1..8 trials (cached), and trained now."""
+    table, cached = reference_table(pop, k, run, cache)
+    estimators, trained = _trained(
+        ByLength(table.names, seed), table, cached,
+        cache / f"by-length-{pop.key()}-{k}-{estimator_digest()}-{seed}.pickle"
+        if cache is not None else None)
+    return table, estimators, trained
+
+
+def _trained(untrained: E, table: Table, cached: bool, path: Path | None) -> tuple[E, bool]:
+    """An estimator read from `path` if the table was cached, else trained and kept there."""
+    estimator = _load(path, type(untrained)) if cached and path is not None else None
+    if estimator is not None:
+        return estimator, False
+    estimator = untrained.train(table.theta, table.summaries)
+    if path is not None:
+        tmp = path.with_suffix(".tmp")
+        tmp.write_bytes(pickle.dumps(estimator))
+        tmp.replace(path)
+    return estimator, True
 
 
 def estimator_digest() -> str:
@@ -90,13 +111,13 @@ def estimator_digest() -> str:
     return digest.hexdigest()[:12]
 
 
-def _load(path: Path) -> QuantileEstimator | None:
+def _load(path: Path, kind: type[E]) -> E | None:
     """A cached estimator (our own file in our own cache), None if absent or unreadable."""
     try:
         estimator = pickle.loads(path.read_bytes())
     except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
         return None
-    return estimator if isinstance(estimator, QuantileEstimator) else None
+    return estimator if isinstance(estimator, kind) else None
 
 
 def posterior_draws(prep: Prepared, estimate: np.ndarray, n: int) -> np.ndarray:

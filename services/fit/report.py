@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -243,4 +243,25 @@ def recovery_table(checks: Sequence[Recovery], model: dict[str, Any] | None,
                      f"{versus['accuracy']:.2f} on {versus['sessions']} held-out sessions (the "
                      f"prior's told right {versus['first']:.2f}, the other's "
                      f"{versus['second']:.2f})")
+    return "\n".join(lines)
+
+
+def by_length_table(checks: Mapping[int, Sequence[Recovery]]) -> str:
+    """The recovery study at each session length: per parameter, r and coverage after k trials.
+
+    `--json` has each check whole, with the intervals' mean width.
+    """
+    lengths = sorted(checks)
+    names = [c.name for c in checks[lengths[0]]]
+    w = max([len("parameter"), *(len(n) for n in names)])
+    head = f"{'parameter':<{w}} " + " ".join(f"{f'k={k} r/cov':>12}" for k in lengths)
+    lines = [head]
+    for j, name in enumerate(names):
+        cells = [f"{_fmt(checks[k][j].correlation)}/{_fmt(checks[k][j].coverage)}"
+                 for k in lengths]
+        lines.append(f"{name:<{w}} " + " ".join(f"{c:>12}" for c in cells))
+    n = checks[lengths[0]][0].n if names else 0
+    lines.append(f"(r of the estimates with the truth and the {int(LEVEL * 100)} % intervals' "
+                 f"coverage, on the same n = {n} people after their first k trials; a kind's r "
+                 "is of its probability)")
     return "\n".join(lines)

@@ -241,3 +241,28 @@ def test_a_bad_prior_file_is_one_line(tmp_path, capsys):
     assert "\n" not in err and "config file not found" in err
     assert main(["recovery", "--participants", "2", "--population", str(bad)]) == 2
     assert "traits.speed: needs finite low <= high" in capsys.readouterr().err
+
+
+def test_recovery_by_length_reads_each_length_and_its_eighth_is_the_whole_fit(tmp_path, capsys):
+    """`nod fit recovery --by-length`: r and coverage after 1..8 trials; after 8 the numbers of
+    `nod fit recovery` itself (the same estimator, the same people)."""
+    n = 10
+    args = ["recovery", "--participants", str(n), "--seed", "3", "--table", "100",
+            "--workers", "1", "--cache", str(tmp_path / "cache"), "--json"]
+    assert main(args + ["--by-length"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [row["trials"] for row in doc["lengths"]] == list(range(1, 9))
+    assert "one estimator per session length" in doc["method"]
+    for length in doc["lengths"]:
+        for row in length["parameters"]:
+            assert row["n"] == n and 0 <= row["coverage"] <= 1 and row["mean_width"] >= 0
+    eighth = {r["name"]: r for r in doc["lengths"][-1]["parameters"]}
+    assert eighth["reaction_s"]["correlation"] > 0.9
+    assert main(args) == 0
+    whole = json.loads(capsys.readouterr().out)["parameters"]
+    for row in whole:
+        for key in ("correlation", "coverage", "bias"):
+            assert eighth[row["name"]][key] == row[key], (row["name"], key)
+    assert main(args[:-1] + ["--by-length"]) == 0
+    text = capsys.readouterr().out
+    assert "k=1 r/cov" in text and "k=8 r/cov" in text and "reaction_s" in text
