@@ -12,6 +12,14 @@
 Exit status 1 if `nod fit` takes more than `--max-fit-s` (600).
 
     .venv/bin/python benchmarks/bench_fit.py [--table 2000] [--cache DIR] [--participants 40]
+
+`--estimate-after CALLS` measures instead the estimate as the session goes (issue 36): the
+estimators after 1..8 trials on a table of `--table` people (from the fit's cache, or trained
+first), then CALLS calls of `estimate_after(k, trials_so_far)` on simulated people's trials, k
+cycling 1..8, each timed in this process with the engine's workers gone: p50, p99 and the
+largest, against the issue's p99 < 200 ms (exit status 1 above it).
+
+    .venv/bin/python benchmarks/bench_fit.py --estimate-after 400 --table 2000
 """
 
 from __future__ import annotations
@@ -55,7 +63,11 @@ def main() -> int:
     parser.add_argument("--cache", type=Path, default=None,
                         help="reference-table cache (default: a fresh one, so a cold fit)")
     parser.add_argument("--max-fit-s", type=float, default=600.0)
+    parser.add_argument("--estimate-after", type=int, default=None, metavar="CALLS",
+                        help="time estimate_after instead (at least 100 calls)")
     args = parser.parse_args()
+    if args.estimate_after is not None:
+        return estimate_after_latency(args.table, max(100, args.estimate_after), args.cache)
     with tempfile.TemporaryDirectory() as tmp:
         cache = args.cache or Path(tmp) / "cache"
         db = Path(tmp) / "study.sqlite"
@@ -108,6 +120,38 @@ def main() -> int:
           f"predictive): ≈ {sessions * per_session / 2:.0f} s of it on 2 free cores; "
           f"load average now {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     return 0 if fit_s <= args.max_fit_s else 1
+
+
+def estimate_after_latency(table: int, calls: int, cache: Path | None) -> int:
+    """p50/p99/max milliseconds of one `estimate_after` call; 1 if p99 is 200 ms or more."""
+    import os
+
+    from services.compute.engine import open_engine
+    from services.fit.estimator import estimate_after
+    from services.fit.pipeline import prepare_by_length
+    from services.fit.simulate import default_cache
+    from services.model.summaries import from_offline
+
+    pop = Population(load_cohort_params(None), load_prior(None))
+    t0 = time.perf_counter()
+    with open_engine() as engine:
+        _, estimators, trained = prepare_by_length(pop, table, engine.map,
+                                                   cache or default_cache())
+    print(f"estimators after 1-8 trials on {table} table people: "
+          f"{'trained' if trained else 'from the cache'} ({time.perf_counter() - t0:.0f} s)")
+    sessions = [from_offline(pop.session(9001 + i)) for i in range(calls // 8 + 1)]
+    estimate_after(estimators, 8, sessions[0], pop.cfg.layout)  # first call: imports, warm-up
+    ms = []
+    for i in range(calls):
+        k, trials = i % 8 + 1, sessions[i // 8]
+        t = time.perf_counter()
+        estimate_after(estimators, k, trials[:k], pop.cfg.layout)
+        ms.append((time.perf_counter() - t) * 1e3)
+    p50, p99 = np.percentile(ms, [50, 99])
+    print(f"estimate_after: {calls} calls (k = 1..8 in turn), p50 {p50:.1f} ms, p99 {p99:.1f} "
+          f"ms, max {max(ms):.1f} ms; target p99 < 200 ms -> {'ok' if p99 < 200 else 'TOO SLOW'}"
+          f" (load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
+    return 0 if p99 < 200 else 1
 
 
 if __name__ == "__main__":
