@@ -7,6 +7,7 @@ import csv
 import json
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +18,7 @@ from services.cohort.person import load_cohort_params
 from services.compute.engine import engine_from_args
 from services.core.config import params_hash
 from services.fit.data import read_study
-from services.fit.estimator import LEVEL, ModelClassifier
+from services.fit.estimator import LEVEL, Estimates, ModelClassifier
 from services.fit.pipeline import Prepared, predictive, prepare, prepare_by_length
 from services.fit.prior import load_prior
 from services.fit.report import (
@@ -37,7 +38,12 @@ from services.fit.simulate import (
     simulate,
     truth,
 )
-from services.model.recovery import BOOTSTRAP_DRAWS, CI_LEVEL, recovery_intervals
+from services.model.recovery import (
+    BOOTSTRAP_DRAWS,
+    CI_LEVEL,
+    Recovery,
+    recovery_intervals,
+)
 from services.model.recovery import recovery as recover
 from services.model.summaries import summarise
 from services.store import Store
@@ -163,10 +169,7 @@ def recovery(args: argparse.Namespace) -> int:
         summaries = np.stack([p.summaries for p in people])
         fit = prep.estimator.predict(summaries)
         flagged = int(np.sum(prep.prior_check.outside(summaries)))
-        logs = prep.estimator.log_scaled
-        checks = [recover(name, theta[:, j], fit.graded[:, j], fit.low[:, j], fit.high[:, j],
-                          log=logs[j])
-                  for j, name in enumerate(fit.names)]
+        checks = _checks(theta, fit, prep.estimator.log_scaled)
         model = _model_recovery(args, prep, pop.without_gaze(), people,
                                 planted.without_gaze(), engine.map)
         versus = None
@@ -193,6 +196,12 @@ def recovery(args: argparse.Namespace) -> int:
     return 0
 
 
+def _checks(theta: np.ndarray, fit: Estimates, logs: Sequence[bool]) -> list[Recovery]:
+    """Each parameter's recovery: planted truth (people × parameters) against the fit."""
+    return [recover(name, theta[:, j], fit.graded[:, j], fit.low[:, j], fit.high[:, j],
+                    log=logs[j]) for j, name in enumerate(fit.names)]
+
+
 def _recovery_by_length(args: argparse.Namespace, pop: Population, planted: Population
                         ) -> int:
     """`nod fit recovery --by-length`: the planted people fitted after 1, 2, … 8 trials."""
@@ -206,13 +215,11 @@ def _recovery_by_length(args: argparse.Namespace, pop: Population, planted: Popu
         people = engine.map(simulate, [(planted, args.seed + i) for i in range(n)])
     theta = np.stack([truth(*planted.person(args.seed + i), table.names) for i in range(n)])
     summaries = np.stack([p.summaries for p in people])
-    checks: dict[int, list[Any]] = {}
+    checks: dict[int, list[Recovery]] = {}
     widths: dict[int, list[float]] = {}
     for k, estimator in estimators.at.items():
         fit = estimators.predict(k, summaries)
-        checks[k] = [recover(name, theta[:, j], fit.graded[:, j], fit.low[:, j],
-                             fit.high[:, j], log=estimator.log_scaled[j])
-                     for j, name in enumerate(fit.names)]
+        checks[k] = _checks(theta, fit, estimator.log_scaled)
         widths[k] = [float(np.mean(fit.high[:, j] - fit.low[:, j]))
                      for j in range(len(fit.names))]
     doc = {"lengths": [{"trials": k, "parameters": [
