@@ -69,14 +69,17 @@ def test_at_eight_trials_it_is_the_complete_session_estimator(trained):
     assert by_length.at[8].check[0].coverage == whole.check[0].coverage
 
 
-def test_the_intervals_hold_at_every_length_and_narrow_as_trials_come(trained):
+@settings(max_examples=5, deadline=None)
+@given(st.integers(4, 10**6))
+def test_the_intervals_hold_at_every_length_and_narrow_as_trials_come(trained, seed):
+    """On any 400 new people of the prior: 90 % coverage at each k, wider with fewer trials."""
     by_length, _, _ = trained
-    fresh_theta, fresh = _table(400, 4)
+    fresh_theta, fresh = _table(400, seed)
     widths = []
     for k in TRIALS:
         fit = by_length.predict(k, fresh)
         inside = (fit.low[:, 0] <= fresh_theta[:, 0]) & (fresh_theta[:, 0] <= fit.high[:, 0])
-        assert 0.82 <= inside.mean() <= 0.97, k
+        assert 0.82 <= inside.mean() <= 0.98, k  # 0.86-0.96 on 40 draws
         widths.append(float(np.mean(fit.high[:, 0] - fit.low[:, 0])))
     # On average wider with fewer trials: each trial is one more reading of the speed.
     assert widths[0] > widths[3] > widths[7]
