@@ -11,10 +11,11 @@ pylsl (and liblsl), it must run on a host LabRecorder can reach, and it is the o
 owns LSL's clock mapping; like the display, it only listens, and the conductor never waits for
 it.
 
-One key space, schema 3, for any option set: the signals outlet opens with the paper's red and
-blue (one signed channel per quantity) and, when a trial event or an opinion over another set
-arrives, opens again with one channel per option (`samples.signal_names`); markers name options
-by name, and any set but the paper's in `options`.
+One key space, schema 3, for any option set: the signals outlet opens with the rig's option set
+(`--options N` or the params file's list; the paper's red and blue: one signed channel per
+quantity; else one channel per option and quantity, `samples.signal_names`) and, when a trial
+event or an opinion over another set arrives, opens again with that set's channels; markers
+name options by name, and any set but the paper's in `options`.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from collections.abc import Callable
 
 from services.core import messages as m
 from services.core.cli import fail, service_parser
+from services.core.config import load_with_options, option_names
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.lsl.clockmap import REFRESH_S, STEP_S, Anchor, read_anchor
@@ -41,6 +43,7 @@ from services.lsl.samples import (
     signal_names,
     trial_marker,
 )
+from services.model.geometry import COLOURS
 
 log = logging.getLogger("nod.lsl")
 
@@ -48,11 +51,14 @@ log = logging.getLogger("nod.lsl")
 class LslService:
     """Forwards the rig's signals and events to the outlets, on LSL's clock."""
 
-    def __init__(self, node: Node, outlets: Outlets, anchor: Anchor) -> None:
+    def __init__(
+        self, node: Node, outlets: Outlets, anchor: Anchor, options: tuple[str, ...] = COLOURS
+    ) -> None:
+        """Outlets opened for `options` (the params file's or `--options N`; red, blue)."""
         self.node = node
         self.outlets = outlets
         self.anchor = anchor
-        self.rows = SignalRows()
+        self.rows = SignalRows(options)
         self.safe_stops = SafeStops()
         node.subscribe("vision/hand", self.on_pose)
         node.subscribe("decision/z_h", self._value_handler("z_h"))
@@ -136,6 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
         "Publish the rig's signals (z_h, z_r, b_r, hand centre) and protocol markers "
         "as Lab Streaming Layer outlets, on LSL's clock (for LabRecorder). Needs the lsl extra; "
         "LSL's own settings come from lsl_api.cfg ($LSLAPICFG).",
+        options=True,
     )
     return p
 
@@ -147,13 +154,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         pylsl = load_pylsl()  # before the session: a missing library fails at once
         fabric = Fabric.from_args(args)
+        # The option set the signals outlet opens with (one channel per option and quantity);
+        # a message over another set still re-opens it (`_use_options`).
+        options = option_names(load_with_options(args.params, args.options)[1])
     except (ImportError, ValueError, OSError) as exc:
         return fail("nod lsl", exc)
     # The outlets open first: LabRecorder lists the streams while the rig is still coming up.
     clock = fabric.clock()
     anchor = read_anchor(clock.now_ns, pylsl.local_clock, clock.speed)
     try:
-        outlets = Outlets(fabric.rig, socket.gethostname(), anchor.offset_s())
+        outlets = Outlets(fabric.rig, socket.gethostname(), anchor.offset_s(), options)
     except RuntimeError as exc:  # liblsl could not open its sockets
         return fail("nod lsl", f"cannot open the LSL outlets: {exc}")
     try:
@@ -164,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     log.info("lsl: outlets nod-%s-signals and nod-%s-markers (liblsl %s); LSL − rig clock "
              "%+.6f s (±%.1f µs)", fabric.rig, fabric.rig, pylsl.library_version(),
              anchor.offset_s(), anchor.uncertainty_s * 1e6)
-    LslService(node, outlets, anchor)
+    LslService(node, outlets, anchor, options)
     try:
         node.run()
     finally:

@@ -206,3 +206,15 @@ def test_three_options_reopen_the_signals_with_a_channel_per_option(router, clie
         time.sleep(0.2)
     rows = _pull(signals, 1)
     assert rows and rows[0][0] == [*vectors["z_h"], *vectors["z_r"], *vectors["b_r"], 0.25, 0.75]
+
+
+def test_options_open_the_signals_with_the_rigs_option_set_before_any_message(router, client,
+                                                                             spawn):
+    """`nod lsl --options 3`: LabRecorder sees the three-option channels from the start."""
+    service = spawn("lsl", "--options", "3")
+    wait_for(lambda: any(r.ok is not None for r in client.liveliness().get(
+        KEYS.alive("lsl"), timeout=0.3)) or service.poll() is not None, 30, "nod lsl up")
+    assert service.poll() is None, service.log_path.read_text()[-2000:]
+    info = _inlet("nod-rig1-signals-red-blue-green").info(timeout=5)
+    assert info.channel_count() == 11
+    assert _labels(info)[-5:] == ["b_r:red", "b_r:blue", "b_r:green", "hand_x", "hand_y"]
