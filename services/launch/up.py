@@ -34,7 +34,7 @@ from pathlib import Path
 
 from services.core.cli import Parser, fail
 from services.core.clock import Clock
-from services.core.config import load_params
+from services.core.config import load_with_options
 from services.core.keys import Keys
 from services.core.lifeline import nod_command
 from services.core.rigfile import (
@@ -53,7 +53,7 @@ from services.launch.events import RigEvents
 from services.launch.init_rig import init_rig
 from services.launch.preflight import problems
 from services.launch.supervisor import RestartPolicy, ServiceSpec, Supervisor
-from services.launch.view import SessionView
+from services.launch.view import session_view
 
 log = logging.getLogger("nod.up")
 
@@ -170,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rig = load_rig(args.rig_file)
         services, with_router = plan(rig, args.host)
-        load_params(rig.params)  # a bad params file is one line here, not five dead services
+        load_with_options(rig.params)  # a bad params file is one line here, not five dead services
     except (RigFileError, ValueError, OSError) as exc:
         where = "" if rig is None or str(rig.params) in str(exc) else f"{rig.params}: "
         return fail("nod up", f"{where}{exc}")
@@ -248,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
         flush=True,
     )
     # The operator sees the session's trials here too, whoever runs the conductor.
-    view = SessionView(len(load_params(rig.params).protocol.trials))
+    view = session_view(*load_with_options(rig.params))  # its trials and option names
     subs = view.subscribe(session, keys)
     reported: set[str] = set()
     try:
