@@ -45,6 +45,7 @@ from services.experiment.bids_sidecars import (
     participants_sidecar,
     sessions_sidecar,
 )
+from services.model.geometry import COLOURS
 from services.store import records as rec
 from services.store.provenance import read_provenance
 from services.store.withdrawals import WithdrawnFilter
@@ -52,7 +53,6 @@ from services.store.withdrawals import WithdrawnFilter
 BIDS_VERSION = "1.11.1"
 NAME = "Human-robot consensus with robotic eye gaze (nod-hri)"
 NA = "n/a"
-PAPER_OPTIONS = ("red", "blue")  # a session stored before option sets were
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,7 +82,8 @@ def read_sessions(db: sqlite3.Connection, keep: WithdrawnFilter) -> list[StoredS
         out.append(StoredSession(
             session=str(session), participant=str(participant), rig=str(rig), seed=seed,
             started_ns=int(started), finished_ns=finished, status=str(status),
-            config=_json_object(config), options=options.get(session, PAPER_OPTIONS),
+            # a session stored before option sets were ran the paper's red and blue
+            config=_json_object(config), options=options.get(session, COLOURS),
             order=orders.get(session), trials=_trials(db, session),
             samples=tuple((int(r[0]), rec.Sample(r[1], bool(r[2]), *r[3:])) for r in db.execute(
                 "SELECT trial, t_ns, detected, hand_x, hand_y, z_h, z_r, b_r, ee_x, ee_y, "
