@@ -47,6 +47,7 @@ from services.experiment.bids_sidecars import (
 )
 from services.model.geometry import COLOURS
 from services.store import records as rec
+from services.store import session_rows
 from services.store.provenance import read_provenance
 from services.store.withdrawals import WithdrawnFilter
 
@@ -84,7 +85,7 @@ def read_sessions(db: sqlite3.Connection, keep: WithdrawnFilter) -> list[StoredS
             started_ns=int(started), finished_ns=finished, status=str(status),
             # a session stored before option sets were ran the paper's red and blue
             config=_json_object(config), options=options.get(session, COLOURS),
-            order=orders.get(session), trials=_trials(db, session),
+            order=orders.get(session), trials=tuple(session_rows.trials(db, session)),
             samples=tuple((int(r[0]), rec.Sample(r[1], bool(r[2]), *r[3:])) for r in db.execute(
                 "SELECT trial, t_ns, detected, hand_x, hand_y, z_h, z_r, b_r, ee_x, ee_y, "
                 "theta, distance, landmarks FROM samples WHERE session = ? ORDER BY t_ns",
@@ -92,29 +93,11 @@ def read_sessions(db: sqlite3.Connection, keep: WithdrawnFilter) -> list[StoredS
             cues=tuple(rec.CueRecord(*r) for r in db.execute(
                 "SELECT trial, attempt, cue, planned_ns, played_ns FROM cues WHERE session = ? "
                 "ORDER BY planned_ns", (session,))),
-            safety=tuple(rec.SafetyEvent(*r) for r in db.execute(
-                "SELECT trial, attempt, t_ns, device, event, reason FROM safety_events "
-                "WHERE session = ? ORDER BY t_ns", (session,))),
-            interruptions=tuple(rec.Interruption(*r) for r in db.execute(
-                "SELECT trial, attempt, t_start_ns, t_ns, reason FROM interruptions "
-                "WHERE session = ? ORDER BY trial, attempt", (session,))),
-            rig_events=tuple(rec.RigEventRecord(*r) for r in db.execute(
-                "SELECT trial, attempt, t_ns, host, service, kind, code, text FROM rig_events "
-                "WHERE session = ? ORDER BY t_ns", (session,))),
+            safety=tuple(session_rows.safety_events(db, session)),
+            interruptions=tuple(session_rows.interruptions(db, session)),
+            rig_events=tuple(session_rows.rig_events(db, session)),
         ))
     return out
-
-
-def _trials(db: sqlite3.Connection, session: str) -> tuple[rec.TrialRecord, ...]:
-    cur = db.execute("SELECT * FROM trials WHERE session = ? ORDER BY trial", (session,))
-    cols = [c[0] for c in cur.description]
-    out = []
-    for row in cur:
-        fields = dict(zip(cols, row, strict=True))  # by name: the columns a migration added
-        fields.pop("session")
-        fields["interrupted"] = bool(fields["interrupted"])
-        out.append(rec.TrialRecord(**fields))
-    return tuple(out)
 
 
 def _json_object(text: str) -> dict[str, Any]:

@@ -36,6 +36,7 @@ from typing import Any
 
 from services.model.geometry import COLOURS
 from services.model.scoring import trial_points
+from services.store import session_rows
 from services.store.records import (
     CueRecord,
     Interruption,
@@ -569,30 +570,15 @@ class Store:
 
     def rig_events(self, session: str) -> list[RigEventRecord]:
         """A session's launcher events (restarts and the like) in time order."""
-        cur = self.db.execute(
-            "SELECT trial, attempt, t_ns, host, service, kind, code, text FROM rig_events "
-            "WHERE session = ? ORDER BY t_ns",
-            (session,),
-        )
-        return [RigEventRecord(*row) for row in cur]
+        return session_rows.rig_events(self.db, session)
 
     def safety_events(self, session: str) -> list[SafetyEvent]:
         """A session's safety events in time order."""
-        cur = self.db.execute(
-            "SELECT trial, attempt, t_ns, device, event, reason FROM safety_events "
-            "WHERE session = ? ORDER BY t_ns",
-            (session,),
-        )
-        return [SafetyEvent(*row) for row in cur]
+        return session_rows.safety_events(self.db, session)
 
     def interruptions(self, session: str) -> list[Interruption]:
         """A session's broken trial starts, in order."""
-        cur = self.db.execute(
-            "SELECT trial, attempt, t_start_ns, t_ns, reason FROM interruptions "
-            "WHERE session = ? ORDER BY trial, attempt",
-            (session,),
-        )
-        return [Interruption(*row) for row in cur]
+        return session_rows.interruptions(self.db, session)
 
     def sessions(self) -> list[dict[str, Any]]:
         """Every session, oldest first."""
@@ -609,14 +595,7 @@ class Store:
             if row is None:
                 return []
             session = row[0]
-        cur = self.db.execute("SELECT * FROM trials WHERE session = ? ORDER BY trial", (session,))
-        cols = [c[0] for c in cur.description]
-        out: list[tuple[str, TrialRecord]] = []
-        for row in cur:
-            fields = dict(zip(cols, row, strict=True))  # by name: the columns a migration added
-            fields["interrupted"] = bool(fields["interrupted"])
-            out.append((fields.pop("session"), TrialRecord(**fields)))
-        return out
+        return [(session, t) for t in session_rows.trials(self.db, session)]
 
     def set_clicks(self, session: str, trial: int, clicks: int | None) -> TrialRecord:
         """Enter (or correct) a stored trial's counter clicks and rescore it; the new record.
