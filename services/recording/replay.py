@@ -35,11 +35,16 @@ vision/hand, vision/layout and experiment/trial messages go in order through `De
 recording without its decision/* channels plus the recomputed decision/z_r, z_h and b_r (same
 keys, encoded with the project's encoder, stamped with the pose's `t_ns`, logged at the pose's
 log time). One line per trial compares the final z_r and b_r, recorded vs recomputed.
+`--policy paper|adaptive|FILE.toml` makes it a robot policy's counterfactual
+(`services.recording.counterfactual`): each trial's b* and u_r as the policy would have chosen
+them from the trials played so far, and per trial what the robot would have decided beside what
+happened (`--json`: machine readable); the policy's gaze level is reported, never applied.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import threading
 from pathlib import Path
@@ -56,6 +61,7 @@ from services.core.clock import Clock
 from services.core.keys import Keys
 from services.core.node import install_signal_handlers, setup_logging
 from services.core.session import Fabric, open_session
+from services.recording.counterfactual import GAZE_NOT_APPLIED, replay_policy
 from services.recording.mcap_io import (
     McapIn,
 )
@@ -106,6 +112,15 @@ def build_parser() -> argparse.ArgumentParser:
                      help="re-run this model over the recording and write --out")
     off.add_argument("--out", type=Path, default=None, metavar="FILE2.mcap",
                      help="the recording written by --through")
+    off.add_argument("--policy", default=None, metavar="paper|adaptive|FILE.toml",
+                     help="with --through decision: each trial's b* and u_r as this robot "
+                     "policy would have chosen them, and what the robot would have decided "
+                     "(a counterfactual; the policy's gaze is reported, not applied)")
+    off.add_argument("--policy-params", type=Path, default=None, metavar="FILE.toml",
+                     help="the simulated people an adaptive policy's table is built from "
+                     "(default: the fitted person, as nod cohort's)")
+    off.add_argument("--json", action="store_true",
+                     help="with --policy: the per-trial summary as JSON on stdout")
     add_params_arg(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
     return p
@@ -133,9 +148,12 @@ def _check(args: argparse.Namespace) -> str | None:
             return "--through needs --out FILE2.mcap"
         if args.out.resolve() == args.file.resolve():
             return "--out must be another file than the recording"
+        if args.policy is None and (args.policy_params is not None or args.json):
+            return "--policy-params and --json go with --policy"
         return None
-    if args.out is not None or args.params is not None:
-        return "--out and --params go with --through"
+    if (args.out is not None or args.params is not None or args.policy is not None
+            or args.policy_params is not None or args.json):
+        return "--out, --params, --policy, --policy-params and --json go with --through"
     if args.follow and args.loop:
         return "--follow plays one session: it does not --loop"
     if (args.restamp or args.follow) and args.speed != 1.0:
@@ -145,6 +163,8 @@ def _check(args: argparse.Namespace) -> str | None:
 
 
 def _through(args: argparse.Namespace) -> int:
+    if args.policy is not None:
+        return _policy(args)
     res = through_decision(args.file, args.out, args.params)
     for t in res.trials:
         print(t.line())
@@ -152,6 +172,27 @@ def _through(args: argparse.Namespace) -> int:
         f"{PROG}: wrote {args.out}: {res.messages} messages; decision/z_r, z_h, b_r recomputed "
         f"from {res.poses} hand poses ({res.recomputed} messages), {res.left_out} recorded "
         "decision messages left out",
+        flush=True,
+    )
+    return 0
+
+
+def _policy(args: argparse.Namespace) -> int:
+    rep = replay_policy(args.file, args.out, args.params, args.policy, args.policy_params)
+    if args.json:
+        print(json.dumps(rep.as_json(), indent=2), flush=True)
+        return 0
+    res = rep.through
+    for t in res.trials:
+        print(t.line())
+    print(f"policy {rep.policy.name} (sha256 {rep.policy.sha256[:12]}…), a counterfactual: "
+          f"{GAZE_NOT_APPLIED}")
+    for p in rep.trials:
+        print(p.line())
+    print(
+        f"{PROG}: wrote {args.out}: {res.messages} messages; decision/z_r, z_h, b_r recomputed "
+        f"under policy {rep.policy.name} from {res.poses} hand poses ({res.recomputed} "
+        f"messages), {res.left_out} recorded decision messages left out",
         flush=True,
     )
     return 0

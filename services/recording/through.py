@@ -7,6 +7,11 @@ A recording of a table of N options (messages over three or more options, or the
 `options/*` keys) is refused in one line: the comparison here is of the paper's signed z_r and
 b_r, not yet of vectors. A recording of schema 1 (before one schema for any N) is read through
 `services.core.schema1`, and its copy is written in today's schema and form (JSON channels).
+
+`tune` gives a trial its own decision parameters (a robot policy's b* and u_r,
+`services.recording.counterfactual`): the engine is retuned before that trial's "setup"; a
+trial it does not name, or names with the recording's own parameters, runs on those, exactly
+as without `tune`.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ from __future__ import annotations
 import logging
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -21,7 +27,7 @@ from typing import Any, cast
 from services.core import messages as m
 from services.core.config import from_mapping, load_toml, split_options
 from services.core.keys import topic_of
-from services.model.decision import DecisionModel
+from services.model.decision import DecisionModel, DecisionParams
 from services.model.geometry import COLOURS, Colour
 from services.model.params import NodConfig
 from services.recording.mcap_io import (
@@ -50,6 +56,15 @@ class TrialComparison:
     human: str | None = None
     outcome: str | None = None
     closed: bool = False
+    going: bool = False  # after its "go": a pose in a box is the human's press
+    press_seq: int | None = None  # the hand pose of the human's press (the first in a box)
+    gaze: str | None = None  # the gaze level the recorded eyes showed (eyes/gaze), if recorded
+
+    def at_press(self) -> tuple[tuple[float, float] | None, tuple[float, float] | None]:
+        """(recorded, recomputed) (z_r, b_r) at the pose of the human's press (None: none)."""
+        if self.press_seq is None:
+            return None, None
+        return self.recorded.get(self.press_seq), self.recomputed.get(self.press_seq)
 
     def final(self) -> tuple[tuple[float, float] | None, tuple[float, float] | None]:
         """(recorded, recomputed) (z_r, b_r) at the last pose of the trial both have."""
@@ -128,17 +143,29 @@ class ThroughResult:
     messages: int
 
 
-def through_decision(src_path: Path, out_path: Path, params: Path | None) -> ThroughResult:
-    """Re-run the decision model on a recording; write it with the recomputed outputs."""
+def through_decision(
+    src_path: Path,
+    out_path: Path,
+    params: Path | None,
+    tune: Mapping[int, DecisionParams] | None = None,
+    extra_metadata: Mapping[str, str] | None = None,
+) -> ThroughResult:
+    """Re-run the decision model on a recording; write it with the recomputed outputs.
+
+    `tune`: per trial index, the decision parameters of that trial (module doc);
+    `extra_metadata`: more entries of the derived file's metadata.
+    """
     src = McapIn(src_path)
     meta = src.file_metadata()
     cfg = decision_config(meta, params)
     model = DecisionModel(cfg.decision, cfg.layout)
+    layout = cfg.layout
     out = McapOut(out_path)
     derived = {**meta, "derived_from": str(src_path), "through": "decision"}
     if params is not None:
         derived["through_params_file"] = str(params)
         derived["through_params_toml"] = Path(params).read_text(encoding="utf-8")
+    derived.update(extra_metadata or {})
     out.metadata(FILE_METADATA, derived)
     seq = dict.fromkeys(DECISION_TOPICS, 0)
     trials: dict[int, TrialComparison] = {}
@@ -170,6 +197,10 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
             if isinstance(msg, m.TrialEvent | m.TrialResult | m.Layout):
                 paper_options(msg, src_path)
             if isinstance(msg, m.TrialEvent):
+                if tune is not None and msg.phase == "setup":
+                    wanted = tune.get(msg.trial, cfg.decision)
+                    if wanted != model.params:
+                        model.retune(wanted)
                 try:
                     # a colour: `paper_options` held the event's options to red and blue
                     model.on_trial(msg.phase, msg.mode, cast(Colour | None, msg.option))
@@ -177,14 +208,20 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
                     log.warning("trial event refused: %s", exc)
                 if msg.phase == "setup":
                     current = trials[msg.trial] = TrialComparison(msg.trial, msg.mode, msg.option)
+                elif msg.phase == "go" and current is not None and current.trial == msg.trial:
+                    current.going = True
                 elif msg.phase in ("end", "interrupted") and current is not None:
                     current.closed = True
             elif isinstance(msg, m.TrialResult) and msg.trial in trials:
                 t = trials[msg.trial]
                 t.robot, t.human, t.outcome = msg.robot, msg.human, msg.outcome
+            elif isinstance(msg, m.GazeMsg):
+                if not msg.gesture and msg.trial in trials:
+                    trials[msg.trial].gaze = msg.level
             elif isinstance(msg, m.Layout):
                 try:
-                    model.set_layout(msg.paper_table())
+                    layout = msg.paper_table()
+                    model.set_layout(layout)
                 except ValueError as exc:
                     log.warning("layout refused: %s", exc)
             elif isinstance(msg, m.HandPose):
@@ -210,6 +247,9 @@ def through_decision(src_path: Path, out_path: Path, params: Path | None) -> Thr
                     recomputed += 1
                 if current is not None and not current.closed:
                     current.recomputed[msg.seq] = (res.z_r, res.b_r)
+                    if (current.going and current.press_seq is None and msg.detected
+                            and layout.pressed(msg.landmarks) is not None):
+                        current.press_seq = msg.seq
         for name, data in src.metadata:
             if name == SESSION_METADATA:
                 out.metadata(name, dict(data))
