@@ -35,6 +35,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "report": ("services.experiment.report", "per-trial results from a session database"),
     "analyze": ("services.analysis.cli", "numerical analysis and statistics"),
     "fit": ("services.fit.cli", "each participant's model parameters; a recovery study"),
+    "estimate": ("services.fit.live", "the participant's parameters after each trial, live"),
     "questionnaire": ("services.experiment.questionnaire", "enter or import Q1-Q5 answers"),
     "clicks": ("services.experiment.clicks", "enter or correct a stored trial's counter clicks"),
     "export": ("services.experiment.export", "write a session database as CSV"),
@@ -54,6 +55,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 VERBS: dict[tuple[str, str], str] = {
     ("experiment", "next"): "services.tools.operator",
     ("experiment", "pause"): "services.tools.operator",
+    ("experiment", "freeze"): "services.tools.operator",
 }
 
 
@@ -106,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
 # supervisor. Every service has closed its session, store and devices in its own `finally` by the
 # time its `main` returns, and none registers atexit work, so they end there, at once.
 ENDS_AT_ONCE = frozenset({"decision", "actuation", "eyes", "sim", "speaker", "display", "lsl",
-                          "vision", "experiment", "router"})
+                          "vision", "experiment", "router", "estimate"})
 
 
 def entry() -> int:

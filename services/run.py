@@ -75,7 +75,7 @@ MIN_SPEED, MAX_SPEED = 0.5, 10.0
 RESUME_FLAGS = (
     "speed", "listen", "rig", "params", "options", "clicks", "stale_ms", "logs", "record", "render",
     "arm_driver", "arm_port", "arm_config", "eyes_driver", "eyes_port", "eyes_config",
-    "eyes_trims", "verbose",
+    "eyes_trims", "verbose", "policy", "estimate",
 )
 
 
@@ -163,6 +163,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="record each session's keys to DIR/<session>.mcap (`nod experiment --record`)",
     )
+    p.add_argument("--policy", default=None, metavar="paper|adaptive|FILE.toml",
+                   help="the robot policy (`nod experiment --policy`, docs/adaptive.md); any but "
+                   "paper also starts `nod estimate`")
+    p.add_argument("--estimate", default=None, metavar="ARGS",
+                   help="run `nod estimate` with these flags (e.g. '--table 500'; '' for its "
+                   "defaults): the participant's parameters after each trial, stored with it")
     hw = p.add_argument_group("bench-testing real hardware with the sim participant")
     hw.add_argument("--arm-driver", default="sim", help="sim | feetech (default sim)")
     hw.add_argument("--arm-port", default=None, help="serial port of the arm")
@@ -184,7 +190,7 @@ def sim_rig(args: argparse.Namespace) -> Rig:
     What is run-specific (the participant's sim and conductor flags) rides in each service's
     `args`, as a rig file's `args` would; everything else is the rig file's vocabulary.
     """
-    services = (*SERVICES, "vision", "experiment")
+    services: tuple[str, ...] = (*SERVICES, "vision", "experiment")
     sections: dict[str, dict[str, Any]] = {
         "vision": {"source": "zenoh:sim/camera", "tracker": "aruco"},
         "sim": {"seed": args.seed, "args": [
@@ -216,7 +222,12 @@ def sim_rig(args: argparse.Namespace) -> Rig:
         conductor += ["--record", str(args.record)]
     if getattr(args, "study", None) is not None:
         conductor += ["--study", str(args.study.resolve())]
+    if getattr(args, "policy", None) is not None:
+        conductor += ["--policy", args.policy]
     sections["experiment"] = {"args": conductor}
+    if estimating(args):
+        services = (*services, "estimate")
+        sections["estimate"] = {"args": shlex.split(args.estimate or "")}
     if getattr(args, "options", None) is not None:  # a table of N boxes: every reader of it
         for service in TABLE_READERS:
             sec = sections.setdefault(service, {})
@@ -229,6 +240,12 @@ def sim_rig(args: argparse.Namespace) -> Rig:
         params=args.params,
         sections=sections,
     )
+
+
+def estimating(args: argparse.Namespace) -> bool:
+    """Whether the run starts `nod estimate`: asked for, or a policy other than the paper's."""
+    return (getattr(args, "estimate", None) is not None
+            or getattr(args, "policy", None) not in (None, "paper"))
 
 
 def child_command(service: str, args: argparse.Namespace, epoch_ns: int) -> list[str]:
@@ -286,7 +303,8 @@ def main(argv: list[str] | None = None) -> int:
     code = 1
     session = args.resume
     try:
-        rig = [*SERVICES[:-1], *(["vision"] if args.render else [])]
+        rig = [*SERVICES[:-1], *(["vision"] if args.render else []),
+               *(["estimate"] if estimating(args) else [])]
         for service in rig:  # the rig: decision, actuation, eyes, speaker (, vision) stay up
             supervisor.start(_spec(service, args, epoch_ns, logs))
         for i in range(args.participants):

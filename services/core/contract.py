@@ -73,10 +73,11 @@ class Topic(Generic[M]):
 BASE = ("seq", "t_ns")
 # Every long-running process of a rig sends a heartbeat on rig/status.
 EVERY_SERVICE = ("decision", "actuation", "eyes", "vision", "sim", "speaker", "display", "lsl",
-                 "experiment", "monitor", "launcher")
+                 "experiment", "monitor", "launcher", "estimate")
 
 VISION_HAND = Topic(
-    "vision/hand", m.HandPose, ("vision", "sim"), ("decision", "actuation", "experiment", "lsl"),
+    "vision/hand", m.HandPose, ("vision", "sim"),
+    ("decision", "actuation", "experiment", "lsl", "estimate"),
     "camera (30 Hz)", STREAM,
     "`detected` bool, `center` [x,y] (mean of the landmarks) or nil, `landmarks` up to 64 "
     "[x,y] (21 from a hand model), normalised image coords, `source`",
@@ -127,9 +128,10 @@ ACTUATION_PRESS = Topic(
     CONTROL, "`option` (the box the robot pressed), `trial`",
 )
 EYES_CMD = Topic(
-    "eyes/cmd", m.GazeMsg, ("experiment",), ("eyes", "sim"), "per cue + 20 Hz keep-alive",
-    CONTROL, "`yaw`, `pitch` (rad, + toward red), `level`, `gesture` (a pose of the "
-    "attention gesture), `trial`",
+    "eyes/cmd", m.GazeMsg, ("experiment",), ("eyes", "sim", "estimate"),
+    "per cue + 20 Hz keep-alive", CONTROL,
+    "`yaw`, `pitch` (rad, + toward red), `level`, `gesture` (a pose of the attention gesture), "
+    "`trial`",
 )
 EYES_STATE = Topic(
     "eyes/state", m.EyesStateMsg, ("eyes",), ("experiment", "estop", "lsl"), "50 Hz", STREAM,
@@ -139,21 +141,36 @@ EYES_STATE = Topic(
 EXPERIMENT_TRIAL = Topic(
     "experiment/trial", m.TrialEvent, ("experiment",),
     ("decision", "actuation", "sim", "speaker", "display", "lsl", "run", "launcher",
-     "operator", "lab"),
+     "operator", "lab", "estimate"),
     "per event", CONTROL,
     "`options`, `phase` setup/countdown/go/end/interrupted/abort/session_end, `trial`, "
     "`mode`, `option` (O, by name), `text`, `session`",
 )
 EXPERIMENT_RESULT = Topic(
-    "experiment/result", m.TrialResult, ("experiment",), ("display", "lsl", "run", "launcher"),
+    "experiment/result", m.TrialResult, ("experiment",),
+    ("display", "lsl", "run", "launcher", "estimate"),
     "per trial", RELIABLE,
     "`options`, `trial`, `mode`, `option`, `robot`, `human` (by name), `outcome`, "
     "`switches`, `violations`, `score`, `session`, `interrupted`",
 )
 EXPERIMENT_OPERATOR = Topic(
     "experiment/operator", m.OperatorCmd, ("operator",), ("experiment",), "on demand", CONTROL,
-    "the operator's start gate: `action` start (the waiting trial) or pause (hold the next "
-    "one), `trial` (the trial a start is for; 0: whichever waits), `source` (user@host)",
+    "the operator's start gate: `action` start (the waiting trial), pause (hold the next "
+    "one) or freeze (the robot policy keeps its last settings), `trial` (the trial a start is "
+    "for; 0: whichever waits), `source` (user@host)",
+)
+EXPERIMENT_POLICY = Topic(
+    "experiment/policy", m.PolicyMsg, ("experiment",), ("decision", "operator", "run"),
+    "per trial (before its setup, again at its go) and on a freeze", CONTROL,
+    "the robot policy's settings for `trial` of `session`: `policy` (its name), `sha256` (its "
+    "file's), `b_star`, `gaze_level` (toward O), `u_r`, `frozen` (the operator froze it)",
+)
+ESTIMATE_PERSON = Topic(
+    "estimate/person", m.PersonEstimate, ("estimate",), ("experiment", "run"),
+    "per trial (after its result)", RELIABLE,
+    "the participant's parameters from their trials 1..`trial` of `session` (`nod estimate`): "
+    "`trials_seen`, `seconds` (its cost), `params` [{`name`, `estimate`, `low`, `high` (the "
+    "90 % interval or a 0/1 parameter's set), `probability`}]",
 )
 SPEAKER_PLAYED = Topic(
     "speaker/played", m.CuePlayed, ("speaker",), ("experiment",), "per countdown word and go",
@@ -201,8 +218,8 @@ SAFETY_LATCH = Topic(
 _TOPICS: tuple[Topic[m.Message], ...] = (
     VISION_HAND, VISION_LAYOUT, VISION_FRAME, SIM_CAMERA, DECISION_Z_H, DECISION_Z_R, DECISION_B_R,
     ACTUATION_CMD, ACTUATION_STATE, ACTUATION_PRESS, EYES_CMD, EYES_STATE, EXPERIMENT_TRIAL,
-    EXPERIMENT_RESULT, EXPERIMENT_OPERATOR, SPEAKER_PLAYED, RIG_STATUS, RIG_EVENT, SAFETY_ESTOP,
-    SAFETY_RELEASE, SAFETY_LATCH,
+    EXPERIMENT_RESULT, EXPERIMENT_OPERATOR, EXPERIMENT_POLICY, ESTIMATE_PERSON, SPEAKER_PLAYED,
+    RIG_STATUS, RIG_EVENT, SAFETY_ESTOP, SAFETY_RELEASE, SAFETY_LATCH,
 )
 TOPICS: dict[str, Topic[m.Message]] = {t.name: t for t in _TOPICS}
 

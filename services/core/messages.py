@@ -33,6 +33,7 @@ from typing import Annotated, Any, ClassVar, Literal, TypeAlias, TypeVar
 import msgspec
 import numpy as np
 
+from services.model.gaze import GazeLevelName
 from services.model.geometry import COLOURS, Box, CommitLine, OptionsLayout, TableLayout
 from services.model.schedule import MAX_OPTIONS
 
@@ -381,9 +382,62 @@ class OperatorCmd(Message, frozen=True, kw_only=True):
     """The operator's command to the conductor: start the waiting trial, or hold the next one."""
 
     KIND: ClassVar[str] = "operator"
-    action: Literal["start", "pause"] = "start"
+    # freeze: the robot policy keeps its last settings for the rest of the session
+    action: Literal["start", "pause", "freeze"] = "start"
     trial: Trial = 0  # the trial a start is for (0: whichever waits)
     source: Text = ""  # user@host
+
+
+# --- the robot policy and the person's estimate (issue 36) -------------------------------------
+
+Setting: TypeAlias = Annotated[float, msgspec.Meta(gt=0.0, le=100.0)]  # b*, u_r
+Sha256: TypeAlias = Annotated[str, msgspec.Meta(pattern=r"^([0-9a-f]{64})?$", max_length=64)]
+Estimate: TypeAlias = Annotated[float, msgspec.Meta(ge=-1e9, le=1e9)]
+
+
+class PolicyMsg(Message, frozen=True, kw_only=True):
+    """The robot policy's settings for one trial, sent before its setup and again at its "go".
+
+    The decision engine runs the trial on its b* and u_r; the gaze level is the one the
+    conductor commands (toward O, or neutral). `frozen`: the operator froze the policy, so
+    these settings hold for the rest of the session.
+    """
+
+    KIND: ClassVar[str] = "policy"
+    session: Text = ""
+    trial: Trial = 0
+    policy: Annotated[str, msgspec.Meta(min_length=1, max_length=64)] = "paper"
+    sha256: Sha256 = ""  # the policy file's
+    b_star: Setting = 4.54
+    gaze_level: GazeLevelName = "neutral"
+    u_r: Setting = 2.24
+    frozen: bool = False
+
+
+class ParamEstimate(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """One parameter of the person: its estimate and 90 % interval (a 0/1 one: its set)."""
+
+    name: Annotated[str, msgspec.Meta(min_length=1, max_length=64)]
+    estimate: Estimate
+    low: Estimate
+    high: Estimate
+    probability: Unit | None = None  # a 0/1 parameter's probability of 1
+
+    def __post_init__(self) -> None:
+        if not self.low <= self.estimate <= self.high:
+            raise ValueError(f"{self.name}: the estimate {self.estimate} lies outside its "
+                             f"interval [{self.low}, {self.high}]")
+
+
+class PersonEstimate(Message, frozen=True, kw_only=True):
+    """The participant's parameters estimated from their trials 1..`trial` (`nod estimate`)."""
+
+    KIND: ClassVar[str] = "estimate"
+    session: Text = ""
+    trial: Trial = 0  # the last trial it read
+    trials_seen: Trial = 0  # of trials 1..trial, how many it heard (a restarted one: fewer)
+    seconds: Annotated[float, msgspec.Meta(ge=0.0, le=3600.0)] = 0.0  # the estimate's own time
+    params: Annotated[tuple[ParamEstimate, ...], msgspec.Meta(max_length=64)] = ()
 
 
 class LatchMsg(Message, frozen=True, kw_only=True):

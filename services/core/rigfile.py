@@ -56,6 +56,7 @@ from services.model.safety import SafetyParams
 # operator starts it per participant; `sim` stands in for vision (a rig without a camera).
 SERVICES = (
     "decision", "actuation", "eyes", "vision", "sim", "speaker", "display", "lsl", "monitor",
+    "estimate",
 )
 # What a rig cannot run a trial without (vision or the sim that stands in for it).
 REQUIRED = ("decision", "actuation", "eyes", "vision")
@@ -163,6 +164,7 @@ _SECTION_KEYS: dict[str, set[str]] = {
     "display": {"http", "args"},  # http: HOST:PORT the page is served on
     "lsl": {"args"},  # LSL's own settings: lsl_api.cfg ($LSLAPICFG)
     "monitor": {"args"},
+    "estimate": {"args"},  # `nod estimate`: --table K, --prior, --person
 }
 
 

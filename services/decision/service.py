@@ -39,11 +39,13 @@ from services.core.session import Fabric
 from services.model.decision import (
     DecisionModel,
     DecisionOutput,
+    DecisionParams,
     OptionsDecision,
     OptionsDecisionOutput,
 )
 from services.model.geometry import COLOURS, Colour, Point
 from services.model.params import NodConfig
+from services.model.policy import PolicySettings, decision_for
 
 log = logging.getLogger("nod.decision")
 
@@ -97,6 +99,10 @@ class EngineSeam(ABC, Generic[E]):
     def look_ahead(self, engine: E) -> None:
         """Work the engine can do before the next pose arrives (by default none)."""
 
+    def retune(self, engine: E, params: DecisionParams) -> None:
+        """Run the engine on a trial's parameters (a robot policy's b*, u_r): the paper's only."""
+        raise ValueError("a robot policy runs on the paper's two-option table only")
+
 
 class PaperSeam(EngineSeam[DecisionModel]):
     """The paper's two options: `DecisionModel`, its signed z sent as (z, -z)."""
@@ -133,6 +139,11 @@ class PaperSeam(EngineSeam[DecisionModel]):
     def look_ahead(self, engine: DecisionModel) -> None:
         """The next interval's full RK4 steps, while no pose waits (`DecisionModel.look_ahead`)."""
         engine.look_ahead()
+
+    def retune(self, engine: DecisionModel, params: DecisionParams) -> None:
+        """The kernel's own retune (its state kept: the trial's reset starts it anew)."""
+        if params != engine.params:
+            engine.retune(params)
 
 
 class OptionsSeam(EngineSeam[OptionsDecision]):
@@ -185,6 +196,10 @@ class DecisionService(Generic[E]):
         """The engine of `cfg.decision` over the table of the options `names` (default config)."""
         cfg = cfg if cfg is not None else NodConfig()
         self.node = node
+        self.params = cfg.decision  # the trial's own when a robot policy sent it settings
+        self.envelope = cfg.policy
+        self.settings: dict[int, PolicySettings] = {}  # a robot policy's, by trial (recent)
+        self.trial = 0  # the trial set up last
         self.names = tuple(names)
         self.seam: EngineSeam[E] = engine_seam(self.names)(cfg, self.names)
         self.model: E = self.seam.engine()
@@ -198,6 +213,7 @@ class DecisionService(Generic[E]):
         node.subscribe("vision/hand", self.on_hand)
         node.subscribe("vision/layout", self.on_layout)
         node.subscribe("experiment/trial", self.on_trial)
+        node.subscribe("experiment/policy", self.on_policy)
 
     def on_hand(self, pose: m.HandPose) -> None:
         """Advance the dynamics to the pose's time and publish ẑ_h, z_r, b_r."""
@@ -237,12 +253,42 @@ class DecisionService(Generic[E]):
         m.check_options(msg, self.names)
         self.seam.use_layout(self.model, msg)
 
+    def on_policy(self, msg: m.PolicyMsg) -> None:
+        """A robot policy's settings for a trial: its b* and u_r, from its setup (or its go).
+
+        Checked against this service's own envelope (the params file's `[policy]`): settings
+        outside it are refused, and the trial runs on the params file's own.
+        """
+        s = PolicySettings(msg.b_star, msg.gaze_level, msg.u_r)
+        if not self.envelope.contains(s):
+            raise ValueError(f"policy {msg.policy}: trial {msg.trial}'s b*={s.b_star:g}, "
+                             f"u_r={s.u_r:g} lie outside [policy] {self.envelope}; refused")
+        if len(self.names) != 2:
+            raise ValueError("a robot policy runs on the paper's two-option table only; refused")
+        self.settings[msg.trial] = s
+        while len(self.settings) > 64:
+            del self.settings[min(self.settings)]
+        if msg.trial == self.trial:  # its trial is set up already: from now on
+            self._tune(msg.trial)
+
+    def _tune(self, trial: int) -> None:
+        """The engine on trial `trial`'s parameters: its policy's settings, else the file's."""
+        s = self.settings.get(trial)
+        params = self.params if s is None else decision_for(self.params, s)
+        if len(self.names) == 2:
+            self.seam.retune(self.model, params)
+        if s is not None:
+            log.debug("trial %d: b*=%g, u_r=%g (robot policy)", trial, s.b_star, s.u_r)
+
     def on_trial(self, msg: m.TrialEvent) -> None:
         """Reset at setup and at "go": opinions form from the cue on (Algorithm 1 trigger)."""
         m.check_options(msg, self.names)
         option = self.seam.option(msg.option)
         if msg.phase == "setup":
             self.model = self.seam.at_setup(self.model)
+        if msg.phase in ("setup", "go"):
+            self.trial = msg.trial
+            self._tune(msg.trial)
         if self.model.on_trial(msg.phase, msg.mode, option):
             shown = msg.option if msg.mode == "consensus" else None
             log.info("trial %d %s: mode=%s O=%s", msg.trial, msg.phase, msg.mode, shown)

@@ -37,6 +37,7 @@ from services.experiment.fields import GazeFields, TrialFields
 from services.experiment.hold import SessionHold
 from services.experiment.keyspace import ArmReading, KeySpace, Output, PaperKeys
 from services.experiment.operator import EnterStarts, OperatorGate
+from services.experiment.policy_link import PolicyChoice, PolicyLink
 from services.experiment.presses import Box, RobotPresses
 from services.experiment.resume import attempts_so_far, file_open_attempt
 from services.experiment.rig_watch import RigWatch
@@ -47,6 +48,7 @@ from services.model.params import NodConfig
 from services.model.protocol import Cue, SessionProtocol, TrialEnd, TrialSpec
 from services.model.scoring import points_said
 from services.store import Interruption, Store, TrialRecord
+from services.store.estimates import ParamRow, TrialEstimate, write_estimate
 
 log = logging.getLogger("nod.experiment")
 NS = 1e-9
@@ -59,6 +61,10 @@ GAZE_KEEPALIVE_NS = 50_000_000
 # first gaze, then it settles 0.5 s): only a hold longer than this (wall s), or an e-stop, is
 # shown to the operator.
 START_QUIET_S = 3.0
+# At a session's end, how long (wall s) the conductor waits for the last trial's estimate when
+# an estimator (`nod estimate`) is alive: every trial is stored before, so this delays only the
+# session's end line, and only while an estimate is owed.
+ESTIMATE_WAIT_S = 5.0
 
 
 class Conductor:
@@ -73,6 +79,7 @@ class Conductor:
         console: SessionConsole | None = None,
         resume_at: tuple[int, int] | None = None,
         keys: KeySpace | None = None,
+        policy: PolicyChoice | None = None,
     ):
         """The conductor of one session on `node`'s rig, storing into `store`.
 
@@ -81,6 +88,8 @@ class Conductor:
         starts (a device's safe stop while no conductor ran) are filed under it, not trial 0.
         `keys`: the session's key space (its configuration is the session's); default the
         paper's two options on `cfg`.
+        `policy`: the robot policy that chooses each trial's b*, gaze level and u_r
+        (`services.experiment.policy_link`); None: the paper's robot, with nothing sent.
         """
         self.node = node
         self.console = console or SessionConsole()
@@ -117,7 +126,15 @@ class Conductor:
         node.subscribe("safety/release", self.on_estop)
         node.subscribe("rig/event", lambda msg: self.rig.rig_event(self._now_ns(), msg))
         self.gate = OperatorGate()
-        node.subscribe("experiment/operator", self.gate.command)
+        node.subscribe("experiment/operator", self.on_operator)
+        if policy is not None and len(self.keys.names) != 2:
+            raise ValueError("a robot policy runs on the paper's two-option table only")
+        self.policy = PolicyLink(node, cfg, store, policy) if policy is not None else None
+        # The person's estimate after each trial (`nod estimate`, when one runs): taken on the
+        # fabric's thread, stored by the session's (the store's one writer).
+        self._estimates: list[m.PersonEstimate] = []
+        self._estimated = 0  # the last trial whose estimate is stored
+        node.subscribe("estimate/person", self.on_estimate)
         self.enter_starts = EnterStarts(self.console, self.gate, node.lock)
         self.cues = CueLog()  # the countdown as played, stored with its trial
         node.subscribe("speaker/played", self.cues.on_played)
@@ -191,6 +208,46 @@ class Conductor:
         """An e-stop command: it breaks a running trial and holds the session until released."""
         self.rig.estop(msg.engaged, msg.reason, msg.source, self._now_ns())
 
+    def on_operator(self, msg: m.OperatorCmd) -> None:
+        """The operator's command: the start gate's (start, pause), or the policy's freeze."""
+        if msg.action != "freeze":
+            self.gate.command(msg)
+        elif self.policy is None:  # nothing to freeze: no confirmation is sent
+            log.warning("freeze from %s: this session runs no robot policy", msg.source or "?")
+        else:
+            self.policy.freeze(msg.source)
+            self.console.note("robot policy frozen: its last settings hold for the session")
+
+    def on_estimate(self, msg: m.PersonEstimate) -> None:
+        """An estimate of this session's participant: kept for the session's thread to store."""
+        if msg.session == self.session and self.session:
+            self._estimates.append(msg)
+
+    def _store_estimates(self) -> None:
+        """Store the estimates heard since the last call (main thread)."""
+        with self.node.lock:
+            heard, self._estimates = self._estimates, []
+        for e in heard:
+            rows = tuple(ParamRow(p.name, p.estimate, p.low, p.high, p.probability)
+                         for p in e.params)
+            write_estimate(self.store, self.session,
+                           TrialEstimate(e.trial, e.trials_seen, e.seconds, rows))
+            self._estimated = max(self._estimated, e.trial)
+
+    def _await_last_estimate(self) -> None:
+        """Wait (at most ESTIMATE_WAIT_S) for the last stored trial's estimate, if one is owed."""
+        if not self.records or not self.node.peer_alive("estimate"):
+            return
+        last = self.records[-1].trial
+        deadline = time.monotonic() + ESTIMATE_WAIT_S
+        while self._estimated < last and time.monotonic() < deadline:
+            if self.node.stop.wait(0.02):
+                return
+            self._store_estimates()
+        if self._estimated < last:
+            log.warning("no estimate of trial %d came within %g s of the session's end",
+                        last, ESTIMATE_WAIT_S)
+
     def on_press(self, trial: int, option: Box) -> None:
         """The robot pressed a box: taken once the arm's own state confirms it."""
         self.presses.press(trial, option)
@@ -249,7 +306,11 @@ class Conductor:
             if first_trial > len(self.proto.trials):  # the lost attempt was the last one's last
                 status = "complete"
                 return self.records
-            protocol = self.protocol = SessionProtocol(self.proto, first_trial, attempts_before)
+            if self.policy is not None:  # its history: the trials stored before a resume
+                self.policy.begin(session, [t for _, t in self.store.trials(session)])
+            protocol = self.protocol = SessionProtocol(
+                self.proto, first_trial, attempts_before,
+                planner=self.policy.plan if self.policy is not None else None)
             self._wait_for_a_safe_rig()
             with self.node.lock:
                 cues = protocol.start(self._now_s())
@@ -289,8 +350,10 @@ class Conductor:
                         robot_pressed=self.presses.confirmed is not None,
                     )
             status = "complete"
+            self._await_last_estimate()
         finally:
             self.enter_starts.withdraw()
+            self._store_estimates()
             with self.node.lock:
                 events = self.rig.take_events()
             self.store.write_events(session, events)
@@ -372,6 +435,8 @@ class Conductor:
             end_ns = min(int(due_s * 1e9), end_ns)
         if self.node.stop.wait(max(0.0, self.node.clock.wall_seconds((end_ns - now) * NS))):
             raise KeyboardInterrupt
+        if self._estimates:
+            self._store_estimates()
 
     def _perform(self, protocol: SessionProtocol, cues: list[Cue]) -> None:
         """Do what the protocol asks, in order (an "end" cue may bring the next trial's cues)."""
@@ -399,6 +464,8 @@ class Conductor:
                 # attempt open, and the resumed session stores it as interrupted.
                 started = self._now_ns()
                 self.store.begin_attempt(self.session, spec.index, protocol.attempt, started)
+                if self.policy is not None:  # the settings it runs on, stored before it runs
+                    self.policy.store_chosen()
                 with self.node.lock:
                     self.trial = spec.index
                     self.node.activity["trial"] = spec.index
@@ -413,6 +480,8 @@ class Conductor:
                 self._event("countdown", cue.text, ev)
             elif cue.kind == "go":
                 with self.node.lock:
+                    if self.policy is not None:  # again: a decision restarted since setup
+                        self.policy.send(spec.index)
                     go = self._event("go", cue.text, ev)
                     judge = self.keys.judge(self.layout, mode)
                     self.trial_samples = TrialSamples(go.t_ns, judge)
@@ -526,6 +595,8 @@ class Conductor:
             events += rec.drop_records(spec.index, attempt, self._now_ns())
         self.store.write_trial(self.session, record, samples, events, cues)
         self.records.append(record)
+        if self.policy is not None:
+            self.policy.ended(record)
         if announce:
             self._announce(record)
         return record

@@ -10,6 +10,7 @@ starts the recorder when asked, and runs the session. One command line for any o
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import logging
@@ -32,6 +33,8 @@ from services.experiment.console import make_console
 from services.experiment.keyspace import key_space
 from services.experiment.order import participant_problem, session_keys
 from services.experiment.params_check import ParamsCheck
+from services.experiment.policy_link import load_choice
+from services.experiment.policy_link import resume_problem as policy_resume_problem
 from services.experiment.recording import RecorderProcess, recorder_command, recording_path
 from services.experiment.resume import (
     prepare_resume,
@@ -157,6 +160,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="the study file this session belongs to (`nod study start` gives it): its name, "
         "consent version, allocation seed and pre-registration go into the session's provenance",
     )
+    p.add_argument(
+        "--policy",
+        default=None,
+        metavar="paper|adaptive|FILE.toml",
+        help="the robot policy that chooses each trial's b*, gaze level and u_r inside the "
+        "params file's [policy] envelope (docs/adaptive.md); its name and hash are stored with "
+        "the session, its settings with each trial; default: the paper's robot, nothing sent",
+    )
     add_options_arg(p)
     return p
 
@@ -195,6 +206,16 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         return fail("nod experiment", exc)
     keys = key_space(cfg, schedule)  # the paper's two options, or a table of N boxes
+    policy = None
+    if args.policy is not None:
+        try:
+            if keys.n_options != 2:
+                raise ValueError("a robot policy runs on the paper's two-option table only")
+            policy = load_choice(args.policy, keys.cfg)
+        except (ValueError, OSError) as exc:
+            store.close()
+            return fail("nod experiment", f"--policy: {exc}")
+        prov = dataclasses.replace(prov, policy_file=policy.name, policy_sha256=policy.sha256)
     if args.resume is not None and (
         problem := resume_problem(store, args.resume, args.rig, keys.names)
     ):
@@ -225,6 +246,9 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         participant, seed, first = point.participant, point.seed, point.first
         lost, resume_at = point.lost, point.resume_at
+    if args.resume is not None and (problem := policy_resume_problem(store, args.resume, policy)):
+        store.close()
+        return fail("nod experiment", problem)
     warn_of_interrupted(store, args.resume)
     try:
         node = Node(
@@ -242,7 +266,8 @@ def main(argv: list[str] | None = None) -> int:
     hosts = HostsSeen()  # every service's host, from its heartbeats (the session's provenance)
     hosts.add("experiment", socket.gethostname())
     node.subscribe("rig/status", lambda status: hosts.add(status.service, status.host))
-    conductor = Conductor(node, keys.cfg, store, clicks, console, resume_at=resume_at, keys=keys)
+    conductor = Conductor(node, keys.cfg, store, clicks, console, resume_at=resume_at, keys=keys,
+                          policy=policy)
     watch_rivals(claim, node, conductor.rig, console.note)
     # The devices' states first, then this conductor's liveliness: a safe stop they hold
     # because no conductor ran is stored before they clear it (see `hear_the_devices`).

@@ -36,6 +36,8 @@ NOT_INPUTS = {
     "the replayed one, and the old ones would be stored under the new trials",
     "safety/release": "an operator's act, never replayed from a file: it could release an "
     "e-stop engaged live",
+    "estimate/person": "the recorded session's estimates of its person: a live `nod estimate` "
+    "gives the replayed session's own, and the old ones would be stored under it",
 }
 NEVER_UNLESS_NAMED = ("safety/release",)
 ANCHOR_PHASES = ("setup", "go")

@@ -66,6 +66,23 @@ def write_policy(
             [(session, i, s.b_star, s.gaze_level, s.u_r) for i, s in sorted(trials.items())])
 
 
+def begin_policy(store: Store, session: str, policy: str, sha256: str,
+                 kind: str | None = None) -> None:
+    """A session's policy on record as it starts (a resumed session's stays as it was)."""
+    with store.db:
+        store.db.executescript(SCHEMA)
+    with store.db:
+        store.db.execute("INSERT OR IGNORE INTO policy_sessions VALUES (?, ?, ?, ?)",
+                         (session, policy, sha256, kind))
+
+
+def write_policy_trial(store: Store, session: str, trial: int, s: PolicySettings) -> None:
+    """The settings the policy chose for one trial (a repeated trial's: the last chosen)."""
+    with store.db:
+        store.db.execute("INSERT OR REPLACE INTO policy_trials VALUES (?, ?, ?, ?, ?)",
+                         (session, trial, s.b_star, s.gaze_level, s.u_r))
+
+
 def read_policies(store: Store) -> dict[str, SessionPolicy]:
     """Every session's stored policy, by session (empty for a store without any)."""
     with store.db:

@@ -1,12 +1,14 @@
-"""`nod experiment next | pause`: the operator's start gate, from any host of the rig.
+"""`nod experiment next | pause | freeze`: the operator's commands, from any host of the rig.
 
 `next` starts the trial that waits for the operator (`[protocol] gate = true`, or after a
 pause) and waits until the conductor announces its setup on `experiment/trial` (one key space,
 schema 3: one command for any option set); `pause`
-holds the next trial until a `next`. Each command is sent once, reliably, when the conductor
-listens: a repeat could start the trial after the one meant. `--rig-file RIG.toml` takes the
-rig, its router (or, under rig.tls, the control station's identity) from the rig file, as
-`nod experiment` does.
+holds the next trial until a `next`; `freeze` keeps the robot policy's last settings for the
+rest of the session (`nod experiment --policy`), and succeeds only once the conductor confirms
+it on `experiment/policy` (a session without a policy never does). Each command is sent once,
+reliably, when the conductor listens: a repeat could start the trial after the one meant.
+`--rig-file RIG.toml` takes the rig, its router (or, under rig.tls, the control station's
+identity) from the rig file, as `nod experiment` does.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ def build_parser(action: str) -> argparse.ArgumentParser:
     what = {
         "next": "Start the trial that waits for the operator; waits until it is set up.",
         "pause": "Hold the next trial until `nod experiment next` (the current one goes on).",
+        "freeze": "Keep the robot policy's last settings for the rest of the session.",
     }[action]
     p = fabric_parser(f"{PROG} {action}", what)
     p.add_argument("--rig-file", type=Path, default=None, metavar="RIG.toml",
@@ -81,7 +84,13 @@ def main(argv: list[str]) -> int:
             if ev.phase == "setup" and trial in (0, ev.trial):
                 started.set()
 
+        def on_policy(msg: m.PolicyMsg) -> None:
+            if msg.frozen and action == "freeze":
+                started.set()
+
         node.subscribe("experiment/trial", on_trial)
+        if action == "freeze":
+            node.subscribe("experiment/policy", on_policy)
         pub = node.publisher("experiment/operator")
         deadline = time.monotonic() + args.timeout
         while not pub.matched() and time.monotonic() < deadline:
@@ -89,13 +98,20 @@ def main(argv: list[str]) -> int:
         if not pub.matched():
             return fail(prog, "the conductor did not subscribe in time")
         source = f"{getpass.getuser()}@{socket.gethostname()}"
-        pub.put(action="start" if action == "next" else "pause", trial=trial, source=source)
+        pub.put(action="start" if action == "next" else action, trial=trial, source=source)
         if action == "pause":
             print(f"{prog}: sent; the next trial waits for `nod experiment next`")
             return 0
         if started.wait(max(0.0, deadline - time.monotonic())):
-            print(f"{prog}: the trial is set up")
+            print(f"{prog}: " + ("the trial is set up" if action == "next" else
+                                 "the policy is frozen: its last settings hold"))
             return 0
+        if action == "freeze":
+            print(f"{prog}: the conductor did not confirm a freeze within {args.timeout:g} s "
+                  "(does the session run a policy, `nod experiment --policy`? a freeze "
+                  "before its first trial is confirmed when that trial is chosen)",
+                  file=sys.stderr)
+            return 1
         print(f"{prog}: no trial started within {args.timeout:g} s (does one wait for the "
               "operator? the conductor starts it once the rig is safe)", file=sys.stderr)
         return 1

@@ -21,7 +21,9 @@ from services.decision.service import DecisionService
 from services.eyes.service import EyesService
 from services.eyes.servos import SimServoDriver
 from services.model.decision import DecisionModel, OptionsDecision
+from services.model.geometry import COLOURS
 from services.model.params import NodConfig
+from services.model.policy import PolicySettings, decision_for
 from services.model.safety import SafetyParams
 from services.model.schedule import OptionsSchedule
 from tests.integration.conftest import Collector, wait_for
@@ -136,6 +138,50 @@ def test_live_decision_publishes_exactly_the_models_values(router, endpoint, cli
         assert [got(msg) for msg in by_seq] == [values(e.b_r) for e in expected]
         last = expected[-1].b_r
         assert (last if n_options == 2 else last[0]) > 0  # consensus toward O did run eq 6
+    finally:
+        for node in (decision, camera, conductor):
+            node.close()
+
+
+@pytest.mark.parametrize("inside", [True, False], ids=["inside", "outside the envelope"])
+def test_decision_runs_a_trial_on_its_policys_settings_and_refuses_settings_outside(
+        router, endpoint, client, inside):
+    # The conductor's policy sends trial 5's b* and u_r before its "go": the service's values
+    # are then exactly those of the kernel on those settings. Settings outside the params
+    # file's [policy] envelope are refused (counted as dropped): the trial runs on the file's.
+    cfg = NodConfig()
+    settings = PolicySettings(6.0 if inside else 9.0, "extreme", 1.8)
+    fabric = Fabric(connect=(endpoint,))
+    decision = Node("decision", fabric)
+    DecisionService(decision, cfg, COLOURS)
+    decision.ready()
+    camera, conductor = Node("sim", fabric), Node("experiment", fabric)
+    z_r = Collector(client, camera.keys.topic("decision/z_r"), m.Opinions)
+    trial = conductor.publisher("experiment/trial")
+    policy = conductor.publisher("experiment/policy")
+    hands = camera.publisher("vision/hand")
+    try:
+        wait_for(lambda: hands._pub.matching_status.matching, 5.0, "decision subscribed")
+        policy.put(session="s", trial=5, policy="mine", b_star=settings.b_star,
+                   gaze_level=settings.gaze_level, u_r=settings.u_r)
+        wait_for(lambda: decision.received["experiment/policy"] == 1, 5.0, "the settings")
+        assert (decision.bad["experiment/policy"] == 0) == inside
+        trial.put(phase="go", trial=5, mode="consensus", option="red", options=COLOURS)
+        wait_for(lambda: decision.received["experiment/trial"] == 1, 5.0, "the trial event")
+        reference = DecisionModel(decision_for(cfg.decision, settings) if inside
+                                  else cfg.decision, cfg.layout)
+        reference.reset("consensus", "red")
+        stream = _stream(45)
+        for i, (t_ns, pts) in enumerate(stream):
+            center = (sum(p[0] for p in pts) / 21, sum(p[1] for p in pts) / 21)
+            hands.put(t_ns=t_ns, detected=True, center=center, landmarks=tuple(pts))
+            wait_for(lambda n=i + 1: len(z_r.messages) >= n, 30.0, f"z_r of pose {i + 1}")
+        expected = [reference.on_hand(t, pts).z_r for t, pts in stream]
+        got = [msg.values[0] for msg in sorted(z_r.messages, key=lambda msg: msg.src_seq)]
+        assert got == expected
+        paper = DecisionModel(cfg.decision, cfg.layout)
+        paper.reset("consensus", "red")
+        assert ([paper.on_hand(t, pts).z_r for t, pts in stream] != expected) == inside
     finally:
         for node in (decision, camera, conductor):
             node.close()

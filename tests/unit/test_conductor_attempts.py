@@ -38,7 +38,7 @@ def conductor(
                     repeat_interrupted=repeat)
     c = Conductor.__new__(Conductor)  # no node: the resume rule needs none of the fabric
     c.cfg, c.proto, c.store, c.session, c.records = cfg, proto, store, "s1", []
-    c.keys = keys
+    c.keys, c.policy = keys, None
     c.node = SimpleNamespace(lock=threading.Lock(), clock=SimpleNamespace(now_ns=lambda: 9))
     c.rig = SimpleNamespace(take_events=lambda: [])
     c.cues = SimpleNamespace(take=lambda: [])

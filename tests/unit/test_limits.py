@@ -40,6 +40,8 @@ def largest(t: mi.Type):
         return tuple(largest(i) for i in t.item_types)
     if isinstance(t, mi.VarTupleType):
         return tuple(largest(t.item_type) for _ in range(t.max_length))
+    if isinstance(t, mi.StructType):  # a nested record (a parameter's estimate)
+        return t.cls(**{f.name: largest(f.type) for f in t.fields})
     raise AssertionError(f"no largest value for {t}")
 
 
@@ -51,6 +53,11 @@ def wide(t: mi.Type, value):
         return WIDE * t.max_length
     if isinstance(t, mi.VarTupleType):
         return distinct(tuple(wide(t.item_type, v) for v in value))
+    if isinstance(t, mi.StructType):
+        import msgspec
+
+        return msgspec.structs.replace(
+            value, **{f.name: wide(f.type, getattr(value, f.name)) for f in t.fields})
     return value
 
 
