@@ -43,11 +43,14 @@ from services.experiment.bids_sidecars import (
     channels_sidecar,
     events_sidecar,
     participants_sidecar,
+    policy_columns,
     sessions_sidecar,
 )
 from services.model.geometry import COLOURS
 from services.store import records as rec
 from services.store import session_rows
+from services.store.estimates import read_estimates
+from services.store.policies import read_policies
 from services.store.provenance import read_provenance
 from services.store.withdrawals import WithdrawnFilter
 
@@ -76,6 +79,7 @@ def read_sessions(db: sqlite3.Connection, keep: WithdrawnFilter) -> list[StoredS
         "SELECT session, participant, rig, seed, started_ns, finished_ns, status, config "
         "FROM sessions ORDER BY started_ns, session"
     ).fetchall()
+    policies, estimates = read_policies(db), read_estimates(db)
     out = []
     for session, participant, rig, seed, started, finished, status, config in rows:
         if not keep.keeps(str(participant)):
@@ -96,6 +100,7 @@ def read_sessions(db: sqlite3.Connection, keep: WithdrawnFilter) -> list[StoredS
             safety=tuple(session_rows.safety_events(db, session)),
             interruptions=tuple(session_rows.interruptions(db, session)),
             rig_events=tuple(session_rows.rig_events(db, session)),
+            policy=policies.get(session), estimates=tuple(estimates.get(session, ())),
         ))
     return out
 
@@ -225,7 +230,33 @@ def beh_rows(s: StoredSession) -> tuple[list[str], list[list[str]]]:
              _cell(t.outcome), _cell(t.switches), _cell(t.violations), _cell(t.clicks),
              _cell(t.score), " ".join(t.end_reason.split()) or NA, _cell(t.interrupted),
              _cell(t.attempts)] for t in s.trials]
+    if s.policy is not None:  # the settings the robot policy chose for each trial
+        header += ["policy_b_star", "policy_u_r"]
+        for t, row in zip(s.trials, rows, strict=True):
+            chosen = s.policy.trials.get(t.trial)
+            row += [NA, NA] if chosen is None else [_cell(chosen.b_star), _cell(chosen.u_r)]
+    names = estimate_names(s)
+    if names:  # the person as estimated after each trial (`nod estimate`)
+        header += ["estimate_trials_seen"] + [f"estimate_{n}{part}" for n in names
+                                              for part in ("", "_low", "_high")]
+        after = {e.trial: e for e in s.estimates}
+        for t, row in zip(s.trials, rows, strict=True):
+            e = after.get(t.trial)
+            by = {p.name: p for p in e.params} if e is not None else {}
+            row.append(_cell(e.trials_seen) if e is not None else NA)
+            for n in names:
+                p = by.get(n)
+                row += [NA] * 3 if p is None else [_cell(p.estimate), _cell(p.low),
+                                                   _cell(p.high)]
     return header, rows
+
+
+def estimate_names(s: StoredSession) -> list[str]:
+    """The parameters estimated in a session, in the estimator's order."""
+    names: list[str] = []
+    for e in s.estimates:
+        names += [p.name for p in e.params if p.name not in names]
+    return names
 
 
 def event_rows(s: StoredSession, events: Sequence[Event]) -> tuple[list[str], list[list[str]]]:
@@ -356,7 +387,8 @@ def _write_session(s: StoredSession, where: Path, prefix: str,
     stem = f"{prefix}_task-{TASK}"
     write_tsv(beh / f"{stem}_beh.tsv", *beh_rows(s))
     write_json(beh / f"{stem}_beh.json", {**beh_sidecar(
-        list(s.options), [t.gaze_level for t in s.trials], note_of(s)), **carried})
+        list(s.options), [t.gaze_level for t in s.trials], note_of(s)),
+        **policy_columns(s.policy is not None, estimate_names(s)), **carried})
     events = event_rows(s, session_events(s))
     write_tsv(beh / f"{stem}_events.tsv", *events)
     write_json(beh / f"{stem}_events.json", events_sidecar(note_of(s), package_version()))

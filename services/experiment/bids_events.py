@@ -27,6 +27,8 @@ from typing import Any
 
 from services.model.geometry import Box, OptionsLayout
 from services.model.schedule import ProtocolParams
+from services.store.estimates import TrialEstimate
+from services.store.policies import SessionPolicy
 from services.store.records import (
     CueRecord,
     Interruption,
@@ -83,6 +85,8 @@ class StoredSession:
     safety: tuple[SafetyEvent, ...]
     interruptions: tuple[Interruption, ...]
     rig_events: tuple[RigEventRecord, ...]
+    policy: SessionPolicy | None = None  # the robot policy it ran (None: the paper's robot)
+    estimates: tuple[TrialEstimate, ...] = ()  # the person estimated after each trial
 
     @property
     def simulated(self) -> bool:

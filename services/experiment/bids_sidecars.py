@@ -127,6 +127,30 @@ def beh_sidecar(options: list[str], gaze_levels: list[str], note: str) -> dict[s
     }
 
 
+def policy_columns(policy: bool, estimated: Iterable[str]) -> dict[str, Any]:
+    """beh.json's entries for the columns of a robot policy's settings and of the estimates."""
+    out: dict[str, Any] = {}
+    if policy:
+        out["policy_b_star"] = {"Description": "eq 6's bias threshold b* the robot policy chose "
+                                "for the trial (its gaze level is gaze_level)"}
+        out["policy_u_r"] = {"Description": "eq 1's robot attention u_r the robot policy chose "
+                             "for the trial"}
+    names = list(estimated)
+    if names:
+        out["estimate_trials_seen"] = {
+            "Description": "of the trials up to this one, how many the live estimator (nod "
+            "estimate) heard; the estimate columns are its estimate after this trial"}
+    for n in names:
+        out[f"estimate_{n}"] = {"Description": f"the participant's {n} estimated from their "
+                                "trials so far (nod fit's estimator for partial sessions; a 0/1 "
+                                "parameter: its most likely value)"}
+        out[f"estimate_{n}_low"] = {"Description": f"the lower end of {n}'s 90 % interval (a "
+                                    "0/1 parameter: the least value of its 90 % set)"}
+        out[f"estimate_{n}_high"] = {"Description": f"the upper end of {n}'s 90 % interval (a "
+                                     "0/1 parameter: the largest value of its 90 % set)"}
+    return out
+
+
 def events_sidecar(note: str, version: str) -> dict[str, Any]:
     """events.json: the columns of events.tsv."""
     return {

@@ -6,7 +6,10 @@ played them: planned and played onset, rig-clock ns), fits.csv (`nod fit`'s per-
 estimates and 90 % intervals, identifiable parameters only), provenance.csv (one row per
 conductor run of a session: code version and sources digest, params hash and the files'
 SHA-256, study, consent version, allocation seed, pre-registration, hosts as JSON, the
-recording and its SHA-256; `services.core.provenance`), withdrawn_aggregates.csv (the anonymous
+recording and its SHA-256; `services.core.provenance`), policies.csv (the robot policy's
+b*, gaze level and u_r per trial, with the policy's name and SHA-256: docs/adaptive.md),
+estimates.csv (the participant's parameters estimated after each trial by `nod estimate`:
+estimate, 90 % interval, a 0/1 parameter's probability), withdrawn_aggregates.csv (the anonymous
 per-trial outcome counts of participants withdrawn with `aggregate`) and participants.csv (each
 participant's consent record — every column of `participants`,
 demographics as JSON — and their withdrawal, if any: `withdrawn_ns`, `withdrawal_reason`,
@@ -103,6 +106,20 @@ QUERIES: dict[str, str] = {
     ),
     "withdrawn_aggregates": (
         "SELECT * FROM withdrawn_aggregates ORDER BY options, trial, mode, outcome"
+    ),
+    # The robot policy's settings per trial, with the policy (its name and file's SHA-256) and,
+    # for a simulated participant, the kind of person the simulator drew.
+    "policies": (
+        "SELECT t.session, s.participant, p.policy, p.policy_sha256, p.kind, t.trial, t.b_star, "
+        "t.gaze_level, t.u_r FROM policy_trials t LEFT JOIN policy_sessions p ON p.session = "
+        "t.session LEFT JOIN sessions s ON s.session = t.session "
+        "ORDER BY s.started_ns, t.session, t.trial"
+    ),
+    # The participant estimated after each trial (`nod estimate`): one row per parameter.
+    "estimates": (
+        "SELECT e.session, s.participant, e.trial, e.trials_seen, e.seconds, e.name, e.estimate, "
+        "e.low, e.high, e.probability FROM person_estimates e LEFT JOIN sessions s ON "
+        "s.session = e.session ORDER BY s.started_ns, e.session, e.trial, e.name"
     ),
 }
 

@@ -8,24 +8,10 @@ how long the estimate took. A session run without `nod estimate` has no rows.
 
 from __future__ import annotations
 
+import sqlite3
 from dataclasses import dataclass
 
 from services.store.store import Store
-
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS person_estimates (
-    session      TEXT NOT NULL,
-    trial        INTEGER NOT NULL,
-    trials_seen  INTEGER NOT NULL,
-    seconds      REAL NOT NULL,
-    name         TEXT NOT NULL,
-    estimate     REAL NOT NULL,
-    low          REAL NOT NULL,
-    high         REAL NOT NULL,
-    probability  REAL,
-    PRIMARY KEY (session, trial, name)
-);
-"""
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,8 +38,6 @@ class TrialEstimate:
 def write_estimate(store: Store, session: str, est: TrialEstimate) -> None:
     """Store one estimate (a second one after the same trial replaces it), in one transaction."""
     with store.db:
-        store.db.executescript(SCHEMA)
-    with store.db:
         store.db.execute("BEGIN")
         store.db.execute("DELETE FROM person_estimates WHERE session = ? AND trial = ?",
                          (session, est.trial))
@@ -63,14 +47,16 @@ def write_estimate(store: Store, session: str, est: TrialEstimate) -> None:
               p.high, p.probability) for p in est.params])
 
 
-def read_estimates(store: Store, session: str | None = None
+def read_estimates(store: Store | sqlite3.Connection, session: str | None = None
                    ) -> dict[str, list[TrialEstimate]]:
-    """The stored estimates by session, each in trial order (`session`: that one only)."""
-    with store.db:
-        store.db.executescript(SCHEMA)
+    """The stored estimates by session, in trial order (`session`: that one only).
+
+    From a store, or a study's union connection.
+    """
+    db = store.db if isinstance(store, Store) else store
     query = "SELECT * FROM person_estimates"
-    rows = (store.db.execute(query + " WHERE session = ? ORDER BY trial, rowid", (session,))
-            if session is not None else store.db.execute(query + " ORDER BY session, trial, rowid"))
+    rows = (db.execute(query + " WHERE session = ? ORDER BY trial, rowid", (session,))
+            if session is not None else db.execute(query + " ORDER BY session, trial, rowid"))
     grouped: dict[str, dict[int, tuple[int, float, list[ParamRow]]]] = {}
     for s, trial, seen, seconds, name, est, low, high, prob in rows:
         entry = grouped.setdefault(s, {}).setdefault(int(trial), (int(seen), float(seconds), []))

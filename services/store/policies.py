@@ -9,34 +9,11 @@ level toward O, u_r). A session stored without a policy has no rows: today's rob
 
 from __future__ import annotations
 
+import sqlite3
 from dataclasses import dataclass
 
 from services.model.policy import PolicySettings
 from services.store.store import Store
-
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS policy_cohorts (
-    prefix         TEXT NOT NULL,
-    first_seed     INTEGER NOT NULL,
-    policy         TEXT NOT NULL,
-    policy_sha256  TEXT NOT NULL,
-    PRIMARY KEY (prefix, first_seed)
-);
-CREATE TABLE IF NOT EXISTS policy_sessions (
-    session        TEXT PRIMARY KEY,
-    policy         TEXT NOT NULL,
-    policy_sha256  TEXT NOT NULL,
-    kind           TEXT
-);
-CREATE TABLE IF NOT EXISTS policy_trials (
-    session     TEXT NOT NULL,
-    trial       INTEGER NOT NULL,
-    b_star      REAL NOT NULL,
-    gaze_level  TEXT NOT NULL,
-    u_r         REAL NOT NULL,
-    PRIMARY KEY (session, trial)
-);
-"""
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,8 +33,6 @@ def write_policy(
 ) -> None:
     """Store a session's policy and its settings per trial, in one transaction."""
     with store.db:
-        store.db.executescript(SCHEMA)
-    with store.db:
         store.db.execute("BEGIN")
         store.db.execute("INSERT OR REPLACE INTO policy_sessions VALUES (?, ?, ?, ?)",
                          (session, policy, sha256, kind))
@@ -70,8 +45,6 @@ def begin_policy(store: Store, session: str, policy: str, sha256: str,
                  kind: str | None = None) -> None:
     """A session's policy on record as it starts (a resumed session's stays as it was)."""
     with store.db:
-        store.db.executescript(SCHEMA)
-    with store.db:
         store.db.execute("INSERT OR IGNORE INTO policy_sessions VALUES (?, ?, ?, ?)",
                          (session, policy, sha256, kind))
 
@@ -83,16 +56,15 @@ def write_policy_trial(store: Store, session: str, trial: int, s: PolicySettings
                          (session, trial, s.b_star, s.gaze_level, s.u_r))
 
 
-def read_policies(store: Store) -> dict[str, SessionPolicy]:
-    """Every session's stored policy, by session (empty for a store without any)."""
-    with store.db:
-        store.db.executescript(SCHEMA)
+def read_policies(store: Store | sqlite3.Connection) -> dict[str, SessionPolicy]:
+    """Every session's stored policy, by session (a store, or a study's union connection)."""
+    db = store.db if isinstance(store, Store) else store
     trials: dict[str, dict[int, PolicySettings]] = {}
-    for session, trial, b, g, u in store.db.execute("SELECT * FROM policy_trials"):
+    for session, trial, b, g, u in db.execute("SELECT * FROM policy_trials"):
         trials.setdefault(session, {})[int(trial)] = PolicySettings(float(b), g, float(u))
     return {
         s: SessionPolicy(s, p, h, k, trials.get(s, {}))
-        for s, p, h, k in store.db.execute("SELECT * FROM policy_sessions ORDER BY session")
+        for s, p, h, k in db.execute("SELECT * FROM policy_sessions ORDER BY session")
     }
 
 
@@ -100,16 +72,12 @@ def write_cohort_policy(store: Store, prefix: str, first_seed: int, policy: str,
                         sha256: str) -> None:
     """Store the policy a cohort run was begun with."""
     with store.db:
-        store.db.executescript(SCHEMA)
-    with store.db:
         store.db.execute("INSERT OR REPLACE INTO policy_cohorts VALUES (?, ?, ?, ?)",
                          (prefix, first_seed, policy, sha256))
 
 
 def cohort_policy(store: Store, prefix: str, first_seed: int) -> tuple[str, str] | None:
     """(name, SHA-256) of the policy a cohort run was begun with; None: none was stored."""
-    with store.db:
-        store.db.executescript(SCHEMA)
     row = store.db.execute(
         "SELECT policy, policy_sha256 FROM policy_cohorts WHERE prefix = ? AND first_seed = ?",
         (prefix, first_seed)).fetchone()

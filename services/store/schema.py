@@ -201,3 +201,42 @@ CREATE TABLE IF NOT EXISTS fits (
     PRIMARY KEY (participant, parameter)
 );
 """
+
+# The robot policy of each session and its settings per trial (`services.store.policies`), and
+# the participant's estimate after each trial (`services.store.estimates`): in every store, so
+# a study's stores read as one (`services.store.study_stores.union_of`) whoever ran a policy.
+POLICY_SCHEMA = """
+CREATE TABLE IF NOT EXISTS policy_cohorts (
+    prefix         TEXT NOT NULL,
+    first_seed     INTEGER NOT NULL,
+    policy         TEXT NOT NULL,
+    policy_sha256  TEXT NOT NULL,
+    PRIMARY KEY (prefix, first_seed)
+);
+CREATE TABLE IF NOT EXISTS policy_sessions (
+    session        TEXT PRIMARY KEY,
+    policy         TEXT NOT NULL,
+    policy_sha256  TEXT NOT NULL,
+    kind           TEXT
+);
+CREATE TABLE IF NOT EXISTS policy_trials (
+    session     TEXT NOT NULL,
+    trial       INTEGER NOT NULL,
+    b_star      REAL NOT NULL,
+    gaze_level  TEXT NOT NULL,
+    u_r         REAL NOT NULL,
+    PRIMARY KEY (session, trial)
+);
+CREATE TABLE IF NOT EXISTS person_estimates (
+    session      TEXT NOT NULL,
+    trial        INTEGER NOT NULL,
+    trials_seen  INTEGER NOT NULL,
+    seconds      REAL NOT NULL,
+    name         TEXT NOT NULL,
+    estimate     REAL NOT NULL,
+    low          REAL NOT NULL,
+    high         REAL NOT NULL,
+    probability  REAL,
+    PRIMARY KEY (session, trial, name)
+);
+"""

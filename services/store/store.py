@@ -46,7 +46,7 @@ from services.store.records import (
     Sample,
     TrialRecord,
 )
-from services.store.schema import FITS_SCHEMA, SCHEMA
+from services.store.schema import FITS_SCHEMA, POLICY_SCHEMA, SCHEMA
 
 log = logging.getLogger("nod.store")
 
@@ -219,7 +219,7 @@ class Store:
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute("PRAGMA synchronous=NORMAL")
             self.db.execute("PRAGMA foreign_keys=ON")
-            self.db.executescript(SCHEMA + FITS_SCHEMA)
+            self.db.executescript(SCHEMA + FITS_SCHEMA + POLICY_SCHEMA)
             self._migrate()
         except sqlite3.DatabaseError as exc:
             self.db.close()

@@ -24,8 +24,11 @@ from services.core.provenance import Provenance
 from services.experiment.bids import export_bids, subject_labels
 from services.experiment.bids_sidecars import CHANNELS
 from services.experiment.export import main
+from services.model.policy import PolicySettings
 from services.sim.cohort import Job, simulate, store_session
 from services.store import Store
+from services.store.estimates import ParamRow, TrialEstimate, write_estimate
+from services.store.policies import write_policy
 from services.store.provenance import write_provenance
 from services.store.study_stores import open_stores, union_of
 from services.store.withdrawals import WithdrawnFilter
@@ -41,6 +44,10 @@ RUN = Provenance(
     hosts={"decision": ("lab-pc1",)}, recording_file="/home/lab/s.mcap",
     recording_sha256="12" * 32,
 )
+
+
+SETTINGS = {t: PolicySettings(6.0 if t > 4 else 4.54, "extreme" if t > 3 else "neutral", 2.24)
+            for t in range(1, 9)}
 
 
 def _cohort(path: Path, seeds: tuple[int, ...], prefix: str = "cohort", index0: int = 0) -> None:
@@ -61,6 +68,13 @@ def study(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
         (first,) = store.db.execute(
             "SELECT session FROM sessions ORDER BY started_ns, session LIMIT 1").fetchone()
         write_provenance(store, first, 1, RUN)
+        # The first session ran a robot policy and a live estimator (as a rig with `nod
+        # experiment --policy` and `nod estimate` stores them).
+        write_policy(store, first, "mine", "ab" * 32, "firm", SETTINGS)
+        for trial in range(1, 9):
+            write_estimate(store, first, TrialEstimate(trial, trial, 0.02, (
+                ParamRow("speed", 1.0 + trial / 10, 0.5, 2.5, None),
+                ParamRow("contrarian", 1.0, 0.0, 1.0, 0.75))))
     shutil.copy(GOLDEN_STORE, where / "rig.sqlite")
     return [where / "cohort.sqlite", where / "rig.sqlite"]
 
@@ -229,3 +243,26 @@ def test_each_sessions_provenance_is_in_its_sidecars(dataset: Path) -> None:
     assert generated[1]["Version"] == "1.2.3" and "ab" * 32 in generated[1]["Description"]
     people = _tsv(dataset / "participants.tsv")
     assert [p["consent_version"] for p in people].count("v2") == 1
+
+
+def test_a_sessions_policy_and_estimates_are_its_beh_columns_and_csv_rows(
+        dataset: Path, study: list[Path], tmp_path: Path) -> None:
+    beh = _tsv(dataset / "sub-P001" / "beh" / "sub-P001_task-consensus_beh.tsv")
+    assert [float(r["policy_b_star"]) for r in beh] == [SETTINGS[t].b_star for t in range(1, 9)]
+    assert [float(r["estimate_speed"]) for r in beh] == [1.0 + t / 10 for t in range(1, 9)]
+    assert {(r["estimate_contrarian_low"], r["estimate_contrarian_high"]) for r in beh} == {
+        ("0.0", "1.0")}
+    assert [r["estimate_trials_seen"] for r in beh] == [str(t) for t in range(1, 9)]
+    other = _tsv(dataset / "sub-P002" / "beh" / "sub-P002_task-consensus_beh.tsv")
+    assert not {"policy_b_star", "estimate_speed"} & set(other[0])  # the paper's robot
+    args = [a for db in study for a in ("--db", str(db))]
+    assert main([*args, "--out", str(tmp_path)]) == 0
+    with (tmp_path / "policies.csv").open() as fh:
+        policies = list(csv.DictReader(fh))
+    assert [(r["participant"], r["policy"], float(r["b_star"])) for r in policies] == [
+        ("P001", "mine", SETTINGS[t].b_star) for t in range(1, 9)]
+    with (tmp_path / "estimates.csv").open() as fh:
+        estimates = list(csv.DictReader(fh))
+    assert len(estimates) == 16
+    assert {r["probability"] for r in estimates if r["name"] == "contrarian"} == {"0.75"}
+    assert {r["probability"] for r in estimates if r["name"] == "speed"} == {"NA"}
