@@ -13,6 +13,12 @@ watchdogs act. The capture logs one line when it loses the source and one when i
 stalled read cannot be interrupted, so its thread is abandoned and a fresh one reopens the
 source; the old one exits when its read returns.
 
+Each reader releases its source on its own thread (an OpenCV capture is never used from two).
+`close()` stops and joins them within one timeout and returns those still running: a reader
+blocked in a read nothing can interrupt (a stalled camera or stream; a source with an
+`interrupt()`, as `ZenohCamera`, is woken), which its owner must not leave running into the
+interpreter's finalization (see `services.vision.service.exit_now`).
+
 A file that cannot be opened or decoded raises `CaptureError` at `open()`; a file that ends
 before the frame count its header declares is reported as truncated (`next()` raises).
 """
@@ -204,6 +210,7 @@ class Capture:
         self._reading = False  # the active reader is between reads (stall watch applies)
         self._progress = time.monotonic()  # last frame (or open) of the active reader
         self._threads: list[threading.Thread] = []
+        self._using: dict[int, VideoLike] = {}  # each reader's open source, by generation
         self._detail = ""  # why a file ended early
         self.info: SourceInfo | None = None
         self.seq = 0  # frames read so far (the next frame's number)
@@ -309,8 +316,12 @@ class Capture:
                 self.reopens += 1
                 if self.source.live:
                     first = None
+            with self._cv:  # before the first read: close() interrupts what it finds here
+                self._using[gen] = cap
             outcome = self._pump(gen, cap, first)
             self._mark_progress(gen, reading=False)
+            with self._cv:
+                self._using.pop(gen, None)
             cap.release()
             cap, first = None, None
             if outcome == "stopped":
@@ -423,17 +434,30 @@ class Capture:
                 raise CaptureError(self.error)
             return None
 
-    def close(self) -> None:
-        """Stop the reader and release the source (idempotent)."""
+    def close(self, timeout: float = 2.0) -> list[threading.Thread]:
+        """Stop the readers, join them and release the source (idempotent).
+
+        Waits up to `timeout` s in all; returns the threads still running then: readers blocked
+        in a read that cannot be interrupted (each releases its own source when its read
+        returns). A source with an `interrupt()` (`ZenohCamera`) is woken from its read.
+        """
         self._stop.set()
         with self._cv:
-            self._cv.notify_all()
+            self._cv.notify_all()  # a lossless reader waiting for the consumer
+            using = list(self._using.values())
+        for cap in using:  # a reader registering after this sees `_stop` before its first read
+            interrupt = getattr(cap, "interrupt", None)
+            if interrupt is not None:
+                interrupt()
+        deadline = time.monotonic() + timeout
+        me = threading.current_thread()
         for t in self._threads:
-            if t is not threading.current_thread():
-                t.join(timeout=1.0)  # a reader stuck in a stalled read is a daemon; leave it
-        if self._cap is not None:
+            if t is not me:
+                t.join(max(0.0, deadline - time.monotonic()))
+        if self._cap is not None:  # opened, never started: ours to release
             self._cap.release()
             self._cap = None
         with self._cv:
             self.ended = True
             self._cv.notify_all()
+        return [t for t in self._threads if t is not me and t.is_alive()]

@@ -20,20 +20,24 @@ One service for any number of options on one key space: what differs with N is w
 boxes come from (`PaperTable`, `OptionsTable`), picked by `vision_table`.
 
 The tracking thread takes the newest captured frame, tracks it and publishes the pose; the node's
-main thread runs the low-rate ticks (layout, monitor frame, a 10 s status line).
+main thread runs the low-rate ticks (layout, monitor frame, a 10 s status line). On the way out
+every thread of ours is stopped and joined before `main` returns (`stop_threads`), and if one
+cannot be, the process exits without the interpreter's finalization (`exit_now`).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import logging
 import math
+import os
 import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import cv2
 import zenoh
@@ -475,14 +479,70 @@ def main(argv: list[str] | None = None) -> int:
     try:
         node.run()
     finally:
-        node.stop.set()
-        capture.close()
-        worker.join(timeout=2.0)
-        tracker.close()
+        stuck = stop_threads(node, capture, worker, tracker)
     log.info(
         "vision: %d hand poses published (%d with a hand)", service.published, service.detected
     )
+    if stuck:
+        exit_now(service.exit_code, stuck)
     return service.exit_code
+
+
+EXIT_JOIN_S = 1.5  # how long the threads get to stop; under the signals' 2 s forced exit
+
+
+def stop_threads(
+    node: Node,
+    capture: Capture,
+    worker: threading.Thread,
+    tracker: HandTracker,
+    timeout: float = EXIT_JOIN_S,
+) -> list[threading.Thread]:
+    """Stop and join every thread of the service within `timeout` s; those still running.
+
+    The capture readers (each releases its source on its own thread), the tracking thread (then
+    the tracker is closed here, nobody uses it any more) and the node's heartbeat, which puts on
+    zenoh and drops its zenoh publisher as it ends. Nothing waits a fixed time: each join ends
+    when its thread does.
+    """
+    deadline = time.monotonic() + timeout
+    node.stop.set()  # the tracking loop and the heartbeat end; run() has closed the session
+    stuck = capture.close(timeout)
+    worker.join(max(0.0, deadline - time.monotonic()))
+    if worker.is_alive():  # still inside the tracker: closing it under its feet is worse
+        stuck.append(worker)
+    else:
+        tracker.close()
+    # Node.close() does not join its heartbeat thread; the abort this module's exit path had
+    # (see exit_now) was that thread ending during finalization, so it is joined here.
+    heartbeat = node._heartbeat
+    if heartbeat is not None and heartbeat is not threading.current_thread():
+        heartbeat.join(max(0.0, deadline - time.monotonic()))
+        if heartbeat.is_alive():
+            stuck.append(heartbeat)
+    return stuck
+
+
+def exit_now(code: int, stuck: list[threading.Thread]) -> NoReturn:
+    """Exit with `code` at once, skipping the interpreter's finalization: threads still run.
+
+    A thread still inside OpenCV (a read nothing can interrupt: a stalled camera or stream),
+    mediapipe or zenoh when the interpreter finalizes is ended by pthread_exit the moment it
+    returns to Python and asks for the GIL (CPython < 3.14). That forced unwind crosses the
+    binding's catch-all (cv2's `catch (...)`, PyO3's `catch_unwind`), which swallows it, and
+    glibc aborts the whole process: "FATAL: exception not rethrown", SIGABRT instead of our
+    exit status. `os._exit` ends the process without finalization, so it cannot abort; nothing is
+    lost: the session is closed, the logs and standard streams are flushed here.
+    """
+    log.warning(
+        "vision: %s did not stop in time; exiting without finalization",
+        ", ".join(t.name for t in stuck),
+    )
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):  # closed or broken: nothing more to say
+            stream.flush()
+    os._exit(code)
 
 
 if __name__ == "__main__":

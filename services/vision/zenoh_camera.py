@@ -28,6 +28,7 @@ class ZenohCamera:
         self._slot: deque[m.VisionFrame] = deque(maxlen=1)  # a late frame is replaced, not queued
         self._cv = threading.Condition()
         self._open = True
+        self._interrupted = False  # `interrupt()`: every read fails from now on
         self._grabbed: m.VisionFrame | None = None
         self._sub = session.declare_subscriber(key, self._on_sample)
 
@@ -47,12 +48,25 @@ class ZenohCamera:
     def grab(self) -> bool:
         """Wait (up to the timeout) for the next frame, like a camera's grab."""
         with self._cv:
-            if not self._cv.wait_for(lambda: bool(self._slot) or not self._open, self.timeout_s):
+            if not self._cv.wait_for(self._readable, self.timeout_s):
                 return False
-            if not self._open:
+            if not self._open or self._interrupted:
                 return False
             self._grabbed = self._slot.popleft()
             return True
+
+    def _readable(self) -> bool:
+        return bool(self._slot) or not self._open or self._interrupted
+
+    def interrupt(self) -> None:
+        """Wake a `grab()` waiting for a frame, and fail every later one (from any thread).
+
+        `Capture.close()` calls it so the reader thread stops now, not at the read timeout; the
+        reader still releases the camera itself.
+        """
+        with self._cv:
+            self._interrupted = True
+            self._cv.notify_all()
 
     def retrieve(self) -> tuple[bool, np.ndarray | None]:
         """Decode the grabbed frame."""
