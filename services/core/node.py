@@ -401,11 +401,27 @@ class Node:
         finally:
             self.close()
 
+    def join_threads(self, timeout: float) -> list[threading.Thread]:
+        """Wait (at most `timeout` s) for the node's own threads to end once `stop` is set.
+
+        Returns those still running (none, unless a put blocks): the heartbeat's.
+        """
+        beat = self._heartbeat
+        if beat is None or beat is threading.current_thread():
+            return []
+        beat.join(max(0.0, timeout))
+        return [beat] if beat.is_alive() else []
+
     def close(self) -> None:
         """Stop, undeclare everything and close the session (idempotent)."""
         if self.session is None:
             return
         self.stop.set()  # threads of the service (ticks, keep-alives) wind down
+        # The heartbeat drops its zenoh publisher as it ends: joined here, so that never happens
+        # during the interpreter's finalization, where a thread asking for the GIL is ended by
+        # pthread_exit inside PyO3's catch_unwind and glibc aborts the process (SIGABRT, "FATAL:
+        # exception not rethrown"; found under load on `nod vision`'s error exit).
+        self.join_threads(HEARTBEAT_JOIN_S)
         log.info(
             "%s: messages handled %s; bad ones dropped %s",
             self.service,
@@ -446,6 +462,7 @@ def package_version() -> str:
         return "dev"
 
 
+HEARTBEAT_JOIN_S = 2.0  # a heartbeat ends within its put once `stop` is set
 EXIT_GRACE_S = 2.0  # a service stops within this after SIGTERM, whatever blocks it
 
 

@@ -513,14 +513,9 @@ def stop_threads(
         stuck.append(worker)
     else:
         tracker.close()
-    # Node.close() does not join its heartbeat thread; the abort this module's exit path had
-    # (see exit_now) was that thread ending during finalization, so it is joined here.
-    heartbeat = node._heartbeat
-    if heartbeat is not None and heartbeat is not threading.current_thread():
-        heartbeat.join(max(0.0, deadline - time.monotonic()))
-        if heartbeat.is_alive():
-            stuck.append(heartbeat)
-    return stuck
+    # The abort this module's exit path had (see exit_now) was the heartbeat ending during
+    # finalization: `Node.close` joins it; one still running is stuck like the others.
+    return stuck + node.join_threads(deadline - time.monotonic())
 
 
 def exit_now(code: int, stuck: list[threading.Thread]) -> NoReturn:
