@@ -1,6 +1,7 @@
 """`nod study …`: a study's roster — make it, record consent, see who is next, run their session.
 
     nod study init STUDY.toml --participants 40 [--seed S] [--params FILE] [--options N]
+                   [--policies paper,adaptive [--assignment counterbalanced|random]]
     nod study consent STUDY.toml --db DB --participant P07 --yes [--age 25-34 --handedness right]
     nod study withdraw STUDY.toml --db DB --participant P07 [--reason TEXT]
                        [--delete|--aggregate|--keep]
@@ -10,14 +11,15 @@
 
 `start` runs `nod experiment` (or, with --sim, `nod run --sim`) for the participant with their
 order (`--order`), the study's `--params` (and `--options N` for a study of N options: its
-file's `options`), and any FLAGS after `--` (the rig's `--connect`,
-`--rig`, `--clicks` …); it refuses a participant without consent and one who already has a
-session (unless `--again` says why). `withdraw` (and `consent --no` for someone who had
-consented or has data) records a withdrawal, by whom (user@host): they are left out of every
-export, analysis and fit, and with `--delete` (or the study's `on_withdrawal = "delete"`) their
-data is deleted, with `--aggregate` (`on_withdrawal = "aggregate"`) deleted after their trials'
-outcomes are added to the study's anonymous counts (`services.store.withdrawals`). Every refusal
-is one line on stderr with exit code 2.
+file's `options`), their condition's `--policy` (a study file's `[conditions] policies`: robot
+policies between subjects, `services.study.conditions`), and any FLAGS after `--` (the rig's
+`--connect`, `--rig`, `--clicks` …); it refuses a participant without consent and one who
+already has a session (unless `--again` says why). `withdraw` (and `consent --no` for someone
+who had consented or has data) records a withdrawal, by whom (user@host): they are left out of
+every export, analysis and fit, and with `--delete` (or the study's `on_withdrawal = "delete"`)
+their data is deleted, with `--aggregate` (`on_withdrawal = "aggregate"`) deleted after their
+trials' outcomes are added to the study's anonymous counts (`services.store.withdrawals`).
+Every refusal is one line on stderr with exit code 2.
 """
 
 from __future__ import annotations
@@ -52,6 +54,14 @@ from services.store.withdrawals import (
     recording_files,
     withdrawal_problem,
     withdrawals,
+)
+from services.study.conditions import (
+    ASSIGNMENTS,
+    ConditionsError,
+    PolicyConditions,
+    check_files,
+    identity,
+    is_built_in,
 )
 from services.study.roster import Roster, Standing, roster
 from services.study.studyfile import (
@@ -96,6 +106,14 @@ def build_parser() -> Parser:
                    help="the protocol's parameters file every session runs (default: SPEC)")
     add_options_arg(c)  # the study's option set: the params file's list, or N default names
     c.add_argument("--prefix", default="P", help="participant ids <prefix>01, … (default P)")
+    c.add_argument("--policies", default=None, metavar="NAME[=POLICY],…",
+                   help="robot policies as conditions between subjects, one per participant: "
+                   "each a condition's name, with its --policy (paper, adaptive or a policy "
+                   "file) after = unless the name is a built-in's (e.g. paper,adaptive or "
+                   "paper,tuned=tuned.toml)")
+    c.add_argument("--assignment", choices=ASSIGNMENTS, default=None,
+                   help="with --policies: counterbalanced over the roster's orders (default) or "
+                   "random (seeded by --seed)")
     c.add_argument("--force", action="store_true", help="overwrite an existing study file")
 
     c = command("consent", "record a participant's consent (and optional demographics)")
@@ -216,15 +234,21 @@ def _init(args: argparse.Namespace) -> int:
     if path.exists() and not args.force:
         return fail(prog, f"{path} exists: a roster in use is not overwritten (--force to do so)")
     seed = args.seed if args.seed is not None else secrets.randbelow(2**31)
+    if args.assignment is not None and args.policies is None:
+        return fail(prog, "--assignment goes with --policies (the conditions it assigns)")
     try:
+        policies = None if args.policies is None else _policies_arg(
+            args.policies, args.assignment or "counterbalanced")
         cfg, schedule = load_with_options(args.params, args.options)
         protocol: tuple[TrialSpec, ...] | OptionsSchedule = (
             cfg.protocol.trials if schedule is None else schedule)
         params = None if args.params is None else args.params.resolve()
         study = make_study(args.name or path.stem, protocol, args.participants, seed, params,
-                           args.prefix)
+                           args.prefix, policies)
+        if policies is not None:
+            check_files(policies)
         write(study, path)
-    except (StudyError, ValueError, OSError) as exc:
+    except (StudyError, ConditionsError, ValueError, OSError) as exc:
         return fail(prog, exc)
     cb, n = study.counterbalance, len(study.participants)
     first, last = study.participants[0].id, study.participants[-1].id
@@ -237,7 +261,26 @@ def _init(args: argparse.Namespace) -> int:
         every = "every even count" if study.paper else f"every multiple of {len(cb.options)}"
         print(f"note: the last block has {n % cb.block} of {cb.block} participants; every "
               f"position is balanced over full blocks (and {every} within one)")
+    if (pc := study.policy_conditions) is not None:
+        counts = ", ".join(f"{name} {sum(e.condition == name for e in study.participants)}"
+                           for name in pc.names)
+        how = (f"counterbalanced: each order once in each condition over every {len(pc.names)} "
+               f"blocks of {cb.block}" if pc.assignment == "counterbalanced" else
+               f"random, seeded by {cb.seed}")
+        print(f"robot policies between subjects: {counts} participants ({how})")
     return 0
+
+
+def _policies_arg(text: str, assignment: str) -> PolicyConditions:
+    """`--policies paper,tuned=tuned.toml`: the conditions, files' paths absolute."""
+    pairs = []
+    for item in text.split(","):
+        name, _, value = item.strip().partition("=")
+        value = value.strip() or name.strip()
+        pairs.append((name.strip(), value if is_built_in(value) else str(Path(value).resolve())))
+    pc = PolicyConditions(tuple(pairs), assignment)  # type: ignore[arg-type]
+    pc.check()
+    return pc
 
 
 def _consent(args: argparse.Namespace, study: Study, store: Store) -> int:
@@ -369,7 +412,8 @@ def _start_command(
         return "--again needs a reason, e.g. --again 'fire alarm at trial 5'"
     if args.again is None and (problem := reuse_problem(store, pid)):
         return problem
-    reserved = RESERVED + (("--params",) if study.params is not None else ())
+    reserved = (RESERVED + (("--params",) if study.params is not None else ())
+                + (("--policy",) if study.policy_conditions is not None else ()))
     for flag in extra:
         if flag.split("=", 1)[0] in reserved:
             return f"{flag.split('=', 1)[0]} after -- : the study sets it (give --db before --)"
@@ -380,6 +424,8 @@ def _start_command(
         cmd += ["--params", str(study.params)]
     if not study.paper:  # a table of N boxes (a params file's list must agree: it is checked)
         cmd += ["--options", str(len(study.options))]
+    if (policy := study.policy_arg(who.entry)) is not None:  # their condition's robot
+        cmd += ["--policy", policy]
     if args.again is not None:
         cmd += ["--again", args.again]
     if args.sim and not any(f.split("=", 1)[0] == "--seed" for f in extra):
@@ -417,16 +463,29 @@ def _status(args: argparse.Namespace, r: Roster, n_trials: int) -> int:
            if cb.method == "latin-square" else "declared orders")
     print(f"study {study.name}: {len(study.participants)} participants, "
           f"{study.conditions.describe()}, {how}")
+    pc = study.policy_conditions
+    if pc is not None:
+        listed = ", ".join(f"{name} (--policy {value})" for name, value in pc.policies)
+        print(f"conditions between subjects ({pc.assignment}): {listed}")
+    width = max((len(n) for n in pc.names), default=0) if pc is not None else 0
+    head = f"{'condition':<{max(width, 9)}}  " if pc is not None else ""
     print(f"{'slot':>4}  {'id':<8} {'consent':<8} {'status':<9} {'trials':>6}  "
-          f"{'session':<12}  O")
+          f"{'session':<12}  {head}O")
+    expected = _identities(study)
     for s in r.standings:
         last = s.session
         consent = "—" if s.consent is None else ("yes" if s.consent.consent else "no")
         trials = f"{last.trials}/{n_trials}" if last else ""
+        cond = f"{s.entry.condition or '':<{max(width, 9)}}  " if pc is not None else ""
         print(f"{s.entry.slot:>4}  {s.entry.id:<8} {consent:<8} {s.status:<9} {trials:>6}  "
-              f"{last.session if last else '':<12}  {study.order_arg(s.entry)}{_note(s, study)}")
+              f"{last.session if last else '':<12}  {cond}{study.order_arg(s.entry)}"
+              f"{_note(s, study, expected)}")
     nxt = r.next()
     print(f"{_counts(r)}; next: {nxt.entry.id if nxt else 'nobody'}")
+    if pc is not None:
+        finished = [s.entry.condition for s in r.standings if s.status == "done"]
+        print("done per condition: " + ", ".join(f"{name} {finished.count(name)}"
+                                                 for name in pc.names))
     done = r.balance()
     if done and study.paper:
         reds = " ".join(f"{red}/{red + blue}" for red, blue in done)
@@ -442,27 +501,47 @@ def _status(args: argparse.Namespace, r: Roster, n_trials: int) -> int:
     return 0
 
 
-def _note(s: Standing, study: Study) -> str:
+def _identities(study: Study) -> dict[str, tuple[str, str]]:
+    """(name, SHA-256) each condition's policy stores with a session (none: a file unreadable)."""
+    pc, out = study.policy_conditions, {}
+    for name, value in () if pc is None else pc.policies:
+        try:
+            out[name] = identity(value)
+        except ValueError:
+            continue
+    return out
+
+
+def _note(s: Standing, study: Study, expected: dict[str, tuple[str, str]] | None = None) -> str:
     notes = []
     last = s.session
+    policy = study.policy_arg(s.entry)
+    with_policy = "" if policy is None else f" --policy {shlex.quote(policy)}"
     if s.withdrawal is not None:
         data = "data deleted" if s.withdrawal.deleted else "data kept, left out"
         notes.append(f"withdrew {_when(s.withdrawal.withdrawn_ns)}, {data}")
     if s.status in ("running", "aborted") and last is not None:
-        notes.append(f"resume: nod experiment --resume {last.session}, or nod run --sim "
-                     f"--resume {last.session} if simulated")
+        notes.append(f"resume: nod experiment --resume {last.session}{with_policy}, or nod run "
+                     f"--sim --resume {last.session}{with_policy} if simulated")
     if len(s.sessions) > 1:
         notes.append(f"{len(s.sessions)} sessions")
     if s.order_mismatch and last is not None and last.options is not None:
         notes.append(f"ran {letters(last.options, study.options)}, not the roster's")
+    want = (expected or {}).get(s.entry.condition or "")
+    if want is not None and last is not None and s.policy_ran != want:
+        ran = s.policy_ran
+        what = "no robot policy" if ran is None else f"the policy {ran[0]} ({ran[1][:12]})"
+        notes.append(f"ran {what}, not condition {s.entry.condition}'s")
     return "  (" + "; ".join(notes) + ")" if notes else ""
 
 
 def _describe(study: Study, s: Standing) -> str:
     e = s.entry
     trials = ",".join(map(str, study.conditions.consensus))
+    policy = study.policy_arg(e)
+    cond = "" if policy is None else f"; condition {e.condition} (--policy {policy})"
     return (f"{e.id} (slot {e.slot} of {len(study.participants)}): O of trials {trials} = "
-            f"{' '.join(e.order)}; the gaze looks toward O")
+            f"{' '.join(e.order)}; the gaze looks toward O{cond}")
 
 
 def _counts(r: Roster) -> str:

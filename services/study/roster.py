@@ -10,7 +10,7 @@ resumed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal, TypeAlias
 
 from services.model.counterbalance import position_counts
@@ -21,6 +21,7 @@ from services.store.participants import (
     consents,
     sessions_by_participant,
 )
+from services.store.policies import read_policies
 from services.store.withdrawals import Withdrawal, withdrawals
 from services.study.studyfile import Entry, Study
 
@@ -36,6 +37,7 @@ class Standing:
     sessions: tuple[SessionSummary, ...]
     consent: Consent | None
     withdrawal: Withdrawal | None = None
+    policies: dict[str, tuple[str, str]] = field(default_factory=dict)  # session: (name, sha)
 
     @property
     def status(self) -> Status:
@@ -60,6 +62,12 @@ class Standing:
         """Whether the deciding session ran another O order than the roster's."""
         s = self.session
         return s is not None and s.options is not None and s.options != self.entry.order
+
+    @property
+    def policy_ran(self) -> tuple[str, str] | None:
+        """(name, SHA-256) of the robot policy the deciding session ran (None: none stored)."""
+        s = self.session
+        return None if s is None else self.policies.get(s.session)
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,7 +104,8 @@ class Roster:
     def as_json(self) -> dict[str, Any]:
         """The roster as a JSON document (`nod study status --json`)."""
         nxt = self.next()
-        return {
+        pc = self.study.policy_conditions
+        doc: dict[str, Any] = {
             "study": self.study.name,
             "method": self.study.counterbalance.method,
             "block": self.study.counterbalance.block,
@@ -133,6 +142,15 @@ class Roster:
             ],
             "not_in_study": self.strangers,
         }
+        if pc is not None:  # a study without policy conditions: the document as it always was
+            doc["conditions"] = dict(pc.policies)
+            doc["assignment"] = pc.assignment
+            for row, s in zip(doc["participants"], self.standings, strict=True):
+                row["condition"] = s.entry.condition
+                for x in row["sessions"]:
+                    ran = s.policies.get(x["session"])
+                    x["policy"] = None if ran is None else {"name": ran[0], "sha256": ran[1]}
+        return doc
 
 
 def roster(study: Study, store: Store) -> Roster:
@@ -140,8 +158,10 @@ def roster(study: Study, store: Store) -> Roster:
     sessions = sessions_by_participant(store)
     consent = consents(store)
     gone = withdrawals(store)
+    ran = {k: (p.policy, p.sha256) for k, p in read_policies(store).items()}
     standings = tuple(
-        Standing(e, tuple(sessions.get(e.id, [])), consent.get(e.id), gone.get(e.id))
+        Standing(e, tuple(sessions.get(e.id, [])), consent.get(e.id), gone.get(e.id),
+                 {x.session: ran[x.session] for x in sessions.get(e.id, []) if x.session in ran})
         for e in study.participants
     )
     ids = {e.id for e in study.participants}

@@ -12,6 +12,8 @@
     control = [1, 2, 3]           # dissensus trials: neutral gaze, b_r = 0
     consensus = [4, 5, 6, 7, 8]   # consensus trials: the bias toward O, the gaze toward O
     gaze_levels = ["minimal", "low", "moderate", "significant", "extreme"]
+    policies = { paper = "paper", adaptive = "adaptive" }  # optional: robot policies between
+    assignment = "counterbalanced"  # subjects, one per participant (or "random")
 
     [counterbalance]
     method = "latin-square"       # or "declared": the orders below, as written
@@ -23,6 +25,7 @@
     id = "P01"
     slot = 1                      # position in the roster: who is next, which order
     order = ["red", "blue", "blue", "red", "blue"] # O of each consensus trial, in order
+    condition = "adaptive"        # with policies: the participant's (its session's --policy)
 
 `options` names the boxes of the table, left to right, as the protocol's `[protocol] options`
 does (a study of three or more options runs each session with `--options N`, its order by
@@ -31,6 +34,11 @@ name); without it the study is the paper's, red and blue, and its file is what i
 `nod study init` writes it (`services.model.counterbalance` makes the orders); an operator may
 edit ids, and orders with `method = "declared"`. `load` refuses a file whose orders do not fit
 its conditions or, for a Latin square, are not its blocks, in one line naming the entry.
+
+`policies` (optional) makes the robot's policy a condition between subjects: each participant
+has one, allocated by `nod study init --policies …` from the roster's orders (counterbalanced)
+or the seed (random) and stored in their entry (`services.study.conditions`); without it the
+file is what it always was.
 
 `on_withdrawal` is what the study's consent form promised a participant who withdraws: "keep"
 (the default) keeps their data, left out of every export, analysis and fit; "delete" deletes
@@ -61,6 +69,17 @@ from services.model.geometry import COLOURS
 from services.model.protocol import TrialSpec, order_of
 from services.model.schedule import MAX_OPTIONS, OptionsSchedule, OptionsTrial
 from services.store.participants import check_id
+from services.study.conditions import (
+    KEYS,
+    Assignment,
+    ConditionsError,
+    PolicyConditions,
+    allocate,
+    check_files,
+    counterbalance_problem,
+    is_built_in,
+    resolve,
+)
 
 Method: TypeAlias = Literal["latin-square", "declared"]
 METHODS: tuple[Method, Method] = ("latin-square", "declared")
@@ -120,6 +139,7 @@ class Entry:
     id: str
     slot: int  # 1-based position in the roster
     order: Names  # O of each consensus trial, by option name
+    condition: str | None = None  # the participant's robot-policy condition (`policies`)
 
     @property
     def letters(self) -> str:
@@ -139,6 +159,7 @@ class Study:
     on_withdrawal: OnWithdrawal = "keep"  # what a withdrawal does with their data
     consent_version: str | None = None  # the consent form's version (provenance)
     preregistration: str | None = None  # the pre-registration's id (provenance)
+    policy_conditions: PolicyConditions | None = None  # robot policies, between subjects
 
     def __post_init__(self) -> None:
         check(self)
@@ -160,6 +181,11 @@ class Study:
     def paper(self) -> bool:
         """Whether the study is the paper's two options (its sessions take no `--options`)."""
         return self.options == COLOURS
+
+    def policy_arg(self, entry: Entry) -> str | None:
+        """The entry's session's `--policy` (its condition's), or None: a study without them."""
+        pc = self.policy_conditions
+        return None if pc is None or entry.condition is None else pc.policy(entry.condition)
 
     def entry(self, participant: str) -> Entry | None:
         """The participant's entry, or None if they are not in the study."""
@@ -224,6 +250,42 @@ def check(study: Study) -> None:
                 f"{problem}; if the orders were edited on purpose, set [counterbalance] method = "
                 '"declared"'
             )
+    check_conditions(study)
+
+
+def check_conditions(study: Study) -> None:
+    """StudyError unless every participant has one of the study's policy conditions, as assigned.
+
+    A study without `policies` has no condition anywhere; a latin-square roster's counterbalanced
+    conditions are the rule's (`services.study.conditions`), checked by content as its orders are.
+    """
+    pc, cb = study.policy_conditions, study.counterbalance
+    if pc is None:
+        if e := next((e for e in study.participants if e.condition is not None), None):
+            raise StudyError(f"participant {e.id!r} (slot {e.slot}) has a condition, but "
+                             "[conditions] names no policies")
+        return
+    try:
+        pc.check()
+    except ConditionsError as exc:
+        raise StudyError(str(exc)) from None
+    if not study.paper:
+        raise StudyError("[conditions] policies: a robot policy runs on the paper's two-option "
+                         "table only")
+    if pc.assignment == "random" and cb.seed is None:
+        raise StudyError('[conditions] assignment = "random" needs [counterbalance] seed')
+    for e in study.participants:
+        if e.condition not in pc.names:
+            got = "none" if e.condition is None else repr(e.condition)
+            raise StudyError(f"participant {e.id!r} (slot {e.slot}): condition must be one of "
+                             f"{list(pc.names)}, got {got}")
+    if cb.method == "latin-square" and pc.assignment == "counterbalanced":
+        problem = counterbalance_problem(
+            pc, cb.base, [(e.id, e.order, e.condition or "") for e in study.participants],
+            cb.options)
+        if problem:
+            raise StudyError(f"{problem}; if the conditions were edited on purpose, set "
+                             '[counterbalance] method = "declared"')
 
 
 def check_options(names: Sequence[str]) -> None:
@@ -246,11 +308,13 @@ def make_study(
     seed: int,
     params: Path | None = None,
     prefix: str = "P",
+    policies: PolicyConditions | None = None,
 ) -> Study:
     """A new study: ids `<prefix>01…`, slots 1..N, orders from the Latin square of the schedule.
 
     `trials`: the paper's trials (its option set red, blue) or a schedule of N options, whose
-    names become the study's option set.
+    names become the study's option set. `policies`: robot-policy conditions, one allocated to
+    each participant (`services.study.conditions.allocate`).
     """
     if not 1 <= participants <= MAX_PARTICIPANTS:
         raise StudyError(f"--participants must be in 1..{MAX_PARTICIPANTS}, got {participants}")
@@ -259,8 +323,16 @@ def make_study(
         raise StudyError("the protocol has no consensus trial: nothing to counterbalance")
     width = max(2, len(str(participants)))
     orders = roster_orders(base, participants, seed, names)
+    picks: list[str | None] = [None] * len(orders)
+    if policies is not None:
+        try:
+            policies.check()
+            picks = list(allocate(policies, base, orders, names, seed))
+        except ConditionsError as exc:
+            raise StudyError(str(exc)) from None
     entries = tuple(
-        Entry(f"{prefix}{k:0{width}d}", k, order) for k, order in enumerate(orders, start=1)
+        Entry(f"{prefix}{k:0{width}d}", k, order, pick)
+        for k, (order, pick) in enumerate(zip(orders, picks, strict=True), start=1)
     )
     return Study(
         name,
@@ -268,6 +340,7 @@ def make_study(
         Conditions.of(trials.trials if isinstance(trials, OptionsSchedule) else trials),
         Counterbalance("latin-square", base, seed, names),
         entries,
+        policy_conditions=policies,
     )
 
 
@@ -297,6 +370,10 @@ def load(path: Path) -> Study:
 def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
     study = _table(data, "study")
     cond = _table(data, "conditions")
+    if unknown := sorted(set(cond) - {"control", "consensus", "gaze_levels", *KEYS}):
+        raise StudyError(f"[conditions] has unknown key(s) {unknown}: it takes control, "
+                         "consensus, gaze_levels, policies and assignment")
+    policies = _policies(cond, folder)
     cb = _table(data, "counterbalance")
     params = study.get("params")
     if params is not None and not isinstance(params, str):
@@ -317,7 +394,11 @@ def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
             raise StudyError(
                 f"a [[participants]] entry needs id (a string) and slot (an integer): {row}"
             )
-        entries.append(Entry(ident, slot, _names(row.get("order"), f"{ident}'s order", names)))
+        condition = row.get("condition")
+        if condition is not None and not isinstance(condition, str):
+            raise StudyError(f"{ident}'s condition must be a string")
+        entries.append(Entry(ident, slot, _names(row.get("order"), f"{ident}'s order", names),
+                             condition))
     entries.sort(key=lambda e: e.slot)
     block = cb.get("block")
     out = Study(
@@ -338,6 +419,7 @@ def _from_mapping(data: dict[str, Any], folder: Path) -> Study:
         on_withdrawal=cast(OnWithdrawal, study.get("on_withdrawal", "keep")),
         consent_version=_text(study, "consent_version"),
         preregistration=_text(study, "preregistration"),
+        policy_conditions=policies,
     )
     if block is not None and block != out.counterbalance.block:
         raise StudyError(
@@ -374,6 +456,16 @@ def dump(study: Study, path: Path) -> str:
         f"control = {_list(c.control)}  # dissensus: neutral gaze, b_r = 0",
         f"consensus = {_list(c.consensus)}  # the bias toward O, the gaze toward O",
         f"gaze_levels = {_list(c.gaze_levels)}",
+    ]
+    if (pc := study.policy_conditions) is not None:
+        listed = ", ".join(f"{name} = {_q(_policy_text(value, path))}"
+                           for name, value in pc.policies)
+        lines += ["# robot policies between subjects, one per participant: condition = --policy",
+                  f"policies = {{ {listed} }}",
+                  f"assignment = {_q(pc.assignment)}  # or random (seeded by the seed below)"
+                  if pc.assignment == "counterbalanced" else
+                  f"assignment = {_q(pc.assignment)}  # seeded by the seed below"]
+    lines += [
         "",
         "[counterbalance]",
         f"method = {_q(cb.method)}",
@@ -385,6 +477,8 @@ def dump(study: Study, path: Path) -> str:
     for e in study.participants:
         lines += ["", "[[participants]]", f"id = {_q(e.id)}", f"slot = {e.slot}",
                   f"order = {_list(e.order)}"]
+        if e.condition is not None:
+            lines.append(f"condition = {_q(e.condition)}")
     return "\n".join(lines) + "\n"
 
 
@@ -393,6 +487,36 @@ def write(study: Study, path: Path) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(dump(study, path), encoding="utf-8")
     tmp.replace(path)
+
+
+def _policy_text(value: str, path: Path) -> str:
+    """A condition's policy as the file at `path` gives it: a file relative to it."""
+    if is_built_in(value):
+        return value
+    return Path(os.path.relpath(Path(value).resolve(), path.resolve().parent)).as_posix()
+
+
+def _policies(cond: dict[str, Any], folder: Path) -> PolicyConditions | None:
+    """[conditions] policies and assignment, the files' paths absolute; None: not given."""
+    raw, assignment = cond.get("policies"), cond.get("assignment", "counterbalanced")
+    if raw is None:
+        if "assignment" in cond:
+            raise StudyError("[conditions] assignment without policies: name the conditions "
+                             '(policies = { paper = "paper", adaptive = "adaptive" })')
+        return None
+    if not isinstance(raw, dict) or not all(isinstance(v, str) for v in raw.values()):
+        raise StudyError("[conditions] policies must be a table of condition = policy (paper, "
+                         "adaptive or a policy file's path), e.g. { paper = \"paper\" }")
+    if not isinstance(assignment, str):
+        raise StudyError("[conditions] assignment must be a string")
+    pc = PolicyConditions(tuple((name, resolve(value, folder) if value.strip() else value)
+                                for name, value in raw.items()), cast(Assignment, assignment))
+    try:
+        pc.check()
+        check_files(pc)  # before the participants' conditions are read as names of it
+    except ConditionsError as exc:
+        raise StudyError(str(exc)) from None
+    return pc
 
 
 def _span(indices: Sequence[int]) -> str:

@@ -1,5 +1,6 @@
 """`nod study start --sim`: the next participant's real session — a router, every service its own
-process — runs their counterbalanced order, and the store keeps the order with the session."""
+process — runs their counterbalanced order (and, in the paper's study, their robot-policy
+condition), and the store keeps the order (and the policy) with the session."""
 
 import json
 import sqlite3
@@ -28,8 +29,9 @@ def test_study_start_runs_the_next_participant_with_their_order(tmp_path, n):
     protocol, names, block = STUDIES[n]
     params, study, db = tmp_path / "short.toml", tmp_path / "study.toml", tmp_path / "s.sqlite"
     params.write_text(protocol)
+    policies = ["--policies", "paper"] if n == 2 else []  # a robot-policy condition (issue 36)
     init = run_nod("study", "init", str(study), "--participants", str(len(block)), "--seed",
-                   "5", "--params", str(params), timeout=60)
+                   "5", "--params", str(params), *policies, timeout=60)
     assert init.returncode == 0, init.stderr
     assert load(study).options == names  # the params' option set is the study's
     roster = load(study).participants
@@ -48,6 +50,7 @@ def test_study_start_runs_the_next_participant_with_their_order(tmp_path, n):
         order = entry.letters if n == 2 else ",".join(entry.order)  # by names over N options
         assert f"--participant {entry.id} --order {order}" in run.stdout
         assert ("--options" in run.stdout) == (n > 2)  # the session's table of N boxes
+        assert ("--policy paper" in run.stdout) == (n == 2)  # the participant's condition
         assert "3 trials of 1 participant(s) stored" in run.stdout
 
     con = sqlite3.connect(db)
@@ -58,6 +61,9 @@ def test_study_start_runs_the_next_participant_with_their_order(tmp_path, n):
     assert sessions == [
         (e.id, e.slot, "complete", json.dumps(list(e.order)), None) for e in roster[:2]
     ]
+    ran = con.execute("SELECT s.participant, p.policy FROM policy_sessions p JOIN sessions s "
+                      "ON s.session = p.session ORDER BY s.started_ns").fetchall()
+    assert ran == ([(e.id, "paper") for e in roster[:2]] if n == 2 else [])  # stored with it
     for entry in roster[:2]:
         trials = con.execute(
             "SELECT t.mode, t.option, t.yaw FROM trials t JOIN sessions s ON s.session = "
@@ -80,6 +86,7 @@ def test_study_start_runs_the_next_participant_with_their_order(tmp_path, n):
     assert [p["status"] for p in doc["participants"]] == ["done"] * 2 + ["left"] * (len(block) - 2)
     assert doc["next"] == roster[2].id
     assert doc["participants"][0]["demographics"] == {"age": "25-34"}
+    assert doc.get("conditions") == ({"paper": "paper"} if n == 2 else None)
 
     again = run_nod("study", "start", str(study), "--db", str(db), "--sim", "--participant",
                     roster[0].id, *sim, timeout=60)
