@@ -160,13 +160,13 @@ EXPERIMENT_OPERATOR = Topic(
     "for; 0: whichever waits), `source` (user@host)",
 )
 EXPERIMENT_POLICY = Topic(
-    "experiment/policy", m.PolicyMsg, ("experiment",), ("decision", "operator", "run"),
+    "experiment/policy", m.PolicyMsg, ("experiment",), ("decision", "operator"),
     "per trial (before its setup, again at its go) and on a freeze", CONTROL,
     "the robot policy's settings for `trial` of `session`: `policy` (its name), `sha256` (its "
     "file's), `b_star`, `gaze_level` (toward O), `u_r`, `frozen` (the operator froze it)",
 )
 ESTIMATE_PERSON = Topic(
-    "estimate/person", m.PersonEstimate, ("estimate",), ("experiment", "run"),
+    "estimate/person", m.PersonEstimate, ("estimate",), ("experiment",),
     "per trial (after its result)", RELIABLE,
     "the participant's parameters from their trials 1..`trial` of `session` (`nod estimate`): "
     "`trials_seen`, `seconds` (its cost), `params` [{`name`, `estimate`, `low`, `high` (the "
