@@ -65,6 +65,7 @@ class PolicyFile:
     name: str
     sha256: str
     data: dict[str, Any]
+    text: str = ""  # the file as read (a cohort stores it, so that a resume rebuilds the policy)
 
     @property
     def kind(self) -> str:
@@ -92,6 +93,11 @@ def read_policy_file(arg: str) -> PolicyFile:
         except OSError as exc:
             raise ValueError(f"--policy {arg}: {exc.strerror or exc} (or name paper, adaptive)"
                              ) from None
+    return policy_from_bytes(arg, name, raw)
+
+
+def policy_from_bytes(arg: str, name: str, raw: bytes) -> PolicyFile:
+    """A policy file's bytes, checked (`arg`: where they came from, for the one-line error)."""
     try:
         data = tomllib.loads(raw.decode())
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
@@ -104,7 +110,7 @@ def read_policy_file(arg: str) -> PolicyFile:
         missing = sorted(_KEYS - set(data) - {"agreement_weight"})
         if missing:
             raise ValueError(f"--policy {arg}: an adaptive policy needs {missing}")
-    return PolicyFile(name, hashlib.sha256(raw).hexdigest(), data)
+    return PolicyFile(name, hashlib.sha256(raw).hexdigest(), data, raw.decode())
 
 
 def cache_dir() -> Path:

@@ -30,7 +30,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from services.cohort.person import load_cohort_params
-from services.cohort.policy_file import PolicyFile, make_policy, read_policy_file
+from services.cohort.policy_file import (
+    PolicyFile,
+    make_policy,
+    policy_from_bytes,
+    read_policy_file,
+)
 from services.compute.engine import (
     Engine,
     EngineError,
@@ -75,6 +80,7 @@ class StoredPolicy:
 
     file: PolicyFile
     policy: Policy
+    built_on: NodConfig | None = None  # the people its table was simulated from (adaptive)
 
 
 def simulate(job: Job) -> list[OfflineTrial]:
@@ -176,7 +182,9 @@ def run_cohort(
             )
         cohort = begin_cohort(store, prefix, seed, n, record, config_json(cfg))
         if policy is not None:
-            write_cohort_policy(store, prefix, seed, policy.file.name, policy.file.sha256)
+            built_on = policy.built_on if policy.built_on is not None else cfg
+            write_cohort_policy(store, prefix, seed, policy.file.name, policy.file.sha256,
+                                policy.file.text, json.dumps(config_json(built_on)))
         return _simulate(engine, store, cohort, jobs, show,
                          None if policy is None else policy.file)
     finally:
@@ -206,28 +214,53 @@ def resume_cohorts(
                     f"nod-hri ({exc}); resume it with that version"
                 ) from None
             status = stored_sessions(store, cohort)
-            ran = cohort_policy(store, cohort.prefix, cohort.first_seed)
-            paper = read_policy_file("paper")
-            if ran is not None and ran != (paper.name, paper.sha256):
-                raise StoreError(
-                    f"the cohort {cohort.describe()} in {db} ran the policy {ran[0]}: resuming "
-                    "a cohort with a policy other than paper is not done yet; run it again "
-                    "into a new --db"
-                )
-            policy = None if ran is None else paper
+            policy = _stored_policy(store, cohort, db, engine)
             for name, state in status.items():
                 if state != "complete":
                     drop_session(store, name)
             jobs = [
-                Job(i, s, cfg, cohort.samples, None if policy is None else PaperPolicy())
+                Job(i, s, cfg, cohort.samples, None if policy is None else policy.policy)
                 for i, s in enumerate(cohort.seeds)
                 if status.get(cohort.session(s)) != "complete"
             ]
-            stored, seconds = _simulate(engine, store, cohort, jobs, show, policy)
+            stored, seconds = _simulate(engine, store, cohort, jobs, show,
+                                        None if policy is None else policy.file)
             done.append((cohort, len(jobs), stored, seconds))
         return done
     finally:
         store.close()
+
+
+def _stored_policy(store: Store, cohort: CohortRecord, db: Path, engine: Engine
+                   ) -> StoredPolicy | None:
+    """The policy a cohort was begun with, rebuilt from the store (None: today's robot).
+
+    From the policy file's text and the configuration its table was simulated from, both
+    stored when the cohort began: the same file and people give the same table (its seeds
+    are the file's), so the resumed sessions choose as the first run's did. A cohort begun
+    before these were kept resumes only under the paper's robot, which needs neither.
+    """
+    ran = cohort_policy(store, cohort.prefix, cohort.first_seed)
+    if ran is None:
+        return None
+    paper = read_policy_file("paper")
+    if (ran.name, ran.sha256) == (paper.name, paper.sha256):
+        return StoredPolicy(paper, PaperPolicy())
+    if ran.text is None or ran.built_on is None:
+        raise StoreError(
+            f"the cohort {cohort.describe()} in {db} ran the policy {ran.name}, stored before "
+            "nod-hri kept policy files with their cohort: run it again into a new --db")
+    pf = policy_from_bytes(f"the cohort's stored policy {ran.name}", ran.name,
+                           ran.text.encode())
+    if pf.sha256 != ran.sha256:  # the text is the file's: a mismatch is a damaged row
+        raise StoreError(f"the cohort {cohort.describe()} in {db}: its stored policy "
+                         f"{ran.name} does not match its SHA-256; run it again into a new --db")
+    try:
+        built_on = from_mapping(NodConfig, json.loads(ran.built_on))
+    except (ValueError, ConfigError) as exc:
+        raise StoreError(f"the cohort {cohort.describe()} in {db}: its policy's people were "
+                         f"stored by another version of nod-hri ({exc})") from None
+    return StoredPolicy(pf, make_policy(pf, built_on, engine.imap), built_on)
 
 
 def _simulate(
@@ -357,7 +390,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     try:
         with engine_from_args(args) as engine:
-            policy = StoredPolicy(policy_file, make_policy(policy_file, built_on, engine.imap))
+            policy = StoredPolicy(policy_file, make_policy(policy_file, built_on, engine.imap),
+                                  built_on)
             stored, seconds = run_cohort(
                 engine, args.participants, seed, args.db, cfg,
                 record=not args.no_samples, show=not args.quiet, policy=policy,

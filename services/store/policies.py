@@ -69,16 +69,33 @@ def read_policies(store: Store | sqlite3.Connection) -> dict[str, SessionPolicy]
 
 
 def write_cohort_policy(store: Store, prefix: str, first_seed: int, policy: str,
-                        sha256: str) -> None:
-    """Store the policy a cohort run was begun with."""
+                        sha256: str, text: str | None = None, built_on: str | None = None,
+                        ) -> None:
+    """Store the policy a cohort run was begun with.
+
+    With its file's text and the configuration (JSON) of the people its table was simulated
+    from, so that a resume rebuilds it.
+    """
     with store.db:
-        store.db.execute("INSERT OR REPLACE INTO policy_cohorts VALUES (?, ?, ?, ?)",
-                         (prefix, first_seed, policy, sha256))
+        store.db.execute(
+            "INSERT OR REPLACE INTO policy_cohorts (prefix, first_seed, policy, policy_sha256, "
+            "policy_text, built_on) VALUES (?, ?, ?, ?, ?, ?)",
+            (prefix, first_seed, policy, sha256, text, built_on))
 
 
-def cohort_policy(store: Store, prefix: str, first_seed: int) -> tuple[str, str] | None:
-    """(name, SHA-256) of the policy a cohort run was begun with; None: none was stored."""
+@dataclass(frozen=True, slots=True)
+class CohortPolicy:
+    """The policy a cohort run was begun with, as stored."""
+
+    name: str
+    sha256: str
+    text: str | None  # None: stored before the file's text was kept
+    built_on: str | None
+
+
+def cohort_policy(store: Store, prefix: str, first_seed: int) -> CohortPolicy | None:
+    """The policy a cohort run was begun with; None: none was stored."""
     row = store.db.execute(
-        "SELECT policy, policy_sha256 FROM policy_cohorts WHERE prefix = ? AND first_seed = ?",
-        (prefix, first_seed)).fetchone()
-    return None if row is None else (str(row[0]), str(row[1]))
+        "SELECT policy, policy_sha256, policy_text, built_on FROM policy_cohorts "
+        "WHERE prefix = ? AND first_seed = ?", (prefix, first_seed)).fetchone()
+    return None if row is None else CohortPolicy(str(row[0]), str(row[1]), row[2], row[3])

@@ -211,6 +211,8 @@ CREATE TABLE IF NOT EXISTS policy_cohorts (
     first_seed     INTEGER NOT NULL,
     policy         TEXT NOT NULL,
     policy_sha256  TEXT NOT NULL,
+    policy_text    TEXT,  -- the policy file itself: a resume rebuilds the same policy from it
+    built_on       TEXT,  -- JSON: the configuration of the people its table was simulated from
     PRIMARY KEY (prefix, first_seed)
 );
 CREATE TABLE IF NOT EXISTS policy_sessions (

@@ -239,6 +239,8 @@ class Store:
             ("fits", "prior_p", "REAL"),
             ("withdrawals", "withdrawn_by", "TEXT NOT NULL DEFAULT ''"),
             ("withdrawals", "aggregated", "INTEGER NOT NULL DEFAULT 0"),
+            ("policy_cohorts", "policy_text", "TEXT"),
+            ("policy_cohorts", "built_on", "TEXT"),
         ):
             have = {row[1] for row in self.db.execute(f"PRAGMA table_info({table})")}
             if column not in have:

@@ -157,19 +157,21 @@ def test_a_store_from_before_cohorts_were_recorded_reads_as_before(
         assert len(store.sessions()) == 5 and cohorts(store) == []
 
 
-def test_resume_keeps_the_paper_policy_and_refuses_another(
+def test_resume_rebuilds_the_cohorts_policy_and_chooses_as_the_first_run(
     tmp_path: Path, engines: list[InProcess], capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     from services.store.policies import read_policies
 
     monkeypatch.setenv("NOD_POLICY_CACHE", str(tmp_path / "cache"))
-    paper, other = tmp_path / "paper.sqlite", tmp_path / "other.sqlite"
+    paper, other, whole = (tmp_path / f"{n}.sqlite" for n in ("paper", "other", "whole"))
     policy = tmp_path / "bold.toml"
-    policy.write_text('kind = "adaptive"\ngaze_levels = ["extreme"]\nb_stars = [6.0]\n'
-                      'u_rs = [2.24]\ntable_people = 1\ntable_seed = 900000001\n')
-    # fail_after=1: the adaptive table's one person is simulated, the cohort stops after one
-    engines += [InProcess(fail_after=0), InProcess(), InProcess(fail_after=1), InProcess()]
+    policy.write_text('kind = "adaptive"\ngaze_levels = ["neutral", "extreme"]\n'
+                      'b_stars = [4.54, 6.0]\nu_rs = [2.24]\ntable_people = 2\n'
+                      'table_seed = 900000001\n')
+    # fail_after=2: the adaptive table's two people are simulated, the cohort stops after two
+    engines += [InProcess(fail_after=0), InProcess(), InProcess(fail_after=2), InProcess(),
+                InProcess()]
     assert cohort_cli.main([*COHORT, "--db", str(paper), "--policy", "paper"]) == 2
     assert cohort_cli.main(["--db", str(paper), "--resume", "--quiet"]) == 0
     store = Store(paper)
@@ -178,8 +180,27 @@ def test_resume_keeps_the_paper_policy_and_refuses_another(
         assert len(read_policies(store)) == 5  # the resumed sessions store it too
     finally:
         store.close()
-    capsys.readouterr()
     assert cohort_cli.main([*COHORT, "--db", str(other), "--policy", str(policy)]) == 2
-    assert cohort_cli.main(["--db", str(other), "--resume", "--quiet"]) == 2
+    assert cohort_cli.main(["--db", str(other), "--resume", "--quiet"]) == 0
+    assert cohort_cli.main([*COHORT, "--db", str(whole), "--policy", str(policy)]) == 0
+
+    def chosen(db: Path) -> tuple[list, list]:
+        with sqlite3.connect(db) as con:
+            return (con.execute("SELECT * FROM policy_trials ORDER BY session, trial").fetchall(),
+                    con.execute("SELECT session, trial, outcome, human, robot FROM trials "
+                                "ORDER BY session, trial").fetchall())
+
+    resumed, uninterrupted = chosen(other), chosen(whole)
+    assert len(resumed[0]) == 5 * 8 and resumed == uninterrupted
+    assert {r[3] for r in resumed[0]} == {"neutral", "extreme"}  # the policy did choose
+    # A cohort stored before the policy's file was kept with it cannot be rebuilt: refused.
+    capsys.readouterr()
+    engines += [InProcess(fail_after=2), InProcess()]
+    again = tmp_path / "again.sqlite"
+    assert cohort_cli.main([*COHORT, "--db", str(again), "--policy", str(policy)]) == 2
+    with sqlite3.connect(again) as con:
+        con.execute("UPDATE policy_cohorts SET policy_text = NULL, built_on = NULL")
+    capsys.readouterr()
+    assert cohort_cli.main(["--db", str(again), "--resume", "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 2 and "ran the policy bold" in err and "not done yet" in err
+    assert len(err.splitlines()) == 1 and "ran the policy bold, stored before" in err
