@@ -86,7 +86,7 @@ def ran(tmp_path_factory) -> dict:
     assert run.returncode == 0, out
     (mcap,) = sorted((folder / "rec").glob("*.mcap"))
     return {"db": db, "policy": policy, "params": params, "freeze": freeze, "mcap": mcap,
-            "out": out}
+            "out": out, "cache": folder / "fit"}
 
 
 def test_the_policy_and_each_trials_settings_are_stored_inside_the_envelope(ran):
@@ -132,6 +132,29 @@ def test_one_estimate_per_trial_is_stored_and_recorded(ran):
     assert [e.trial for e in recorded] == [1, 2, 3]
     policy = _messages(ran["mcap"], "experiment/policy", m.PolicyMsg)
     assert {p.trial for p in policy} == {1, 2, 3}
+
+
+def test_the_live_estimate_is_nod_fits_estimate_on_the_stored_trials(ran):
+    # The same estimator on the same data: what `nod estimate` built from the fabric equals
+    # what the fit reads from the store afterwards (`services.fit.data.read_study`).
+    from services.cohort.person import load_cohort_params
+    from services.fit.data import read_study
+    from services.fit.estimator import estimate_after
+    from services.fit.pipeline import prepare_by_length
+    from services.fit.prior import load_prior
+    from services.fit.simulate import Population
+
+    (person,) = read_study(ran["db"]).people
+    pop = Population(load_cohort_params(None), load_prior(None))
+    estimators = prepare_by_length(pop, TABLE, lambda f, jobs: [f(j) for j in jobs],
+                                   ran["cache"])[1]
+    offline = estimate_after(estimators, 3, person.paths, person.layout)
+    live = {r[0]: r[1:] for r in _rows(ran["db"], "SELECT name, estimate, low, high FROM "
+                                      "person_estimates WHERE trial = 3")}
+    assert sorted(live) == sorted(offline.names)
+    for j, name in enumerate(offline.names):
+        want = (offline.estimate[0, j], offline.low[0, j], offline.high[0, j])
+        assert live[name] == pytest.approx(want, rel=1e-9, abs=1e-12), name
 
 
 def _messages(path: Path, topic: str, cls: type[m.Message]) -> list:
