@@ -160,7 +160,8 @@ EXPERIMENT_OPERATOR = Topic(
     "for; 0: whichever waits), `source` (user@host)",
 )
 EXPERIMENT_POLICY = Topic(
-    "experiment/policy", m.PolicyMsg, ("experiment",), ("decision", "operator"),
+    "experiment/policy", m.PolicyMsg, ("experiment",),
+    ("decision", "operator", "run", "launcher"),
     "per trial (before its setup, again at its go) and on a freeze", CONTROL,
     "the robot policy's settings for `trial` of `session`: `policy` (its name), `sha256` (its "
     "file's), `b_star`, `gaze_level` (toward O), `u_r`, `frozen` (the operator froze it)",

@@ -18,7 +18,7 @@ from typing import Any
 import zenoh
 
 from services.core import messages as m
-from services.core.contract import EXPERIMENT_RESULT, EXPERIMENT_TRIAL
+from services.core.contract import EXPERIMENT_POLICY, EXPERIMENT_RESULT, EXPERIMENT_TRIAL
 from services.core.keys import Keys
 from services.core.node import clip
 from services.model.geometry import COLOURS
@@ -49,6 +49,7 @@ class SessionView:
         self.tty = stream.isatty()
         self.lock = threading.Lock()
         self.results: list[m.TrialResult] = []
+        self.policy: dict[int, m.PolicyMsg] = {}  # a robot policy's settings, by trial
         self.finished = threading.Event()
         self._header_done = False
 
@@ -78,6 +79,12 @@ class SessionView:
         with self.lock:
             self.participant = participant
             self.results = []
+            self.policy = {}
+
+    def on_policy(self, msg: m.PolicyMsg) -> None:
+        """A robot policy's settings for a trial: shown on its row."""
+        with self.lock:
+            self.policy[msg.trial] = msg
 
     def note(self, text: str) -> None:
         """A line for the operator between the rows (e.g. a trial waiting for their start)."""
@@ -112,9 +119,17 @@ class SessionView:
                 f"{r.trial:>5} {r.mode:<10} {self.name(r.option):<{o}} "
                 f"{self.name(r.robot):<{who}} {self.name(r.human):<{who}} {r.outcome or '-':<8} "
                 f"{r.switches:>6} {r.violations:>4} "
-                f"{r.score:>5}{'  interrupted' if r.interrupted else ''}\n"
+                f"{r.score:>5}{'  interrupted' if r.interrupted else ''}{self._settings(r)}\n"
             )
             self.out.flush()
+
+    def _settings(self, r: m.TrialResult) -> str:
+        """A trial's robot-policy settings at the end of its row ('' without a policy)."""
+        p = self.policy.get(r.trial)
+        if p is None:
+            return ""
+        frozen = ", frozen" if p.frozen else ""
+        return f"  [{p.policy}: b*={p.b_star:g} u_r={p.u_r:g} gaze {p.gaze_level}{frozen}]"
 
     def subscribe(self, session: zenoh.Session, keys: Keys) -> list[Any]:
         """Follow the rig's conductor: its trial events and results (undeclare them when done)."""
@@ -137,6 +152,8 @@ class SessionView:
                                        decoded(EXPERIMENT_TRIAL.message, self.on_trial)),
             session.declare_subscriber(keys.topic(EXPERIMENT_RESULT.name),
                                        decoded(EXPERIMENT_RESULT.message, self.on_result)),
+            session.declare_subscriber(keys.topic(EXPERIMENT_POLICY.name),
+                                       decoded(EXPERIMENT_POLICY.message, self.on_policy)),
         ]
 
 

@@ -68,3 +68,17 @@ def test_an_interrupted_result_survives_the_wire(n_options: int) -> None:
     sent = m.TrialResult(seq=2, t_ns=3, options=NAMES[:n_options], interrupted=True)
     decoded = m.decode(m.TrialResult, m.encode(sent))
     assert decoded.interrupted and decoded == sent
+
+
+def test_a_trials_robot_policy_settings_end_its_row() -> None:
+    out = io.StringIO()
+    view = SessionView(2, out)
+    view.on_policy(m.PolicyMsg(seq=0, t_ns=1, session="s", trial=1, policy="adaptive",
+                               b_star=6.0, gaze_level="extreme", u_r=2.24, frozen=True))
+    for result in _results(2):
+        view.on_result(result)
+    rows = _rows(out.getvalue())
+    assert rows[1].endswith("[adaptive: b*=6 u_r=2.24 gaze extreme, frozen]")
+    assert "adaptive" not in rows[2]  # a trial without settings: the paper's robot, as before
+    view.begin("P02")
+    assert view.policy == {}
