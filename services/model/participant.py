@@ -436,12 +436,117 @@ class Participant(Generic[Opt]):
             return
         if self.t < self.t_go:
             self.t = min(t, self.t_go)
-        step = self._step_general if self.general else self._step
+        if not self.general:
+            self._advance_kernel(t, dt)
+            return
         while self.t < t - 1e-12:
             left = t - self.t
             h = left if left < dt else dt  # min(dt, left)
-            step(h)
+            self._step_general(h)
             self.t += h
+
+    def _advance_kernel(self, t: float, dt: float) -> None:
+        """`advance` on two boxes: `_step` (with `_arm_seen` and `_move`) fused into one loop.
+
+        The same steps of h as `advance` takes with `_step`, the same float operations in the
+        same order, so the same values bit for bit (tests/unit/test_loop_speed.py runs whole
+        sessions both ways): only the Python around them is gone. The opinion, the hand's
+        position and velocity and the clock live in locals through the loop (written back
+        before the rare calls that read them: the feint's turn and the press test, and at the
+        end); the per-trial constants are read once, not every 2 ms step. This loop was about a
+        third of a cohort's CPU, most of it calls and attribute reads.
+        """
+        p, a = self.p, self.p.agent
+        nd, u, alpha, gamma, b, tanh, hypot = -a.d, a.u, a.alpha, a.gamma, self.b_h, math.tanh, (
+            math.hypot)
+        assert self.t_go is not None  # `advance` returns before "go"
+        t_move = self.t_go + p.reaction_s  # `_step`'s reaction test, the same sum
+        delay, seen, cue = p.perception_delay_s, self._robot_seen, self._cue
+        against = 1.0 / (1.0 + p.gaze_over_robot * self.trust)  # `_arm_seen`'s weight, off the cue
+        full, least, accel = p.full_conviction, p.min_conviction, p.accel
+        commit_y, below, obeys = self._commit_y, self._commit_below, self._obeys_commit
+        max_switches, centers, near = self._max_switches, self._centers, self._near
+        z, x, y, vx, vy, tt = self.z_h, self._x, self._y, self._vx, self._vy, self.t
+        end = t - 1e-12
+        while tt < end:
+            left = t - tt
+            h = left if left < dt else dt  # min(dt, left)
+            # `_arm_seen` at the step's start (the arm seen `perception_delay_s` late)
+            cutoff = tt - delay
+            while seen and seen[0][0] <= cutoff:
+                self._last_box = seen.popleft()[1]
+            box = self._last_box
+            if box is None:
+                r_hat = 0.0
+            else:
+                self._arm_box = box
+                first = self._first
+                if first is not None and box != first:
+                    self._opposed = True
+                weight = against if cue is not None and box != cue else 1.0
+                r_hat = weight if box == 0 else -weight
+            # eq 2, one RK4 step (`_step`'s arithmetic)
+            gr = gamma * r_hat
+            hh = 0.5 * h
+            k1 = nd * z + u * tanh(alpha * z + gr) + b
+            z2 = z + hh * k1
+            k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
+            z3 = z + hh * k2
+            k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
+            z4 = z + h * k3
+            k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
+            z = z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            start, tt = tt, tt + h
+            if start < t_move:  # `_step`'s reaction test (its self.t is the step's start)
+                continue
+            # `_move(h, 0 if z > 0 else 1, abs(z))`
+            wanted, lead = (0 if z > 0 else 1), abs(z)
+            heading = self._heading
+            committed = heading is not None and (
+                self._quick
+                or self.switches >= max_switches
+                or (obeys and (y < commit_y if below else y > commit_y))
+            )
+            if heading is None:
+                heading = self._heading = self._first = wanted
+            elif self._feint:
+                self._x, self._y = x, y  # what the turn reads
+                self._turn_at_the_line()
+                heading = self._heading
+                assert heading is not None
+            elif wanted != heading and not committed:
+                heading = self._heading = wanted
+                self.switches += 1
+            tx, ty = centers[heading]
+            dx, dy = tx - x, ty - y
+            dist = hypot(dx, dy)
+            if committed or self._feint:  # read after the turn, as `_move` reads it
+                conviction = 1.0
+            else:
+                conviction = lead / full
+                if not conviction > least:
+                    conviction = least
+                if not conviction < 1.0:
+                    conviction = 1.0
+            speed = p.speed * (p.late_switch_speed if self._quick else 1.0)
+            gain = speed * conviction / (1e-9 if dist < 1e-9 else dist)
+            ax, ay = dx * gain - vx, dy * gain - vy
+            dv = hypot(ax, ay)
+            max_dv = accel * h
+            if dv > max_dv:
+                ax, ay = ax * max_dv / dv, ay * max_dv / dv
+            vx, vy = vx + ax, vy + ay
+            x, y = x + vx * h, y + vy * h
+            for x1, x2, y1, y2 in near:
+                if x1 <= x <= x2 and y1 <= y <= y2:
+                    self._x, self._y = x, y  # what the press test reads
+                    self.pressed = self._press_test()
+                    break
+            if self.pressed is not None:  # at rest from here: the clock alone goes on
+                while tt < end:
+                    left = t - tt
+                    tt += left if left < dt else dt
+        self.z_h, self._x, self._y, self._vx, self._vy, self.t = z, x, y, vx, vy, tt
 
     def _step(self, h: float) -> None:
         """One step of h on two boxes (the kernel): eq 2 on the scalar x, then the hand.
