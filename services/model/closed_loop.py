@@ -386,10 +386,12 @@ class _PaperLoop(_Loop[Colour]):
     ) -> None:
         params, person_seed = _draws(cfg, seed, cohort)
         layout = cfg.layout
+        model = DecisionModel(cfg.decision, layout)
+        model.use_compiled()  # its RK4 as machine code, the same values (`model.compiled`)
         super().__init__(
             cfg, clicks, record,
             person=hand if hand is not None else Participant(params, layout, seed=person_seed),
-            model=DecisionModel(cfg.decision, layout),
+            model=model,
             robot=RobotTrial(layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s),
             arm=SimArm(layout, cfg.sim_arm, t0=0.0),
             boxes=(layout.red, layout.blue),

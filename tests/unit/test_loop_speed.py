@@ -10,6 +10,7 @@ zero's sign counts too.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from services.model.arm import SimArm
 from services.model.behaviour import ArmCommand
 from services.model.bias import bias_active, bias_rate
 from services.model.closed_loop import centre, run_offline_session
+from services.model.compiled import rk4_pair
 from services.model.decision import DecisionModel, DecisionParams, OptionsDecision
 from services.model.dynamics import opinion_rate, rk4_step
 from services.model.geometry import TableLayout
@@ -94,6 +96,64 @@ def test_decision_steps_are_the_rate_functions_bit_for_bit(z_r, b_r, z_hat, opti
     want = plain_run(model, z_r, b_r, z_hat, n, h)
     assert [bits(*s) for s in path] == [bits(*s) for s in want]
     assert bits(*end) == bits(*want[-1])
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    z_r=finite,
+    b_r=st.one_of(st.floats(-7.0, 7.0), st.just(0.0), st.just(-0.0)),
+    z_hat=st.one_of(finite, st.just(0.0), st.just(-0.0)),
+    option=st.sampled_from([None, "red", "blue"]),
+    n=st.integers(1, 60),
+    h=st.sampled_from([1e-3, 3.33333e-4, 2.5e-3, 1e-9]),
+    u=st.sampled_from([None, 0.5, 3.0]),
+)
+def test_the_compiled_decision_steps_are_pythons_bit_for_bit(z_r, b_r, z_hat, option, n, h, u):
+    """`services.model.compiled` (Numba, no fastmath) takes `_run`'s steps to the same bits,
+    dissensus and consensus (the bias clamped at b_max included), as the engine calls it."""
+    params = DecisionParams()
+    if u is not None:
+        robot = replace(params.pair.robot, u=u)
+        params = replace(params, pair=replace(params.pair, robot=robot))
+    python, fast = DecisionModel(params, LAYOUT), DecisionModel(params, LAYOUT)
+    fast.use_compiled()
+    for model in (python, fast):
+        model.reset("consensus" if option else "dissensus", option)
+    want = python._run(z_r, b_r, z_hat, n, h)
+    assert bits(*fast._run(z_r, b_r, z_hat, n, h)) == bits(*want)
+    assert bits(*rk4_pair(z_r, b_r, z_hat, n, h, -params.pair.robot.d, params.pair.robot.u,
+                          params.pair.robot.alpha,
+                          params.pair.robot.gamma * params.pair.a_rh * z_hat,
+                          option is not None, python._sigma, python._beta, python.b_star,
+                          params.bias.b_max)) == bits(*want)
+
+
+def per_step_advance(self: Participant, t: float, dt: float = 0.002) -> None:
+    """`Participant.advance` as it was: `_step` called for every step of h (no fused loop)."""
+    if self.t_go is None or self.pressed is not None:
+        self.t = max(self.t, t)
+        return
+    if self.t < self.t_go:
+        self.t = min(t, self.t_go)
+    step = self._step_general if self.general else self._step
+    while self.t < t - 1e-12:
+        left = t - self.t
+        h = left if left < dt else dt
+        step(h)
+        self.t += h
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 5, 8, 13, 21])
+def test_the_compiled_loop_changes_no_session(monkeypatch, seed):
+    """The fitted person's sessions (its strategists' feints and contrarians included), every
+    recorded sample, are the same with the compiled decision steps and the fused participant
+    loop as with the Python engine and a `_step` call per step."""
+    cfg = load_cohort_params(None)
+    fast = run_offline_session(cfg, seed, cohort=True, record=True)
+    monkeypatch.setattr(DecisionModel, "use_compiled", lambda self: None)
+    monkeypatch.setattr(Participant, "advance", per_step_advance)
+    plain = run_offline_session(cfg, seed, cohort=True, record=True)
+    assert len(fast) == 8 and repr(fast) == repr(plain)
 
 
 @pytest.mark.parametrize("option", [None, "red"])
