@@ -388,12 +388,20 @@ class _PaperLoop(_Loop[Colour]):
         layout = cfg.layout
         model = DecisionModel(cfg.decision, layout)
         model.use_compiled()  # its RK4 as machine code, the same values (`model.compiled`)
+        arm = SimArm(layout, cfg.sim_arm, t0=0.0)
+        arm.use_compiled()  # its substeps too
+        person: Participant[Colour] | ReplayedHand
+        if hand is None:
+            person = Participant(params, layout, seed=person_seed)
+            person.use_compiled()  # its 2 ms steps as machine code, the same values
+        else:
+            person = hand
         super().__init__(
             cfg, clicks, record,
-            person=hand if hand is not None else Participant(params, layout, seed=person_seed),
+            person=person,
             model=model,
             robot=RobotTrial(layout, cfg.behaviour, cfg.debounce, cfg.protocol.trial_timeout_s),
-            arm=SimArm(layout, cfg.sim_arm, t0=0.0),
+            arm=arm,
             boxes=(layout.red, layout.blue),
             protocol=cfg.protocol,
             policy=policy,

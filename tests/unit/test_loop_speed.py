@@ -20,10 +20,11 @@ from hypothesis import strategies as st
 from services.cohort.person import load_cohort_params
 from services.model import closed_loop
 from services.model.arm import SimArm
+from services.model.arm_kinematics import PointArm
 from services.model.behaviour import ArmCommand
 from services.model.bias import bias_active, bias_rate
 from services.model.closed_loop import centre, run_offline_session
-from services.model.compiled import rk4_pair
+from services.model.compiled import py_hypot, rk4_pair
 from services.model.decision import DecisionModel, DecisionParams, OptionsDecision
 from services.model.dynamics import opinion_rate, rk4_step
 from services.model.geometry import TableLayout
@@ -143,17 +144,42 @@ def per_step_advance(self: Participant, t: float, dt: float = 0.002) -> None:
         self.t += h
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3, 5, 8, 13, 21])
-def test_the_compiled_loop_changes_no_session(monkeypatch, seed):
-    """The fitted person's sessions (its strategists' feints and contrarians included), every
-    recorded sample, are the same with the compiled decision steps and the fused participant
-    loop as with the Python engine and a `_step` call per step."""
-    cfg = load_cohort_params(None)
+@pytest.mark.parametrize("spec_person", [False, True])
+@pytest.mark.parametrize("seed", [1, 2, 3, 5, 8, 13, 21, 34])
+def test_the_compiled_loop_changes_no_session(monkeypatch, seed, spec_person):
+    """The fitted person's sessions (its strategists' feints and contrarians included) and the
+    SPEC person's, every recorded sample, are the same with the compiled decision steps,
+    participant steps and arm substeps as with the Python parts (a `_step` call per step)."""
+    cfg = NodConfig() if spec_person else load_cohort_params(None)
     fast = run_offline_session(cfg, seed, cohort=True, record=True)
-    monkeypatch.setattr(DecisionModel, "use_compiled", lambda self: None)
+    for part in (DecisionModel, Participant, PointArm):
+        monkeypatch.setattr(part, "use_compiled", lambda self: None)
     monkeypatch.setattr(Participant, "advance", per_step_advance)
     plain = run_offline_session(cfg, seed, cohort=True, record=True)
     assert len(fast) == 8 and repr(fast) == repr(plain)
+
+
+@settings(max_examples=2000, deadline=None)
+@given(
+    x=st.one_of(st.floats(allow_nan=False, allow_infinity=False), st.just(0.0), st.just(-0.0)),
+    y=st.one_of(st.floats(-10.0, 10.0), st.floats(allow_nan=False, allow_infinity=False),
+                st.just(0.0), st.floats(-1e-300, 1e-300)),
+)
+def test_python_hypot_compiled_is_math_hypot(x, y):
+    """The compiled steps' `py_hypot` is CPython's `math.hypot` (not the C library's), subnormal
+    and huge arguments included, compiled and as Python."""
+    want = math.hypot(x, y)
+    assert py_hypot(x, y).hex() == want.hex()
+    assert compiled_hypot()(x, y).hex() == want.hex()
+
+
+def test_python_hypot_on_a_million_pairs():
+    rng = np.random.default_rng(35)
+    xs = rng.normal(0.0, 1.0, 10**6) * rng.choice([1e-310, 1e-9, 1e-3, 0.3, 5.0], 10**6)
+    ys = rng.normal(0.0, 1.0, 10**6) * rng.choice([1e-310, 1e-9, 1e-3, 0.3, 5.0], 10**6)
+    hypot = compiled_hypot()
+    assert all(hypot(x, y) == math.hypot(x, y) for x, y in zip(xs.tolist(), ys.tolist(),
+                                                                 strict=True))
 
 
 @pytest.mark.parametrize("option", [None, "red"])
@@ -207,6 +233,17 @@ def test_the_press_test_is_the_layouts_on_the_noise_free_landmarks(x, y):
     assert person._press_test() == LAYOUT.pressed(pts)
 
 
+def compiled_hypot():
+    """`py_hypot` as the compiled steps call it (Python under NOD_NO_JIT=1)."""
+    import os
+
+    if os.environ.get("NOD_NO_JIT") == "1":
+        return py_hypot
+    from numba import njit
+
+    return njit(cache=True)(py_hypot)
+
+
 class PlainArm(SimArm):
     """The arm with every substep computed, at rest or not."""
 
@@ -234,11 +271,15 @@ commands = st.lists(
 )
 
 
+@pytest.mark.parametrize("compiled", [False, True])
 @settings(max_examples=100, deadline=None)
 @given(script=commands)
-def test_an_arm_at_rest_skips_no_change(script):
-    """Moves, presses held at rest, stops and homecomings: the states of every 33 ms frame."""
+def test_an_arm_at_rest_skips_no_change(compiled, script):
+    """Moves, presses held at rest, stops and homecomings: the states of every 33 ms frame,
+    with the Python substeps skipped at rest and with the compiled substeps."""
     fast, plain = SimArm(LAYOUT), PlainArm(LAYOUT)
+    if compiled:
+        fast.use_compiled()
     fast.connect()
     plain.connect()
     t = 0.0
