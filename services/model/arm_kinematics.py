@@ -17,6 +17,7 @@ import numpy as np
 
 from services.model.checks import require_non_negative, require_positive
 from services.model.compiled import A_SIZE, ArmSteps, arm_kernel
+from services.model.compiled import enabled as compiled_enabled
 from services.model.device import SimConnection
 from services.model.geometry import Point
 
@@ -86,7 +87,8 @@ class PointArm(SimConnection, Generic[Target]):
 
         The offline loop's choice (`closed_loop`); the rig's simulated arm stays Python.
         """
-        self._steps = arm_kernel()
+        if compiled_enabled():
+            self._steps = arm_kernel()
 
     # -- read-only state -------------------------------------------------------------------
     @property

@@ -1,32 +1,39 @@
-"""The offline loop's hottest numeric kernel, compiled with Numba: the same floats, faster.
+"""The offline loop's numeric inner loops, compiled with Numba: the same floats, faster.
 
 A cohort (`nod cohort`, `nod calibrate-cohort`, `nod analyze power`, the fit's reference
 table) runs the offline closed loop once per simulated person, and must give the same sessions
 for the same seeds whatever runs it (tests/unit/test_golden.py, the stored rows' SHA-256 of
-benchmarks/cohort_speed.py). The decision engine's RK4 of eq 1 and eq 6
-(`DecisionModel._run`, ~33 steps of 1 ms per camera frame) was a fifth of a session's CPU, the
-rest of it Python's boxed floats around four `math.tanh` a step. Here the same steps are one
-machine-code loop.
+benchmarks/cohort_speed.py). Three loops of plain float arithmetic were most of a session's
+CPU (docs/scale.md): the decision engine's RK4 of eqs 1 and 6 (`rk4_pair`, ~33 steps of 1 ms
+per camera frame), the participant's 2 ms steps on two boxes (`person_steps`: eq 2, the arm
+as seen, the hand, the press test) and the simulated arm's substeps (`arm_steps`). Each is
+written here once more as plain Python, operation for operation the loop it replaces, and
+Numba compiles that function; the Python parts stay the reference (and run the rig).
 
-Why these are the same bits as the Python loop:
+Why these are the same bits as the Python loops:
 
-- `+ − × ÷`, comparisons, `abs` and `copysign` are IEEE operations, correctly rounded in both.
+- `+ − × ÷`, `sqrt`, comparisons, `abs` and `copysign` are IEEE operations, correctly rounded
+  in both, and every one is written in the Python loop's order.
+- No `fastmath`: LLVM may then neither reassociate nor contract a product and a sum into one
+  fused multiply-add (an FMA rounds once where Python rounds twice).
 - `math.tanh` compiles to a call of the C library's `tanh`, which is what CPython's
   `math.tanh` calls (NumPy's SIMD `tanh` is another algorithm and differs in the last bit).
-- No `fastmath`: LLVM may then neither reassociate nor contract a product and a sum into one
-  fused multiply-add (an FMA rounds once where Python rounds twice), so every operation is
-  rounded where Python rounds it, in the order written.
-- Python's `max(0.0, m)` keeps 0.0 unless m > 0.0 (a −0.0 or a NaN m gives +0.0); it is
-  written as that comparison, not as a `max` whose tie rule could pick −0.0.
+- `math.hypot` and `math.dist` are not the C library's `hypot` in CPython but its own
+  `vector_norm` (glibc's `hypot` differs from it in the last bit on ~0.6 % of pairs): ported
+  as `py_hypot`, checked against `math.hypot` by tests/unit/test_loop_speed.py.
+- Python's `max(0.0, m)` and `min(a, b, c)` keep the first of equals; they are written as the
+  comparisons they make, so a −0.0 cannot come out where Python gives +0.0.
 
-tests/unit/test_loop_speed.py holds the compiled kernel to `DecisionModel._run` bit for bit
-(`float.hex`, so a zero's sign counts) and whole sessions to the Python engine's.
+tests/unit/test_loop_speed.py holds each kernel to its Python loop bit for bit (`float.hex`,
+so a zero's sign counts) and whole sessions of the fitted and the SPEC person to the all-Python
+loop's, every recorded sample included.
 
-Compiled once per process on first use (~0.5 s), then cached on disk next to this file
-(`cache=True`: a Dask worker or a test process loads it in milliseconds). Only the offline
-loop uses it (`closed_loop`); the rig's decision service keeps the Python `_run`, so no live
-service imports Numba or waits for a compiler. `NOD_NO_JIT=1` runs the offline loop on the
-Python kernel too (same results, slower).
+Compiled once per machine and kept on disk next to this file (`cache=True`, __pycache__; ~2 s
+on a fresh clone), then loaded by each process that runs the offline loop (~0.5 s with
+Numba's import: a Dask worker, a test process). Only the offline loop turns them on
+(`use_compiled` on its parts, `closed_loop`); the rig's services keep the Python parts and
+never import Numba. `NOD_NO_JIT=1` keeps the offline loop on the Python parts too (the same
+sessions, ~2× slower).
 """
 
 from __future__ import annotations
@@ -111,20 +118,36 @@ def rk4_pair(
     return z_r, b_r
 
 
-_compiled: RK4Pair | None = None
+def enabled() -> bool:
+    """Whether the offline loop takes the compiled steps (`NOD_NO_JIT=1`: the Python parts')."""
+    return os.environ.get("NOD_NO_JIT") != "1"
+
+
+def _jit(fn: Callable[..., Any], **calls: Callable[..., Any]) -> Any:
+    """Compile fn, its calls of `calls` resolved to those compiled functions.
+
+    Numba (imported here: only the offline loop pays for it) compiles `fn` itself, its code
+    unchanged, with no `fastmath`; `cache=True` keeps the machine code on disk next to this
+    file (__pycache__), so the next process (a Dask worker, a test) loads it instead.
+    """
+    from numba import njit
+
+    jit = njit(cache=True, nogil=True)
+    if calls:  # compiled code calls compiled code: the same code, with compiled globals
+        fn = FunctionType(fn.__code__, {**fn.__globals__, **{k: jit(f) for k, f in
+                                                            calls.items()}}, fn.__name__)
+    return jit(fn)
+
+
+_pair: RK4Pair | None = None
 
 
 def pair_kernel() -> RK4Pair:
-    """`rk4_pair` compiled (once per process; the Python function under NOD_NO_JIT=1)."""
-    global _compiled
-    if _compiled is None:
-        if os.environ.get("NOD_NO_JIT") == "1":
-            _compiled = rk4_pair
-        else:
-            from numba import njit  # imported here: only the offline loop pays for it
-
-            _compiled = cast(RK4Pair, njit(cache=True, nogil=True)(rk4_pair))
-    return _compiled
+    """`rk4_pair` compiled (once per process)."""
+    global _pair
+    if _pair is None:
+        _pair = cast(RK4Pair, _jit(rk4_pair))
+    return _pair
 
 
 # -- the participant's steps on two boxes ---------------------------------------------------------
@@ -334,24 +357,11 @@ _person: PersonSteps | None = None
 
 
 def person_kernel() -> PersonSteps:
-    """`person_steps` compiled (once per process; the Python function under NOD_NO_JIT=1)."""
+    """`person_steps` compiled (once per process)."""
     global _person
     if _person is None:
-        if os.environ.get("NOD_NO_JIT") == "1":
-            _person = person_steps
-        else:
-            from numba import njit
-
-            # The same code, calling the compiled `py_hypot` and `pressed_box` (compiled code
-            # calls compiled code).
-            jit = njit(cache=True, nogil=True)
-            steps = FunctionType(
-                person_steps.__code__,
-                {**person_steps.__globals__, "py_hypot": jit(py_hypot),
-                 "pressed_box": jit(pressed_box)},
-                person_steps.__name__,
-            )
-            _person = cast(PersonSteps, njit(cache=True, nogil=True)(steps))
+        _person = cast(PersonSteps, _jit(person_steps, py_hypot=py_hypot,
+                                         pressed_box=pressed_box))
     return _person
 
 
@@ -429,17 +439,13 @@ _arm: ArmSteps | None = None
 
 
 def arm_kernel() -> ArmSteps:
-    """`arm_steps` compiled (once per process; the Python function under NOD_NO_JIT=1)."""
+    """`arm_steps` compiled (once per process)."""
     global _arm
     if _arm is None:
-        if os.environ.get("NOD_NO_JIT") == "1":
-            _arm = arm_steps
-        else:
-            from numba import njit
-
-            jit = njit(cache=True, nogil=True)
-            _arm = cast(ArmSteps, jit(FunctionType(
-                arm_steps.__code__, {**arm_steps.__globals__, "py_hypot": jit(py_hypot)},
-                arm_steps.__name__,
-            )))
+        _arm = cast(ArmSteps, _jit(arm_steps, py_hypot=py_hypot))
     return _arm
+
+
+def hypot_kernel() -> Callable[[float, float], float]:
+    """`py_hypot` compiled, as the compiled steps call it (for the tests)."""
+    return cast(Callable[[float, float], float], _jit(py_hypot))

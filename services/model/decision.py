@@ -38,6 +38,7 @@ from services.model.bias import (
     sigma_for,
 )
 from services.model.compiled import RK4Pair, pair_kernel
+from services.model.compiled import enabled as compiled_enabled
 from services.model.dynamics import (
     OptionsParams,
     PairParams,
@@ -301,7 +302,8 @@ class DecisionModel(PoseEngine[float, Colour, DecisionOutput]):
         The same values bit for bit, ~4× quicker; the offline loop's choice (a cohort's
         sessions), not the rig's: the decision service never imports the compiler.
         """
-        self._pair = pair_kernel()
+        if compiled_enabled():
+            self._pair = pair_kernel()
 
     def set_layout(self, layout: TableLayout) -> None:
         """Use a new table layout for later poses (state and ẑ_h are kept)."""

@@ -58,6 +58,7 @@ from services.model.compiled import (
     PersonSteps,
     person_kernel,
 )
+from services.model.compiled import enabled as compiled_enabled
 from services.model.dynamics import AgentParams, float_rates, option_vector
 from services.model.gaze import GazeCommand, read_gaze
 from services.model.geometry import (
@@ -306,7 +307,7 @@ class Participant(Generic[Opt]):
         The offline loop's choice (`closed_loop`); N_o ≥ 3 boxes and a feint's trials keep the
         Python steps.
         """
-        if not self.general:
+        if not self.general and compiled_enabled():
             self._steps = person_kernel()
 
     def _draw_box(self, n: int) -> int:

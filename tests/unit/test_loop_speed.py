@@ -24,7 +24,7 @@ from services.model.arm_kinematics import PointArm
 from services.model.behaviour import ArmCommand
 from services.model.bias import bias_active, bias_rate
 from services.model.closed_loop import centre, run_offline_session
-from services.model.compiled import py_hypot, rk4_pair
+from services.model.compiled import hypot_kernel, py_hypot, rk4_pair
 from services.model.decision import DecisionModel, DecisionParams, OptionsDecision
 from services.model.dynamics import opinion_rate, rk4_step
 from services.model.geometry import TableLayout
@@ -170,14 +170,14 @@ def test_python_hypot_compiled_is_math_hypot(x, y):
     and huge arguments included, compiled and as Python."""
     want = math.hypot(x, y)
     assert py_hypot(x, y).hex() == want.hex()
-    assert compiled_hypot()(x, y).hex() == want.hex()
+    assert hypot_kernel()(x, y).hex() == want.hex()
 
 
 def test_python_hypot_on_a_million_pairs():
     rng = np.random.default_rng(35)
     xs = rng.normal(0.0, 1.0, 10**6) * rng.choice([1e-310, 1e-9, 1e-3, 0.3, 5.0], 10**6)
     ys = rng.normal(0.0, 1.0, 10**6) * rng.choice([1e-310, 1e-9, 1e-3, 0.3, 5.0], 10**6)
-    hypot = compiled_hypot()
+    hypot = hypot_kernel()
     assert all(hypot(x, y) == math.hypot(x, y) for x, y in zip(xs.tolist(), ys.tolist(),
                                                                  strict=True))
 
@@ -231,17 +231,6 @@ def test_the_press_test_is_the_layouts_on_the_noise_free_landmarks(x, y):
     person._x, person._y = x, y
     pts = [(float(u), float(v)) for u, v in person.landmarks(noise=False)]
     assert person._press_test() == LAYOUT.pressed(pts)
-
-
-def compiled_hypot():
-    """`py_hypot` as the compiled steps call it (Python under NOD_NO_JIT=1)."""
-    import os
-
-    if os.environ.get("NOD_NO_JIT") == "1":
-        return py_hypot
-    from numba import njit
-
-    return njit(cache=True)(py_hypot)
 
 
 class PlainArm(SimArm):
