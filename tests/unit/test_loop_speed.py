@@ -291,6 +291,36 @@ def test_an_arm_at_rest_skips_no_change(compiled, script):
             assert arm_state(fast, t) == arm_state(plain, t)
 
 
+@settings(max_examples=50, deadline=None)
+@given(script=commands)
+def test_the_loops_glance_is_the_arms_state(script):
+    """`glance` (the offline loop's read of the arm) gives the fields `state` reports."""
+    glanced, reported = SimArm(LAYOUT), SimArm(LAYOUT)
+    t = 0.0
+    for arm in (glanced, reported):
+        arm.connect()
+    for wait, what in [*script, (2.0, "stop")]:
+        for arm in (glanced, reported):
+            if what == "home":
+                arm.home()
+            elif what == "stop":
+                arm.send(ArmCommand.stop("test"))
+            else:
+                action, to = what.split()
+                arm.send(
+                    ArmCommand.move(int(to), "test")
+                    if action == "move"
+                    else ArmCommand.press(to, "test")  # type: ignore[arg-type]
+                )
+        end = t + wait
+        while t < end:
+            t = min(end, t + 1 / 30)
+            ee, moving, target, pressed = glanced.glance(t)
+            s = reported.state(t)
+            assert (bits(*ee), moving, target, pressed) == (bits(*s.ee), s.moving, s.target,
+                                                            s.pressed)
+
+
 def test_centre_is_numpys_mean_bit_for_bit():
     rng = np.random.default_rng(3)
     for n in (1, 2, 7, 8, 9, 16, 21, 40):
