@@ -565,7 +565,8 @@ def _run(
             assert broken_at is not None
             cues = proto.resume(t) if t - broken_at >= safe_again_s else []
         elif (
-            proto.running_trial
+            breaks  # none (a cohort's sessions): nothing to look up, every frame
+            and proto.running_trial
             and proto.trial is not None
             and t - t_setup >= breaks.get((proto.trial.index, proto.attempt), math.inf)
         ):
@@ -577,7 +578,8 @@ def _run(
                 human_pressed=loop.human is not None,
                 robot_pressed=loop.robot.pressed is not None,
             )
-        if any(c.kind == "setup" for c in cues):
-            t_setup = t
-        loop.on_cues(t, cues)
+        if cues:  # most frames have none
+            if any(c.kind == "setup" for c in cues):
+                t_setup = t
+            loop.on_cues(t, cues)
     return loop.results
