@@ -446,6 +446,12 @@ def arm_kernel() -> ArmSteps:
     return _arm
 
 
+_hypot: Callable[[float, float], float] | None = None
+
+
 def hypot_kernel() -> Callable[[float, float], float]:
-    """`py_hypot` compiled, as the compiled steps call it (for the tests)."""
-    return cast(Callable[[float, float], float], _jit(py_hypot))
+    """`py_hypot` compiled, as the compiled steps call it (once per process; for the tests)."""
+    global _hypot
+    if _hypot is None:
+        _hypot = cast(Callable[[float, float], float], _jit(py_hypot))
+    return _hypot
