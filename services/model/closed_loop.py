@@ -377,7 +377,7 @@ class _PaperLoop(_Loop[Colour]):
         params, person_seed = _draws(cfg, seed, cohort)
         layout = cfg.layout
         model = DecisionModel(cfg.decision, layout)
-        model.use_compiled()  # its RK4 as machine code, the same values (`model.compiled`)
+        model.use_compiled()  # its RK4 as machine code, the same values (`services.model.compiled`)
         arm = SimArm(layout, cfg.sim_arm, t0=0.0)
         arm.use_compiled()  # its substeps too
         person: Participant[Colour] | ReplayedHand
