@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from collections.abc import Callable
 from types import FunctionType
 from typing import Any, cast
@@ -153,18 +154,22 @@ def pair_kernel() -> RK4Pair:
 # -- the participant's steps on two boxes ---------------------------------------------------------
 
 _DBL_MIN = 2.2250738585072014e-308  # the smallest normal double
+# How CPython's `vector_norm` treats a subnormal largest argument: 3.11 divides by it, 3.12 on
+# scale both to normal numbers first (exactly) and the result back. Normal arguments: one code.
+_RESCALE_SUBNORMALS = sys.version_info >= (3, 12)
 _VELTKAMP = 134217729.0  # 2**27 + 1: splits a double into two halves whose products are exact
 
 
 def py_hypot(x: float, y: float) -> float:
-    """CPython 3.11's `math.hypot(x, y)` for finite x and y, bit for bit (`vector_norm`).
+    """CPython's `math.hypot(x, y)` for finite x and y, bit for bit (`vector_norm`).
 
     Not the C library's `hypot` (glibc's differs from Python's in the last bit on ~0.6 % of
     arguments): Python scales by a power of two (exact), squares exactly (a product and its
-    rounding error; Dekker's split here, CPython 3.11's `dl_mul`), sums with compensation and
-    corrects the square root once. For a subnormal larger argument it divides by it instead,
-    as 3.11 does. tests/unit/test_loop_speed.py checks it against `math.hypot` (zeros,
-    subnormals and 10⁻¹² to 10 included).
+    rounding error: Dekker's split here, as CPython 3.11's `dl_mul`; 3.12's `fma` gives the
+    same exact error), sums with compensation and corrects the square root once. A subnormal
+    larger argument is treated as the running Python treats it (`_RESCALE_SUBNORMALS`; checked
+    on 3.11, 3.12 and 3.13 as Python). tests/unit/test_loop_speed.py checks it against
+    `math.hypot` (zeros, subnormals and 10⁻¹² to 10 included).
     """
     ax = abs(x)
     ay = abs(y)
@@ -172,15 +177,20 @@ def py_hypot(x: float, y: float) -> float:
     if mx == 0.0:
         return mx
     e = math.frexp(mx)[1]
-    if e < -1023:  # subnormal: 3.11's fallback, dividing by the maximum
-        csum = 1.0
-        frac = 0.0
-        for v in (ax / mx, ay / mx):
-            v = v * v
-            old = csum
-            csum += v
-            frac += (old - csum) + v
-        return mx * math.sqrt(csum - 1.0 + frac)
+    post = 1.0
+    if e < -1023:  # a subnormal maximum
+        if not _RESCALE_SUBNORMALS:  # 3.11: divide by the maximum
+            csum = 1.0
+            frac = 0.0
+            for v in (ax / mx, ay / mx):
+                v = v * v
+                old = csum
+                csum += v
+                frac += (old - csum) + v
+            return mx * math.sqrt(csum - 1.0 + frac)
+        ax, ay, mx = ax / _DBL_MIN, ay / _DBL_MIN, mx / _DBL_MIN  # 3.12: normal, exactly
+        e = math.frexp(mx)[1]
+        post = _DBL_MIN
     scale = math.ldexp(1.0, -e)
     csum = 1.0
     frac1 = 0.0
@@ -208,7 +218,7 @@ def py_hypot(x: float, y: float) -> float:
     frac2 += (csum - s) + p
     csum = s
     h += (csum - 1.0 + (frac1 + frac2)) / (2.0 * h)  # the differential correction
-    return h / scale
+    return post * (h / scale)  # × 1.0 is exact: only a subnormal maximum changes it
 
 
 # What stopped `person_steps`: t reached (or a press), an arm sighting is due.
