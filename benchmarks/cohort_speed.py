@@ -3,7 +3,10 @@
 - **Baseline**: `--baseline` sessions (seeds 1, 2, …) of the default simulated person run one
   after the other in this process — `run_offline_session(cfg, seed, cohort=True, record=True)`,
   exactly what each cohort task computes — as CPU seconds per session: the model's own cost,
-  with no engine, no store, no interpreter start.
+  with no engine, no store, no interpreter start. Twice: on the Python parts (`NOD_NO_JIT=1`,
+  the loop as the rig's services step it) and on the compiled ones (`services.model.compiled`,
+  what the cohort runs; after one warm-up session that loads or compiles them, timed apart),
+  and the sessions compared trial by trial.
 - **Candidate**: `nod cohort --participants N --seed 1 --db TMP --quiet` as its own process:
   wall time (the embedded Dask cluster's start and stop included), and the CPU seconds of that
   process and its workers together (RUSAGE_CHILDREN) per session.
@@ -14,7 +17,8 @@ average before and after (a timing is valid only on a quiet machine: below ~1.5,
 trials, samples): a speed-up must not change it for the same seeds, so compare it between
 commits. CPU seconds stay meaningful under load; wall time does not.
 
-Exit status 1 if the cohort takes more than `--max-s` (default 60, issue 21's goal).
+Exit status 1 if the cohort takes more than `--max-s` (default 60, issue 21's goal); 3 if the
+compiled parts give other sessions than the Python parts.
 
     .venv/bin/python benchmarks/cohort_speed.py [--participants 300] [--baseline 12]
 """
@@ -51,13 +55,27 @@ def load() -> str:
     return f"{one:.2f}" + (f" ({', '.join(notes)}: wall times not valid)" if notes else "")
 
 
-def baseline_cpu(sessions: int) -> float:
-    """CPU seconds per session of the cohort's task, in this process."""
+def baseline_cpu(sessions: int, python: bool) -> tuple[float, list[str]]:
+    """CPU seconds per session of the cohort's task in this process, and the sessions' reprs.
+
+    `python`: on the Python parts (NOD_NO_JIT=1), else on the compiled ones.
+    """
     cfg = load_cohort_params(None)
-    t0 = time.process_time()
-    for seed in range(1, sessions + 1):
-        run_offline_session(cfg, seed, cohort=True, record=True)
-    return (time.process_time() - t0) / sessions
+    os.environ["NOD_NO_JIT"] = "1" if python else "0"
+    try:
+        t0 = time.process_time()
+        runs = [repr(run_offline_session(cfg, seed, cohort=True, record=True))
+                for seed in range(1, sessions + 1)]
+        return (time.process_time() - t0) / sessions, runs
+    finally:
+        os.environ.pop("NOD_NO_JIT")
+
+
+def warm_up() -> float:
+    """Wall seconds to load (or compile) the compiled parts: one session, not timed with them."""
+    t0 = time.perf_counter()
+    run_offline_session(load_cohort_params(None), 10**6, cohort=True, record=True)
+    return time.perf_counter() - t0
 
 
 def children_cpu() -> float:
@@ -85,8 +103,15 @@ def main() -> int:
     cores = args.workers or os.cpu_count() or 1
 
     print(f"load before: {load()}")
-    base = baseline_cpu(args.baseline)
-    print(f"baseline: {base:.3f} CPU s per session in process ({args.baseline} sessions)")
+    python, plain = baseline_cpu(args.baseline, python=True)
+    print(f"baseline, Python parts: {python:.4f} CPU s per session in process "
+          f"({args.baseline} sessions; {60 / python:.0f} sessions/min per core)")
+    print(f"compiled parts' warm-up (load or compile, first session): {warm_up():.2f} s")
+    base, fast = baseline_cpu(args.baseline, python=False)
+    print(f"baseline, compiled parts: {base:.4f} CPU s per session ({60 / base:.0f}/min per "
+          f"core): {python / base:.2f}x; sessions {'identical' if fast == plain else 'DIFFER'}")
+    if fast != plain:
+        return 3
 
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / "cohort.db"
@@ -114,7 +139,8 @@ def main() -> int:
         f"{cpu / n:.3f} CPU s per session with engine and store "
         f"({cpu / n / base:.2f}× the baseline's {base:.3f})"
     )
-    print(f"ideal (N × baseline / cores): {ideal:.1f} s; overhead {wall - ideal:.1f} s")
+    print(f"ideal (N × compiled baseline / cores): {ideal:.1f} s; overhead {wall - ideal:.1f} s; "
+          f"{n / wall * 60:.0f} sessions/min with the engine's start and stop")
     print(f"stored rows sha256: {digest}")
     ok = wall <= args.max_s
     print(f"goal ≤ {args.max_s:.0f} s: {'met' if ok else 'MISSED'}")

@@ -10,6 +10,7 @@ zero's sign counts too.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -19,9 +20,11 @@ from hypothesis import strategies as st
 from services.cohort.person import load_cohort_params
 from services.model import closed_loop
 from services.model.arm import SimArm
+from services.model.arm_kinematics import PointArm
 from services.model.behaviour import ArmCommand
 from services.model.bias import bias_active, bias_rate
 from services.model.closed_loop import centre, run_offline_session
+from services.model.compiled import hypot_kernel, py_hypot, rk4_pair
 from services.model.decision import DecisionModel, DecisionParams, OptionsDecision
 from services.model.dynamics import opinion_rate, rk4_step
 from services.model.geometry import TableLayout
@@ -94,6 +97,89 @@ def test_decision_steps_are_the_rate_functions_bit_for_bit(z_r, b_r, z_hat, opti
     want = plain_run(model, z_r, b_r, z_hat, n, h)
     assert [bits(*s) for s in path] == [bits(*s) for s in want]
     assert bits(*end) == bits(*want[-1])
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    z_r=finite,
+    b_r=st.one_of(st.floats(-7.0, 7.0), st.just(0.0), st.just(-0.0)),
+    z_hat=st.one_of(finite, st.just(0.0), st.just(-0.0)),
+    option=st.sampled_from([None, "red", "blue"]),
+    n=st.integers(1, 60),
+    h=st.sampled_from([1e-3, 3.33333e-4, 2.5e-3, 1e-9]),
+    u=st.sampled_from([None, 0.5, 3.0]),
+)
+def test_the_compiled_decision_steps_are_pythons_bit_for_bit(z_r, b_r, z_hat, option, n, h, u):
+    """`services.model.compiled` (Numba, no fastmath) takes `_run`'s steps to the same bits,
+    dissensus and consensus (the bias clamped at b_max included), as the engine calls it."""
+    params = DecisionParams()
+    if u is not None:
+        robot = replace(params.pair.robot, u=u)
+        params = replace(params, pair=replace(params.pair, robot=robot))
+    python, fast = DecisionModel(params, LAYOUT), DecisionModel(params, LAYOUT)
+    fast.use_compiled()
+    for model in (python, fast):
+        model.reset("consensus" if option else "dissensus", option)
+    want = python._run(z_r, b_r, z_hat, n, h)
+    assert bits(*fast._run(z_r, b_r, z_hat, n, h)) == bits(*want)
+    assert bits(*rk4_pair(z_r, b_r, z_hat, n, h, -params.pair.robot.d, params.pair.robot.u,
+                          params.pair.robot.alpha,
+                          params.pair.robot.gamma * params.pair.a_rh * z_hat,
+                          option is not None, python._sigma, python._beta, python.b_star,
+                          params.bias.b_max)) == bits(*want)
+
+
+def per_step_advance(self: Participant, t: float, dt: float = 0.002) -> None:
+    """`Participant.advance` as it was: `_step` called for every step of h (no fused loop)."""
+    if self.t_go is None or self.pressed is not None:
+        self.t = max(self.t, t)
+        return
+    if self.t < self.t_go:
+        self.t = min(t, self.t_go)
+    step = self._step_general if self.general else self._step
+    while self.t < t - 1e-12:
+        left = t - self.t
+        h = left if left < dt else dt
+        step(h)
+        self.t += h
+
+
+@pytest.mark.parametrize("spec_person", [False, True])
+@pytest.mark.parametrize("seed", [1, 2, 3, 5, 8, 13, 21, 34])
+def test_the_compiled_loop_changes_no_session(monkeypatch, seed, spec_person):
+    """The fitted person's sessions (its strategists' feints and contrarians included) and the
+    SPEC person's, every recorded sample, are the same with the compiled decision steps,
+    participant steps and arm substeps as with the Python parts (a `_step` call per step)."""
+    cfg = NodConfig() if spec_person else load_cohort_params(None)
+    fast = run_offline_session(cfg, seed, cohort=True, record=True)
+    for part in (DecisionModel, Participant, PointArm):
+        monkeypatch.setattr(part, "use_compiled", lambda self: None)
+    monkeypatch.setattr(Participant, "advance", per_step_advance)
+    plain = run_offline_session(cfg, seed, cohort=True, record=True)
+    assert len(fast) == 8 and repr(fast) == repr(plain)
+
+
+@settings(max_examples=2000, deadline=None)
+@given(
+    x=st.one_of(st.floats(allow_nan=False, allow_infinity=False), st.just(0.0), st.just(-0.0)),
+    y=st.one_of(st.floats(-10.0, 10.0), st.floats(allow_nan=False, allow_infinity=False),
+                st.just(0.0), st.floats(-1e-300, 1e-300)),
+)
+def test_python_hypot_compiled_is_math_hypot(x, y):
+    """The compiled steps' `py_hypot` is CPython's `math.hypot` (not the C library's), subnormal
+    and huge arguments included, compiled and as Python."""
+    want = math.hypot(x, y)
+    assert py_hypot(x, y).hex() == want.hex()
+    assert hypot_kernel()(x, y).hex() == want.hex()
+
+
+def test_python_hypot_on_a_million_pairs():
+    rng = np.random.default_rng(35)
+    xs = rng.normal(0.0, 1.0, 10**6) * rng.choice([1e-310, 1e-9, 1e-3, 0.3, 5.0], 10**6)
+    ys = rng.normal(0.0, 1.0, 10**6) * rng.choice([1e-310, 1e-9, 1e-3, 0.3, 5.0], 10**6)
+    hypot = hypot_kernel()
+    assert all(hypot(x, y) == math.hypot(x, y) for x, y in zip(xs.tolist(), ys.tolist(),
+                                                                 strict=True))
 
 
 @pytest.mark.parametrize("option", [None, "red"])
@@ -174,11 +260,15 @@ commands = st.lists(
 )
 
 
+@pytest.mark.parametrize("compiled", [False, True])
 @settings(max_examples=100, deadline=None)
 @given(script=commands)
-def test_an_arm_at_rest_skips_no_change(script):
-    """Moves, presses held at rest, stops and homecomings: the states of every 33 ms frame."""
+def test_an_arm_at_rest_skips_no_change(compiled, script):
+    """Moves, presses held at rest, stops and homecomings: the states of every 33 ms frame,
+    with the Python substeps skipped at rest and with the compiled substeps."""
     fast, plain = SimArm(LAYOUT), PlainArm(LAYOUT)
+    if compiled:
+        fast.use_compiled()
     fast.connect()
     plain.connect()
     t = 0.0
@@ -199,6 +289,36 @@ def test_an_arm_at_rest_skips_no_change(script):
         while t < end:
             t = min(end, t + 1 / 30)
             assert arm_state(fast, t) == arm_state(plain, t)
+
+
+@settings(max_examples=50, deadline=None)
+@given(script=commands)
+def test_the_loops_glance_is_the_arms_state(script):
+    """`glance` (the offline loop's read of the arm) gives the fields `state` reports."""
+    glanced, reported = SimArm(LAYOUT), SimArm(LAYOUT)
+    t = 0.0
+    for arm in (glanced, reported):
+        arm.connect()
+    for wait, what in [*script, (2.0, "stop")]:
+        for arm in (glanced, reported):
+            if what == "home":
+                arm.home()
+            elif what == "stop":
+                arm.send(ArmCommand.stop("test"))
+            else:
+                action, to = what.split()
+                arm.send(
+                    ArmCommand.move(int(to), "test")
+                    if action == "move"
+                    else ArmCommand.press(to, "test")  # type: ignore[arg-type]
+                )
+        end = t + wait
+        while t < end:
+            t = min(end, t + 1 / 30)
+            ee, moving, target, pressed = glanced.glance(t)
+            s = reported.state(t)
+            assert (bits(*ee), moving, target, pressed) == (bits(*s.ee), s.moving, s.target,
+                                                            s.pressed)
 
 
 def test_centre_is_numpys_mean_bit_for_bit():

@@ -1,0 +1,467 @@
+"""The offline loop's numeric inner loops, compiled with Numba: the same floats, faster.
+
+A cohort (`nod cohort`, `nod calibrate-cohort`, `nod analyze power`, the fit's reference
+table) runs the offline closed loop once per simulated person, and must give the same sessions
+for the same seeds whatever runs it (tests/unit/test_golden.py, the stored rows' SHA-256 of
+benchmarks/cohort_speed.py). Three loops of plain float arithmetic were most of a session's
+CPU (docs/scale.md): the decision engine's RK4 of eqs 1 and 6 (`rk4_pair`, ~33 steps of 1 ms
+per camera frame), the participant's 2 ms steps on two boxes (`person_steps`: eq 2, the arm
+as seen, the hand, the press test) and the simulated arm's substeps (`arm_steps`). Each is
+written here once more as plain Python, operation for operation the loop it replaces, and
+Numba compiles that function; the Python parts stay the reference (and run the rig).
+
+Why these are the same bits as the Python loops:
+
+- `+ − × ÷`, `sqrt`, comparisons, `abs` and `copysign` are IEEE operations, correctly rounded
+  in both, and every one is written in the Python loop's order.
+- No `fastmath`: LLVM may then neither reassociate nor contract a product and a sum into one
+  fused multiply-add (an FMA rounds once where Python rounds twice).
+- `math.tanh` compiles to a call of the C library's `tanh`, which is what CPython's
+  `math.tanh` calls (NumPy's SIMD `tanh` is another algorithm and differs in the last bit).
+- `math.hypot` and `math.dist` are not the C library's `hypot` in CPython but its own
+  `vector_norm` (glibc's `hypot` differs from it in the last bit on ~0.6 % of pairs): ported
+  as `py_hypot`, checked against `math.hypot` by tests/unit/test_loop_speed.py.
+- Python's `max(0.0, m)` and `min(a, b, c)` keep the first of equals; they are written as the
+  comparisons they make, so a −0.0 cannot come out where Python gives +0.0.
+
+tests/unit/test_loop_speed.py holds each kernel to its Python loop bit for bit (`float.hex`,
+so a zero's sign counts) and whole sessions of the fitted and the SPEC person to the all-Python
+loop's, every recorded sample included.
+
+Compiled once per machine and kept on disk next to this file (`cache=True`, __pycache__; ~2 s
+on a fresh clone), then loaded by each process that runs the offline loop (~0.5 s with
+Numba's import: a Dask worker, a test process). Only the offline loop turns them on
+(`use_compiled` on its parts, `closed_loop`); the rig's services keep the Python parts and
+never import Numba. `NOD_NO_JIT=1` keeps the offline loop on the Python parts too (the same
+sessions, ~2× slower).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from collections.abc import Callable
+from types import FunctionType
+from typing import Any, cast
+
+RK4Pair = Callable[
+    [float, float, float, int, float, float, float, float, float, bool, float, float, float,
+     float],
+    tuple[float, float],
+]
+
+
+def rk4_pair(
+    z_r: float,
+    b_r: float,
+    z_hat: float,
+    n: int,
+    h: float,
+    nd: float,
+    u: float,
+    alpha: float,
+    gz: float,
+    consensus: bool,
+    sigma: float,
+    beta: float,
+    b_star: float,
+    b_max: float,
+) -> tuple[float, float]:
+    """Take n RK4 steps of h of eqs 1 and 6 from (z_r, b_r), ẑ_h held: `DecisionModel._run`.
+
+    The same operations in the same order as `_run` (its docstring says why they are written
+    out; −d, γ_r a_rh ẑ_h are hoisted there as `nd`, `gz`), stopped at an exact fixed point of
+    the step as `_run` stops. Plain Python: Numba compiles this very function (`pair_kernel`).
+    """
+    tanh = math.tanh
+    copysign = math.copysign
+    sgn = 1.0 if z_hat > 0 else -1.0
+    hh, h6 = 0.5 * h, h / 6.0
+    for _ in range(n):
+        z0, b0 = z_r, b_r
+        k1z = nd * z_r + u * tanh(alpha * z_r + gz) + b_r
+        if consensus and z_r * z_hat < 0:
+            m = b_star - abs(b_r)
+            k1b = sigma * z_r * sgn + beta * (m if m > 0.0 else 0.0)
+            z2, b2 = z_r + hh * k1z, b_r + hh * k1b
+            k2z = nd * z2 + u * tanh(alpha * z2 + gz) + b2
+            m = b_star - abs(b2)
+            k2b = sigma * z2 * sgn + beta * (m if m > 0.0 else 0.0)
+            z3, b3 = z_r + hh * k2z, b_r + hh * k2b
+            k3z = nd * z3 + u * tanh(alpha * z3 + gz) + b3
+            m = b_star - abs(b3)
+            k3b = sigma * z3 * sgn + beta * (m if m > 0.0 else 0.0)
+            z4, b4 = z_r + h * k3z, b_r + h * k3b
+            k4z = nd * z4 + u * tanh(alpha * z4 + gz) + b4
+            m = b_star - abs(b4)
+            k4b = sigma * z4 * sgn + beta * (m if m > 0.0 else 0.0)
+            b_r += h6 * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)
+            if b_r > b_max:
+                b_r = b_max
+            elif b_r < -b_max:
+                b_r = -b_max
+        else:
+            z2 = z_r + hh * k1z
+            k2z = nd * z2 + u * tanh(alpha * z2 + gz) + b_r
+            z3 = z_r + hh * k2z
+            k3z = nd * z3 + u * tanh(alpha * z3 + gz) + b_r
+            z4 = z_r + h * k3z
+            k4z = nd * z4 + u * tanh(alpha * z4 + gz) + b_r
+        z_r += h6 * (k1z + 2.0 * k2z + 2.0 * k3z + k4z)
+        if (
+            z_r == z0
+            and b_r == b0
+            and copysign(1.0, z_r) == copysign(1.0, z0)
+            and copysign(1.0, b_r) == copysign(1.0, b0)
+        ):
+            break
+    return z_r, b_r
+
+
+def enabled() -> bool:
+    """Whether the offline loop takes the compiled steps (`NOD_NO_JIT=1`: the Python parts')."""
+    return os.environ.get("NOD_NO_JIT") != "1"
+
+
+def _jit(fn: Callable[..., Any], **calls: Callable[..., Any]) -> Any:
+    """Compile fn, its calls of `calls` resolved to those compiled functions.
+
+    Numba (imported here: only the offline loop pays for it) compiles `fn` itself, its code
+    unchanged, with no `fastmath`; `cache=True` keeps the machine code on disk next to this
+    file (__pycache__), so the next process (a Dask worker, a test) loads it instead.
+    """
+    from numba import njit
+
+    jit = njit(cache=True, nogil=True)
+    if calls:  # compiled code calls compiled code: the same code, with compiled globals
+        fn = FunctionType(fn.__code__, {**fn.__globals__, **{k: jit(f) for k, f in
+                                                            calls.items()}}, fn.__name__)
+    return jit(fn)
+
+
+_pair: RK4Pair | None = None
+
+
+def pair_kernel() -> RK4Pair:
+    """`rk4_pair` compiled (once per process)."""
+    global _pair
+    if _pair is None:
+        _pair = cast(RK4Pair, _jit(rk4_pair))
+    return _pair
+
+
+# -- the participant's steps on two boxes ---------------------------------------------------------
+
+_DBL_MIN = 2.2250738585072014e-308  # the smallest normal double
+# How CPython's `vector_norm` treats a subnormal largest argument: 3.11 divides by it, 3.12 on
+# scale both to normal numbers first (exactly) and the result back. Normal arguments: one code.
+_RESCALE_SUBNORMALS = sys.version_info >= (3, 12)
+_VELTKAMP = 134217729.0  # 2**27 + 1: splits a double into two halves whose products are exact
+
+
+def py_hypot(x: float, y: float) -> float:
+    """CPython's `math.hypot(x, y)` for finite x and y, bit for bit (`vector_norm`).
+
+    Not the C library's `hypot` (glibc's differs from Python's in the last bit on ~0.6 % of
+    arguments): Python scales by a power of two (exact), squares exactly (a product and its
+    rounding error: Dekker's split here, as CPython 3.11's `dl_mul`; 3.12's `fma` gives the
+    same exact error), sums with compensation and corrects the square root once. A subnormal
+    larger argument is treated as the running Python treats it (`_RESCALE_SUBNORMALS`; checked
+    on 3.11, 3.12 and 3.13 as Python). tests/unit/test_loop_speed.py checks it against
+    `math.hypot` (zeros, subnormals and 10⁻¹² to 10 included).
+    """
+    ax = abs(x)
+    ay = abs(y)
+    mx = ay if ay > ax else ax  # the larger; 0.0 if both are zeros
+    if mx == 0.0:
+        return mx
+    e = math.frexp(mx)[1]
+    post = 1.0
+    if e < -1023:  # a subnormal maximum
+        if not _RESCALE_SUBNORMALS:  # 3.11: divide by the maximum
+            csum = 1.0
+            frac = 0.0
+            for v in (ax / mx, ay / mx):
+                v = v * v
+                old = csum
+                csum += v
+                frac += (old - csum) + v
+            return mx * math.sqrt(csum - 1.0 + frac)
+        ax, ay, mx = ax / _DBL_MIN, ay / _DBL_MIN, mx / _DBL_MIN  # 3.12: normal, exactly
+        e = math.frexp(mx)[1]
+        post = _DBL_MIN
+    scale = math.ldexp(1.0, -e)
+    csum = 1.0
+    frac1 = 0.0
+    frac2 = 0.0
+    for v in (ax * scale, ay * scale):  # lossless scaling
+        p = v * v
+        t = v * _VELTKAMP
+        hi = t - (t - v)
+        lo = v - hi
+        frac1 += ((hi * hi - p) + hi * lo + lo * hi) + lo * lo  # the square's rounding error
+        s = csum + p  # dl_fast_sum(csum, p)
+        frac2 += (csum - s) + p
+        csum = s
+    h = math.sqrt(csum - 1.0 + (frac1 + frac2))
+    nh = -h
+    p = nh * h
+    t = nh * _VELTKAMP
+    nh_hi = t - (t - nh)
+    nh_lo = nh - nh_hi
+    t = h * _VELTKAMP
+    h_hi = t - (t - h)
+    h_lo = h - h_hi
+    frac1 += ((nh_hi * h_hi - p) + nh_hi * h_lo + nh_lo * h_hi) + nh_lo * h_lo
+    s = csum + p
+    frac2 += (csum - s) + p
+    csum = s
+    h += (csum - 1.0 + (frac1 + frac2)) / (2.0 * h)  # the differential correction
+    return post * (h / scale)  # × 1.0 is exact: only a subnormal maximum changes it
+
+
+# What stopped `person_steps`: t reached (or a press), an arm sighting is due.
+DONE, SEEN = 0, 1
+
+# `person_steps`' state vector (float64; a box index, −1 for None, and flags as floats).
+S_T, S_Z, S_X, S_Y, S_VX, S_VY, S_LAST, S_ARM, S_OPPOSED, S_FIRST, S_HEADING, S_SWITCHES, \
+    S_QUICK, S_PRESSED = range(14)
+S_SIZE = 14
+# Its constants of a trial (after "go").
+(C_B, C_ND, C_U, C_ALPHA, C_GAMMA, C_TMOVE, C_DELAY, C_CUE, C_AGAINST, C_FULL, C_LEAST,
+ C_SPEED, C_LATE, C_ACCEL, C_COMMIT_Y, C_BELOW, C_OBEYS, C_MAX_SWITCHES) = range(18)
+C_CENTERS = 18  # box 0's centre (x, y), then box 1's
+C_NEAR = 22  # box 0's (x1, x2, y1, y2) where a landmark can be inside, then box 1's
+C_BOXES = 30  # box 0's (x1, x2, y1, y2), then box 1's: the press test's boxes
+C_HAND = 38  # the 21 landmarks (x, y) around a zero centre (`Participant._hand`)
+C_SIZE = 80
+
+
+def pressed_box(x: float, y: float, c: Any) -> int:
+    """`Participant._press_test` once near a box: the box a noise-free landmark is in, or −1.
+
+    The landmarks as `landmarks(noise=False)` makes them (the template plus the centre, each
+    an IEEE sum like NumPy's, clipped to [0, 1]), tested as `OptionsLayout.pressed` tests them:
+    landmark by landmark, box 0 before box 1, edges included. Clipping to 0.0 or 1.0 by a
+    comparison can only differ from NumPy's in a zero's sign, which no comparison sees.
+    """
+    for i in range(21):
+        px = c[C_HAND + 2 * i] + x
+        py = c[C_HAND + 2 * i + 1] + y
+        if px < 0.0:
+            px = 0.0
+        elif px > 1.0:
+            px = 1.0
+        if py < 0.0:
+            py = 0.0
+        elif py > 1.0:
+            py = 1.0
+        for j in range(2):
+            k = C_BOXES + 4 * j
+            if c[k] <= px <= c[k + 1] and c[k + 2] <= py <= c[k + 3]:
+                return j
+    return -1
+
+
+def person_steps(t: float, dt: float, s: Any, c: Any, next_seen: float) -> int:
+    """`Participant._advance_kernel`'s steps (two boxes, no feint) until t or an event.
+
+    The state `s` (S_*) is updated in place; `c` holds the trial's constants (C_*). Stops
+    before a step whose start sees a new arm sighting due (`next_seen` ≤ t − delay: SEEN; the
+    caller pops the person's queue and calls again) and after a step that brings the hand's
+    centre near a box, the press test (`pressed_box`); after a press only the clock goes on.
+    The arithmetic is `_advance_kernel`'s, operation for operation, `py_hypot` for `math.hypot`.
+    """
+    tt, z, x, y, vx, vy = s[S_T], s[S_Z], s[S_X], s[S_Y], s[S_VX], s[S_VY]
+    last_box, arm_box = int(s[S_LAST]), int(s[S_ARM])
+    opposed, first = s[S_OPPOSED], int(s[S_FIRST])
+    heading, switches, quick = int(s[S_HEADING]), int(s[S_SWITCHES]), s[S_QUICK] != 0.0
+    b, nd, u, alpha, gamma = c[C_B], c[C_ND], c[C_U], c[C_ALPHA], c[C_GAMMA]
+    t_move, delay, cue, against = c[C_TMOVE], c[C_DELAY], int(c[C_CUE]), c[C_AGAINST]
+    full, least, accel = c[C_FULL], c[C_LEAST], c[C_ACCEL]
+    speed = c[C_SPEED] * (c[C_LATE] if quick else 1.0)  # `_move`'s, fixed unless a feint turns
+    commit_y, below, obeys = c[C_COMMIT_Y], c[C_BELOW] != 0.0, c[C_OBEYS] != 0.0
+    max_switches = int(c[C_MAX_SWITCHES])
+    tanh = math.tanh
+    end = t - 1e-12
+    event = DONE
+    while tt < end:
+        left = t - tt
+        h = left if left < dt else dt
+        if next_seen <= tt - delay:  # `_arm_seen` would pop a sighting: the caller does
+            event = SEEN
+            break
+        if last_box < 0:
+            r_hat = 0.0
+        else:
+            arm_box = last_box
+            if first >= 0 and last_box != first:
+                opposed = 1.0
+            weight = against if cue >= 0 and last_box != cue else 1.0
+            r_hat = weight if last_box == 0 else -weight
+        gr = gamma * r_hat
+        hh = 0.5 * h
+        k1 = nd * z + u * tanh(alpha * z + gr) + b
+        z2 = z + hh * k1
+        k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
+        z3 = z + hh * k2
+        k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
+        z4 = z + h * k3
+        k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
+        z = z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        start = tt
+        tt = tt + h
+        if start < t_move:
+            continue
+        wanted = 0 if z > 0 else 1
+        lead = abs(z)
+        committed = heading >= 0 and (
+            quick
+            or switches >= max_switches
+            or (obeys and (y < commit_y if below else y > commit_y))
+        )
+        if heading < 0:
+            heading = wanted
+            first = wanted
+        elif wanted != heading and not committed:
+            heading = wanted
+            switches += 1
+        dx = c[C_CENTERS + 2 * heading] - x
+        dy = c[C_CENTERS + 2 * heading + 1] - y
+        dist = py_hypot(dx, dy)
+        if committed:
+            conviction = 1.0
+        else:
+            conviction = lead / full
+            if not conviction > least:
+                conviction = least
+            if not conviction < 1.0:
+                conviction = 1.0
+        gain = speed * conviction / (1e-9 if dist < 1e-9 else dist)
+        ax, ay = dx * gain - vx, dy * gain - vy
+        dv = py_hypot(ax, ay)
+        max_dv = accel * h
+        if dv > max_dv:
+            ax, ay = ax * max_dv / dv, ay * max_dv / dv
+        vx, vy = vx + ax, vy + ay
+        x, y = x + vx * h, y + vy * h
+        if (c[C_NEAR] <= x <= c[C_NEAR + 1] and c[C_NEAR + 2] <= y <= c[C_NEAR + 3]) or (
+            c[C_NEAR + 4] <= x <= c[C_NEAR + 5] and c[C_NEAR + 6] <= y <= c[C_NEAR + 7]
+        ):
+            pressed = pressed_box(x, y, c)
+            if pressed >= 0:  # at rest from here: the clock alone goes on
+                s[S_PRESSED] = pressed
+                while tt < end:
+                    left = t - tt
+                    tt += left if left < dt else dt
+                break
+    s[S_T], s[S_Z], s[S_X], s[S_Y], s[S_VX], s[S_VY] = tt, z, x, y, vx, vy
+    s[S_ARM], s[S_OPPOSED], s[S_FIRST] = arm_box, opposed, first
+    s[S_HEADING], s[S_SWITCHES] = heading, switches
+    return event
+
+
+PersonSteps = Callable[[float, float, Any, Any, float], int]
+_person: PersonSteps | None = None
+
+
+def person_kernel() -> PersonSteps:
+    """`person_steps` compiled (once per process)."""
+    global _person
+    if _person is None:
+        _person = cast(PersonSteps, _jit(person_steps, py_hypot=py_hypot,
+                                         pressed_box=pressed_box))
+    return _person
+
+
+# -- the simulated arm's substeps ---------------------------------------------------------------
+
+# `arm_steps`' state vector: position, velocity, the goal (and whether there is one), whether a
+# press is committed, whether it is done, when the hold began (and whether it has).
+A_X, A_Y, A_VX, A_VY, A_GX, A_GY, A_GOAL, A_PRESS, A_PRESSED, A_STARTED, A_HAS_STARTED = range(11)
+A_SIZE = 11
+_ARRIVED = 1e-6  # `arm_kinematics._ARRIVED`
+
+
+def arm_steps(
+    t0: float, span: float, n: int, s: Any, max_speed: float, max_accel: float, hold_s: float
+) -> None:
+    """`PointArm.advance`'s n substeps over `span` from t0 (`_substep`, `_update_press`).
+
+    The state `s` (A_*) is updated in place. The same operations in the same order as
+    `arm_kinematics`, `py_hypot` for `math.hypot` and for `math.dist` (which is CPython's
+    same `vector_norm` of the coordinates' differences).
+    """
+    x, y, vx, vy = s[A_X], s[A_Y], s[A_VX], s[A_VY]
+    gx, gy, goal = s[A_GX], s[A_GY], s[A_GOAL] != 0.0
+    press, pressed = s[A_PRESS] != 0.0, s[A_PRESSED] != 0.0
+    started, has_started = s[A_STARTED], s[A_HAS_STARTED] != 0.0
+    dt = span / n
+    dv_max = max_accel * dt
+    for i in range(1, n + 1):
+        t_end = t0 + span * i / n
+        if vx == 0.0 and vy == 0.0 and (not goal or (x == gx and y == gy)):
+            if not press or pressed or not goal:
+                break  # at rest where it should be: nothing changes any more
+        else:  # `_substep`
+            if not goal:
+                dx_, dy_ = 0.0, 0.0
+            else:
+                dx, dy = gx - x, gy - y
+                dist = py_hypot(dx, dy)
+                if dist < _ARRIVED:
+                    dx_, dy_ = 0.0, 0.0
+                else:
+                    speed = max_speed  # min(max_speed, √(2 a d), d / dt), Python's min
+                    brake = math.sqrt(2.0 * max_accel * dist)
+                    if brake < speed:
+                        speed = brake
+                    if dist / dt < speed:
+                        speed = dist / dt
+                    dx_, dy_ = dx / dist * speed, dy / dist * speed
+            v0x, v0y = vx, vy
+            ax, ay = dx_ - vx, dy_ - vy
+            dv = py_hypot(ax, ay)
+            if dv > dv_max:
+                ax, ay = ax * dv_max / dv, ay * dv_max / dv
+            vx, vy = vx + ax, vy + ay
+            speed = py_hypot(vx, vy)
+            if speed > max_speed:
+                vx, vy = vx * max_speed / speed, vy * max_speed / speed
+            if speed < 1e-12:
+                vx = vy = 0.0
+            x, y = x + vx * dt, y + vy * dt
+            if goal and py_hypot(x - gx, y - gy) < _ARRIVED and py_hypot(v0x, v0y) <= dv_max:
+                x, y, vx, vy = gx, gy, 0.0, 0.0
+        # `_update_press(t_end)`
+        if press and not pressed and goal and x == gx and y == gy and vx == 0.0 and vy == 0.0:
+            if not has_started:
+                started, has_started = t_end, True
+            if t_end - started >= hold_s - 1e-12:
+                pressed = True
+    s[A_X], s[A_Y], s[A_VX], s[A_VY] = x, y, vx, vy
+    s[A_PRESSED], s[A_STARTED], s[A_HAS_STARTED] = pressed, started, has_started
+
+
+ArmSteps = Callable[[float, float, int, Any, float, float, float], None]
+_arm: ArmSteps | None = None
+
+
+def arm_kernel() -> ArmSteps:
+    """`arm_steps` compiled (once per process)."""
+    global _arm
+    if _arm is None:
+        _arm = cast(ArmSteps, _jit(arm_steps, py_hypot=py_hypot))
+    return _arm
+
+
+_hypot: Callable[[float, float], float] | None = None
+
+
+def hypot_kernel() -> Callable[[float, float], float]:
+    """`py_hypot` compiled, as the compiled steps call it (once per process; for the tests)."""
+    global _hypot
+    if _hypot is None:
+        _hypot = cast(Callable[[float, float], float], _jit(py_hypot))
+    return _hypot
