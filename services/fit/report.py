@@ -24,7 +24,8 @@ import numpy as np
 
 from services.fit.data import Person
 from services.fit.estimator import LEVEL, Estimates
-from services.fit.prior_check import ALPHA, K_NEAREST
+from services.fit.prior_check import ALPHA
+from services.fit.prior_check import METHOD as PRIOR_METHOD
 from services.fit.simulate import Simulated
 from services.model.recovery import Recovery, wilson
 from services.model.summaries import summary_names
@@ -32,9 +33,7 @@ from services.model.summaries import summary_names
 OUTCOME_KEYS = ("C", "CH", "D", "DH", "none")
 PRIOR_CHECK = {
     "alpha": ALPHA,
-    "method": f"mean distance to the {K_NEAREST} nearest reference-table people in "
-    "standardised summaries; conformal p-value among held-out table people (a person of the "
-    f"prior is flagged with probability at most {ALPHA:g})",
+    "method": PRIOR_METHOD,
 }
 UNITS = {"speed": "image widths/s", "reaction_s": "s", "perception_delay_s": "s"}
 MEANING = {

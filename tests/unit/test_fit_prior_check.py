@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.fit.prior_check import ALPHA, PriorCheck
+from services.fit.prior_check import ALPHA, SCORES, PriorCheck
 
 
 def _people(n: int, seed: int, shift: float = 0.0, dims: int = 8) -> np.ndarray:
@@ -25,7 +25,67 @@ def test_people_of_the_prior_are_flagged_about_alpha_of_the_time_others_mostly()
     assert check.outside(_people(500, 4, shift=1.0)).mean() > 0.3  # nearer: fewer
     p = check.p_value(_people(3000, 3))
     assert np.all((p > 0) & (p <= 1))
-    assert abs(np.mean(p < 0.5) - 0.5) < 0.06  # p-values of the prior's people: ~uniform
+    each = check.p_values(_people(3000, 3))
+    assert each.shape == (3000, len(SCORES))
+    for col in each.T:  # each score's p-values of the prior's people: ~uniform
+        assert abs(np.mean(col < 0.5) - 0.5) < 0.06 and abs(np.mean(col < 0.1) - 0.1) < 0.03
+    # the combination, ranked again, never costs more than a Bonferroni factor would (up to ties)
+    n = len(check.calibration)
+    assert np.all(p >= 1 / (n + 1) - 1e-12) and np.all(p >= each.min(axis=1) - 1e-12)
+    assert np.all(p <= np.minimum(1.0, 2 * each.min(axis=1)) + 2 / (n + 1))
+
+
+def test_a_small_calibration_can_still_flag():
+    """30 held-out people: 2 / 31 > ALPHA, so a Bonferroni factor could flag no one; ranks can.
+
+    (Flagged: p = 1/31, the strangest of the bag in both scores.)
+    """
+    check = PriorCheck.train(_people(70, 21), _people(30, 22))
+    assert check.outside(_people(50, 23, shift=4.0)).mean() > 0.6
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_false_alarms_on_held_out_draws_of_the_prior_stay_at_most_alpha(seed):
+    """Over fresh calibrations and fresh people of the same population: the flag rate ≤ ALPHA.
+
+    Each draw's rate scatters around its expectation (≤ ALPHA by the construction); the mean
+    over draws must not exceed it by more than that scatter allows.
+    """
+    rates = []
+    for draw in range(6):
+        base = seed % 2**28 + 10 * draw
+        check = PriorCheck.train(_people(300, base), _people(200, base + 1))
+        rates.append(check.outside(_people(500, base + 2)).mean())
+    assert np.mean(rates) <= ALPHA + 0.02
+
+
+def _linked(n: int, seed: int, broken: bool = False) -> np.ndarray:
+    """People whose summaries 2 and 3 go together (one speed, two trials); `broken`: they do not.
+
+    Each summary alone is distributed the same either way: only the combination is foreign.
+    """
+    x = _people(n, seed)
+    rng = np.random.default_rng(seed + 99)
+    x[:, 3] = x[:, 2] + 0.1 * rng.normal(size=n)
+    if broken:
+        x[:, 3] = rng.permutation(x[:, 3])
+    return x
+
+
+def test_a_foreign_combination_of_common_summaries_is_flagged():
+    """The split person's kind of difference: each summary usual, together unlike the prior's."""
+    alarms, caught, caught_by_inconsistency = [], [], []
+    for draw in range(5):  # one calibration's rate scatters (sd ≈ 0.01 at 400): average five
+        seed = 11 + 10 * draw
+        check = PriorCheck.train(_linked(800, seed), _linked(400, seed + 1))
+        alarms.append(check.outside(_linked(1000, seed + 2)).mean())
+        foreign = _linked(300, seed + 3, broken=True)
+        caught.append(check.outside(foreign).mean())
+        p = check.p_values(foreign)[:, SCORES.index("inconsistency")]
+        caught_by_inconsistency.append(np.mean(p < ALPHA))
+    assert np.mean(alarms) <= ALPHA + 0.015
+    assert np.mean(caught_by_inconsistency) > 0.6 and np.mean(caught) > 0.6
 
 
 @settings(max_examples=25, deadline=None)
@@ -50,7 +110,18 @@ def test_the_check_reads_ranks_so_a_monotone_rescaling_of_a_summary_changes_noth
 def test_a_larger_score_never_has_a_larger_p_value(seed):
     check = PriorCheck.train(_people(150, seed), _people(80, seed + 1))
     test = _people(100, seed + 2, shift=0.5)
-    s, p = check.score(test), check.p_value(test)
-    order = np.argsort(s)
-    assert np.all(np.diff(p[order]) <= 1e-12)
-    assert np.array_equal(check.outside(test), p < ALPHA)
+    s, p = check.scores(test), check.p_values(test)
+    for j in range(len(SCORES)):
+        order = np.argsort(s[:, j])
+        assert np.all(np.diff(p[order, j]) <= 1e-12)
+    assert np.array_equal(check.outside(test), check.p_value(test) < ALPHA)
+
+
+def test_too_few_reference_people_for_the_correlations_leave_the_distance_alone():
+    """Below PEOPLE_PER_FEATURE people per varying feature the check is the distance's alone."""
+    few = PriorCheck.train(_people(30, 31, dims=10), _people(40, 32, dims=10))
+    test = _people(60, 33, shift=0.5, dims=10)
+    assert few.precision.size == 0 and np.all(few.scores(test)[:, 1] == 0)
+    distance = few.p_values(test)[:, SCORES.index("distance")]
+    assert np.allclose(few.p_value(test), distance)
+    assert PriorCheck.train(_people(400, 31, dims=10), _people(40, 32, dims=10)).precision.size
