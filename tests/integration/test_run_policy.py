@@ -9,6 +9,7 @@ holding, one estimate per trial stored with its interval, and both keys in the r
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import os
 import sqlite3
@@ -47,6 +48,14 @@ def _rows(db: Path, sql: str) -> list[tuple]:
         con.close()
 
 
+def _stored(db: Path) -> int:
+    """Trials stored so far (0 while the conductor has not yet made the file or its tables)."""
+    try:
+        return _rows(db, "SELECT count(*) FROM trials")[0][0] if db.exists() else 0
+    except sqlite3.OperationalError:  # the file exists, its schema not yet
+        return 0
+
+
 @pytest.fixture(scope="module")
 def ran(tmp_path_factory) -> dict:
     folder = tmp_path_factory.mktemp("policy")
@@ -76,8 +85,7 @@ def ran(tmp_path_factory) -> dict:
          "--estimate", f"--table {TABLE}"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
-        wait_for(lambda: db.exists() and _rows(db, "SELECT count(*) FROM trials")[0][0] >= 1,
-                 timeout=240, what="trial 1 stored")
+        wait_for(lambda: _stored(db) >= 1, timeout=240, what="trial 1 stored")
         freeze = run_nod("experiment", "freeze", "--connect", f"tcp/127.0.0.1:{port}",
                          "--rig", "rig1", "--timeout", "30", timeout=60)
         out, _ = run.communicate(timeout=300)
@@ -155,6 +163,25 @@ def test_the_live_estimate_is_nod_fits_estimate_on_the_stored_trials(ran):
     for j, name in enumerate(offline.names):
         want = (offline.estimate[0, j], offline.low[0, j], offline.high[0, j])
         assert live[name] == pytest.approx(want, rel=1e-9, abs=1e-12), name
+
+
+def test_the_policy_and_the_estimates_are_in_the_export(ran, tmp_path):
+    out, bids = tmp_path / "csv", tmp_path / "bids"
+    done = run_nod("export", "--db", str(ran["db"]), "--out", str(out), "--bids", str(bids),
+                   timeout=120)
+    assert done.returncode == 0, done.stderr
+    with (out / "policies.csv").open() as fh:
+        policies = list(csv.DictReader(fh))
+    assert [(r["trial"], r["policy"]) for r in policies] == [(str(t), "mine") for t in (1, 2, 3)]
+    with (out / "estimates.csv").open() as fh:
+        estimates = list(csv.DictReader(fh))
+    stored = _rows(ran["db"], "SELECT count(*) FROM person_estimates")[0][0]
+    assert len(estimates) == stored and {r["trial"] for r in estimates} == {"1", "2", "3"}
+    (beh,) = bids.rglob("*_beh.tsv")
+    with beh.open() as fh:
+        rows = list(csv.DictReader(fh, delimiter="\t"))
+    assert [float(r["policy_b_star"]) for r in rows] == [float(p["b_star"]) for p in policies]
+    assert all(r["estimate_trials_seen"] == r["trial"] for r in rows)
 
 
 def _messages(path: Path, topic: str, cls: type[m.Message]) -> list:
