@@ -48,8 +48,29 @@ from typing import Any, cast
 RK4Pair = Callable[
     [float, float, float, int, float, float, float, float, float, bool, float, float, float,
      float],
-    tuple[float, float],
+    tuple[float, float, bool],
 ]
+
+
+def eq2_step(z: float, h: float, nd: float, u: float, alpha: float, gr: float, b: float) -> float:
+    """One RK4 step of h of eq 2 (or eq 1 with its bias held) from z, the social input held.
+
+    ż = −d z + u tanh(α z + γ r) + b, `opinion_rate` written out with the same float operations
+    in the same order (−d as `nd`, γ r hoisted as `gr`: both held through the step). The one
+    copy of this step: the participant's (`Participant._step`, `_advance_kernel`,
+    `person_steps`) and the engine's with b_r frozen (`rk4_pair`). Plain Python: Numba compiles
+    it into the kernels that call it.
+    """
+    tanh = math.tanh
+    hh = 0.5 * h
+    k1 = nd * z + u * tanh(alpha * z + gr) + b
+    z2 = z + hh * k1
+    k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
+    z3 = z + hh * k2
+    k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
+    z4 = z + h * k3
+    k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
+    return z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
 def rk4_pair(
@@ -67,21 +88,34 @@ def rk4_pair(
     beta: float,
     b_star: float,
     b_max: float,
-) -> tuple[float, float]:
+) -> tuple[float, float, bool]:
     """Take n RK4 steps of h of eqs 1 and 6 from (z_r, b_r), ẑ_h held: `DecisionModel._run`.
 
-    The same operations in the same order as `_run` (its docstring says why they are written
-    out; −d, γ_r a_rh ẑ_h are hoisted there as `nd`, `gz`), stopped at an exact fixed point of
-    the step as `_run` stops. Plain Python: Numba compiles this very function (`pair_kernel`).
+    The equations are `opinion_rate` (eq 1) and `bias_rate` (eq 6), the functions the analysis
+    and the tests use, written out here with the same float operations in the same order (so
+    every value is bit for bit theirs; tests/unit/test_loop_speed.py checks it) and their
+    constant parts hoisted (−d as `nd`, γ_r a_rh ẑ_h as `gz` and the sign of ẑ_h: ẑ_h is held).
+    The RK4 stages are written out for the pair (z_r, b_r) on plain floats because this runs ~8
+    steps per pose at 120 Hz (~33 at 30 Hz, ~1000 steps per simulated second), where a generic
+    stepper's tuples, NumPy's per-call overhead, or even a function call per stage (half the
+    step's cost) would dominate. Returns the state and whether the steps stopped at an exact
+    fixed point of the step (every later step would return it too). The one copy of these
+    steps: `_run` calls it as Python (the rig, `NOD_NO_JIT=1`) and Numba compiles this very
+    function for the offline loop (`pair_kernel`).
     """
     tanh = math.tanh
     copysign = math.copysign
-    sgn = 1.0 if z_hat > 0 else -1.0
+    sgn = 1.0 if z_hat > 0 else -1.0  # `bias_rate`'s sign of ẑ_h, held with it
     hh, h6 = 0.5 * h, h / 6.0
     for _ in range(n):
         z0, b0 = z_r, b_r
-        k1z = nd * z_r + u * tanh(alpha * z_r + gz) + b_r
-        if consensus and z_r * z_hat < 0:
+        # The freeze (eq 6 runs only while z_r · ẑ_h < 0) is decided once per step from the
+        # state at its start: switching it inside the RK4 stages would make the right-hand side
+        # discontinuous within a step and spoil the method's accuracy; the step is short (1 ms)
+        # against the dynamics' time constants (1/d = 100 ms).
+        if consensus and z_r * z_hat < 0:  # `bias_active`: the pair is in dissensus
+            # `max(0.0, m)` written as the comparison Python's `max` makes
+            k1z = nd * z_r + u * tanh(alpha * z_r + gz) + b_r
             m = b_star - abs(b_r)
             k1b = sigma * z_r * sgn + beta * (m if m > 0.0 else 0.0)
             z2, b2 = z_r + hh * k1z, b_r + hh * k1b
@@ -97,26 +131,26 @@ def rk4_pair(
             m = b_star - abs(b4)
             k4b = sigma * z4 * sgn + beta * (m if m > 0.0 else 0.0)
             b_r += h6 * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)
+            # Clamp |b_r| ≤ b_max after each step (SPEC §3): in dissensus the σ term never stops
+            # on its own.
             if b_r > b_max:
                 b_r = b_max
             elif b_r < -b_max:
                 b_r = -b_max
-        else:
-            z2 = z_r + hh * k1z
-            k2z = nd * z2 + u * tanh(alpha * z2 + gz) + b_r
-            z3 = z_r + hh * k2z
-            k3z = nd * z3 + u * tanh(alpha * z3 + gz) + b_r
-            z4 = z_r + h * k3z
-            k4z = nd * z4 + u * tanh(alpha * z4 + gz) + b_r
-        z_r += h6 * (k1z + 2.0 * k2z + 2.0 * k3z + k4z)
-        if (
+            z_r += h6 * (k1z + 2.0 * k2z + 2.0 * k3z + k4z)
+        else:  # b_r frozen: only z_r moves, eq 1 alone
+            z_r = eq2_step(z_r, h, nd, u, alpha, gz, b_r)
+        if (  # a fixed point of the step, bit for bit (the sign of a zero included)
             z_r == z0
             and b_r == b0
             and copysign(1.0, z_r) == copysign(1.0, z0)
             and copysign(1.0, b_r) == copysign(1.0, b0)
         ):
-            break
-    return z_r, b_r
+            # The step is a function of (z_r, b_r) alone (ẑ_h, h and the mode are held), so
+            # every later step returns this state too. Held hands (before "go", after a press,
+            # a still participant) get here.
+            return z_r, b_r, True
+    return z_r, b_r, False
 
 
 def enabled() -> bool:
@@ -147,7 +181,7 @@ def pair_kernel() -> RK4Pair:
     """`rk4_pair` compiled (once per process)."""
     global _pair
     if _pair is None:
-        _pair = cast(RK4Pair, _jit(rk4_pair))
+        _pair = cast(RK4Pair, _jit(rk4_pair, eq2_step=eq2_step))
     return _pair
 
 
@@ -283,7 +317,6 @@ def person_steps(t: float, dt: float, s: Any, c: Any, next_seen: float) -> int:
     speed = c[C_SPEED] * (c[C_LATE] if quick else 1.0)  # `_move`'s, fixed unless a feint turns
     commit_y, below, obeys = c[C_COMMIT_Y], c[C_BELOW] != 0.0, c[C_OBEYS] != 0.0
     max_switches = int(c[C_MAX_SWITCHES])
-    tanh = math.tanh
     end = t - 1e-12
     event = DONE
     while tt < end:
@@ -300,16 +333,7 @@ def person_steps(t: float, dt: float, s: Any, c: Any, next_seen: float) -> int:
                 opposed = 1.0
             weight = against if cue >= 0 and last_box != cue else 1.0
             r_hat = weight if last_box == 0 else -weight
-        gr = gamma * r_hat
-        hh = 0.5 * h
-        k1 = nd * z + u * tanh(alpha * z + gr) + b
-        z2 = z + hh * k1
-        k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
-        z3 = z + hh * k2
-        k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
-        z4 = z + h * k3
-        k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
-        z = z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        z = eq2_step(z, h, nd, u, alpha, gamma * r_hat, b)
         start = tt
         tt = tt + h
         if start < t_move:
@@ -371,7 +395,7 @@ def person_kernel() -> PersonSteps:
     global _person
     if _person is None:
         _person = cast(PersonSteps, _jit(person_steps, py_hypot=py_hypot,
-                                         pressed_box=pressed_box))
+                                         pressed_box=pressed_box, eq2_step=eq2_step))
     return _person
 
 

@@ -56,6 +56,7 @@ from services.model.compiled import (
     S_T,
     SEEN,
     PersonSteps,
+    eq2_step,
     person_kernel,
 )
 from services.model.compiled import enabled as compiled_enabled
@@ -544,8 +545,7 @@ class Participant(Generic[Opt]):
         third of a cohort's CPU, most of it calls and attribute reads.
         """
         p, a = self.p, self.p.agent
-        nd, u, alpha, gamma, b, tanh, hypot = -a.d, a.u, a.alpha, a.gamma, self.b_h, math.tanh, (
-            math.hypot)
+        nd, u, alpha, gamma, b, hypot = -a.d, a.u, a.alpha, a.gamma, self.b_h, math.hypot
         assert self.t_go is not None  # `advance` returns before "go"
         t_move = self.t_go + p.reaction_s  # `_step`'s reaction test, the same sum
         delay, seen, cue = p.perception_delay_s, self._robot_seen, self._cue
@@ -572,17 +572,7 @@ class Participant(Generic[Opt]):
                     self._opposed = True
                 weight = against if cue is not None and box != cue else 1.0
                 r_hat = weight if box == 0 else -weight
-            # eq 2, one RK4 step (`_step`'s arithmetic)
-            gr = gamma * r_hat
-            hh = 0.5 * h
-            k1 = nd * z + u * tanh(alpha * z + gr) + b
-            z2 = z + hh * k1
-            k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
-            z3 = z + hh * k2
-            k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
-            z4 = z + h * k3
-            k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
-            z = z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            z = eq2_step(z, h, nd, u, alpha, gamma * r_hat, b)  # eq 2, one RK4 step (`_step`'s)
             start, tt = tt, tt + h
             if start < t_move:  # `_step`'s reaction test (its self.t is the step's start)
                 continue
@@ -648,20 +638,9 @@ class Participant(Generic[Opt]):
         r_hat = 0.0 if box is None else weight if box == 0 else -weight  # r̂: > 0 toward red
 
         # One RK4 step (`rk4_step`) of eq 2 with the robot's perceived heading r̂ as z_r,
-        # a_hr = 1: `opinion_rate` written out, the same float operations in the same order (so
-        # the same values, tests/unit/test_loop_speed.py checks it), γ_h r̂ hoisted (r̂ is held).
-        nd, u, alpha, b, tanh = -a.d, a.u, a.alpha, self.b_h, math.tanh
-        gr = a.gamma * r_hat
-        z = self.z_h
-        hh = 0.5 * h
-        k1 = nd * z + u * tanh(alpha * z + gr) + b
-        z2 = z + hh * k1
-        k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
-        z3 = z + hh * k2
-        k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
-        z4 = z + h * k3
-        k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
-        z = self.z_h = z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        # a_hr = 1: `opinion_rate` written out (`compiled.eq2_step`: the same float operations
+        # in the same order, tests/unit/test_loop_speed.py checks it), γ_h r̂ held.
+        z = self.z_h = eq2_step(self.z_h, h, -a.d, a.u, a.alpha, a.gamma * r_hat, self.b_h)
 
         if self.t_go is None or self.t < self.t_go + self.p.reaction_s:  # (set: `advance`)
             return
