@@ -6,9 +6,13 @@ for the same seeds whatever runs it (tests/unit/test_golden.py, the stored rows'
 benchmarks/cohort_speed.py). Three loops of plain float arithmetic were most of a session's
 CPU (docs/scale.md): the decision engine's RK4 of eqs 1 and 6 (`rk4_pair`, ~33 steps of 1 ms
 per camera frame), the participant's 2 ms steps on two boxes (`person_steps`: eq 2, the arm
-as seen, the hand, the press test) and the simulated arm's substeps (`arm_steps`). Each is
-written here once more as plain Python, operation for operation the loop it replaces, and
-Numba compiles that function; the Python parts stay the reference (and run the rig).
+as seen, the hand, the press test, a feint's turn) and the simulated arm's substeps
+(`arm_steps`). Each is plain Python that Numba compiles as it is. The first two (and eq 2's
+RK4 step, `eq2_step`, which both call) are the only copy of their arithmetic: `DecisionModel`
+and `Participant` call them as Python (the rig, `NOD_NO_JIT=1`) and the offline loop calls them
+compiled. `arm_steps` is written once more, operation for operation `arm_kinematics`' loop.
+The reference the tests hold them to is the model as stated: `opinion_rate` and `bias_rate`,
+`Participant._step` (one call a step), the arm's `_substep`.
 
 Why these are the same bits as the Python loops:
 
@@ -24,9 +28,9 @@ Why these are the same bits as the Python loops:
 - Python's `max(0.0, m)` and `min(a, b, c)` keep the first of equals; they are written as the
   comparisons they make, so a −0.0 cannot come out where Python gives +0.0.
 
-tests/unit/test_loop_speed.py holds each kernel to its Python loop bit for bit (`float.hex`,
-so a zero's sign counts) and whole sessions of the fitted and the SPEC person to the all-Python
-loop's, every recorded sample included.
+tests/unit/test_loop_speed.py holds each kernel, compiled and as Python, to that reference bit
+for bit (`float.hex`, so a zero's sign counts) and whole sessions of the fitted and the SPEC
+person to the all-Python loop's, every recorded sample included.
 
 Compiled once per machine and kept on disk next to this file (`cache=True`, __pycache__; ~2 s
 on a fresh clone), then loaded by each process that runs the offline loop (~0.5 s with
@@ -48,8 +52,29 @@ from typing import Any, cast
 RK4Pair = Callable[
     [float, float, float, int, float, float, float, float, float, bool, float, float, float,
      float],
-    tuple[float, float],
+    tuple[float, float, bool],
 ]
+
+
+def eq2_step(z: float, h: float, nd: float, u: float, alpha: float, gr: float, b: float) -> float:
+    """One RK4 step of h of eq 2 (or eq 1 with its bias held) from z, the social input held.
+
+    ż = −d z + u tanh(α z + γ r) + b, `opinion_rate` written out with the same float operations
+    in the same order (−d as `nd`, γ r hoisted as `gr`: both held through the step). The one
+    copy of this step: the participant's (`Participant._step`, `person_steps`) and the
+    engine's with b_r frozen (`rk4_pair`). Plain Python: Numba compiles
+    it into the kernels that call it.
+    """
+    tanh = math.tanh
+    hh = 0.5 * h
+    k1 = nd * z + u * tanh(alpha * z + gr) + b
+    z2 = z + hh * k1
+    k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
+    z3 = z + hh * k2
+    k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
+    z4 = z + h * k3
+    k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
+    return z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
 def rk4_pair(
@@ -67,21 +92,34 @@ def rk4_pair(
     beta: float,
     b_star: float,
     b_max: float,
-) -> tuple[float, float]:
+) -> tuple[float, float, bool]:
     """Take n RK4 steps of h of eqs 1 and 6 from (z_r, b_r), ẑ_h held: `DecisionModel._run`.
 
-    The same operations in the same order as `_run` (its docstring says why they are written
-    out; −d, γ_r a_rh ẑ_h are hoisted there as `nd`, `gz`), stopped at an exact fixed point of
-    the step as `_run` stops. Plain Python: Numba compiles this very function (`pair_kernel`).
+    The equations are `opinion_rate` (eq 1) and `bias_rate` (eq 6), the functions the analysis
+    and the tests use, written out here with the same float operations in the same order (so
+    every value is bit for bit theirs; tests/unit/test_loop_speed.py checks it) and their
+    constant parts hoisted (−d as `nd`, γ_r a_rh ẑ_h as `gz` and the sign of ẑ_h: ẑ_h is held).
+    The RK4 stages are written out for the pair (z_r, b_r) on plain floats because this runs ~8
+    steps per pose at 120 Hz (~33 at 30 Hz, ~1000 steps per simulated second), where a generic
+    stepper's tuples, NumPy's per-call overhead, or even a function call per stage (half the
+    step's cost) would dominate. Returns the state and whether the steps stopped at an exact
+    fixed point of the step (every later step would return it too). The one copy of these
+    steps: `_run` calls it as Python (the rig, `NOD_NO_JIT=1`) and Numba compiles this very
+    function for the offline loop (`pair_kernel`).
     """
     tanh = math.tanh
     copysign = math.copysign
-    sgn = 1.0 if z_hat > 0 else -1.0
+    sgn = 1.0 if z_hat > 0 else -1.0  # `bias_rate`'s sign of ẑ_h, held with it
     hh, h6 = 0.5 * h, h / 6.0
     for _ in range(n):
         z0, b0 = z_r, b_r
-        k1z = nd * z_r + u * tanh(alpha * z_r + gz) + b_r
-        if consensus and z_r * z_hat < 0:
+        # The freeze (eq 6 runs only while z_r · ẑ_h < 0) is decided once per step from the
+        # state at its start: switching it inside the RK4 stages would make the right-hand side
+        # discontinuous within a step and spoil the method's accuracy; the step is short (1 ms)
+        # against the dynamics' time constants (1/d = 100 ms).
+        if consensus and z_r * z_hat < 0:  # `bias_active`: the pair is in dissensus
+            # `max(0.0, m)` written as the comparison Python's `max` makes
+            k1z = nd * z_r + u * tanh(alpha * z_r + gz) + b_r
             m = b_star - abs(b_r)
             k1b = sigma * z_r * sgn + beta * (m if m > 0.0 else 0.0)
             z2, b2 = z_r + hh * k1z, b_r + hh * k1b
@@ -97,26 +135,26 @@ def rk4_pair(
             m = b_star - abs(b4)
             k4b = sigma * z4 * sgn + beta * (m if m > 0.0 else 0.0)
             b_r += h6 * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)
+            # Clamp |b_r| ≤ b_max after each step (SPEC §3): in dissensus the σ term never stops
+            # on its own.
             if b_r > b_max:
                 b_r = b_max
             elif b_r < -b_max:
                 b_r = -b_max
-        else:
-            z2 = z_r + hh * k1z
-            k2z = nd * z2 + u * tanh(alpha * z2 + gz) + b_r
-            z3 = z_r + hh * k2z
-            k3z = nd * z3 + u * tanh(alpha * z3 + gz) + b_r
-            z4 = z_r + h * k3z
-            k4z = nd * z4 + u * tanh(alpha * z4 + gz) + b_r
-        z_r += h6 * (k1z + 2.0 * k2z + 2.0 * k3z + k4z)
-        if (
+            z_r += h6 * (k1z + 2.0 * k2z + 2.0 * k3z + k4z)
+        else:  # b_r frozen: only z_r moves, eq 1 alone
+            z_r = eq2_step(z_r, h, nd, u, alpha, gz, b_r)
+        if (  # a fixed point of the step, bit for bit (the sign of a zero included)
             z_r == z0
             and b_r == b0
             and copysign(1.0, z_r) == copysign(1.0, z0)
             and copysign(1.0, b_r) == copysign(1.0, b0)
         ):
-            break
-    return z_r, b_r
+            # The step is a function of (z_r, b_r) alone (ẑ_h, h and the mode are held), so
+            # every later step returns this state too. Held hands (before "go", after a press,
+            # a still participant) get here.
+            return z_r, b_r, True
+    return z_r, b_r, False
 
 
 def enabled() -> bool:
@@ -140,15 +178,20 @@ def _jit(fn: Callable[..., Any], **calls: Callable[..., Any]) -> Any:
     return jit(fn)
 
 
-_pair: RK4Pair | None = None
+_kernels: dict[str, Any] = {}
+
+
+def _kernel(fn: Callable[..., Any], **calls: Callable[..., Any]) -> Any:
+    """`_jit(fn, **calls)`, once per process."""
+    kernel = _kernels.get(fn.__name__)
+    if kernel is None:
+        kernel = _kernels[fn.__name__] = _jit(fn, **calls)
+    return kernel
 
 
 def pair_kernel() -> RK4Pair:
     """`rk4_pair` compiled (once per process)."""
-    global _pair
-    if _pair is None:
-        _pair = cast(RK4Pair, _jit(rk4_pair))
-    return _pair
+    return cast(RK4Pair, _kernel(rk4_pair, eq2_step=eq2_step))
 
 
 # -- the participant's steps on two boxes ---------------------------------------------------------
@@ -226,8 +269,8 @@ DONE, SEEN = 0, 1
 
 # `person_steps`' state vector (float64; a box index, −1 for None, and flags as floats).
 S_T, S_Z, S_X, S_Y, S_VX, S_VY, S_LAST, S_ARM, S_OPPOSED, S_FIRST, S_HEADING, S_SWITCHES, \
-    S_QUICK, S_PRESSED = range(14)
-S_SIZE = 14
+    S_QUICK, S_PRESSED, S_FEINT = range(15)
+S_SIZE = 15
 # Its constants of a trial (after "go").
 (C_B, C_ND, C_U, C_ALPHA, C_GAMMA, C_TMOVE, C_DELAY, C_CUE, C_AGAINST, C_FULL, C_LEAST,
  C_SPEED, C_LATE, C_ACCEL, C_COMMIT_Y, C_BELOW, C_OBEYS, C_MAX_SWITCHES) = range(18)
@@ -235,7 +278,12 @@ C_CENTERS = 18  # box 0's centre (x, y), then box 1's
 C_NEAR = 22  # box 0's (x1, x2, y1, y2) where a landmark can be inside, then box 1's
 C_BOXES = 30  # box 0's (x1, x2, y1, y2), then box 1's: the press test's boxes
 C_HAND = 38  # the 21 landmarks (x, y) around a zero centre (`Participant._hand`)
-C_SIZE = 80
+C_LINE = 80  # the feint's turn (`_turn_at_the_line`): the commit line's y, hand below, the lead
+C_SIZE = 83
+
+# CPython's `math.hypot`, as `person_steps` calls it as Python (the rig, `NOD_NO_JIT=1`); its
+# compiled copy calls `py_hypot`, the port of it, in its place (`person_kernel`).
+hypot = math.hypot
 
 
 def pressed_box(x: float, y: float, c: Any) -> int:
@@ -265,30 +313,39 @@ def pressed_box(x: float, y: float, c: Any) -> int:
 
 
 def person_steps(t: float, dt: float, s: Any, c: Any, next_seen: float) -> int:
-    """`Participant._advance_kernel`'s steps (two boxes, no feint) until t or an event.
+    """`Participant.advance` on two boxes: `_step` (with `_arm_seen` and `_move`) fused.
 
-    The state `s` (S_*) is updated in place; `c` holds the trial's constants (C_*). Stops
-    before a step whose start sees a new arm sighting due (`next_seen` ≤ t − delay: SEEN; the
-    caller pops the person's queue and calls again) and after a step that brings the hand's
-    centre near a box, the press test (`pressed_box`); after a press only the clock goes on.
-    The arithmetic is `_advance_kernel`'s, operation for operation, `py_hypot` for `math.hypot`.
+    The same steps of h as `advance` takes with `_step`, the same float operations in the same
+    order, so the same values bit for bit (tests/unit/test_loop_speed.py runs whole sessions
+    both ways); a feint's turn at the line included. The state `s` (S_*, a list as Python, an
+    array compiled) is updated in place; `c` holds the trial's constants (C_*). Stops before a
+    step whose start sees a new arm sighting due (`next_seen` ≤ t − delay: SEEN; the caller
+    pops the person's queue and calls again) and after a step that brings the hand's centre
+    near a box, the press test (`pressed_box`); after a press only the clock goes on. Plain
+    Python: `Participant` calls it as it is (`math.hypot`), and Numba compiles it for the
+    offline loop (`person_kernel`, `py_hypot`); the opinion, the hand and the clock live in
+    locals, the trial's constants are read once (this loop was a third of a cohort's CPU).
     """
     tt, z, x, y, vx, vy = s[S_T], s[S_Z], s[S_X], s[S_Y], s[S_VX], s[S_VY]
     last_box, arm_box = int(s[S_LAST]), int(s[S_ARM])
     opposed, first = s[S_OPPOSED], int(s[S_FIRST])
     heading, switches, quick = int(s[S_HEADING]), int(s[S_SWITCHES]), s[S_QUICK] != 0.0
+    feint = s[S_FEINT] != 0.0
     b, nd, u, alpha, gamma = c[C_B], c[C_ND], c[C_U], c[C_ALPHA], c[C_GAMMA]
     t_move, delay, cue, against = c[C_TMOVE], c[C_DELAY], int(c[C_CUE]), c[C_AGAINST]
     full, least, accel = c[C_FULL], c[C_LEAST], c[C_ACCEL]
     speed = c[C_SPEED] * (c[C_LATE] if quick else 1.0)  # `_move`'s, fixed unless a feint turns
     commit_y, below, obeys = c[C_COMMIT_Y], c[C_BELOW] != 0.0, c[C_OBEYS] != 0.0
     max_switches = int(c[C_MAX_SWITCHES])
-    tanh = math.tanh
+    line_y, line_below, ahead = c[C_LINE], c[C_LINE + 1] != 0.0, c[C_LINE + 2]
+    cx0, cy0, cx1, cy1 = c[C_CENTERS], c[C_CENTERS + 1], c[C_CENTERS + 2], c[C_CENTERS + 3]
+    ax1, ax2, ay1, ay2 = c[C_NEAR], c[C_NEAR + 1], c[C_NEAR + 2], c[C_NEAR + 3]
+    bx1, bx2, by1, by2 = c[C_NEAR + 4], c[C_NEAR + 5], c[C_NEAR + 6], c[C_NEAR + 7]
     end = t - 1e-12
     event = DONE
     while tt < end:
         left = t - tt
-        h = left if left < dt else dt
+        h = left if left < dt else dt  # min(dt, left)
         if next_seen <= tt - delay:  # `_arm_seen` would pop a sighting: the caller does
             event = SEEN
             break
@@ -300,20 +357,12 @@ def person_steps(t: float, dt: float, s: Any, c: Any, next_seen: float) -> int:
                 opposed = 1.0
             weight = against if cue >= 0 and last_box != cue else 1.0
             r_hat = weight if last_box == 0 else -weight
-        gr = gamma * r_hat
-        hh = 0.5 * h
-        k1 = nd * z + u * tanh(alpha * z + gr) + b
-        z2 = z + hh * k1
-        k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
-        z3 = z + hh * k2
-        k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
-        z4 = z + h * k3
-        k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
-        z = z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        z = eq2_step(z, h, nd, u, alpha, gamma * r_hat, b)  # eq 2, one RK4 step
         start = tt
         tt = tt + h
-        if start < t_move:
+        if start < t_move:  # `_step`'s reaction test (its self.t is the step's start)
             continue
+        # `_move(h, 0 if z > 0 else 1, abs(z))`
         wanted = 0 if z > 0 else 1
         lead = abs(z)
         committed = heading >= 0 and (
@@ -324,15 +373,25 @@ def person_steps(t: float, dt: float, s: Any, c: Any, next_seen: float) -> int:
         if heading < 0:
             heading = wanted
             first = wanted
+        elif feint:  # `_turn_at_the_line`: decided once, at the line
+            if (y + ahead < line_y) if line_below else (y + ahead > line_y):
+                feint = False
+                if arm_box >= 0 and arm_box != heading:
+                    heading = arm_box
+                    switches += 1
+                    quick = True
+                    speed = c[C_SPEED] * c[C_LATE]
         elif wanted != heading and not committed:
             heading = wanted
             switches += 1
-        dx = c[C_CENTERS + 2 * heading] - x
-        dy = c[C_CENTERS + 2 * heading + 1] - y
-        dist = py_hypot(dx, dy)
-        if committed:
-            conviction = 1.0
+        if heading == 0:
+            dx, dy = cx0 - x, cy0 - y
         else:
+            dx, dy = cx1 - x, cy1 - y
+        dist = hypot(dx, dy)
+        if committed or feint:  # read after the turn, as `_move` reads it
+            conviction = 1.0
+        else:  # min(1, max(min_conviction, lead / full_conviction)), without the calls
             conviction = lead / full
             if not conviction > least:
                 conviction = least
@@ -340,15 +399,13 @@ def person_steps(t: float, dt: float, s: Any, c: Any, next_seen: float) -> int:
                 conviction = 1.0
         gain = speed * conviction / (1e-9 if dist < 1e-9 else dist)
         ax, ay = dx * gain - vx, dy * gain - vy
-        dv = py_hypot(ax, ay)
+        dv = hypot(ax, ay)
         max_dv = accel * h
         if dv > max_dv:
             ax, ay = ax * max_dv / dv, ay * max_dv / dv
         vx, vy = vx + ax, vy + ay
         x, y = x + vx * h, y + vy * h
-        if (c[C_NEAR] <= x <= c[C_NEAR + 1] and c[C_NEAR + 2] <= y <= c[C_NEAR + 3]) or (
-            c[C_NEAR + 4] <= x <= c[C_NEAR + 5] and c[C_NEAR + 6] <= y <= c[C_NEAR + 7]
-        ):
+        if (ax1 <= x <= ax2 and ay1 <= y <= ay2) or (bx1 <= x <= bx2 and by1 <= y <= by2):
             pressed = pressed_box(x, y, c)
             if pressed >= 0:  # at rest from here: the clock alone goes on
                 s[S_PRESSED] = pressed
@@ -358,21 +415,17 @@ def person_steps(t: float, dt: float, s: Any, c: Any, next_seen: float) -> int:
                 break
     s[S_T], s[S_Z], s[S_X], s[S_Y], s[S_VX], s[S_VY] = tt, z, x, y, vx, vy
     s[S_ARM], s[S_OPPOSED], s[S_FIRST] = arm_box, opposed, first
-    s[S_HEADING], s[S_SWITCHES] = heading, switches
+    s[S_HEADING], s[S_SWITCHES], s[S_QUICK], s[S_FEINT] = heading, switches, quick, feint
     return event
 
 
 PersonSteps = Callable[[float, float, Any, Any, float], int]
-_person: PersonSteps | None = None
 
 
 def person_kernel() -> PersonSteps:
-    """`person_steps` compiled (once per process)."""
-    global _person
-    if _person is None:
-        _person = cast(PersonSteps, _jit(person_steps, py_hypot=py_hypot,
-                                         pressed_box=pressed_box))
-    return _person
+    """`person_steps` compiled (once per process), `py_hypot` for `math.hypot`."""
+    return cast(PersonSteps, _kernel(person_steps, hypot=py_hypot, pressed_box=pressed_box,
+                                     eq2_step=eq2_step))
 
 
 # -- the simulated arm's substeps ---------------------------------------------------------------
@@ -445,23 +498,13 @@ def arm_steps(
 
 
 ArmSteps = Callable[[float, float, int, Any, float, float, float], None]
-_arm: ArmSteps | None = None
 
 
 def arm_kernel() -> ArmSteps:
     """`arm_steps` compiled (once per process)."""
-    global _arm
-    if _arm is None:
-        _arm = cast(ArmSteps, _jit(arm_steps, py_hypot=py_hypot))
-    return _arm
-
-
-_hypot: Callable[[float, float], float] | None = None
+    return cast(ArmSteps, _kernel(arm_steps, py_hypot=py_hypot))
 
 
 def hypot_kernel() -> Callable[[float, float], float]:
     """`py_hypot` compiled, as the compiled steps call it (once per process; for the tests)."""
-    global _hypot
-    if _hypot is None:
-        _hypot = cast(Callable[[float, float], float], _jit(py_hypot))
-    return _hypot
+    return cast(Callable[[float, float], float], _kernel(py_hypot))

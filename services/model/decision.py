@@ -37,7 +37,7 @@ from services.model.bias import (
     options_bias_rate,
     sigma_for,
 )
-from services.model.compiled import RK4Pair, pair_kernel
+from services.model.compiled import RK4Pair, pair_kernel, rk4_pair
 from services.model.compiled import enabled as compiled_enabled
 from services.model.dynamics import (
     OptionsParams,
@@ -374,78 +374,26 @@ class DecisionModel(PoseEngine[float, Colour, DecisionOutput]):
     ) -> tuple[float, float]:
         """Take n RK4 steps of h from (z_r, b_r), ẑ_h held; each step's state appended to `path`.
 
-        The equations are `opinion_rate` (eq 1) and `bias_rate` (eq 6), the functions the
-        analysis and the tests use, written out here with the same float operations in the same
-        order (so every value is bit for bit theirs; tests/unit/test_loop_speed.py checks
-        it) and their constant parts hoisted (−d, γ_r a_rh ẑ_h and the sign of ẑ_h: ẑ_h is
-        held). The RK4 stages are written out for the pair (z_r, b_r) on plain floats because
-        this runs ~8 steps per pose at 120 Hz (~33 at 30 Hz, ~1000 steps per simulated second),
-        where a generic stepper's tuples, NumPy's per-call overhead, or even a function call per
-        stage (half the step's cost) would dominate.
+        The steps are `compiled.rk4_pair` (eq 1 and eq 6 written out on plain floats, the
+        constant parts hoisted): as Python here and on the rig, compiled after `use_compiled`.
+        With a `path`, one step a call (the state after each is kept) until a fixed point.
         """
         robot = self._params.pair.robot
-        if path is None and self._pair is not None:  # the same steps, compiled
-            return self._pair(
-                z_r, b_r, z_hat, n, h, float(-robot.d), float(robot.u), float(robot.alpha),
-                float(robot.gamma * self._params.pair.a_rh * z_hat), self._mode == "consensus",
-                float(self._sigma), float(self._beta), float(self._b_star),
-                float(self._params.bias.b_max),
-            )
-        nd, u, alpha = -robot.d, robot.u, robot.alpha
-        gz = robot.gamma * self._params.pair.a_rh * z_hat
-        tanh = math.tanh
-        consensus = self._mode == "consensus"
-        sigma, beta, b_star = self._sigma, self._beta, self._b_star
-        b_max = self._params.bias.b_max
-        sgn = 1.0 if z_hat > 0 else -1.0  # `bias_rate`'s sign of ẑ_h, held with it
-        hh, h6 = 0.5 * h, h / 6.0
-        copysign = math.copysign
+        args = (
+            float(-robot.d), float(robot.u), float(robot.alpha),
+            float(robot.gamma * self._params.pair.a_rh * z_hat), self._mode == "consensus",
+            float(self._sigma), float(self._beta), float(self._b_star),
+            float(self._params.bias.b_max),
+        )
+        if path is None:
+            steps = self._pair if self._pair is not None else rk4_pair
+            z_r, b_r, _ = steps(z_r, b_r, z_hat, n, h, *args)
+            return z_r, b_r
         for i in range(n):
-            z0, b0 = z_r, b_r
-            k1z = nd * z_r + u * tanh(alpha * z_r + gz) + b_r
-            # The freeze (eq 6 runs only while z_r · ẑ_h < 0) is decided once per step from the
-            # state at its start: switching it inside the RK4 stages would make the right-hand
-            # side discontinuous within a step and spoil the method's accuracy; the step is
-            # short (1 ms) against the dynamics' time constants (1/d = 100 ms).
-            if consensus and z_r * z_hat < 0:  # `bias_active`: the pair is in dissensus
-                k1b = sigma * z_r * sgn + beta * max(0.0, b_star - abs(b_r))
-                z2, b2 = z_r + hh * k1z, b_r + hh * k1b
-                k2z = nd * z2 + u * tanh(alpha * z2 + gz) + b2
-                k2b = sigma * z2 * sgn + beta * max(0.0, b_star - abs(b2))
-                z3, b3 = z_r + hh * k2z, b_r + hh * k2b
-                k3z = nd * z3 + u * tanh(alpha * z3 + gz) + b3
-                k3b = sigma * z3 * sgn + beta * max(0.0, b_star - abs(b3))
-                z4, b4 = z_r + h * k3z, b_r + h * k3b
-                k4z = nd * z4 + u * tanh(alpha * z4 + gz) + b4
-                k4b = sigma * z4 * sgn + beta * max(0.0, b_star - abs(b4))
-                b_r += h6 * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)
-                # Clamp |b_r| ≤ b_max after each step (SPEC §3): in dissensus the σ term never
-                # stops on its own.
-                if b_r > b_max:
-                    b_r = b_max
-                elif b_r < -b_max:
-                    b_r = -b_max
-            else:  # b_r frozen: only z_r moves
-                z2 = z_r + hh * k1z
-                k2z = nd * z2 + u * tanh(alpha * z2 + gz) + b_r
-                z3 = z_r + hh * k2z
-                k3z = nd * z3 + u * tanh(alpha * z3 + gz) + b_r
-                z4 = z_r + h * k3z
-                k4z = nd * z4 + u * tanh(alpha * z4 + gz) + b_r
-            z_r += h6 * (k1z + 2.0 * k2z + 2.0 * k3z + k4z)
-            if path is not None:
-                path.append((z_r, b_r))
-            if (  # a fixed point of the step, bit for bit (the sign of a zero included)
-                z_r == z0
-                and b_r == b0
-                and copysign(1.0, z_r) == copysign(1.0, z0)
-                and copysign(1.0, b_r) == copysign(1.0, b0)
-            ):
-                # The step is a function of (z_r, b_r) alone (ẑ_h, h and the mode are held), so
-                # every later step returns this state too: the rest is known without computing
-                # it. Held hands (before "go", after a press, a still participant) get here.
-                if path is not None:
-                    path.extend([(z_r, b_r)] * (n - 1 - i))
+            z_r, b_r, fixed = rk4_pair(z_r, b_r, z_hat, 1, h, *args)
+            path.append((z_r, b_r))
+            if fixed:  # every later step returns this state: known without computing it
+                path.extend([(z_r, b_r)] * (n - 1 - i))
                 break
         return z_r, b_r
 

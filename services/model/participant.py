@@ -50,13 +50,17 @@ import numpy as np
 
 from services.model.compiled import (
     C_SIZE,
+    S_FEINT,
     S_LAST,
     S_PRESSED,
+    S_QUICK,
     S_SIZE,
     S_T,
     SEEN,
     PersonSteps,
+    eq2_step,
     person_kernel,
+    person_steps,
 )
 from services.model.compiled import enabled as compiled_enabled
 from services.model.dynamics import AgentParams, float_rates, option_vector
@@ -295,20 +299,24 @@ class Participant(Generic[Opt]):
         self._learn = 0.0 if self.persistent else params.contrarian_learn
         self.contrary_trials = 0  # consensus trials played against the eyes so far
         self._contrary = False  # against the eyes this trial
-        # `use_compiled`: the two-box steps as machine code, with the trial's constants (made
-        # at its first step, dropped whenever one of them may change) and the state vector.
-        self._steps: PersonSteps | None = None
-        self._consts: np.ndarray | None = None
-        self._state = np.zeros(S_SIZE)
+        # The two-box steps (`compiled.person_steps`: as Python, or compiled after
+        # `use_compiled`), the trial's constants (made at its first step, dropped whenever one
+        # of them may change) and the state vector: lists as Python, arrays compiled.
+        self._steps: PersonSteps = person_steps
+        self._compiled = False
+        self._consts: np.ndarray | list[float] | None = None
+        self._state: np.ndarray | list[float] = [0.0] * S_SIZE
 
     def use_compiled(self) -> None:
         """Step two boxes with the compiled loop (`compiled.person_steps`), the same values.
 
-        The offline loop's choice (`closed_loop`); N_o ≥ 3 boxes and a feint's trials keep the
-        Python steps.
+        The offline loop's choice (`closed_loop`); N_o ≥ 3 boxes keep the Python steps.
         """
         if not self.general and compiled_enabled():
             self._steps = person_kernel()
+            self._compiled = True
+            self._consts = None
+            self._state = np.zeros(S_SIZE)
 
     def _draw_box(self, n: int) -> int:
         """One of n choices, uniform, from one `random()`: below 0.5 is the first of two.
@@ -465,10 +473,7 @@ class Participant(Generic[Opt]):
         if self.t < self.t_go:
             self.t = min(t, self.t_go)
         if not self.general:
-            if self._steps is not None and not self._feint:
-                self._advance_compiled(self._steps, t, dt)
-            else:  # a feint turns at the line: the Python loop (`_turn_at_the_line`)
-                self._advance_kernel(t, dt)
+            self._advance_steps(t, dt)
             return
         while self.t < t - 1e-12:
             left = t - self.t
@@ -476,42 +481,45 @@ class Participant(Generic[Opt]):
             self._step_general(h)
             self.t += h
 
-    def _constants(self) -> np.ndarray:
+    def _constants(self) -> list[float]:
         """The trial's constants of `compiled.person_steps` (its C_* order), after "go"."""
         p, a = self.p, self.p.agent
         assert self.t_go is not None
         (c0x, c0y), (c1x, c1y) = self._centers
-        return np.array(
-            [
-                self.b_h, -a.d, a.u, a.alpha, a.gamma, self.t_go + p.reaction_s,
-                p.perception_delay_s, -1 if self._cue is None else self._cue,
-                1.0 / (1.0 + p.gaze_over_robot * self.trust), p.full_conviction,
-                p.min_conviction, p.speed, p.late_switch_speed, p.accel, self._commit_y,
-                self._commit_below, self._obeys_commit, self._max_switches,
-                c0x, c0y, c1x, c1y, *self._near[0], *self._near[1],
-                *(v for b in self.table.boxes for v in (b.x1, b.x2, b.y1, b.y2)),
-                *self._hand.ravel().tolist(),
-            ],
-            dtype=np.float64,
-        )
+        line = self.table.commit
+        below = line.start_side == "below"
+        return [
+            self.b_h, -a.d, a.u, a.alpha, a.gamma, self.t_go + p.reaction_s,
+            p.perception_delay_s, -1 if self._cue is None else self._cue,
+            1.0 / (1.0 + p.gaze_over_robot * self.trust), p.full_conviction,
+            p.min_conviction, p.speed, p.late_switch_speed, p.accel, self._commit_y,
+            self._commit_below, self._obeys_commit, self._max_switches,
+            c0x, c0y, c1x, c1y, *self._near[0], *self._near[1],
+            *(v for b in self.table.boxes for v in (b.x1, b.x2, b.y1, b.y2)),
+            *self._hand.ravel().tolist(),
+            line.y, below, -p.late_switch_lead if below else p.late_switch_lead,
+        ]
 
-    def _advance_compiled(self, steps: PersonSteps, t: float, dt: float) -> None:
-        """`_advance_kernel` with its steps (and the press test) compiled.
+    def _advance_steps(self, t: float, dt: float) -> None:
+        """`advance` on two boxes: `compiled.person_steps`, as Python or compiled.
 
-        Python pops the arm sightings (`_arm_seen`'s queue) when `steps` stops for one; the
-        state goes in and out through a float vector.
+        Python pops the arm sightings (`_arm_seen`'s queue) when the steps stop for one; the
+        state goes in and out through a vector (a list as Python, an array compiled).
         """
         c = self._consts
         if c is None:
-            c = self._consts = self._constants()
-        assert c.shape == (C_SIZE,)
+            c = self._constants()
+            if self._compiled:
+                c = np.array(c, dtype=np.float64)
+            self._consts = c
+        assert len(c) == C_SIZE
         state = self._state
         state[:] = (
             self.t, self.z_h, self._x, self._y, self._vx, self._vy, _index(self._last_box),
             _index(self._arm_box), self._opposed, _index(self._first), _index(self._heading),
-            self.switches, self._quick, -1,
+            self.switches, self._quick, -1, self._feint,
         )
-        seen, delay = self._robot_seen, self.p.perception_delay_s
+        steps, seen, delay = self._steps, self._robot_seen, self.p.perception_delay_s
         while True:
             event = steps(t, dt, state, c, seen[0][0] if seen else math.inf)
             if event == SEEN:  # `_arm_seen`'s pop, at the same step's start
@@ -520,7 +528,7 @@ class Participant(Generic[Opt]):
                     self._last_box = seen.popleft()[1]
                 state[S_LAST] = _index(self._last_box)
                 continue
-            v = state.tolist()
+            v = state.tolist() if isinstance(state, np.ndarray) else state
             self._unpack(v)
             if v[S_PRESSED] >= 0:
                 self.pressed = self._labels[int(v[S_PRESSED])]
@@ -531,115 +539,14 @@ class Participant(Generic[Opt]):
         self.t, self.z_h, self._x, self._y, self._vx, self._vy = v[:6]
         self._arm_box, self._opposed, self._first = _box(v[7]), v[8] != 0.0, _box(v[9])
         self._heading, self.switches = _box(v[10]), int(v[11])
-
-    def _advance_kernel(self, t: float, dt: float) -> None:
-        """`advance` on two boxes: `_step` (with `_arm_seen` and `_move`) fused into one loop.
-
-        The same steps of h as `advance` takes with `_step`, the same float operations in the
-        same order, so the same values bit for bit (tests/unit/test_loop_speed.py runs whole
-        sessions both ways): only the Python around them is gone. The opinion, the hand's
-        position and velocity and the clock live in locals through the loop (written back
-        before the rare calls that read them: the feint's turn and the press test, and at the
-        end); the per-trial constants are read once, not every 2 ms step. This loop was about a
-        third of a cohort's CPU, most of it calls and attribute reads.
-        """
-        p, a = self.p, self.p.agent
-        nd, u, alpha, gamma, b, tanh, hypot = -a.d, a.u, a.alpha, a.gamma, self.b_h, math.tanh, (
-            math.hypot)
-        assert self.t_go is not None  # `advance` returns before "go"
-        t_move = self.t_go + p.reaction_s  # `_step`'s reaction test, the same sum
-        delay, seen, cue = p.perception_delay_s, self._robot_seen, self._cue
-        against = 1.0 / (1.0 + p.gaze_over_robot * self.trust)  # `_arm_seen`'s weight, off the cue
-        full, least, accel = p.full_conviction, p.min_conviction, p.accel
-        commit_y, below, obeys = self._commit_y, self._commit_below, self._obeys_commit
-        max_switches, centers, near = self._max_switches, self._centers, self._near
-        z, x, y, vx, vy, tt = self.z_h, self._x, self._y, self._vx, self._vy, self.t
-        end = t - 1e-12
-        while tt < end:
-            left = t - tt
-            h = left if left < dt else dt  # min(dt, left)
-            # `_arm_seen` at the step's start (the arm seen `perception_delay_s` late)
-            cutoff = tt - delay
-            while seen and seen[0][0] <= cutoff:
-                self._last_box = seen.popleft()[1]
-            box = self._last_box
-            if box is None:
-                r_hat = 0.0
-            else:
-                self._arm_box = box
-                first = self._first
-                if first is not None and box != first:
-                    self._opposed = True
-                weight = against if cue is not None and box != cue else 1.0
-                r_hat = weight if box == 0 else -weight
-            # eq 2, one RK4 step (`_step`'s arithmetic)
-            gr = gamma * r_hat
-            hh = 0.5 * h
-            k1 = nd * z + u * tanh(alpha * z + gr) + b
-            z2 = z + hh * k1
-            k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
-            z3 = z + hh * k2
-            k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
-            z4 = z + h * k3
-            k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
-            z = z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            start, tt = tt, tt + h
-            if start < t_move:  # `_step`'s reaction test (its self.t is the step's start)
-                continue
-            # `_move(h, 0 if z > 0 else 1, abs(z))`
-            wanted, lead = (0 if z > 0 else 1), abs(z)
-            heading = self._heading
-            committed = heading is not None and (
-                self._quick
-                or self.switches >= max_switches
-                or (obeys and (y < commit_y if below else y > commit_y))
-            )
-            if heading is None:
-                heading = self._heading = self._first = wanted
-            elif self._feint:
-                self._x, self._y = x, y  # what the turn reads
-                self._turn_at_the_line()
-                heading = self._heading
-                assert heading is not None
-            elif wanted != heading and not committed:
-                heading = self._heading = wanted
-                self.switches += 1
-            tx, ty = centers[heading]
-            dx, dy = tx - x, ty - y
-            dist = hypot(dx, dy)
-            if committed or self._feint:  # read after the turn, as `_move` reads it
-                conviction = 1.0
-            else:
-                conviction = lead / full
-                if not conviction > least:
-                    conviction = least
-                if not conviction < 1.0:
-                    conviction = 1.0
-            speed = p.speed * (p.late_switch_speed if self._quick else 1.0)
-            gain = speed * conviction / (1e-9 if dist < 1e-9 else dist)
-            ax, ay = dx * gain - vx, dy * gain - vy
-            dv = hypot(ax, ay)
-            max_dv = accel * h
-            if dv > max_dv:
-                ax, ay = ax * max_dv / dv, ay * max_dv / dv
-            vx, vy = vx + ax, vy + ay
-            x, y = x + vx * h, y + vy * h
-            for x1, x2, y1, y2 in near:
-                if x1 <= x <= x2 and y1 <= y <= y2:
-                    self._x, self._y = x, y  # what the press test reads
-                    self.pressed = self._press_test()
-                    break
-            if self.pressed is not None:  # at rest from here: the clock alone goes on
-                while tt < end:
-                    left = t - tt
-                    tt += left if left < dt else dt
-        self.z_h, self._x, self._y, self._vx, self._vy, self.t = z, x, y, vx, vy, tt
+        self._quick, self._feint = v[S_QUICK] != 0.0, v[S_FEINT] != 0.0
 
     def _step(self, h: float) -> None:
-        """One step of h on two boxes (the kernel): eq 2 on the scalar x, then the hand.
+        """One step of h on two boxes: eq 2 on the scalar x (`_arm_seen`), then the hand (`_move`).
 
-        Plain floats and locals throughout: this runs every 2 ms of simulated time, a third of
-        a cohort's work (NumPy's per-call cost dominated, then the calls and attribute reads).
+        The step as the model states it, one call a step: `advance` takes these steps fused
+        (`compiled.person_steps`), and tests/unit/test_loop_speed.py holds whole sessions of
+        the two to the same bits.
         """
         if self.pressed is not None:
             return
@@ -648,20 +555,9 @@ class Participant(Generic[Opt]):
         r_hat = 0.0 if box is None else weight if box == 0 else -weight  # r̂: > 0 toward red
 
         # One RK4 step (`rk4_step`) of eq 2 with the robot's perceived heading r̂ as z_r,
-        # a_hr = 1: `opinion_rate` written out, the same float operations in the same order (so
-        # the same values, tests/unit/test_loop_speed.py checks it), γ_h r̂ hoisted (r̂ is held).
-        nd, u, alpha, b, tanh = -a.d, a.u, a.alpha, self.b_h, math.tanh
-        gr = a.gamma * r_hat
-        z = self.z_h
-        hh = 0.5 * h
-        k1 = nd * z + u * tanh(alpha * z + gr) + b
-        z2 = z + hh * k1
-        k2 = nd * z2 + u * tanh(alpha * z2 + gr) + b
-        z3 = z + hh * k2
-        k3 = nd * z3 + u * tanh(alpha * z3 + gr) + b
-        z4 = z + h * k3
-        k4 = nd * z4 + u * tanh(alpha * z4 + gr) + b
-        z = self.z_h = z + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        # a_hr = 1: `opinion_rate` written out (`compiled.eq2_step`: the same float operations
+        # in the same order, tests/unit/test_loop_speed.py checks it), γ_h r̂ held.
+        z = self.z_h = eq2_step(self.z_h, h, -a.d, a.u, a.alpha, a.gamma * r_hat, self.b_h)
 
         if self.t_go is None or self.t < self.t_go + self.p.reaction_s:  # (set: `advance`)
             return
