@@ -31,6 +31,7 @@ from services.study.conditions import (
     randomised,
 )
 from services.study.studyfile import StudyError, dump, load, make_study, write
+from tests.refusals import refused_in_one_line
 
 TWO = PolicyConditions((("paper", "paper"), ("adaptive", "adaptive")))
 PAPER_FILE = 'kind = "paper"\n'  # a policy file: the paper's robot under another name
@@ -184,12 +185,7 @@ POLICIES = r'policies = \{ paper = "paper", adaptive = "adaptive" \}'
 )
 def test_broken_policy_conditions_are_one_line(tmp_path, old, new, policies, message):
     (tmp_path / "odd.toml").write_text('name = "no kind"\n')
-    path = _edited(tmp_path, old, new, policies)
-    with pytest.raises(StudyError) as exc:
-        load(path)
-    text = str(exc.value)
-    assert "\n" not in text and text.startswith(str(path)), text
-    assert re.search(message, text), text
+    refused_in_one_line(load, _edited(tmp_path, old, new, policies), StudyError, message)
 
 
 def test_conditions_need_the_papers_two_options(tmp_path):

@@ -16,6 +16,7 @@ from services.model.protocol import default_schedule
 from services.model.schedule import OptionsSchedule
 from services.study.studyfile import StudyError, dump, load, make_study, write
 from tests.protocols import TWO_TRIALS
+from tests.refusals import refused_in_one_line
 
 SHORT = TWO_TRIALS  # a control trial and a consensus one
 
@@ -117,12 +118,7 @@ def _edited(tmp_path: Path, old: str, new: str, count: int = 1) -> Path:
     ],
 )
 def test_a_broken_study_file_is_one_line_naming_the_entry(tmp_path, old, new, message):
-    path = _edited(tmp_path, old, new)
-    with pytest.raises(StudyError) as exc:
-        load(path)
-    text = str(exc.value)
-    assert "\n" not in text and text.startswith(str(path)), text
-    assert re.search(message, text), text
+    refused_in_one_line(load, _edited(tmp_path, old, new), StudyError, message)
 
 
 def test_a_missing_or_garbled_file_says_what_to_do(tmp_path):
