@@ -417,7 +417,8 @@ class Conductor:
             self._wait(math.inf)
 
     def _rig_ready(self, quiet: bool = False) -> bool:
-        return self.hold.ready(self._now_ns(), quiet)
+        down = [s for s in REQUIRED if not self.alive.get(s, False)]
+        return self.hold.ready(self._now_ns(), quiet, down)
 
     def _keep_gaze_alive(self) -> None:
         """Repeat the current gaze command every GAZE_KEEPALIVE_NS (rig clock) until closed."""
@@ -472,6 +473,11 @@ class Conductor:
                     self.presses.begin(spec.index)
                     self.trial_samples = None
                     self.rig.begin(spec.index, protocol.attempt)
+                    # A service lost since the rig was judged ready (its loss was heard before
+                    # `begin` cleared the last trial's stops) breaks this trial at once.
+                    for service in REQUIRED:
+                        if not self.alive.get(service, False):
+                            self.rig.lost(service, started)
                     self.cues.begin(spec.index, protocol.attempt)
                     self._seq_regressions = 0
                     self._trial_start_ns = started

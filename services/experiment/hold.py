@@ -8,7 +8,7 @@ per poll.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from services.experiment.rig_watch import RigWatch
@@ -25,11 +25,22 @@ class SessionHold:
     held: bool = False
     said_estop: bool = False  # the hold's line named an engaged e-stop
 
-    def ready(self, now_ns: int, quiet: bool = False) -> bool:
+    def ready(self, now_ns: int, quiet: bool = False, down: Sequence[str] = ()) -> bool:
         """Whether the rig is safe (and settled): said once when it holds, once when it goes on.
 
         `quiet`: a hold is expected now (the session's start); only an e-stop is said at once.
+        `down`: services the session needs that are not running (their liveliness is gone): no
+        trial starts without them. A decision service killed mid-trial is restarted within a
+        second or two, but the devices look safe again sooner (the arm's watchdog waits for
+        its stale bound); a trial repeated before it is back ran without it and timed out.
         """
+        if down:
+            if not self.held and not quiet:
+                why = f"{', '.join(down)} not running (restarting?)"
+                log.warning("session held: %s", why)
+                self.note(f"session held: {why}")
+                self.held = True
+            return False
         if self.rig.safe(now_ns):
             if self.held:
                 log.info("rig safe again: the session goes on")

@@ -245,7 +245,9 @@ def test_run_sim_survives_kill9_of_its_services_and_stores_all_trials(tmp_path: 
     finally:
         store.close()
     assert [t.trial for t in trials] == [1, 2, 3]
-    assert all(t.robot is not None for t in trials)
+    assert all(t.robot is not None for t in trials), [
+        (t.trial, t.robot, t.human, t.outcome, t.interrupted, t.attempts, t.end_reason)
+        for t in trials] + [out[-3000:]] + [err[-3000:]]
     kinds = {(e.service, e.kind) for e in events}
     assert {("decision", "restarting"), ("decision", "started"),
             ("actuation", "restarting"), ("actuation", "started")} <= kinds, events

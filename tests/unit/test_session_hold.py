@@ -44,3 +44,23 @@ def test_a_quiet_start_says_only_an_estop(caplog: pytest.LogCaptureFixture) -> N
         rig.estop(True, "bump", "lab", 1)
         assert not hold.ready(2, quiet=True)
         assert len(_held_lines(caplog)) == 1 and "e-stop engaged" in _held_lines(caplog)[0]
+
+
+def test_no_trial_starts_while_a_service_it_needs_is_down(caplog: pytest.LogCaptureFixture
+                                                           ) -> None:
+    # The devices safe and settled, but the decision service killed and not yet back: held,
+    # said once; back again, the session goes on.
+    clock = [0]
+    rig = RigWatch(monotonic=lambda: clock[0])
+    hold = SessionHold(rig)
+    for device in ("actuation", "eyes"):
+        rig.device_state(device, False, "", 0)
+    clock[0] = rig.settle_ns
+    for device in ("actuation", "eyes"):
+        rig.device_state(device, False, "", clock[0])
+    assert hold.ready(clock[0])
+    with caplog.at_level(logging.WARNING, logger="nod.experiment"):
+        assert not hold.ready(clock[0], down=["decision"])
+        assert not hold.ready(clock[0], down=["decision"])
+        assert _held_lines(caplog) == ["session held: decision not running (restarting?)"]
+    assert hold.ready(clock[0])
