@@ -100,8 +100,12 @@ class EngineSeam(ABC, Generic[E]):
         """Work the engine can do before the next pose arrives (by default none)."""
 
     def retune(self, engine: E, params: DecisionParams) -> None:
-        """Run the engine on a trial's parameters (a robot policy's b*, u_r): the paper's only."""
-        raise ValueError("a robot policy runs on the paper's two-option table only")
+        """Run the engine on a trial's parameters (a robot policy's b*, u_r): the paper's only.
+
+        Any other engine runs on the params file's alone: asked for those, nothing to do.
+        """
+        if params != self.params:
+            raise ValueError("a robot policy runs on the paper's two-option table only")
 
 
 class PaperSeam(EngineSeam[DecisionModel]):
@@ -196,7 +200,6 @@ class DecisionService(Generic[E]):
         """The engine of `cfg.decision` over the table of the options `names` (default config)."""
         cfg = cfg if cfg is not None else NodConfig()
         self.node = node
-        self.params = cfg.decision  # the trial's own when a robot policy sent it settings
         self.envelope = cfg.policy
         self.settings: dict[int, PolicySettings] = {}  # a robot policy's, by trial (recent)
         self.trial = 0  # the trial set up last
@@ -274,9 +277,8 @@ class DecisionService(Generic[E]):
     def _tune(self, trial: int) -> None:
         """The engine on trial `trial`'s parameters: its policy's settings, else the file's."""
         s = self.settings.get(trial)
-        params = self.params if s is None else decision_for(self.params, s)
-        if len(self.names) == 2:
-            self.seam.retune(self.model, params)
+        file = self.seam.params  # the params file's, which a trial without settings runs on
+        self.seam.retune(self.model, file if s is None else decision_for(file, s))
         if s is not None:
             log.debug("trial %d: b*=%g, u_r=%g (robot policy)", trial, s.b_star, s.u_r)
 

@@ -99,8 +99,8 @@ class PolicyLink:
     def played(self, record: TrialRecord, s: PolicySettings) -> None:
         """Tell the policy how a trial played on settings `s`."""
         mode: Mode = "consensus" if record.mode == "consensus" else "dissensus"
-        self.run.played(Played(record.trial, mode, s, record.outcome,
-                               record.option is not None and record.human == record.option))
+        self.run.played(Played.of(record.trial, mode, s, record.outcome, record.option,
+                                  record.human))
 
     def freeze(self, source: str) -> None:
         """The operator's freeze: the last settings hold from now on (confirmed on the key)."""

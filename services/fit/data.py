@@ -19,8 +19,8 @@ from pathlib import Path
 
 from services.analysis.sessions import InclusionRule, select_sessions
 from services.core.config import from_mapping
-from services.model.geometry import COLOURS, Colour, TableLayout
-from services.model.summaries import TrialPath, complete_trials
+from services.model.geometry import COLOURS, TableLayout
+from services.model.summaries import HandPath, TrialPath, complete_trials
 from services.store import Sample, Store, TrialRecord, unpack_landmarks
 from services.store.cohorts import refuse_unfinished
 from services.store.withdrawals import INCLUDE_FLAG, withdrawn_filter
@@ -41,10 +41,6 @@ class Person:
     layout: TableLayout
 
 
-def _colour(value: str | None) -> Colour | None:
-    return "red" if value == "red" else "blue" if value == "blue" else None
-
-
 def _centre(s: Sample) -> tuple[float, float] | None:
     """The hand centre of a sample: stored, or the mean of its landmarks."""
     if s.hand_x is not None and s.hand_y is not None:
@@ -58,18 +54,13 @@ def _centre(s: Sample) -> tuple[float, float] | None:
 def trial_path(rec: TrialRecord, samples: list[Sample]) -> TrialPath:
     """A stored trial as the summaries read it (times from its "go")."""
     t_go = rec.t_go_ns if rec.t_go_ns is not None else (samples[0].t_ns if samples else 0)
-    ts: list[float] = []
-    xs: list[float] = []
-    ys: list[float] = []
+    path = HandPath()
     for s in samples:
         c = _centre(s) if s.detected else None
-        if c is None or s.t_ns < t_go or (ts and (s.t_ns - t_go) / 1e9 <= ts[-1]):
-            continue
-        ts.append((s.t_ns - t_go) / 1e9)
-        xs.append(c[0])
-        ys.append(c[1])
-    return TrialPath(rec.trial, rec.mode, rec.yaw, _colour(rec.human), _colour(rec.robot),
-                     rec.switches, rec.interrupted, tuple(ts), tuple(xs), tuple(ys))
+        if c is not None:
+            path.add((s.t_ns - t_go) / 1e9, *c)
+    return path.trial(rec.trial, rec.mode, rec.yaw, rec.human, rec.robot, rec.switches,
+                      rec.interrupted)
 
 
 def _layout(config: str) -> TableLayout:

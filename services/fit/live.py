@@ -14,7 +14,7 @@ Why a service of its own, not a part of the conductor: the estimator's training 
 simulated people, eight boosted regressions) and each estimate take CPU and memory the
 conductor's safety and timing paths must never wait behind, and a lab may put it on another
 machine. The trial's path is built here as `nod fit` reads a stored trial (`services.fit.data.
-trial_path`): hand centres of detected poses after "go", in increasing time.
+trial_path`, one rule: `services.model.summaries.HandPath`).
 
 Until the estimator is ready (training at start, when not cached) finished trials wait in order
 and are estimated once it is; a trial it did not hear (the service started late, or restarted)
@@ -39,15 +39,11 @@ from services.core.config import load_with_options, params_hash
 from services.core.node import Node, setup_logging
 from services.core.session import Fabric
 from services.fit.estimator import ByLength, Estimates, estimate_after
-from services.model.geometry import Colour, TableLayout
-from services.model.summaries import TrialPath
+from services.model.geometry import TableLayout
+from services.model.summaries import HandPath, TrialPath
 
 log = logging.getLogger("nod.estimate")
 K_LIVE = 500  # the table `nod fit recovery --by-length` uses (cached: shared with it)
-
-
-def _colour(name: str | None) -> Colour | None:
-    return "red" if name == "red" else "blue" if name == "blue" else None
 
 
 @dataclass
@@ -57,9 +53,7 @@ class _Trial:
     t_go_ns: int | None = None
     ended: bool = False  # its "end" event: poses after it are not the trial's
     yaw: float = 0.0
-    t_s: list[float] = field(default_factory=list)
-    x: list[float] = field(default_factory=list)
-    y: list[float] = field(default_factory=list)
+    path: HandPath = field(default_factory=HandPath)
 
 
 class SessionPaths:
@@ -95,14 +89,7 @@ class SessionPaths:
         t = self.trials.get(self._current) if self._current is not None else None
         if t is None or t.t_go_ns is None or t.ended or not pose.detected or pose.center is None:
             return
-        if pose.t_ns < t.t_go_ns:
-            return
-        s = (pose.t_ns - t.t_go_ns) / 1e9
-        if t.t_s and s <= t.t_s[-1]:
-            return
-        t.t_s.append(s)
-        t.x.append(pose.center[0])
-        t.y.append(pose.center[1])
+        t.path.add((pose.t_ns - t.t_go_ns) / 1e9, *pose.center)
 
     def on_result(self, res: m.TrialResult) -> TrialPath | None:
         """A trial's result: its whole path (None: another session's, or a trial not heard)."""
@@ -111,8 +98,8 @@ class SessionPaths:
         t = self.trials.get(res.trial)
         if t is None:
             return None
-        path = TrialPath(res.trial, res.mode, t.yaw, _colour(res.human), _colour(res.robot),
-                         res.switches, res.interrupted, tuple(t.t_s), tuple(t.x), tuple(t.y))
+        path = t.path.trial(res.trial, res.mode, t.yaw, res.human, res.robot, res.switches,
+                            res.interrupted)
         self.paths[res.trial] = path
         return path
 

@@ -289,8 +289,8 @@ class _Loop(ABC, Generic[Opt]):
             )
         )
         if self.policy is not None and settings is not None:
-            self.policy.played(Played(spec.index, mode, settings, j.outcome,
-                                      option is not None and j.human == option))
+            self.policy.played(Played.of(spec.index, mode, settings, j.outcome, option,
+                                         j.human))
 
     def _idle(self) -> bool:
         """Whether nothing reads this frame's pose or the decision engine (`frame` skips both).

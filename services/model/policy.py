@@ -153,6 +153,12 @@ class Played:
         """The outcome as `OUTCOMES` names it."""
         return self.outcome if self.outcome in OUTCOMES else "none"
 
+    @classmethod
+    def of(cls, trial: int, mode: Mode, settings: PolicySettings, outcome: str | None,
+           option: object, human: object) -> Played:
+        """A judged trial: O and the person's press (`on_option`: they pressed O)."""
+        return cls(trial, mode, settings, outcome, option is not None and human == option)
+
 
 class Policy(Protocol):
     """Chooses a trial's settings from today's (`paper`) and the trials played so far."""

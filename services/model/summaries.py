@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -56,6 +56,38 @@ class TrialPath:
     t_s: tuple[float, ...]  # seconds since "go", detected frames only, increasing
     x: tuple[float, ...]
     y: tuple[float, ...]
+
+
+def colour_of(name: str | None) -> Colour | None:
+    """A stored or published press by name, as the summaries read it (not red or blue: none)."""
+    return "red" if name == "red" else "blue" if name == "blue" else None
+
+
+@dataclass
+class HandPath:
+    """A trial's hand path as it is read, frame by frame: what `TrialPath` keeps of it.
+
+    One rule for a stored trial (`services.fit.data.trial_path`) and a live one (`nod
+    estimate`): a detected centre from the trial's "go" on, each later than the last.
+    """
+
+    t_s: list[float] = field(default_factory=list)
+    x: list[float] = field(default_factory=list)
+    y: list[float] = field(default_factory=list)
+
+    def add(self, t_s: float, x: float, y: float) -> None:
+        """A detected hand centre `t_s` seconds after "go" (before it, or not later: skipped)."""
+        if t_s < 0 or (self.t_s and t_s <= self.t_s[-1]):
+            return
+        self.t_s.append(t_s)
+        self.x.append(x)
+        self.y.append(y)
+
+    def trial(self, trial: int, mode: str, yaw: float, human: str | None, robot: str | None,
+              switches: int, interrupted: bool) -> TrialPath:
+        """The trial's `TrialPath`, presses by name."""
+        return TrialPath(trial, mode, yaw, colour_of(human), colour_of(robot), switches,
+                         interrupted, tuple(self.t_s), tuple(self.x), tuple(self.y))
 
 
 def from_offline(trials: Sequence[OfflineTrial]) -> list[TrialPath]:
