@@ -84,8 +84,7 @@ def begin_cohort(
         prefix, first_seed, participants, samples, json.dumps(config, sort_keys=True),
         "running", time.time_ns(), None, "",
     )
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         store.db.execute(
             "INSERT INTO cohorts VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
             (record.prefix, record.first_seed, record.participants, int(record.samples),
@@ -97,8 +96,7 @@ def begin_cohort(
 def set_status(store: Store, cohort: CohortRecord, status: str, note: str = "") -> None:
     """Mark a cohort 'running' again, 'incomplete' (with why) or 'complete'."""
     finished = time.time_ns() if status == "complete" else None
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         store.db.execute(
             "UPDATE cohorts SET status = ?, note = ?, finished_ns = ? "
             "WHERE prefix = ? AND first_seed = ?",
@@ -142,8 +140,7 @@ def stored_sessions(store: Store, cohort: CohortRecord) -> dict[str, str]:
 
 def drop_session(store: Store, session: str) -> None:
     """Remove a session left half-stored (its trials and samples too), in one transaction."""
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         for table in ("samples", "trials", "option_sets", "sessions"):
             store.db.execute(f"DELETE FROM {table} WHERE session = ?", (session,))
 

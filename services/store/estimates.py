@@ -37,8 +37,7 @@ class TrialEstimate:
 
 def write_estimate(store: Store, session: str, est: TrialEstimate) -> None:
     """Store one estimate (a second one after the same trial replaces it), in one transaction."""
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         store.db.execute("DELETE FROM person_estimates WHERE session = ? AND trial = ?",
                          (session, est.trial))
         store.db.executemany(

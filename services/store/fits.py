@@ -43,8 +43,7 @@ class FitRecord:
 
 def write_fits(store: Store, records: Sequence[FitRecord]) -> None:
     """Store fits, replacing every earlier row of the participants they are for, atomically."""
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         for who in sorted({r.participant for r in records}):
             store.db.execute("DELETE FROM fits WHERE participant = ?", (who,))
         store.db.executemany(

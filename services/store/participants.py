@@ -65,8 +65,7 @@ def record_consent(
     store: Store, participant: str, consent: bool, t_ns: int, demographics: dict[str, str]
 ) -> None:
     """Store (or replace) a participant's consent and demographics."""
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         store.db.execute(
             "INSERT OR REPLACE INTO participants VALUES (?, ?, ?, ?)",
             (check_id(participant), int(consent), t_ns, json.dumps(demographics, sort_keys=True)),
@@ -104,8 +103,7 @@ def record_order(
     t_ns: int,
 ) -> None:
     """Store the O order a session runs, and why it is another session of its participant."""
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         store.db.execute(
             "INSERT OR REPLACE INTO session_orders VALUES (?, ?, ?, ?, ?)",
             (session, participant, json.dumps(list(options)), again, t_ns),

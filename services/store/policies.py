@@ -32,8 +32,7 @@ def write_policy(
     trials: dict[int, PolicySettings],
 ) -> None:
     """Store a session's policy and its settings per trial, in one transaction."""
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         store.db.execute("INSERT OR REPLACE INTO policy_sessions VALUES (?, ?, ?, ?)",
                          (session, policy, sha256, kind))
         store.db.executemany(

@@ -46,8 +46,7 @@ def write_provenance(store: Store, session: str, started_ns: int, prov: Provenan
     """Store a run's provenance as it starts (a row of that run written again is replaced)."""
     values = [getattr(prov, f) for f in FIELDS]
     values[FIELDS.index("hosts")] = json.dumps(prov.as_dict()["hosts"])
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         store.db.execute(
             f"INSERT OR REPLACE INTO provenance (session, started_ns, {', '.join(FIELDS)}) "
             f"VALUES ({', '.join('?' * (len(FIELDS) + 2))})",
@@ -69,8 +68,7 @@ def finish_provenance(
             digest = file_sha256(recording)
         except OSError as exc:
             problem = f"no digest of the recording {recording}: {exc.strerror or exc}"
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         store.db.execute(
             "UPDATE provenance SET hosts = ?, finished_ns = ?, recording_file = ?, "
             "recording_sha256 = ? WHERE session = ? AND started_ns = ?",

@@ -174,8 +174,7 @@ def record_withdrawal(
     store: Store, participant: str, t_ns: int, reason: str = "", by: str = ""
 ) -> Withdrawal:
     """Record a withdrawal (a second one keeps the first's time, reason and operator); the row."""
-    with store.db:
-        store.db.execute("BEGIN")
+    with store.transaction():
         store.db.execute(
             "INSERT OR IGNORE INTO withdrawals (participant, withdrawn_ns, reason, withdrawn_by) "
             "VALUES (?, ?, ?, ?)",
