@@ -10,7 +10,9 @@ as seen, the hand, the press test, a feint's turn) and the simulated arm's subst
 (`arm_steps`). Each is plain Python that Numba compiles as it is. The first two (and eq 2's
 RK4 step, `eq2_step`, which both call) are the only copy of their arithmetic: `DecisionModel`
 and `Participant` call them as Python (the rig, `NOD_NO_JIT=1`) and the offline loop calls them
-compiled. `arm_steps` is written once more, operation for operation `arm_kinematics`' loop.
+compiled. `arm_steps` is written once more, operation for operation `arm_kinematics`' loop,
+and so is the camera's noisy view of the hand (`camera_landmarks`, NumPy's expression
+element by element: one call a frame where NumPy took five, ~6 % of a session).
 The reference the tests hold them to is the model as stated: `opinion_rate` and `bias_rate`,
 `Participant._step` (one call a step), the arm's `_substep`.
 
@@ -503,6 +505,39 @@ ArmSteps = Callable[[float, float, int, Any, float, float, float], None]
 def arm_kernel() -> ArmSteps:
     """`arm_steps` compiled (once per process)."""
     return cast(ArmSteps, _kernel(arm_steps, py_hypot=py_hypot))
+
+
+# -- the camera's view of the hand -------------------------------------------------------------
+
+
+def camera_landmarks(hand: Any, x: float, y: float, z: Any, common: float, each: float,
+                     out: Any) -> None:
+    """The noisy landmarks `Participant.landmarks` makes, written into out (n × 2).
+
+    `z`: the frame's 2 + 2n standard normals (the common shift's x and y, then each landmark's),
+    as `landmarks` draws them. Its NumPy expression element by element, operation for
+    operation: (template + centre) + (0 + common × z) + (0 + each × z), then clipped to the
+    image as `clip` does it (the larger of the value and 0, unless it is not larger: +0.0;
+    then the smaller of that and 1). Only ever compiled: as Python, the NumPy expression is
+    quicker and is the reference tests/unit/test_loop_speed.py holds this to.
+    """
+    cx = 0.0 + common * z[0]
+    cy = 0.0 + common * z[1]
+    for i in range(hand.shape[0]):
+        vx = hand[i, 0] + x + cx + (0.0 + each * z[2 + 2 * i])
+        vy = hand[i, 1] + y + cy + (0.0 + each * z[3 + 2 * i])
+        vx = vx if vx > 0.0 else 0.0
+        vy = vy if vy > 0.0 else 0.0
+        out[i, 0] = vx if vx < 1.0 else 1.0
+        out[i, 1] = vy if vy < 1.0 else 1.0
+
+
+Camera = Callable[[Any, float, float, Any, float, float, Any], None]
+
+
+def camera_kernel() -> Camera:
+    """`camera_landmarks` compiled (once per process)."""
+    return cast(Camera, _kernel(camera_landmarks))
 
 
 def hypot_kernel() -> Callable[[float, float], float]:

@@ -57,7 +57,9 @@ from services.model.compiled import (
     S_SIZE,
     S_T,
     SEEN,
+    Camera,
     PersonSteps,
+    camera_kernel,
     eq2_step,
     person_kernel,
     person_steps,
@@ -304,14 +306,20 @@ class Participant(Generic[Opt]):
         # of them may change) and the state vector: lists as Python, arrays compiled.
         self._steps: PersonSteps = person_steps
         self._compiled = False
+        # The camera's noisy landmarks as one compiled call (`compiled.camera_landmarks`), or
+        # None: NumPy's expression (the rig; the reference).
+        self._camera: Camera | None = None
         self._consts: np.ndarray | list[float] | None = None
         self._state: np.ndarray | list[float] = [0.0] * S_SIZE
 
     def use_compiled(self) -> None:
         """Step two boxes with the compiled loop (`compiled.person_steps`), the same values.
 
-        The offline loop's choice (`closed_loop`); N_o ≥ 3 boxes keep the Python steps.
+        The offline loop's choice (`closed_loop`); N_o ≥ 3 boxes keep the Python steps. The
+        camera's landmarks are compiled on any table (`compiled.camera_landmarks`).
         """
+        if compiled_enabled():
+            self._camera = camera_kernel()
         if not self.general and compiled_enabled():
             self._steps = person_kernel()
             self._compiled = True
@@ -701,6 +709,12 @@ class Participant(Generic[Opt]):
 
     def landmarks(self, noise: bool = True) -> np.ndarray:
         """21 landmarks (x, y) around the hand centre, with camera noise when asked."""
+        camera = self._camera
+        if noise and camera is not None:  # the same draws and values, one call (`use_compiled`)
+            pts = np.empty_like(self._hand)
+            camera(self._hand, self._x, self._y, self.rng.standard_normal(self._hand.size + 2),
+                   self.p.common_noise, self.p.landmark_noise, pts)
+            return pts
         pts = self._hand + (self._x, self._y)  # a new array: updated in place below
         if noise:
             rng = self.rng

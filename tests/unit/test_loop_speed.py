@@ -385,3 +385,24 @@ def test_an_unseen_frame_draws_what_landmarks_draw(seed, common, each, frames):
         unseen.unseen()
     assert seen.rng.bit_generator.state == unseen.rng.bit_generator.state
     assert bits(*seen.landmarks().ravel()) == bits(*unseen.landmarks().ravel())
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**31),
+       x=st.one_of(st.floats(-0.3, 1.3), st.sampled_from([0.0, -0.0, 1.0])),
+       y=st.one_of(st.floats(-0.3, 1.3), st.sampled_from([0.0, -0.0, 1.0])),
+       common=st.sampled_from([0.0, 0.003, 0.05, 0.5]),
+       each=st.sampled_from([0.0, 0.001, 0.2]))
+def test_the_compiled_camera_is_numpys_landmarks_bit_for_bit(seed, x, y, common, each):
+    """`compiled.camera_landmarks` gives `Participant.landmarks`' NumPy values to the bit (a
+    zero's sign included, hands at and past the image's edges, where the clip decides) from the
+    same draws, leaving the random stream where NumPy leaves it."""
+    params = ParticipantParams(common_noise=common, landmark_noise=each)
+    plain, fast = (Participant(params, LAYOUT, seed=seed) for _ in range(2))
+    fast.use_compiled()
+    assert fast._camera is not None  # noqa: SLF001 - the compiled camera is what is tested
+    for person in (plain, fast):
+        person._x, person._y = x, y  # noqa: SLF001 - a hand anywhere, the edges included
+    for _ in range(3):
+        assert bits(*fast.landmarks().ravel()) == bits(*plain.landmarks().ravel())
+    assert fast.rng.bit_generator.state == plain.rng.bit_generator.state
