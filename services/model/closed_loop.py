@@ -29,6 +29,8 @@ from typing import Any, Generic, NamedTuple, Protocol, TypeVar, overload
 import numpy as np
 
 from services.model.arm import OptionsSimArm, SimArm
+from services.model.compiled import VIEW_ROWS, PoseView, view_kernel
+from services.model.compiled import enabled as compiled_enabled
 from services.model.decision import DecisionModel, OptionsDecision, PoseEngine
 from services.model.gaze import GazeCommand
 from services.model.geometry import Box, Colour, Point, colour_sign
@@ -109,6 +111,25 @@ def centre(pts: np.ndarray) -> Point:
 _SUM = np.add.reduce
 
 
+def view_of(pts: np.ndarray, bounds: Sequence[tuple[float, float, float, float]]
+            ) -> tuple[float, float, bool]:
+    """(centre x, centre y, reach): the landmarks' mean and whether they can be in a box.
+
+    The mean is `centre`'s; reach, whether their bounding box meets any box of `bounds` (x1, x2,
+    y1, y2 each: `box_bounds`). Judge and robot test every landmark against every box (the
+    layout's `pressed`) and change nothing when none is in one; a hand whose bounding box meets
+    no box cannot press, so neither test needs to run. `compiled.pose_view` is this compiled
+    (the offline loop's).
+    """
+    cx, cy = centre(pts)
+    xs, ys = pts.T.tolist()
+    x_lo, x_hi, y_lo, y_hi = min(xs), max(xs), min(ys), max(ys)
+    reach = any(
+        x_lo <= x2 and x1 <= x_hi and y_lo <= y2 and y1 <= y_hi for x1, x2, y1, y2 in bounds
+    )
+    return cx, cy, reach
+
+
 def box_bounds(boxes: Sequence[Box]) -> list[tuple[float, float, float, float]]:
     """(x1, x2, y1, y2) of each box: a pose whose landmarks all lie outside presses none."""
     return [(b.x1, b.x2, b.y1, b.y2) for b in boxes]
@@ -162,6 +183,9 @@ class _Loop(ABC, Generic[Opt]):
         self.robot: TrialReactor[Any, Any, Opt, Any] = robot
         self.arm: _Arm[Opt] = arm
         self._boxes = box_bounds(boxes)
+        self._bounds = np.array(self._boxes, dtype=np.float64)  # the same, for `compiled.pose_view`
+        # The landmarks' centre and box pre-test compiled (`view_of` as machine code), or None.
+        self._view: PoseView | None = view_kernel() if compiled_enabled() else None
         self.arm.connect()
         self.policy = policy
         self._settings: dict[int, PolicySettings] = {}  # the policy's, per trial index
@@ -318,18 +342,13 @@ class _Loop(ABC, Generic[Opt]):
         landmarks: list[Point] = list(map(tuple, pts.tolist()))  # the same floats, 10× quicker
         out = self.model.on_hand(int(round(t * 1e9)), landmarks)
         judge = self.judge
-        center: Point | None = None  # the landmarks' mean, computed once when needed
-        # Whether a landmark can be in a box: judge and robot test every landmark against every
-        # box (the layout's `pressed`) and change nothing when none is; a hand whose bounding
-        # box meets no box cannot press, so neither test needs to run.
-        xs, ys = pts.T.tolist()
-        x_lo, x_hi, y_lo, y_hi = min(xs), max(xs), min(ys), max(ys)
-        reach = any(
-            x_lo <= x2 and x1 <= x_hi and y_lo <= y2 and y1 <= y_hi
-            for x1, x2, y1, y2 in self._boxes
-        )
+        view = self._view
+        if view is not None and VIEW_ROWS[0] <= len(pts) <= VIEW_ROWS[1]:
+            cx, cy, reach = view(pts, self._bounds)
+        else:
+            cx, cy, reach = view_of(pts, self._boxes)
+        center = (cx, cy)
         if judge is not None and judge.human is None:
-            center = centre(pts)
             judge.observe(out.z_hat, center, t)
             if reach:
                 judge.see_hand(landmarks, t)
@@ -337,7 +356,6 @@ class _Loop(ABC, Generic[Opt]):
             self.robot.see_hand(landmarks)
         ee_x, ee_y = self._actuate(t, out.z_r)
         if self.record and judge is not None:
-            cx, cy = center or centre(pts)
             z_h, z_r, b_r, theta, distance = self._opinions(out)
             self.samples.append(
                 LoopSample(round(t * 1e9), cx, cy, z_h, z_r, b_r, ee_x, ee_y, theta, distance)

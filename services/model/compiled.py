@@ -11,8 +11,10 @@ as seen, the hand, the press test, a feint's turn) and the simulated arm's subst
 RK4 step, `eq2_step`, which both call) are the only copy of their arithmetic: `DecisionModel`
 and `Participant` call them as Python (the rig, `NOD_NO_JIT=1`) and the offline loop calls them
 compiled. `arm_steps` is written once more, operation for operation `arm_kinematics`' loop,
-and so is the camera's noisy view of the hand (`camera_landmarks`, NumPy's expression
-element by element: one call a frame where NumPy took five, ~6 % of a session).
+and so are the camera's noisy view of the hand (`camera_landmarks`, NumPy's expression
+element by element) and what the frame reads of it (`pose_view`: the landmarks' mean by
+NumPy's pairwise summation, and the press pre-test): one call each a frame where Python
+made five, together a fifth of a session.
 The reference the tests hold them to is the model as stated: `opinion_rate` and `bias_rate`,
 `Participant._step` (one call a step), the arm's `_substep`.
 
@@ -533,6 +535,75 @@ def camera_landmarks(hand: Any, x: float, y: float, z: Any, common: float, each:
 
 
 Camera = Callable[[Any, float, float, Any, float, float, Any], None]
+
+
+def column_sum(pts: Any, k: int) -> float:
+    """NumPy's `add.reduce(pts[:, k])` for 8 to 128 rows: its pairwise summation, in its order.
+
+    Eight running sums over the rows in blocks of eight, added as ((0+1)+(2+3))+((4+5)+(6+7)),
+    then the rows past the last whole block one by one (NumPy's `pairwise_sum` below its block
+    size of 128; fewer than 8 rows it sums otherwise, so `pose_view` is not used there).
+    """
+    n = pts.shape[0]
+    r0, r1, r2, r3 = pts[0, k], pts[1, k], pts[2, k], pts[3, k]
+    r4, r5, r6, r7 = pts[4, k], pts[5, k], pts[6, k], pts[7, k]
+    i = 8
+    whole = n - n % 8
+    while i < whole:
+        r0 += pts[i, k]
+        r1 += pts[i + 1, k]
+        r2 += pts[i + 2, k]
+        r3 += pts[i + 3, k]
+        r4 += pts[i + 4, k]
+        r5 += pts[i + 5, k]
+        r6 += pts[i + 6, k]
+        r7 += pts[i + 7, k]
+        i += 8
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        total += pts[i, k]
+        i += 1
+    return total
+
+
+VIEW_ROWS = (8, 128)  # the landmark counts `pose_view` sums as NumPy does
+
+
+def pose_view(pts: Any, bounds: Any) -> tuple[float, float, bool]:
+    """(centre x, centre y, reach) of landmarks: the offline loop's `centre` and its box pre-test.
+
+    The centre is `closed_loop.centre`'s (NumPy's mean: `column_sum` / n); reach, whether the
+    landmarks' bounding box meets any box (rows of `bounds`: x1, x2, y1, y2), as the frame tests
+    it. One compiled call where Python made five; held to `closed_loop.pose_view` bit for bit.
+    """
+    n = pts.shape[0]
+    x_lo = x_hi = pts[0, 0]
+    y_lo = y_hi = pts[0, 1]
+    for i in range(1, n):
+        x, y = pts[i, 0], pts[i, 1]
+        if x < x_lo:
+            x_lo = x
+        if x > x_hi:
+            x_hi = x
+        if y < y_lo:
+            y_lo = y
+        if y > y_hi:
+            y_hi = y
+    reach = False
+    for b in range(bounds.shape[0]):
+        if (x_lo <= bounds[b, 1] and bounds[b, 0] <= x_hi and y_lo <= bounds[b, 3]
+                and bounds[b, 2] <= y_hi):
+            reach = True
+            break
+    return column_sum(pts, 0) / n, column_sum(pts, 1) / n, reach
+
+
+PoseView = Callable[[Any, Any], tuple[float, float, bool]]
+
+
+def view_kernel() -> PoseView:
+    """`pose_view` compiled (once per process)."""
+    return cast(PoseView, _kernel(pose_view, column_sum=column_sum))
 
 
 def camera_kernel() -> Camera:

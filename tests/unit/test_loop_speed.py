@@ -23,8 +23,8 @@ from services.model.arm import SimArm
 from services.model.arm_kinematics import PointArm
 from services.model.behaviour import ArmCommand
 from services.model.bias import bias_active, bias_rate
-from services.model.closed_loop import centre, run_offline_session
-from services.model.compiled import hypot_kernel, py_hypot, rk4_pair
+from services.model.closed_loop import centre, run_offline_session, view_of
+from services.model.compiled import hypot_kernel, py_hypot, rk4_pair, view_kernel
 from services.model.decision import DecisionModel, DecisionParams, OptionsDecision
 from services.model.dynamics import opinion_rate, rk4_step
 from services.model.geometry import TableLayout
@@ -406,3 +406,32 @@ def test_the_compiled_camera_is_numpys_landmarks_bit_for_bit(seed, x, y, common,
     for _ in range(3):
         assert bits(*fast.landmarks().ravel()) == bits(*plain.landmarks().ravel())
     assert fast.rng.bit_generator.state == plain.rng.bit_generator.state
+
+
+@settings(max_examples=400, deadline=None)
+@given(rows=st.integers(8, 128), seed=st.integers(0, 2**31),
+       scale=st.sampled_from([1e-3, 0.3, 1.0, 1e3]), offset=st.floats(-2.0, 2.0),
+       bounds=st.lists(st.tuples(*[st.floats(-1.0, 2.0)] * 4), min_size=0, max_size=5))
+def test_the_compiled_pose_view_is_the_loops_bit_for_bit(rows, seed, scale, offset, bounds):
+    """`compiled.pose_view` (the offline loop's landmarks' centre and box pre-test) gives
+    `view_of`'s values: NumPy's pairwise mean to the bit for any count it is used at (8-128,
+    every remainder of the blocks of eight), and the same reach for boxes anywhere."""
+    pts = offset + scale * np.random.default_rng(seed).standard_normal((rows, 2))
+    boxes = [(x1, x2, y1, y2) for x1, x2, y1, y2 in bounds]
+    array = np.array(boxes, dtype=np.float64).reshape(len(boxes), 4)
+    cx, cy, reach = view_kernel()(pts, array)
+    px, py, preach = view_of(pts, boxes)
+    assert bits(cx, cy) == bits(px, py) and reach == preach
+    assert (cx, cy) == centre(pts)
+
+
+def test_the_pose_view_reaches_exactly_the_boxes_a_landmark_can_be_in():
+    """On the paper's table: the hand at a box's edge reaches it, a hair outside does not."""
+    red = LAYOUT.red
+    bounds = [(red.x1, red.x2, red.y1, red.y2)]
+    array = np.array(bounds)
+    at_edge = np.full((21, 2), (red.x2, (red.y1 + red.y2) / 2))
+    outside = at_edge + (1e-12, 0.0)
+    for pts, expected in ((at_edge, True), (outside, False)):
+        assert view_kernel()(pts, array)[2] is expected
+        assert view_of(pts, bounds)[2] is expected
