@@ -283,6 +283,21 @@ class DecisionModel(PoseEngine[float, Colour, DecisionOutput]):
             self._beta = beta_for(option, self._params.bias)
         else:
             self._sigma = self._beta = 0.0
+        self._hoist()
+
+    def _hoist(self) -> None:
+        """Make `rk4_pair`'s arguments that hold through a trial once, not twice a camera frame.
+
+        −d, u, α; γ a_rh, which ẑ_h multiplies (in that order, as eq 1 does); the mode, σ, β, b*
+        and b_max. Made anew whenever one of them may change (`reset`, `retune`).
+        """
+        robot, pair = self._params.pair.robot, self._params.pair
+        self._kernel_args = (
+            (float(-robot.d), float(robot.u), float(robot.alpha)),
+            robot.gamma * pair.a_rh,
+            (self._mode == "consensus", float(self._sigma), float(self._beta),
+             float(self._b_star), float(self._params.bias.b_max)),
+        )
 
     def retune(self, params: DecisionParams) -> None:
         """Use `params` from the next `reset` on (a policy's b* and u_r for a trial).
@@ -295,6 +310,7 @@ class DecisionModel(PoseEngine[float, Colour, DecisionOutput]):
         self._dt_ns = max(1, round(params.dt * 1e9))
         self._max_gap_ns = max(1, round(params.max_gap_s * 1e9))
         self._b_star = params.bias.threshold(params.pair.robot.u)
+        self._hoist()
 
     def use_compiled(self) -> None:
         """Take `_run`'s steps with the compiled kernel (`services.model.compiled`).
@@ -378,13 +394,8 @@ class DecisionModel(PoseEngine[float, Colour, DecisionOutput]):
         constant parts hoisted): as Python here and on the rig, compiled after `use_compiled`.
         With a `path`, one step a call (the state after each is kept) until a fixed point.
         """
-        robot = self._params.pair.robot
-        args = (
-            float(-robot.d), float(robot.u), float(robot.alpha),
-            float(robot.gamma * self._params.pair.a_rh * z_hat), self._mode == "consensus",
-            float(self._sigma), float(self._beta), float(self._b_star),
-            float(self._params.bias.b_max),
-        )
+        held, gain, trial = self._kernel_args
+        args = (*held, float(gain * z_hat), *trial)
         if path is None:
             steps = self._pair if self._pair is not None else rk4_pair
             z_r, b_r, _ = steps(z_r, b_r, z_hat, n, h, *args)
