@@ -25,7 +25,7 @@ import numpy as np
 
 from services.fit.estimator import ByLength, Estimates, QuantileEstimator
 from services.fit.prior import DERIVED, SHARE_OF, person_params
-from services.fit.prior_check import PriorCheck
+from services.fit.prior_check import PriorCheck, summary_columns
 from services.fit.simulate import (
     Mapper,
     Population,
@@ -67,7 +67,7 @@ def prepare(pop: Population, k: int, run: Mapper, cache: Path | None, seed: int 
         if cache is not None else None)
     held = estimator.held_out
     learnt = np.setdiff1d(np.arange(len(table.summaries)), held)
-    check = PriorCheck.train(table.summaries[learnt], table.summaries[held])
+    check = PriorCheck.train(table.summaries[learnt], table.summaries[held], summary_columns())
     return Prepared(table, estimator, cached, trained, estimator.predict(table.summaries[held]),
                     check)
 
