@@ -574,7 +574,7 @@ def pose_view(pts: Any, bounds: Any) -> tuple[float, float, bool]:
 
     The centre is `closed_loop.centre`'s (NumPy's mean: `column_sum` / n); reach, whether the
     landmarks' bounding box meets any box (rows of `bounds`: x1, x2, y1, y2), as the frame tests
-    it. One compiled call where Python made five; held to `closed_loop.pose_view` bit for bit.
+    it. One compiled call where Python made five; held to `closed_loop.view_of` bit for bit.
     """
     n = pts.shape[0]
     x_lo = x_hi = pts[0, 0]

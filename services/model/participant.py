@@ -318,9 +318,10 @@ class Participant(Generic[Opt]):
         The offline loop's choice (`closed_loop`); N_o ≥ 3 boxes keep the Python steps. The
         camera's landmarks are compiled on any table (`compiled.camera_landmarks`).
         """
-        if compiled_enabled():
-            self._camera = camera_kernel()
-        if not self.general and compiled_enabled():
+        if not compiled_enabled():
+            return
+        self._camera = camera_kernel()
+        if not self.general:
             self._steps = person_kernel()
             self._compiled = True
             self._consts = None

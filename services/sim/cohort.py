@@ -123,30 +123,24 @@ def store_session(
     """
     session = f"{prefix}-{job.seed}"
     base = (job.index + 1) * SESSION_SPACING_NS
+    config = job.cfg.summary() if config is None else config
     with store.transaction():
-        _store_session(store, job, trials, session, base, policy,
-                       job.cfg.summary() if config is None else config)
-
-
-def _store_session(
-    store: Store, job: Job, trials: list[OfflineTrial], session: str, base: int,
-    policy: PolicyFile | None, config: dict,
-) -> None:
-    store.begin_session(session, f"P{job.index + 1:03d}", "offline", job.seed, base, config)
-    for t in trials:
-        spec = job.cfg.protocol.trials[t.trial - 1]
-        spec = spec if t.settings is None else spec_for(spec, t.settings)  # the gaze played
-        shift = base + t.trial * 60 * 10**9  # the trial's go, on the session's clock
-        # Each as the store's Sample (`sample_row`): detected, on the session's clock, no
-        # landmarks.
-        rows = [(s[0] + base, True, *s[1:], None) for s in t.samples]
-        t_go = rows[0][0] if rows else shift
-        record = offline_record(t, spec, t_go)
-        store.write_trial_rows(session, record, rows)
-    if policy is not None:
-        write_policy(store, session, policy.name, policy.sha256, person_kind(job.cfg, job.seed),
-                     {t.trial: t.settings for t in trials if t.settings is not None})
-    store.finish_session(session, base + 59 * 60 * 10**9, "complete")
+        store.begin_session(session, f"P{job.index + 1:03d}", "offline", job.seed, base, config)
+        for t in trials:
+            spec = job.cfg.protocol.trials[t.trial - 1]
+            spec = spec if t.settings is None else spec_for(spec, t.settings)  # the gaze played
+            shift = base + t.trial * 60 * 10**9  # the trial's go, on the session's clock
+            # Each as the store's Sample (`sample_row`): detected, on the session's clock, no
+            # landmarks.
+            rows = [(s[0] + base, True, *s[1:], None) for s in t.samples]
+            t_go = rows[0][0] if rows else shift
+            record = offline_record(t, spec, t_go)
+            store.write_trial_rows(session, record, rows)
+        if policy is not None:
+            write_policy(store, session, policy.name, policy.sha256,
+                         person_kind(job.cfg, job.seed),
+                         {t.trial: t.settings for t in trials if t.settings is not None})
+        store.finish_session(session, base + 59 * 60 * 10**9, "complete")
 
 
 class CohortStoppedError(RuntimeError):
